@@ -1,0 +1,352 @@
+/**
+ * SECTION:element-stitchblend
+ * @title: stitchblend
+ *
+ * Turns a calibrated bundle into one panorama frame: it warps each view onto the canvas by
+ * its homography and fuses the views with the paper's position-weighted mean (eq. 15-16):
+ * each view's weight falls linearly to zero at its own border, so seams fade across the
+ * whole overlap. The output is plain `video/x-raw, format=RGBA` that any element accepts.
+ * The output size follows the calibration's canvas; `output-width`/`output-height` scale it
+ * and `crop=auto` keeps only the largest rectangle that every camera pixel covers (no black
+ * corners). A view that stitchsync marks missing is left out and its neighbours fill in.
+ * When the geometry changes (recalibration), the output caps follow.
+ *
+ * ## Example launch lines
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend crop=auto ! videoconvert ! \
+ *   x264enc ! mp4mux ! filesink location=pano.mp4 \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend output-width=1280 ! \
+ *   videoconvert ! autovideosink \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ */
+#include "gststitchblend.h"
+
+#include <gst/video/video.h>
+
+#include "gststitchbundle.h"
+#include "stitch/blend/compositor.hpp"
+
+GST_DEBUG_CATEGORY_STATIC(gst_stitch_blend_debug);
+#define GST_CAT_DEFAULT gst_stitch_blend_debug
+
+enum { PROP_0, PROP_OUTPUT_WIDTH, PROP_OUTPUT_HEIGHT, PROP_CROP, PROP_BACKEND };
+
+#define DEFAULT_CROP stitch::CropMode::None
+
+struct BlendState {
+  /* settings (object lock) */
+  stitch::CompositorSettings settings;
+  bool settings_changed = true;
+  /* state (streaming thread) */
+  std::unique_ptr<stitch::Compositor> compositor;
+  guint64 rig_version = G_MAXUINT64;
+  GstVideoInfo out_info;
+  GstBufferPool* pool = nullptr;
+  void clear() {
+    compositor.reset();
+    rig_version = G_MAXUINT64;
+    if (pool) {
+      gst_buffer_pool_set_active(pool, FALSE);
+      gst_object_unref(pool);
+      pool = nullptr;
+    }
+  }
+};
+
+struct _GstStitchBlend {
+  GstBaseTransform parent;
+  BlendState* state;
+};
+
+G_DEFINE_TYPE(GstStitchBlend, gst_stitch_blend, GST_TYPE_BASE_TRANSFORM);
+GST_ELEMENT_REGISTER_DEFINE(stitchblend, "stitchblend", GST_RANK_NONE, GST_TYPE_STITCH_BLEND);
+
+static GType crop_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::CropMode::None), "Whole canvas (uncovered corners are black)", "none"},
+      {int(stitch::CropMode::Auto), "Largest rectangle covered by the cameras", "auto"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchBlendCrop", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GstStaticPadTemplate sink_template =
+    GST_STATIC_PAD_TEMPLATE("sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
+    "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(GST_VIDEO_CAPS_MAKE("RGBA")));
+
+static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadDirection direction,
+                                                GstCaps* caps, GstCaps* filter) {
+  (void)trans;
+  GstCaps* out = gst_caps_new_empty();
+  for (guint i = 0; i < gst_caps_get_size(caps); ++i) {
+    GstStructure* s = gst_structure_copy(gst_caps_get_structure(caps, i));
+    gst_structure_set(s, "width", GST_TYPE_INT_RANGE, 1, 32767, "height", GST_TYPE_INT_RANGE, 1,
+                      32767, NULL);
+    if (direction == GST_PAD_SINK) {
+      gst_structure_remove_fields(s, "multiview-mode", "views", "multiview-flags", NULL);
+    } else {
+      gst_structure_set(s, "multiview-mode", G_TYPE_STRING, "separated", "views",
+                        GST_TYPE_INT_RANGE, 2, STITCH_MAX_VIEWS, NULL);
+      gst_structure_remove_fields(s, "pixel-aspect-ratio", NULL);
+    }
+    gst_caps_append_structure(out, s);
+  }
+  if (filter) {
+    GstCaps* tmp = gst_caps_intersect_full(filter, out, GST_CAPS_INTERSECT_FIRST);
+    gst_caps_unref(out);
+    out = tmp;
+  }
+  return out;
+}
+
+static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDirection direction,
+                                             GstCaps* caps, GstCaps* othercaps) {
+  GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  othercaps = gst_caps_truncate(gst_caps_make_writable(othercaps));
+  if (direction == GST_PAD_SINK) {
+    GstStructure* out = gst_caps_get_structure(othercaps, 0);
+    gint w = 0, h = 0;
+    if (self->state->compositor && self->state->compositor->prepared()) {
+      /* renegotiation: keep the geometry we already output */
+      w = self->state->compositor->geometry().width;
+      h = self->state->compositor->geometry().height;
+    } else {
+      /* provisional until the first calibrated bundle arrives */
+      const GstStructure* in = gst_caps_get_structure(caps, 0);
+      gint vw = 0, vh = 0, views = 2;
+      gst_structure_get_int(in, "width", &vw);
+      gst_structure_get_int(in, "height", &vh);
+      gst_structure_get_int(in, "views", &views);
+      GST_OBJECT_LOCK(self);
+      w = self->state->settings.output_width > 0 ? self->state->settings.output_width : vw * views;
+      h = self->state->settings.output_height > 0 ? self->state->settings.output_height : vh;
+      GST_OBJECT_UNLOCK(self);
+    }
+    gst_structure_fixate_field_nearest_int(out, "width", MAX(w, 2));
+    gst_structure_fixate_field_nearest_int(out, "height", MAX(h, 2));
+    gst_structure_set(out, "pixel-aspect-ratio", GST_TYPE_FRACTION, 1, 1, NULL);
+  }
+  return gst_caps_fixate(othercaps);
+}
+
+static gboolean gst_stitch_blend_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps* outcaps) {
+  GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  if (stitch_bundle_caps_views(incaps) < 2) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("stitchblend needs a bundle of at least 2 views"),
+                      ("caps %" GST_PTR_FORMAT, incaps));
+    return FALSE;
+  }
+  return gst_video_info_from_caps(&self->state->out_info, outcaps);
+}
+
+/* Rebuilds the compositor when the rig or the settings changed; renegotiates the output. */
+static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta) {
+  BlendState* st = self->state;
+  GST_OBJECT_LOCK(self);
+  const bool settings_changed = st->settings_changed;
+  const stitch::CompositorSettings settings = st->settings;
+  st->settings_changed = false;
+  GST_OBJECT_UNLOCK(self);
+  if (st->compositor && meta->version == st->rig_version && !settings_changed) return TRUE;
+
+  auto compositor = std::make_unique<stitch::Compositor>(settings.backend);
+  compositor->prepare(**meta->rig, settings);
+  const stitch::OutputGeometry& g = compositor->geometry();
+  st->compositor = std::move(compositor);
+  st->rig_version = meta->version;
+  if (g.width != GST_VIDEO_INFO_WIDTH(&st->out_info) || g.height != GST_VIDEO_INFO_HEIGHT(&st->out_info)) {
+    GstVideoInfo info = st->out_info;
+    gst_video_info_set_format(&info, GST_VIDEO_FORMAT_RGBA, g.width, g.height);
+    info.fps_n = st->out_info.fps_n;
+    info.fps_d = st->out_info.fps_d;
+    GstCaps* caps = gst_video_info_to_caps(&info);
+    GST_INFO_OBJECT(self, "panorama is %dx%d", g.width, g.height);
+    const gboolean ok = gst_base_transform_update_src_caps(GST_BASE_TRANSFORM(self), caps);
+    gst_caps_unref(caps);
+    if (!ok) {
+      GST_ELEMENT_ERROR(self, CORE, NEGOTIATION,
+                        ("Downstream refused the %dx%d panorama (add videoscale/videoconvert, or "
+                         "set output-width/output-height)", g.width, g.height),
+                        (NULL));
+      return FALSE;
+    }
+    st->out_info = info;
+  }
+  if (!st->pool || GST_VIDEO_INFO_SIZE(&st->out_info) != 0) {
+    if (st->pool) {
+      gst_buffer_pool_set_active(st->pool, FALSE);
+      gst_object_unref(st->pool);
+    }
+    st->pool = gst_video_buffer_pool_new();
+    GstStructure* config = gst_buffer_pool_get_config(st->pool);
+    GstCaps* caps = gst_video_info_to_caps(&st->out_info);
+    gst_buffer_pool_config_set_params(config, caps, guint(GST_VIDEO_INFO_SIZE(&st->out_info)), 2, 0);
+    gst_buffer_pool_config_add_option(config, GST_BUFFER_POOL_OPTION_VIDEO_META);
+    gst_caps_unref(caps);
+    if (!gst_buffer_pool_set_config(st->pool, config) || !gst_buffer_pool_set_active(st->pool, TRUE)) {
+      GST_ELEMENT_ERROR(self, RESOURCE, NO_SPACE_LEFT, ("Cannot allocate panorama buffers"), (NULL));
+      return FALSE;
+    }
+  }
+  return TRUE;
+}
+
+static GstFlowReturn gst_stitch_blend_prepare_output_buffer(GstBaseTransform* trans,
+                                                            GstBuffer* input, GstBuffer** outbuf) {
+  GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  GstStitchRigMeta* meta = gst_buffer_get_stitch_rig_meta(input);
+  if (!meta || !meta->rig || !*meta->rig) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
+                      ("The bundle carries no calibration: put stitchcalib before stitchblend"),
+                      (NULL));
+    return GST_FLOW_ERROR;
+  }
+  gboolean ok = FALSE;
+  if (!stitch_guard(GST_ELEMENT(self), "stitchblend: cannot build the panorama geometry",
+                    [&]() { ok = update_geometry(self, meta); }) || !ok)
+    return GST_FLOW_ERROR;
+  GstFlowReturn ret = gst_buffer_pool_acquire_buffer(self->state->pool, outbuf, NULL);
+  if (ret != GST_FLOW_OK) return ret;
+  gst_buffer_copy_into(*outbuf, input, GstBufferCopyFlags(GST_BUFFER_COPY_FLAGS | GST_BUFFER_COPY_TIMESTAMPS), 0, -1);
+  return GST_FLOW_OK;
+}
+
+static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuffer* inbuf,
+                                                GstBuffer* outbuf) {
+  GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  BlendState* st = self->state;
+  GstStitchRigMeta* meta = gst_buffer_get_stitch_rig_meta(inbuf);
+  const guint n_views = guint((*meta->rig)->cameras.size());
+  StitchBundleMapping mapping;
+  std::string error;
+  if (!mapping.map(inbuf, n_views, GST_MAP_READ, error)) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
+    return GST_FLOW_ERROR;
+  }
+  GstVideoFrame out;
+  if (!gst_video_frame_map(&out, &st->out_info, outbuf, GST_MAP_WRITE)) {
+    GST_ELEMENT_ERROR(self, STREAM, FAILED, ("Cannot map the output frame"), (NULL));
+    return GST_FLOW_ERROR;
+  }
+  stitch::ImageView view;
+  view.data = static_cast<uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(&out, 0));
+  view.pitch = std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(&out, 0));
+  view.width = GST_VIDEO_FRAME_WIDTH(&out);
+  view.height = GST_VIDEO_FRAME_HEIGHT(&out);
+  const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchblend",
+                                   [&]() { st->compositor->compose(mapping.views(), view); });
+  gst_video_frame_unmap(&out);
+  return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
+}
+
+static gboolean gst_stitch_blend_transform_meta(GstBaseTransform*, GstBuffer*, GstMeta* meta,
+                                                GstBuffer*) {
+  /* Views, rig and bundle metas describe the input bundle, not the panorama. */
+  const GstMetaInfo* info = meta->info;
+  return !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string("stitch")) &&
+         !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string(GST_META_TAG_VIDEO_STR));
+}
+
+static gboolean gst_stitch_blend_stop(GstBaseTransform* trans) {
+  GST_STITCH_BLEND(trans)->state->clear();
+  return TRUE;
+}
+
+static void gst_stitch_blend_set_property(GObject* object, guint prop_id, const GValue* value,
+                                          GParamSpec* pspec) {
+  GstStitchBlend* self = GST_STITCH_BLEND(object);
+  GST_OBJECT_LOCK(self);
+  stitch::CompositorSettings& s = self->state->settings;
+  switch (prop_id) {
+    case PROP_OUTPUT_WIDTH: s.output_width = g_value_get_int(value); break;
+    case PROP_OUTPUT_HEIGHT: s.output_height = g_value_get_int(value); break;
+    case PROP_CROP: s.crop = stitch::CropMode(g_value_get_enum(value)); break;
+    case PROP_BACKEND: s.backend = stitch::Backend(g_value_get_enum(value)); break;
+    default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
+  }
+  self->state->settings_changed = true;
+  GST_OBJECT_UNLOCK(self);
+}
+
+static void gst_stitch_blend_get_property(GObject* object, guint prop_id, GValue* value,
+                                          GParamSpec* pspec) {
+  GstStitchBlend* self = GST_STITCH_BLEND(object);
+  GST_OBJECT_LOCK(self);
+  const stitch::CompositorSettings& s = self->state->settings;
+  switch (prop_id) {
+    case PROP_OUTPUT_WIDTH: g_value_set_int(value, s.output_width); break;
+    case PROP_OUTPUT_HEIGHT: g_value_set_int(value, s.output_height); break;
+    case PROP_CROP: g_value_set_enum(value, int(s.crop)); break;
+    case PROP_BACKEND: g_value_set_enum(value, int(s.backend)); break;
+    default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
+  }
+  GST_OBJECT_UNLOCK(self);
+}
+
+static void gst_stitch_blend_finalize(GObject* object) {
+  GstStitchBlend* self = GST_STITCH_BLEND(object);
+  self->state->clear();
+  delete self->state;
+  G_OBJECT_CLASS(gst_stitch_blend_parent_class)->finalize(object);
+}
+
+static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
+  GObjectClass* gobject_class = G_OBJECT_CLASS(klass);
+  GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
+  GstBaseTransformClass* trans_class = GST_BASE_TRANSFORM_CLASS(klass);
+  const GParamFlags rw = GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS);
+
+  gobject_class->set_property = gst_stitch_blend_set_property;
+  gobject_class->get_property = gst_stitch_blend_get_property;
+  gobject_class->finalize = gst_stitch_blend_finalize;
+
+  g_object_class_install_property(gobject_class, PROP_OUTPUT_WIDTH,
+      g_param_spec_int("output-width", "Output width",
+                       "Panorama width in pixels (0: from the canvas; height alone keeps the aspect)",
+                       0, 32766, 0, rw));
+  g_object_class_install_property(gobject_class, PROP_OUTPUT_HEIGHT,
+      g_param_spec_int("output-height", "Output height",
+                       "Panorama height in pixels (0: from the canvas; width alone keeps the aspect)",
+                       0, 32766, 0, rw));
+  g_object_class_install_property(gobject_class, PROP_CROP,
+      g_param_spec_enum("crop", "Crop", "Which part of the canvas is output", crop_get_type(),
+                        int(DEFAULT_CROP), rw));
+  g_object_class_install_property(gobject_class, PROP_BACKEND,
+      g_param_spec_enum("backend", "Backend", "Implementation of warp and blend",
+                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+
+  gst_element_class_add_static_pad_template(element_class, &sink_template);
+  gst_element_class_add_static_pad_template(element_class, &src_template);
+  gst_element_class_set_static_metadata(element_class, "Stitch blend", "Filter/Editor/Video",
+      "Warps the views of a calibrated stitch bundle onto the canvas and fuses them into one "
+      "panorama (position-weighted mean)",
+      "gst-stitch developers");
+
+  trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_caps);
+  trans_class->fixate_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_fixate_caps);
+  trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_caps);
+  trans_class->prepare_output_buffer = GST_DEBUG_FUNCPTR(gst_stitch_blend_prepare_output_buffer);
+  trans_class->transform = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform);
+  trans_class->transform_meta = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_meta);
+  trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_blend_stop);
+  trans_class->passthrough_on_same_caps = FALSE;
+
+  gst_type_mark_as_plugin_api(crop_get_type(), GstPluginAPIFlags(0));
+  GST_DEBUG_CATEGORY_INIT(gst_stitch_blend_debug, "stitchblend", 0, "stitch blend");
+}
+
+static void gst_stitch_blend_init(GstStitchBlend* self) {
+  self->state = new BlendState();
+  gst_video_info_init(&self->state->out_info);
+}

@@ -1,0 +1,184 @@
+#include "gststitchbundle.h"
+
+#include <cstring>
+
+/* ---- bundle meta ---- */
+
+GType gst_stitch_bundle_meta_api_get_type(void) {
+  static GType type = 0;
+  static const gchar* tags[] = {"stitch", NULL};
+  if (g_once_init_enter(&type)) {
+    GType t = gst_meta_api_type_register("GstStitchBundleMetaAPI", tags);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static gboolean bundle_meta_init(GstMeta* meta, gpointer, GstBuffer*) {
+  auto* m = reinterpret_cast<GstStitchBundleMeta*>(meta);
+  m->n_views = 0;
+  m->missing_mask = 0;
+  return TRUE;
+}
+
+static gboolean bundle_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*, GQuark type,
+                                      gpointer) {
+  if (!GST_META_TRANSFORM_IS_COPY(type)) return FALSE;
+  auto* m = reinterpret_cast<GstStitchBundleMeta*>(meta);
+  return gst_buffer_add_stitch_bundle_meta(dest, m->n_views, m->missing_mask) != NULL;
+}
+
+const GstMetaInfo* gst_stitch_bundle_meta_get_info(void) {
+  static const GstMetaInfo* info = NULL;
+  if (g_once_init_enter(&info)) {
+    const GstMetaInfo* mi = gst_meta_register(
+        gst_stitch_bundle_meta_api_get_type(), "GstStitchBundleMeta", sizeof(GstStitchBundleMeta),
+        bundle_meta_init, NULL, bundle_meta_transform);
+    g_once_init_leave(&info, mi);
+  }
+  return info;
+}
+
+GstStitchBundleMeta* gst_buffer_add_stitch_bundle_meta(GstBuffer* buffer, guint n_views,
+                                                       guint64 missing_mask) {
+  auto* m = reinterpret_cast<GstStitchBundleMeta*>(
+      gst_buffer_add_meta(buffer, gst_stitch_bundle_meta_get_info(), NULL));
+  if (m) {
+    m->n_views = n_views;
+    m->missing_mask = missing_mask;
+  }
+  return m;
+}
+
+GstStitchBundleMeta* gst_buffer_get_stitch_bundle_meta(GstBuffer* buffer) {
+  return reinterpret_cast<GstStitchBundleMeta*>(
+      gst_buffer_get_meta(buffer, gst_stitch_bundle_meta_api_get_type()));
+}
+
+/* ---- rig meta ---- */
+
+GType gst_stitch_rig_meta_api_get_type(void) {
+  static GType type = 0;
+  static const gchar* tags[] = {"stitch", NULL};
+  if (g_once_init_enter(&type)) {
+    GType t = gst_meta_api_type_register("GstStitchRigMetaAPI", tags);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static gboolean rig_meta_init(GstMeta* meta, gpointer, GstBuffer*) {
+  auto* m = reinterpret_cast<GstStitchRigMeta*>(meta);
+  m->rig = NULL;
+  m->version = 0;
+  return TRUE;
+}
+
+static void rig_meta_free(GstMeta* meta, GstBuffer*) {
+  auto* m = reinterpret_cast<GstStitchRigMeta*>(meta);
+  delete m->rig;
+  m->rig = NULL;
+}
+
+static gboolean rig_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*, GQuark type,
+                                   gpointer) {
+  if (!GST_META_TRANSFORM_IS_COPY(type)) return FALSE;
+  auto* m = reinterpret_cast<GstStitchRigMeta*>(meta);
+  if (!m->rig) return FALSE;
+  return gst_buffer_add_stitch_rig_meta(dest, *m->rig, m->version) != NULL;
+}
+
+const GstMetaInfo* gst_stitch_rig_meta_get_info(void) {
+  static const GstMetaInfo* info = NULL;
+  if (g_once_init_enter(&info)) {
+    const GstMetaInfo* mi =
+        gst_meta_register(gst_stitch_rig_meta_api_get_type(), "GstStitchRigMeta",
+                          sizeof(GstStitchRigMeta), rig_meta_init, rig_meta_free, rig_meta_transform);
+    g_once_init_leave(&info, mi);
+  }
+  return info;
+}
+
+GstStitchRigMeta* gst_buffer_add_stitch_rig_meta(GstBuffer* buffer,
+                                                 std::shared_ptr<const stitch::Rig> rig,
+                                                 guint64 version) {
+  auto* m = reinterpret_cast<GstStitchRigMeta*>(
+      gst_buffer_add_meta(buffer, gst_stitch_rig_meta_get_info(), NULL));
+  if (m) {
+    m->rig = new std::shared_ptr<const stitch::Rig>(std::move(rig));
+    m->version = version;
+  }
+  return m;
+}
+
+GstStitchRigMeta* gst_buffer_get_stitch_rig_meta(GstBuffer* buffer) {
+  return reinterpret_cast<GstStitchRigMeta*>(
+      gst_buffer_get_meta(buffer, gst_stitch_rig_meta_api_get_type()));
+}
+
+/* ---- backend enum ---- */
+
+GType gst_stitch_backend_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::Backend::Auto), "CUDA when a device loads, otherwise the CPU", "auto"},
+      {int(stitch::Backend::Cpu), "CPU (OpenCV)", "cpu"},
+      {int(stitch::Backend::Cuda), "CUDA", "cuda"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchBackend", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+/* ---- view mapping ---- */
+
+StitchBundleMapping::~StitchBundleMapping() {
+  for (auto& m : mapped_) gst_video_meta_unmap(m.meta, 0, &m.info);
+}
+
+gboolean StitchBundleMapping::map(GstBuffer* buffer, guint n_views, GstMapFlags flags,
+                                  std::string& error) {
+  GstStitchBundleMeta* bm = gst_buffer_get_stitch_bundle_meta(buffer);
+  const guint64 missing = bm ? bm->missing_mask : 0;
+  views_.assign(n_views, stitch::ImageView());
+  sizes_.assign(n_views, {0, 0});
+  for (guint i = 0; i < n_views; ++i) {
+    GstVideoMeta* vm = gst_buffer_get_video_meta_id(buffer, gint(i));
+    if (!vm) {
+      error = "the bundle has no view " + std::to_string(i);
+      return FALSE;
+    }
+    if (vm->format != GST_VIDEO_FORMAT_RGBA) {
+      error = "view " + std::to_string(i) + " is not RGBA";
+      return FALSE;
+    }
+    sizes_[i] = {int(vm->width), int(vm->height)};
+    if (missing >> i & 1) continue;
+    Mapped m{vm, {}};
+    gpointer data = NULL;
+    gint stride = 0;
+    if (!gst_video_meta_map(vm, 0, &m.info, &data, &stride, flags)) {
+      error = "cannot map view " + std::to_string(i);
+      return FALSE;
+    }
+    mapped_.push_back(m);
+    stitch::ImageView& v = views_[i];
+    v.data = static_cast<uint8_t*>(data);
+    v.pitch = std::size_t(stride);
+    v.width = int(vm->width);
+    v.height = int(vm->height);
+  }
+  return TRUE;
+}
+
+guint stitch_bundle_caps_views(const GstCaps* caps) {
+  if (!caps || gst_caps_get_size(caps) < 1) return 0;
+  const GstStructure* s = gst_caps_get_structure(caps, 0);
+  gint views = 0;
+  const gchar* mode = gst_structure_get_string(s, "multiview-mode");
+  if (!mode || g_strcmp0(mode, "separated") != 0) return 0;
+  if (!gst_structure_get_int(s, "views", &views) || views < 1) return 0;
+  return guint(views);
+}

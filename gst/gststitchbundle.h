@@ -1,0 +1,100 @@
+/* The bundle that travels between the stitch elements: one GstBuffer holding N views,
+ * caps video/x-raw, format=RGBA, multiview-mode=separated, views=N; one GstMemory and one
+ * GstVideoMeta (id = view index) per view; the rig travels as GstStitchRigMeta. */
+#pragma once
+
+#include <gst/gst.h>
+#include <gst/video/video.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "stitch/backend.hpp"
+#include "stitch/image.hpp"
+#include "stitch/rig/rig.hpp"
+
+G_BEGIN_DECLS
+
+#define STITCH_BUNDLE_CAPS                                                       \
+  "video/x-raw, format = (string) RGBA, width = (int) [ 1, 32767 ], "          \
+  "height = (int) [ 1, 32767 ], framerate = (fraction) [ 0/1, 2147483647/1 ], " \
+  "multiview-mode = (string) separated, views = (int) [ 2, 16 ]"
+
+#define STITCH_MAX_VIEWS 16
+
+/* Per-bundle facts from stitchsync: which views hold no real frame (camera missing). */
+typedef struct {
+  GstMeta meta;
+  guint n_views;
+  guint64 missing_mask;
+} GstStitchBundleMeta;
+
+/* The rig (geometry) attached by stitchcalib. `version` changes whenever the calibration
+ * changes, so later stages rebuild their maps only then. */
+typedef struct {
+  GstMeta meta;
+  std::shared_ptr<const stitch::Rig>* rig;
+  guint64 version;
+} GstStitchRigMeta;
+
+GType gst_stitch_bundle_meta_api_get_type(void);
+const GstMetaInfo* gst_stitch_bundle_meta_get_info(void);
+GstStitchBundleMeta* gst_buffer_add_stitch_bundle_meta(GstBuffer* buffer, guint n_views,
+                                                       guint64 missing_mask);
+GstStitchBundleMeta* gst_buffer_get_stitch_bundle_meta(GstBuffer* buffer);
+
+GType gst_stitch_rig_meta_api_get_type(void);
+const GstMetaInfo* gst_stitch_rig_meta_get_info(void);
+GstStitchRigMeta* gst_buffer_add_stitch_rig_meta(GstBuffer* buffer,
+                                                 std::shared_ptr<const stitch::Rig> rig,
+                                                 guint64 version);
+GstStitchRigMeta* gst_buffer_get_stitch_rig_meta(GstBuffer* buffer);
+
+/* backend=auto|cpu|cuda, shared by every element. */
+#define GST_TYPE_STITCH_BACKEND (gst_stitch_backend_get_type())
+GType gst_stitch_backend_get_type(void);
+
+G_END_DECLS
+
+/* Maps every view of a bundle; unmaps in the destructor. Views that the bundle meta marks
+ * missing come back as empty ImageViews. */
+class StitchBundleMapping {
+ public:
+  StitchBundleMapping() = default;
+  StitchBundleMapping(const StitchBundleMapping&) = delete;
+  StitchBundleMapping& operator=(const StitchBundleMapping&) = delete;
+  ~StitchBundleMapping();
+  /* FALSE with `error` set when a view is absent or cannot be mapped. */
+  gboolean map(GstBuffer* buffer, guint n_views, GstMapFlags flags, std::string& error);
+  const std::vector<stitch::ImageView>& views() const { return views_; }
+  /* View sizes, including those of missing views. */
+  const std::vector<std::array<int, 2>>& sizes() const { return sizes_; }
+
+ private:
+  struct Mapped {
+    GstVideoMeta* meta;
+    GstMapInfo info;
+  };
+  std::vector<Mapped> mapped_;
+  std::vector<stitch::ImageView> views_;
+  std::vector<std::array<int, 2>> sizes_;
+};
+
+/* Number of views that bundle caps announce, 0 when the caps are no bundle. */
+guint stitch_bundle_caps_views(const GstCaps* caps);
+
+/* Runs `body`; a C++ exception becomes a GST_ELEMENT_ERROR naming `what`, never escaping
+ * into GStreamer. Returns FALSE when an exception was caught. */
+template <typename F>
+gboolean stitch_guard(GstElement* element, const char* what, F&& body) {
+  try {
+    body();
+    return TRUE;
+  } catch (const std::exception& e) {
+    GST_ELEMENT_ERROR(element, STREAM, FAILED, ("%s: %s", what, e.what()), (NULL));
+  } catch (...) {
+    GST_ELEMENT_ERROR(element, STREAM, FAILED, ("%s: unknown error", what), (NULL));
+  }
+  return FALSE;
+}

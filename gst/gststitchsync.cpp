@@ -1,0 +1,478 @@
+/**
+ * SECTION:element-stitchsync
+ * @title: stitchsync
+ *
+ * Synchronises 2 to 16 camera streams by running time and outputs one bundle per output
+ * frame: a buffer with one RGBA view per input (caps `multiview-mode=separated, views=N`),
+ * which stitchcalib, stitchcolor, stitchflowwarp and stitchblend consume. Views are ordered
+ * by pad number (sink_0 first). For every output timestamp each view is the input frame that
+ * covers that running time (GstVideoAggregator semantics), so inputs may run at different or
+ * variable rates and may be live (latency, timeouts). Inputs of any raw format are converted
+ * to RGBA; interlaced inputs are refused with an error that names the pad.
+ *
+ * ## Example launch lines
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend ! videoconvert ! autovideosink \
+ *   videotestsrc pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_0 \
+ *   videotestsrc pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_1
+ * ]|
+ * |[
+ * gst-launch-1.0 stitchsync name=s framerate=30/1 input-eos=end-stream ! fakesink \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ */
+#include "gststitchsync.h"
+
+#include <algorithm>
+#include <cstring>
+#include <map>
+#include <mutex>
+#include <vector>
+
+#include "gststitchbundle.h"
+
+GST_DEBUG_CATEGORY_STATIC(gst_stitch_sync_debug);
+#define GST_CAT_DEFAULT gst_stitch_sync_debug
+
+enum { PROP_0, PROP_FRAMERATE, PROP_INPUT_EOS };
+
+#define DEFAULT_FRAMERATE_N 0
+#define DEFAULT_FRAMERATE_D 1
+#define DEFAULT_INPUT_EOS GST_STITCH_SYNC_INPUT_EOS_REPEAT_LAST
+
+struct StitchSyncState {
+  /* Last real frame of each pad, reused while a live camera is late. */
+  struct Last {
+    GstBuffer* buffer = nullptr;  // holds the memory alive
+    gint width = 0, height = 0, stride = 0;
+    gsize offset = 0;
+  };
+  std::mutex lock;  // guards `last` against pad release from the application thread
+  std::map<GstPad*, Last> last;
+  void clear() {
+    for (auto& kv : last) gst_clear_buffer(&kv.second.buffer);
+    last.clear();
+  }
+};
+
+struct _GstStitchSync {
+  GstVideoAggregator parent;
+  /* settings */
+  gint fps_n, fps_d;
+  GstStitchSyncInputEos input_eos;
+  /* state */
+  StitchSyncState* state;
+};
+
+G_DEFINE_TYPE(GstStitchSync, gst_stitch_sync, GST_TYPE_VIDEO_AGGREGATOR);
+GST_ELEMENT_REGISTER_DEFINE(stitchsync, "stitchsync", GST_RANK_NONE, GST_TYPE_STITCH_SYNC);
+
+#define GST_TYPE_STITCH_SYNC_INPUT_EOS (gst_stitch_sync_input_eos_get_type())
+static GType gst_stitch_sync_input_eos_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {GST_STITCH_SYNC_INPUT_EOS_REPEAT_LAST, "Repeat the ended input's last frame", "repeat-last"},
+      {GST_STITCH_SYNC_INPUT_EOS_END_STREAM, "End the output when any input ends", "end-stream"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchSyncInputEos", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
+    "sink_%u", GST_PAD_SINK, GST_PAD_REQUEST,
+    GST_STATIC_CAPS(GST_VIDEO_CAPS_MAKE(GST_VIDEO_FORMATS_ALL)));
+
+static GstStaticPadTemplate src_template =
+    GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+
+/* Sink pads sorted by the number in their name: view i is the i-th. */
+static std::vector<GstVideoAggregatorPad*> sorted_pads(GstStitchSync* self) {
+  std::vector<std::pair<guint, GstVideoAggregatorPad*>> pads;
+  GST_OBJECT_LOCK(self);
+  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) {
+    const gchar* name = GST_PAD_NAME(l->data);
+    guint idx = 0;
+    if (name && g_str_has_prefix(name, "sink_")) idx = guint(g_ascii_strtoull(name + 5, NULL, 10));
+    pads.emplace_back(idx, GST_VIDEO_AGGREGATOR_PAD(l->data));
+  }
+  GST_OBJECT_UNLOCK(self);
+  std::sort(pads.begin(), pads.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<GstVideoAggregatorPad*> out;
+  for (auto& p : pads) out.push_back(p.second);
+  return out;
+}
+
+static gint count_negotiated(const std::vector<GstVideoAggregatorPad*>& pads) {
+  gint n = 0;
+  for (GstVideoAggregatorPad* p : pads)
+    if (p->info.finfo && GST_VIDEO_INFO_FORMAT(&p->info) != GST_VIDEO_FORMAT_UNKNOWN) ++n;
+  return n;
+}
+
+static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTemplate* templ,
+                                               const gchar* name, const GstCaps* caps) {
+  GstStitchSync* self = GST_STITCH_SYNC(element);
+  if (element->numsinkpads >= STITCH_MAX_VIEWS) {
+    GST_ELEMENT_ERROR(self, CORE, PAD, ("stitchsync takes at most %d inputs", STITCH_MAX_VIEWS),
+                      ("refused request for pad %s", name ? name : "(any)"));
+    return NULL;
+  }
+  /* Repeating an ended input is done here, not with the pads' repeat-after-eos, which
+   * would keep the output running forever once every input has ended. */
+  return GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->request_new_pad(element, templ, name, caps);
+}
+
+static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
+  GstStitchSync* self = GST_STITCH_SYNC(element);
+  {
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    auto it = self->state->last.find(pad);
+    if (it != self->state->last.end()) {
+      gst_clear_buffer(&it->second.buffer);
+      self->state->last.erase(it);
+    }
+  }
+  GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->release_pad(element, pad);
+}
+
+static gboolean gst_stitch_sync_sink_event(GstAggregator* agg, GstAggregatorPad* pad,
+                                           GstEvent* event) {
+  if (GST_EVENT_TYPE(event) == GST_EVENT_CAPS) {
+    GstCaps* caps = NULL;
+    gst_event_parse_caps(event, &caps);
+    GstVideoInfo info;
+    if (!gst_video_info_from_caps(&info, caps)) {
+      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
+                        ("Input %s: caps are not raw video stitchsync can read", GST_PAD_NAME(pad)),
+                        ("caps: %" GST_PTR_FORMAT, caps));
+      gst_event_unref(event);
+      return FALSE;
+    }
+    if (GST_VIDEO_INFO_IS_INTERLACED(&info)) {
+      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
+                        ("Input %s is interlaced; add a deinterlace element before stitchsync",
+                         GST_PAD_NAME(pad)),
+                        ("caps: %" GST_PTR_FORMAT, caps));
+      gst_event_unref(event);
+      return FALSE;
+    }
+    if (GST_VIDEO_INFO_MULTIVIEW_MODE(&info) != GST_VIDEO_MULTIVIEW_MODE_NONE &&
+        GST_VIDEO_INFO_MULTIVIEW_MODE(&info) != GST_VIDEO_MULTIVIEW_MODE_MONO) {
+      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
+                        ("Input %s carries multiview (stereo) video; stitchsync takes one camera "
+                         "per input",
+                         GST_PAD_NAME(pad)),
+                        ("caps: %" GST_PTR_FORMAT, caps));
+      gst_event_unref(event);
+      return FALSE;
+    }
+  }
+  return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->sink_event(agg, pad, event);
+}
+
+/* Inputs are independent cameras: any raw video is accepted whatever the bundle downstream
+ * looks like (the base class would intersect with the downstream multiview caps). */
+static gboolean gst_stitch_sync_sink_query(GstAggregator* agg, GstAggregatorPad* pad, GstQuery* query) {
+  switch (GST_QUERY_TYPE(query)) {
+    case GST_QUERY_CAPS: {
+      GstCaps* filter = NULL;
+      gst_query_parse_caps(query, &filter);
+      GstCaps* caps = gst_pad_get_pad_template_caps(GST_PAD(pad));
+      if (filter) {
+        GstCaps* tmp = gst_caps_intersect_full(filter, caps, GST_CAPS_INTERSECT_FIRST);
+        gst_caps_unref(caps);
+        caps = tmp;
+      }
+      gst_query_set_caps_result(query, caps);
+      gst_caps_unref(caps);
+      return TRUE;
+    }
+    case GST_QUERY_ACCEPT_CAPS: {
+      GstCaps* caps = NULL;
+      gst_query_parse_accept_caps(query, &caps);
+      GstCaps* tmpl = gst_pad_get_pad_template_caps(GST_PAD(pad));
+      gst_query_set_accept_caps_result(query, gst_caps_can_intersect(caps, tmpl));
+      gst_caps_unref(tmpl);
+      return TRUE;
+    }
+    default:
+      return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->sink_query(agg, pad, query);
+  }
+}
+
+static GstCaps* gst_stitch_sync_update_caps(GstVideoAggregator* vagg, GstCaps* caps) {
+  (void)vagg;
+  GstCaps* tmpl = gst_static_pad_template_get_caps(&src_template);
+  GstCaps* out = gst_caps_intersect(caps, tmpl);
+  gst_caps_unref(tmpl);
+  return out;
+}
+
+static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* caps) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
+  auto pads = sorted_pads(self);
+  gint width = 0, height = 0, n = 0;
+  gdouble best_fps = -1;
+  gint best_n = 0, best_d = 1;
+  for (GstVideoAggregatorPad* p : pads) {
+    if (!p->info.finfo || GST_VIDEO_INFO_FORMAT(&p->info) == GST_VIDEO_FORMAT_UNKNOWN) continue;
+    if (n == 0) {
+      width = GST_VIDEO_INFO_WIDTH(&p->info);
+      height = GST_VIDEO_INFO_HEIGHT(&p->info);
+    }
+    ++n;
+    const gint fn = GST_VIDEO_INFO_FPS_N(&p->info), fd = GST_VIDEO_INFO_FPS_D(&p->info);
+    gdouble fps = 0;
+    if (fn > 0 && fd > 0) gst_util_fraction_to_double(fn, fd, &fps);
+    if (fps > best_fps) {
+      best_fps = fps;
+      best_n = fn;
+      best_d = fd;
+    }
+  }
+  if (n == 0) return gst_caps_fixate(caps);
+  GST_OBJECT_LOCK(self);
+  if (self->fps_n > 0) {
+    best_n = self->fps_n;
+    best_d = self->fps_d;
+  }
+  GST_OBJECT_UNLOCK(self);
+  if (best_n <= 0) {
+    /* only variable-rate inputs: without a rate nothing can be synchronised */
+    best_n = 30;
+    best_d = 1;
+    GST_ELEMENT_WARNING(self, CORE, NEGOTIATION,
+                        ("No input announces a framerate; outputting 30/1 (set the framerate "
+                         "property)"),
+                        (NULL));
+  }
+  caps = gst_caps_make_writable(caps);
+  caps = gst_caps_truncate(caps);
+  GstStructure* s = gst_caps_get_structure(caps, 0);
+  gst_structure_fixate_field_nearest_int(s, "width", width);
+  gst_structure_fixate_field_nearest_int(s, "height", height);
+  gst_structure_fixate_field_nearest_fraction(s, "framerate", best_n, best_d);
+  gst_structure_set(s, "views", G_TYPE_INT, MAX(gint(pads.size()), 2), "pixel-aspect-ratio", GST_TYPE_FRACTION, 1,
+                    1, NULL);
+  return gst_caps_fixate(caps);
+}
+
+static GstFlowReturn gst_stitch_sync_create_output_buffer(GstVideoAggregator*, GstBuffer** outbuf) {
+  *outbuf = gst_buffer_new();
+  return GST_FLOW_OK;
+}
+
+/* Appends one view: shares the frame's memory when it is a single block, copies otherwise. */
+static void append_view(GstBuffer* bundle, guint id, GstBuffer* src, gsize src_offset, gint width,
+                        gint height, gint stride) {
+  const gsize bundle_offset = gst_buffer_get_size(bundle);
+  gsize offset[GST_VIDEO_MAX_PLANES] = {0};
+  gint strides[GST_VIDEO_MAX_PLANES] = {0};
+  if (gst_buffer_n_memory(src) == 1) {
+    gst_buffer_append_memory(bundle, gst_buffer_get_memory(src, 0));
+    offset[0] = bundle_offset + src_offset;
+    strides[0] = stride;
+  } else {
+    const gsize row = gsize(width) * 4;
+    GstMemory* mem = gst_allocator_alloc(NULL, row * height, NULL);
+    GstMapInfo dst, in;
+    gst_memory_map(mem, &dst, GST_MAP_WRITE);
+    gst_buffer_map(src, &in, GST_MAP_READ);
+    for (gint y = 0; y < height; ++y)
+      memcpy(dst.data + y * row, in.data + src_offset + gsize(y) * stride, row);
+    gst_buffer_unmap(src, &in);
+    gst_memory_unmap(mem, &dst);
+    gst_buffer_append_memory(bundle, mem);
+    offset[0] = bundle_offset;
+    strides[0] = gint(row);
+  }
+  GstVideoMeta* vm = gst_buffer_add_video_meta_full(bundle, GST_VIDEO_FRAME_FLAG_NONE,
+                                                    GST_VIDEO_FORMAT_RGBA, width, height, 1,
+                                                    offset, strides);
+  vm->id = gint(id);
+}
+
+static void append_black_view(GstBuffer* bundle, guint id, gint width, gint height) {
+  const gsize size = gsize(width) * 4 * height;
+  GstMemory* mem = gst_allocator_alloc(NULL, size, NULL);
+  GstMapInfo map;
+  gst_memory_map(mem, &map, GST_MAP_WRITE);
+  memset(map.data, 0, size);
+  gst_memory_unmap(mem, &map);
+  GstBuffer* tmp = gst_buffer_new();
+  gst_buffer_append_memory(tmp, mem);
+  append_view(bundle, id, tmp, 0, width, height, width * 4);
+  gst_buffer_unref(tmp);
+}
+
+static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, GstBuffer* outbuf) {
+  GstStitchSync* self = GST_STITCH_SYNC(vagg);
+  auto pads = sorted_pads(self);
+  if (count_negotiated(pads) < 2 || GST_VIDEO_INFO_VIEWS(&vagg->info) != gint(pads.size())) {
+    /* Inputs are still being linked (decodebin pads appear late): wait for them instead of
+     * sending bundles with a view count that is about to change. */
+    g_usleep(2000);
+    return GST_AGGREGATOR_FLOW_NEED_DATA;
+  }
+  guint64 missing = 0;
+  guint id = 0;
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  for (GstVideoAggregatorPad* pad : pads) {
+    GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
+    StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
+    if (frame) {
+      append_view(outbuf, id, frame->buffer, GST_VIDEO_FRAME_PLANE_OFFSET(frame, 0),
+                  GST_VIDEO_FRAME_WIDTH(frame), GST_VIDEO_FRAME_HEIGHT(frame),
+                  GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
+      /* Keep only what the bundle already references: the view's memory. */
+      GstBuffer* keep = gst_buffer_new();
+      gst_buffer_append_memory(keep, gst_buffer_get_memory(outbuf, id));
+      gst_clear_buffer(&last.buffer);
+      last.buffer = keep;
+      GstVideoMeta* vm = gst_buffer_get_video_meta_id(outbuf, gint(id));
+      last.width = gint(vm->width);
+      last.height = gint(vm->height);
+      last.stride = vm->stride[0];
+      last.offset = vm->offset[0] - (gst_buffer_get_size(outbuf) - gst_buffer_get_size(keep));
+    } else {
+      const gboolean ended = gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
+      if (ended && self->input_eos == GST_STITCH_SYNC_INPUT_EOS_END_STREAM) {
+        GST_INFO_OBJECT(self, "%s ended; ending the stream (input-eos=end-stream)",
+                        GST_PAD_NAME(pad));
+        return GST_FLOW_EOS;
+      }
+      if (last.buffer) {
+        /* a live camera that is late or gone: freeze its last frame */
+        append_view(outbuf, id, last.buffer, last.offset, last.width, last.height, last.stride);
+      } else {
+        /* never had a frame: black, and marked missing so stitchblend leaves it out */
+        gint w = pad->info.finfo ? GST_VIDEO_INFO_WIDTH(&pad->info) : 0;
+        gint h = pad->info.finfo ? GST_VIDEO_INFO_HEIGHT(&pad->info) : 0;
+        if (w <= 0 || h <= 0) {
+          w = GST_VIDEO_INFO_WIDTH(&vagg->info);
+          h = GST_VIDEO_INFO_HEIGHT(&vagg->info);
+        }
+        append_black_view(outbuf, id, w, h);
+        missing |= guint64(1) << id;
+      }
+    }
+    ++id;
+  }
+  gst_buffer_add_stitch_bundle_meta(outbuf, id, missing);
+  return GST_FLOW_OK;
+}
+
+static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
+  {
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    self->state->clear();
+  }
+  return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->stop(agg);
+}
+
+static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
+  {
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    self->state->clear();
+  }
+  return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);
+}
+
+static void gst_stitch_sync_set_property(GObject* object, guint prop_id, const GValue* value,
+                                         GParamSpec* pspec) {
+  GstStitchSync* self = GST_STITCH_SYNC(object);
+  switch (prop_id) {
+    case PROP_FRAMERATE:
+      GST_OBJECT_LOCK(self);
+      self->fps_n = gst_value_get_fraction_numerator(value);
+      self->fps_d = gst_value_get_fraction_denominator(value);
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_INPUT_EOS: self->input_eos = GstStitchSyncInputEos(g_value_get_enum(value)); break;
+    default:
+      G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
+  }
+}
+
+static void gst_stitch_sync_get_property(GObject* object, guint prop_id, GValue* value,
+                                         GParamSpec* pspec) {
+  GstStitchSync* self = GST_STITCH_SYNC(object);
+  switch (prop_id) {
+    case PROP_FRAMERATE:
+      GST_OBJECT_LOCK(self);
+      gst_value_set_fraction(value, self->fps_n, self->fps_d);
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_INPUT_EOS: g_value_set_enum(value, self->input_eos); break;
+    default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
+  }
+}
+
+static void gst_stitch_sync_finalize(GObject* object) {
+  GstStitchSync* self = GST_STITCH_SYNC(object);
+  self->state->clear();
+  delete self->state;
+  G_OBJECT_CLASS(gst_stitch_sync_parent_class)->finalize(object);
+}
+
+static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
+  GObjectClass* gobject_class = G_OBJECT_CLASS(klass);
+  GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
+  GstAggregatorClass* agg_class = GST_AGGREGATOR_CLASS(klass);
+  GstVideoAggregatorClass* vagg_class = GST_VIDEO_AGGREGATOR_CLASS(klass);
+
+  gobject_class->set_property = gst_stitch_sync_set_property;
+  gobject_class->get_property = gst_stitch_sync_get_property;
+  gobject_class->finalize = gst_stitch_sync_finalize;
+
+  g_object_class_install_property(
+      gobject_class, PROP_FRAMERATE,
+      gst_param_spec_fraction("framerate", "Framerate",
+                              "Output framerate; 0/1 takes the fastest input's rate", 0, 1,
+                              G_MAXINT, 1, DEFAULT_FRAMERATE_N, DEFAULT_FRAMERATE_D,
+                              GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS |
+                                          GST_PARAM_MUTABLE_READY)));
+  g_object_class_install_property(
+      gobject_class, PROP_INPUT_EOS,
+      g_param_spec_enum("input-eos", "Input EOS",
+                        "What happens when one input ends before the others",
+                        GST_TYPE_STITCH_SYNC_INPUT_EOS, DEFAULT_INPUT_EOS,
+                        GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS)));
+
+  gst_element_class_add_static_pad_template_with_gtype(element_class, &sink_template,
+                                                       GST_TYPE_VIDEO_AGGREGATOR_CONVERT_PAD);
+  gst_element_class_add_static_pad_template_with_gtype(element_class, &src_template,
+                                                       GST_TYPE_AGGREGATOR_PAD);
+  gst_element_class_set_static_metadata(
+      element_class, "Stitch synchronizer", "Filter/Editor/Video/Compositor",
+      "Synchronises N camera streams by running time into one multiview bundle per output frame",
+      "gst-stitch developers");
+
+  element_class->request_new_pad = GST_DEBUG_FUNCPTR(gst_stitch_sync_request_new_pad);
+  element_class->release_pad = GST_DEBUG_FUNCPTR(gst_stitch_sync_release_pad);
+  agg_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_event);
+  agg_class->sink_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_query);
+  agg_class->fixate_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_fixate_src_caps);
+  agg_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_sync_stop);
+  agg_class->flush = GST_DEBUG_FUNCPTR(gst_stitch_sync_flush);
+  vagg_class->update_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_update_caps);
+  vagg_class->create_output_buffer = GST_DEBUG_FUNCPTR(gst_stitch_sync_create_output_buffer);
+  vagg_class->aggregate_frames = GST_DEBUG_FUNCPTR(gst_stitch_sync_aggregate_frames);
+
+  gst_type_mark_as_plugin_api(GST_TYPE_STITCH_SYNC_INPUT_EOS, GstPluginAPIFlags(0));
+  GST_DEBUG_CATEGORY_INIT(gst_stitch_sync_debug, "stitchsync", 0, "stitch synchronizer");
+}
+
+static void gst_stitch_sync_init(GstStitchSync* self) {
+  self->fps_n = DEFAULT_FRAMERATE_N;
+  self->fps_d = DEFAULT_FRAMERATE_D;
+  self->input_eos = DEFAULT_INPUT_EOS;
+  self->state = new StitchSyncState();
+}

@@ -1,0 +1,19 @@
+#include <gst/gst.h>
+
+#include "gststitchblend.h"
+#include "gststitchcalib.h"
+#include "gststitchsync.h"
+
+static gboolean plugin_init(GstPlugin* plugin) {
+  gboolean ok = FALSE;
+  ok |= GST_ELEMENT_REGISTER(stitchsync, plugin);
+  ok |= GST_ELEMENT_REGISTER(stitchcalib, plugin);
+  ok |= GST_ELEMENT_REGISTER(stitchblend, plugin);
+  return ok;
+}
+
+#define PACKAGE "gst-stitch"
+GST_PLUGIN_DEFINE(GST_VERSION_MAJOR, GST_VERSION_MINOR, stitch,
+                  "Real-time multi-camera video stitching (color correction, flow warping, "
+                  "blending)",
+                  plugin_init, "0.1.0", "LGPL", PACKAGE, "https://github.com/gst-stitch")

@@ -1,0 +1,41 @@
+#include "stitch/backend.hpp"
+
+#include <stdexcept>
+
+#ifdef STITCH_HAVE_CUDA
+#include <cuda_runtime_api.h>
+#endif
+
+namespace stitch {
+
+bool cuda_device_available() {
+#ifdef STITCH_HAVE_CUDA
+  int count = 0;
+  if (cudaGetDeviceCount(&count) != cudaSuccess) {
+    cudaGetLastError();  // clear the sticky error so later calls are not poisoned
+    return false;
+  }
+  return count > 0;
+#else
+  return false;
+#endif
+}
+
+Backend resolve_backend(Backend requested) {
+  if (requested == Backend::Cpu) return Backend::Cpu;
+  // No stage has a CUDA implementation in this build yet: Auto means CPU.
+  if (requested == Backend::Auto) return Backend::Cpu;
+  throw std::runtime_error(
+      "backend=cuda requested, but this build has no CUDA implementation of this stage");
+}
+
+const char* backend_name(Backend b) {
+  switch (b) {
+    case Backend::Auto: return "auto";
+    case Backend::Cpu: return "cpu";
+    case Backend::Cuda: return "cuda";
+  }
+  return "?";
+}
+
+}  // namespace stitch

@@ -1,0 +1,137 @@
+#include "stitch/blend/blender_cpu.hpp"
+
+#include <Eigen/Core>
+#include <stdexcept>
+
+namespace stitch {
+
+void BlenderCpu::prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) {
+  if (views.size() > 64) throw std::invalid_argument("at most 64 views");
+  views_ = views;
+  out_w_ = out_width;
+  out_h_ = out_height;
+  normalised_.clear();
+  raw_.assign(views.size(), cv::Mat());
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const ViewPlacement& v = views[i];
+    if (v.roi.empty()) continue;
+    cv::Mat w(v.roi.height, v.roi.width, CV_32F);
+    const Eigen::Matrix3d& M = v.output_to_camera;
+    cv::parallel_for_(cv::Range(0, v.roi.height), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) {
+        float* pw = w.ptr<float>(y);
+        const double oy = v.roi.y + y;
+        for (int x = 0; x < v.roi.width; ++x) {
+          const double ox = v.roi.x + x;
+          const double Z = M(2, 0) * ox + M(2, 1) * oy + M(2, 2);
+          if (!(Z > 1e-12)) {
+            pw[x] = 0.f;
+            continue;
+          }
+          const double u = (M(0, 0) * ox + M(0, 1) * oy + M(0, 2)) / Z;
+          const double vv = (M(1, 0) * ox + M(1, 1) * oy + M(1, 2)) / Z;
+          pw[x] = position_weight(u, vv, v.camera_width, v.camera_height);
+        }
+      }
+    });
+    raw_[i] = w;
+  }
+}
+
+const std::vector<cv::Mat>& BlenderCpu::weights_for(uint64_t mask) {
+  auto it = normalised_.find(mask);
+  if (it != normalised_.end()) return it->second;
+  if (normalised_.size() > 16) normalised_.clear();  // bounded: masks change only on dropouts
+  const int one = 1 << kWeightBits;
+  cv::Mat sum(out_h_, out_w_, CV_32F, cv::Scalar(0));
+  for (std::size_t i = 0; i < raw_.size(); ++i) {
+    if (!(mask >> i & 1) || raw_[i].empty()) continue;
+    const Rect& r = views_[i].roi;
+    cv::Mat roi = sum(cv::Rect(r.x, r.y, r.width, r.height));
+    roi += raw_[i];
+  }
+  std::vector<cv::Mat> q(raw_.size());
+  cv::Mat qsum(out_h_, out_w_, CV_32S, cv::Scalar(0));
+  cv::Mat best(out_h_, out_w_, CV_8S, cv::Scalar(-1));
+  cv::Mat bestw(out_h_, out_w_, CV_32F, cv::Scalar(0));
+  for (std::size_t i = 0; i < raw_.size(); ++i) {
+    if (!(mask >> i & 1) || raw_[i].empty()) continue;
+    const Rect& r = views_[i].roi;
+    q[i].create(r.height, r.width, CV_16U);
+    for (int y = 0; y < r.height; ++y) {
+      const float* pw = raw_[i].ptr<float>(y);
+      const float* ps = sum.ptr<float>(r.y + y) + r.x;
+      uint16_t* pq = q[i].ptr<uint16_t>(y);
+      int32_t* pqs = qsum.ptr<int32_t>(r.y + y) + r.x;
+      int8_t* pb = best.ptr<int8_t>(r.y + y) + r.x;
+      float* pbw = bestw.ptr<float>(r.y + y) + r.x;
+      for (int x = 0; x < r.width; ++x) {
+        const int v = ps[x] > 0 ? int(pw[x] / ps[x] * one + 0.5f) : 0;
+        pq[x] = static_cast<uint16_t>(v);
+        pqs[x] += v;
+        if (pw[x] > pbw[x]) {
+          pbw[x] = pw[x];
+          pb[x] = static_cast<int8_t>(i);
+        }
+      }
+    }
+  }
+  // Give the rounding remainder to the strongest view so covered pixels sum to exactly 1.
+  for (int y = 0; y < out_h_; ++y) {
+    const int32_t* pqs = qsum.ptr<int32_t>(y);
+    const int8_t* pb = best.ptr<int8_t>(y);
+    for (int x = 0; x < out_w_; ++x) {
+      if (pb[x] < 0 || pqs[x] == one) continue;
+      const Rect& r = views_[pb[x]].roi;
+      uint16_t& w = q[pb[x]].at<uint16_t>(y - r.y, x - r.x);
+      w = static_cast<uint16_t>(int(w) + one - pqs[x]);
+    }
+  }
+  return normalised_.emplace(mask, std::move(q)).first->second;
+}
+
+void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out) {
+  if (warped.size() != views_.size()) throw std::invalid_argument("view count differs from prepare()");
+  if (out.width != out_w_ || out.height != out_h_) throw std::invalid_argument("output size differs from prepare()");
+  if (out.on_device) throw std::invalid_argument("CPU blender got device memory");
+  uint64_t mask = 0;
+  for (std::size_t i = 0; i < warped.size(); ++i)
+    if (!warped[i].empty() && !views_[i].roi.empty()) mask |= uint64_t(1) << i;
+  const std::vector<cv::Mat>& weights = weights_for(mask);
+  cv::parallel_for_(cv::Range(0, out_h_), [&](const cv::Range& range) {
+    std::vector<uint32_t> acc(static_cast<std::size_t>(out_w_) * 4);
+    for (int y = range.start; y < range.end; ++y) {
+      std::fill(acc.begin(), acc.end(), 0u);
+      for (std::size_t i = 0; i < warped.size(); ++i) {
+        if (!(mask >> i & 1)) continue;
+        const Rect& r = views_[i].roi;
+        if (y < r.y || y >= r.y + r.height) continue;
+        const uint16_t* pw = weights[i].ptr<uint16_t>(y - r.y);
+        const uint8_t* pp = warped[i].row(y - r.y);
+        uint32_t* pa = acc.data() + static_cast<std::size_t>(r.x) * 4;
+        for (int x = 0; x < r.width; ++x) {
+          const uint32_t w = pw[x];
+          pa[4 * x + 0] += w * pp[4 * x + 0];
+          pa[4 * x + 1] += w * pp[4 * x + 1];
+          pa[4 * x + 2] += w * pp[4 * x + 2];
+          pa[4 * x + 3] += w * pp[4 * x + 3];
+        }
+      }
+      uint8_t* po = out.row(y);
+      constexpr uint32_t half = 1u << (kWeightBits - 1);
+      for (int x = 0; x < out_w_ * 4; ++x) po[x] = static_cast<uint8_t>((acc[x] + half) >> kWeightBits);
+      // The panorama is opaque: uncovered corners are black, not transparent.
+      for (int x = 0; x < out_w_; ++x) po[4 * x + 3] = 255;
+    }
+  });
+}
+
+std::unique_ptr<Blender> Blender::create(Backend backend) {
+  switch (resolve_backend(backend)) {
+    case Backend::Cpu: return std::make_unique<BlenderCpu>();
+    default: break;
+  }
+  throw std::runtime_error("no blender for this backend");
+}
+
+}  // namespace stitch

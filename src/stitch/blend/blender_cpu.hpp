@@ -1,0 +1,27 @@
+#pragma once
+#include <map>
+#include <opencv2/core.hpp>
+
+#include "stitch/blend/blender.hpp"
+
+namespace stitch {
+
+class BlenderCpu final : public Blender {
+ public:
+  static constexpr int kWeightBits = 14;  // weights are Q14 and sum to exactly 1 << 14
+
+  void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) override;
+  void fuse(const std::vector<ImageView>& warped, const ImageView& out) override;
+  Backend backend() const override { return Backend::Cpu; }
+
+  // Normalised Q14 weights of each view (roi-sized, CV_16U) for a set of present views.
+  const std::vector<cv::Mat>& weights_for(uint64_t present_mask);
+
+ private:
+  std::vector<ViewPlacement> views_;
+  std::vector<cv::Mat> raw_;  // CV_32F, roi-sized
+  int out_w_ = 0, out_h_ = 0;
+  std::map<uint64_t, std::vector<cv::Mat>> normalised_;
+};
+
+}  // namespace stitch

@@ -1,0 +1,42 @@
+// Estimate once, compose every frame: the rig's geometry is turned into warp maps and
+// blend weights once (prepare), then each bundle of camera frames becomes one panorama.
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "stitch/blend/blender.hpp"
+#include "stitch/rig/rig.hpp"
+#include "stitch/warp/geometry.hpp"
+#include "stitch/warp/warper.hpp"
+
+namespace stitch {
+
+struct CompositorSettings {
+  int output_width = 0;   // 0: from the canvas / crop
+  int output_height = 0;
+  CropMode crop = CropMode::None;
+  Backend backend = Backend::Auto;
+};
+
+class Compositor {
+ public:
+  explicit Compositor(Backend backend = Backend::Auto);
+  // Throws RigError when the rig is not calibrated or its geometry is degenerate.
+  void prepare(const Rig& rig, const CompositorSettings& settings);
+  bool prepared() const { return geometry_.width > 0; }
+  const OutputGeometry& geometry() const { return geometry_; }
+  const std::vector<ViewPlacement>& placements() const { return views_; }
+
+  // frames[i] is camera i's frame (empty view = camera missing). `out` is output-sized.
+  void compose(const std::vector<ImageView>& frames, const ImageView& out);
+
+ private:
+  std::unique_ptr<Warper> warper_;
+  std::unique_ptr<Blender> blender_;
+  OutputGeometry geometry_;
+  std::vector<ViewPlacement> views_;
+  std::vector<std::vector<uint8_t>> scratch_;  // warped rectangles, reused every frame
+};
+
+}  // namespace stitch

@@ -1,0 +1,77 @@
+// The rig: camera models, camera->canvas homographies, canvas size; JSON I/O.
+//
+// Conventions (the "stitch-rig" JSON contract):
+//  * pixel coordinates use the pixel-centre convention: pixel (0,0) is centred on (0,0);
+//  * camera orientation R = Ry(yaw) * Rx(pitch) * Rz(roll) maps camera rays into the rig frame
+//    (x right, y down, z forward); +yaw looks right, +pitch looks up, +roll turns the image
+//    clockwise as seen by the viewer;
+//  * "homography" maps camera pixels to canvas pixels (row-major, 9 numbers).
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace stitch {
+
+struct RigError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+struct Camera {
+  int width = 0, height = 0;
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+  double yaw_deg = 0, pitch_deg = 0, roll_deg = 0;
+  std::optional<Eigen::Vector3d> t;          // metres, optional
+  std::optional<Eigen::Matrix3d> homography; // camera pixel -> canvas pixel
+
+  Eigen::Matrix3d K() const;
+  Eigen::Matrix3d R() const;  // camera -> rig rotation
+};
+
+struct Rig {
+  std::string projection = "plane";
+  int reference = 0;
+  int canvas_width = 0, canvas_height = 0;  // 0 when not calibrated
+  double plane_distance_m = 0;              // >0: plane-induced homographies use "t"
+  std::vector<Camera> cameras;
+
+  bool calibrated() const;  // every camera has a homography and the canvas is set
+};
+
+// JSON I/O. Throws RigError with a message that names the problem (and the camera index).
+Rig rig_from_json_string(const std::string& text);
+Rig rig_load(const std::string& path);
+std::string rig_to_json_string(const Rig& rig);
+void rig_save(const Rig& rig, const std::string& path);  // atomic: write temp + rename
+
+// Homography from camera `src` pixels to camera `dst` pixels from the rough parameters
+// (paper eq. 8-12): K_dst R_dst^T R_src K_src^-1 for a rotating rig, plane-induced when
+// plane_distance_m > 0 and the cameras carry "t".
+Eigen::Matrix3d rough_pairwise_homography(const Rig& rig, int src, int dst);
+
+// Fills every camera's homography from the rough parameters (planar canvas = the reference
+// camera's image plane) and lays out the canvas. Throws RigError on degenerate geometry.
+void rig_compute_rough_homographies(Rig& rig);
+
+// Shifts all homographies so the union of the warped views starts at (0,0), and sets the
+// canvas size to cover it. Throws RigError when a view does not project (behind the plane)
+// or the canvas would be absurdly large.
+void rig_layout_canvas(Rig& rig);
+
+// Adapts a rig written for other view sizes to the streams' sizes (scales intrinsics and
+// homographies). Returns true when something changed.
+bool rig_adapt_to_sizes(Rig& rig, const std::vector<std::array<int, 2>>& sizes);
+
+// Empty string when H maps a width x height image to a sane, non-mirrored, finite quad.
+std::string homography_problem(const Eigen::Matrix3d& H, int width, int height);
+
+Eigen::Vector2d apply_homography(const Eigen::Matrix3d& H, const Eigen::Vector2d& p);
+
+// Canvas-space quad of a camera (its four corner pixels mapped by its homography).
+std::array<Eigen::Vector2d, 4> camera_canvas_corners(const Camera& cam);
+
+}  // namespace stitch

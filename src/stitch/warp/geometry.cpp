@@ -1,0 +1,110 @@
+#include "stitch/warp/geometry.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+namespace stitch {
+
+namespace {
+int even_at_least_2(double v) { return std::max(2, 2 * static_cast<int>(std::lround(v / 2.0))); }
+}  // namespace
+
+Rect largest_covered_rect(const Rig& rig) {
+  // Rasterise the coverage at a reduced scale, then the classic max-rectangle-in-histogram.
+  const double scale = std::min(1.0, 1024.0 / std::max(rig.canvas_width, rig.canvas_height));
+  const int w = std::max(1, int(rig.canvas_width * scale)), h = std::max(1, int(rig.canvas_height * scale));
+  cv::Mat cover(h, w, CV_8U, cv::Scalar(0));
+  for (const auto& cam : rig.cameras) {
+    std::vector<cv::Point> poly;
+    for (const auto& q : camera_canvas_corners(cam))
+      poly.emplace_back(int(std::lround(q.x() * scale)), int(std::lround(q.y() * scale)));
+    cv::fillConvexPoly(cover, poly, cv::Scalar(1));
+  }
+  // Shrink by one pixel so that rounding never lets an uncovered border in.
+  cv::erode(cover, cover, cv::Mat::ones(3, 3, CV_8U));
+  std::vector<int> heights(w, 0), stack;
+  long best = 0;
+  Rect best_rect;
+  for (int y = 0; y < h; ++y) {
+    const uint8_t* row = cover.ptr<uint8_t>(y);
+    for (int x = 0; x < w; ++x) heights[x] = row[x] ? heights[x] + 1 : 0;
+    stack.clear();
+    for (int x = 0; x <= w; ++x) {
+      const int hx = x < w ? heights[x] : 0;
+      while (!stack.empty() && heights[stack.back()] >= hx) {
+        const int top = heights[stack.back()];
+        stack.pop_back();
+        const int left = stack.empty() ? 0 : stack.back() + 1;
+        const long area = long(top) * (x - left);
+        if (area > best) {
+          best = area;
+          best_rect = {left, y - top + 1, x - left, top};
+        }
+      }
+      stack.push_back(x);
+    }
+  }
+  if (best == 0) return {0, 0, rig.canvas_width, rig.canvas_height};
+  Rect r;
+  r.x = int(std::ceil(best_rect.x / scale));
+  r.y = int(std::ceil(best_rect.y / scale));
+  r.width = std::min(rig.canvas_width - r.x, int(std::floor(best_rect.width / scale)));
+  r.height = std::min(rig.canvas_height - r.y, int(std::floor(best_rect.height / scale)));
+  return r;
+}
+
+OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, CropMode crop) {
+  Rect src{0, 0, rig.canvas_width, rig.canvas_height};
+  if (crop == CropMode::Auto) src = largest_covered_rect(rig);
+  double sw = src.width, sh = src.height;
+  double ow = sw, oh = sh;
+  if (requested_w > 0 && requested_h > 0) {
+    ow = requested_w;
+    oh = requested_h;
+  } else if (requested_w > 0) {
+    ow = requested_w;
+    oh = sh * requested_w / sw;
+  } else if (requested_h > 0) {
+    oh = requested_h;
+    ow = sw * requested_h / sh;
+  }
+  OutputGeometry g;
+  g.width = even_at_least_2(ow);
+  g.height = even_at_least_2(oh);
+  const double s = std::min(g.width / sw, g.height / sh);
+  const double ox = (g.width - sw * s) * 0.5, oy = (g.height - sh * s) * 0.5;
+  // Pixel-centre convention: canvas (x+0.5) scales to output (x'+0.5).
+  Eigen::Matrix3d A;
+  A << s, 0, ox + (0.5 - src.x) * s - 0.5, 0, s, oy + (0.5 - src.y) * s - 0.5, 0, 0, 1;
+  g.canvas_to_output = A;
+  return g;
+}
+
+std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out) {
+  std::vector<ViewPlacement> views;
+  for (const auto& cam : rig.cameras) {
+    ViewPlacement v;
+    v.camera_width = cam.width;
+    v.camera_height = cam.height;
+    const Eigen::Matrix3d cam_to_out = out.canvas_to_output * cam.homography.value();
+    v.output_to_camera = cam_to_out.inverse();
+    double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
+    for (const auto& q : camera_canvas_corners(cam)) {
+      const Eigen::Vector2d o = apply_homography(out.canvas_to_output, q);
+      minx = std::min(minx, o.x());
+      miny = std::min(miny, o.y());
+      maxx = std::max(maxx, o.x());
+      maxy = std::max(maxy, o.y());
+    }
+    const int x0 = std::max(0, int(std::floor(minx))), y0 = std::max(0, int(std::floor(miny)));
+    const int x1 = std::min(out.width - 1, int(std::ceil(maxx)));
+    const int y1 = std::min(out.height - 1, int(std::ceil(maxy)));
+    if (x1 >= x0 && y1 >= y0) v.roi = {x0, y0, x1 - x0 + 1, y1 - y0 + 1};
+    views.push_back(v);
+  }
+  return views;
+}
+
+}  // namespace stitch

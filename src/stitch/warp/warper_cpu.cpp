@@ -1,0 +1,57 @@
+#include <Eigen/Core>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
+
+#include "stitch/warp/warper.hpp"
+#include "stitch/warp/warper_cpu.hpp"
+
+namespace stitch {
+
+void WarperCpu::prepare(const std::vector<ViewPlacement>& views) {
+  maps_.assign(views.size(), {});
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const ViewPlacement& v = views[i];
+    if (v.roi.empty()) continue;
+    cv::Mat fx(v.roi.height, v.roi.width, CV_32F), fy(v.roi.height, v.roi.width, CV_32F);
+    const Eigen::Matrix3d& M = v.output_to_camera;
+    cv::parallel_for_(cv::Range(0, v.roi.height), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) {
+        float* px = fx.ptr<float>(y);
+        float* py = fy.ptr<float>(y);
+        const double oy = v.roi.y + y;
+        for (int x = 0; x < v.roi.width; ++x) {
+          const double ox = v.roi.x + x;
+          const double X = M(0, 0) * ox + M(0, 1) * oy + M(0, 2);
+          const double Y = M(1, 0) * ox + M(1, 1) * oy + M(1, 2);
+          const double Z = M(2, 0) * ox + M(2, 1) * oy + M(2, 2);
+          const bool ok = Z > 1e-12;
+          px[x] = ok ? float(X / Z) : -1e6f;
+          py[x] = ok ? float(Y / Z) : -1e6f;
+        }
+      }
+    });
+    // Fixed-point maps: remap is about twice as fast with them and the error is < 1/32 px.
+    cv::convertMaps(fx, fy, maps_[i].xy, maps_[i].frac, CV_16SC2);
+  }
+}
+
+void WarperCpu::warp(int index, const ImageView& src, const ImageView& dst) {
+  if (src.on_device || dst.on_device) throw std::invalid_argument("CPU warper got device memory");
+  const Maps& m = maps_.at(static_cast<std::size_t>(index));
+  if (m.xy.empty()) return;
+  if (dst.width != m.xy.cols || dst.height != m.xy.rows)
+    throw std::invalid_argument("warp destination does not match the view's rectangle");
+  cv::Mat s(src.height, src.width, CV_8UC4, src.data, src.pitch);
+  cv::Mat d(dst.height, dst.width, CV_8UC4, dst.data, dst.pitch);
+  cv::remap(s, d, m.xy, m.frac, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+}
+
+std::unique_ptr<Warper> Warper::create(Backend backend) {
+  switch (resolve_backend(backend)) {
+    case Backend::Cpu: return std::make_unique<WarperCpu>();
+    default: break;
+  }
+  throw std::runtime_error("no warper for this backend");
+}
+
+}  // namespace stitch
