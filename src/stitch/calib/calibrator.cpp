@@ -343,6 +343,23 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageVi
       if (!Hc.empty()) {
         for (int r = 0; r < 3; ++r)
           for (int c = 0; c < 3; ++c) C(r, c) = Hc.at<double>(r, c);
+        // Polish: refit by least squares (+LM) on the matches that the first fit explains to
+        // within a third of the RANSAC threshold; sloppy inliers otherwise bias the far corners.
+        std::vector<cv::Point2f> s2, d2;
+        for (std::size_t k = 0; k < src.size(); ++k) {
+          if (!inl[k]) continue;
+          const Eigen::Vector2d q = apply_homography(C, {src[k].x, src[k].y});
+          if ((q - Eigen::Vector2d(dst[k].x, dst[k].y)).norm() < o.ransac_threshold_px / 3) {
+            s2.push_back(src[k]);
+            d2.push_back(dst[k]);
+          }
+        }
+        if (s2.size() >= 8) {
+          cv::Mat H2 = cv::findHomography(s2, d2, 0);
+          if (!H2.empty())
+            for (int r = 0; r < 3; ++r)
+              for (int c = 0; c < 3; ++c) C(r, c) = H2.at<double>(r, c);
+        }
         rep.inliers = cv::countNonZero(inl);
         const Eigen::Matrix3d Hnew = C * *rig.cameras[cam].homography;
         const Camera& cc = rig.cameras[cam];

@@ -96,7 +96,7 @@ Eigen::Matrix3d Camera::R() const {
   Eigen::Matrix3d Ry, Rx, Rz;
   Ry << std::cos(y), 0, std::sin(y), 0, 1, 0, -std::sin(y), 0, std::cos(y);
   // +pitch looks up: the optical axis tilts towards -y (image up).
-  Rx << 1, 0, 0, 0, std::cos(p), std::sin(p), 0, -std::sin(p), std::cos(p);
+  Rx << 1, 0, 0, 0, std::cos(p), -std::sin(p), 0, std::sin(p), std::cos(p);
   Rz << std::cos(r), -std::sin(r), 0, std::sin(r), std::cos(r), 0, 0, 0, 1;
   return Ry * Rx * Rz;
 }
@@ -272,7 +272,9 @@ void rig_layout_canvas(Rig& rig) {
     }
     input_area += double(c.width) * c.height;
   }
-  const double cw = std::ceil(maxx - minx + 1), ch = std::ceil(maxy - miny + 1);
+  // Pixel centres span [min, max]; after shifting by floor(min) the last centre is at
+  // max - floor(min), so the canvas needs that many pixels plus one.
+  const double cw = std::ceil(maxx - std::floor(minx)) + 1, ch = std::ceil(maxy - std::floor(miny)) + 1;
   if (cw > kMaxSide || ch > kMaxSide || cw * ch > 16.0 * input_area)
     throw RigError("degenerate geometry: the planar canvas would be " + std::to_string(int(cw)) +
                    "x" + std::to_string(int(ch)) +
@@ -284,8 +286,8 @@ void rig_layout_canvas(Rig& rig) {
     Eigen::Matrix3d H = T * *c.homography;
     c.homography = H / H(2, 2);
   }
-  rig.canvas_width = static_cast<int>(cw) + 1;
-  rig.canvas_height = static_cast<int>(ch) + 1;
+  rig.canvas_width = static_cast<int>(cw);
+  rig.canvas_height = static_cast<int>(ch);
 }
 
 void rig_compute_rough_homographies(Rig& rig) {

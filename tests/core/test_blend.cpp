@@ -1,0 +1,157 @@
+// Warp + position-weighted blend (paper eq. 15-16) on real images.
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/blend/blender_cpu.hpp"
+#include "stitch/blend/compositor.hpp"
+#include "stitch/cv_interop.hpp"
+#include "test_data.hpp"
+
+using namespace stitch;
+
+namespace {
+
+// Two cameras that are exact crops of one photo, 200 px apart: a perfect calibration.
+struct CropRig {
+  cv::Mat photo, cam0, cam1;
+  Rig rig;
+};
+
+CropRig make_crop_rig(int shift = 200) {
+  CropRig c;
+  c.photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  c.cam0 = c.photo(cv::Rect(0, 0, 400, 300)).clone();
+  c.cam1 = c.photo(cv::Rect(shift, 0, 400, 300)).clone();
+  for (int i = 0; i < 2; ++i) {
+    Camera cam;
+    cam.width = 400;
+    cam.height = 300;
+    cam.fx = cam.fy = 400;
+    cam.cx = 199.5;
+    cam.cy = 149.5;
+    Eigen::Matrix3d H = Eigen::Matrix3d::Identity();
+    H(0, 2) = i * shift;
+    cam.homography = H;
+    c.rig.cameras.push_back(cam);
+  }
+  rig_layout_canvas(c.rig);
+  return c;
+}
+
+double psnr(const cv::Mat& a, const cv::Mat& b) {
+  cv::Mat a3, b3;
+  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
+  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
+  return cv::PSNR(a3, b3);
+}
+
+}  // namespace
+
+TEST(Blend, ConsistentViewsReproduceThePhoto) {
+  CropRig c = make_crop_rig();
+  Compositor comp(Backend::Cpu);
+  comp.prepare(c.rig, CompositorSettings{});
+  ASSERT_EQ(comp.geometry().width, 600);
+  ASSERT_EQ(comp.geometry().height, 300);
+  cv::Mat out(comp.geometry().height, comp.geometry().width, CV_8UC4);
+  comp.compose({as_view(c.cam0), as_view(c.cam1)}, as_view(out));
+  const cv::Mat truth = c.photo(cv::Rect(0, 0, 600, 300));
+  // Blending two identical overlaps gives the photo back (up to rounding).
+  EXPECT_GT(psnr(out, truth), 50.0);
+}
+
+TEST(Blend, WeightsFollowPositionAcrossTheOverlap) {
+  CropRig c = make_crop_rig();
+  // Make the two views differ in brightness so the blend's weights become visible.
+  cv::Mat dark = c.cam1.clone();
+  dark.setTo(cv::Scalar(0, 0, 0, 255));
+  cv::Mat bright = c.cam0.clone();
+  bright.setTo(cv::Scalar(200, 200, 200, 255));
+  Compositor comp(Backend::Cpu);
+  comp.prepare(c.rig, CompositorSettings{});
+  cv::Mat out(300, 600, CV_8UC4);
+  comp.compose({as_view(bright), as_view(dark)}, as_view(out));
+  // Outside the overlap: the single view. Inside: monotonic ramp from view 0 to view 1.
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 100)[0], 200);
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 500)[0], 0);
+  int prev = 255;
+  for (int x = 200; x < 400; x += 10) {
+    const int v = out.at<cv::Vec4b>(150, x)[0];
+    EXPECT_LE(v, prev) << "x=" << x;
+    prev = v;
+  }
+  // Eq. 16: at the middle of the overlap both views weigh the same.
+  EXPECT_NEAR(out.at<cv::Vec4b>(150, 300)[0], 100, 3);
+  // The panorama is opaque.
+  EXPECT_EQ(out.at<cv::Vec4b>(10, 10)[3], 255);
+}
+
+TEST(Blend, NormalisedWeightsSumToOne) {
+  CropRig c = make_crop_rig(150);
+  BlenderCpu blender;
+  Compositor comp(Backend::Cpu);
+  comp.prepare(c.rig, CompositorSettings{});
+  blender.prepare(comp.placements(), comp.geometry().width, comp.geometry().height);
+  const auto& w = blender.weights_for(0b11);
+  cv::Mat sum(comp.geometry().height, comp.geometry().width, CV_32S, cv::Scalar(0));
+  for (std::size_t i = 0; i < w.size(); ++i) {
+    const Rect& r = comp.placements()[i].roi;
+    cv::Mat w32;
+    w[i].convertTo(w32, CV_32S);
+    cv::Mat roi = sum(cv::Rect(r.x, r.y, r.width, r.height));
+    roi += w32;
+  }
+  // Every covered pixel's weights sum to exactly 1 (Q14); uncovered ones to 0.
+  for (int y = 1; y < sum.rows - 1; y += 7)
+    for (int x = 1; x < sum.cols - 1; x += 7) ASSERT_EQ(sum.at<int>(y, x), 1 << BlenderCpu::kWeightBits);
+}
+
+TEST(Blend, MissingViewIsLeftOutNotBlendedAsBlack) {
+  CropRig c = make_crop_rig();
+  Compositor comp(Backend::Cpu);
+  comp.prepare(c.rig, CompositorSettings{});
+  cv::Mat out(300, 600, CV_8UC4);
+  comp.compose({as_view(c.cam0), ImageView{}}, as_view(out));
+  // The overlap shows view 0 at full strength; the rest of view 1's area is black.
+  EXPECT_GT(psnr(out(cv::Rect(0, 0, 395, 300)), c.photo(cv::Rect(0, 0, 395, 300))), 45.0);
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 550)[0], 0);
+}
+
+TEST(Blend, OutputScalingAndAutoCrop) {
+  CropRig c = make_crop_rig();
+  // Tilt view 1 a little so the canvas has uncovered corners.
+  Eigen::Matrix3d R;
+  const double a = 0.05;
+  R << std::cos(a), -std::sin(a), 0, std::sin(a), std::cos(a), 0, 0, 0, 1;
+  c.rig.cameras[1].homography = R * *c.rig.cameras[1].homography;
+  rig_layout_canvas(c.rig);
+  CompositorSettings s;
+  s.crop = CropMode::Auto;
+  Compositor comp(Backend::Cpu);
+  comp.prepare(c.rig, s);
+  cv::Mat out(comp.geometry().height, comp.geometry().width, CV_8UC4);
+  comp.compose({as_view(c.cam0), as_view(c.cam1)}, as_view(out));
+  EXPECT_LT(comp.geometry().width, c.rig.canvas_width);
+  // No black (uncovered) pixel is left after auto crop.
+  cv::Mat gray;
+  cv::cvtColor(out, gray, cv::COLOR_RGBA2GRAY);
+  double minv;
+  cv::minMaxLoc(gray, &minv);
+  EXPECT_GT(minv, 0.0);
+  s.crop = CropMode::None;
+  s.output_width = 300;
+  comp.prepare(c.rig, s);
+  EXPECT_EQ(comp.geometry().width, 300);
+  EXPECT_EQ(comp.geometry().height % 2, 0);
+}
+
+TEST(Blend, DegenerateRigIsRefused) {
+  CropRig c = make_crop_rig();
+  Eigen::Matrix3d mirror = Eigen::Matrix3d::Identity();
+  mirror(0, 0) = -1;
+  c.rig.cameras[1].homography = mirror;
+  Compositor comp(Backend::Cpu);
+  EXPECT_THROW(comp.prepare(c.rig, CompositorSettings{}), RigError);
+}
