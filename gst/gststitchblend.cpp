@@ -9,7 +9,8 @@
  * The output size follows the calibration's canvas; `output-width`/`output-height` scale it
  * and `crop=auto` keeps only the largest rectangle that every camera pixel covers (no black
  * corners). A view that stitchsync marks missing is left out and its neighbours fill in.
- * When the geometry changes (recalibration), the output caps follow.
+ * The panorama size is fixed by the first calibration (or the properties): later
+ * recalibrations are fitted into the same frame, so encoders and muxers see no caps change.
  *
  * ## Example launch lines
  * |[
@@ -160,8 +161,15 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta) {
   GST_OBJECT_UNLOCK(self);
   if (st->compositor && meta->version == st->rig_version && !settings_changed) return TRUE;
 
+  stitch::CompositorSettings effective = settings;
+  if (st->compositor && !settings_changed) {
+    /* A recalibration keeps the panorama size: encoders and muxers downstream rarely accept
+     * a new resolution mid-stream. The new canvas is fitted into the same frame. */
+    effective.output_width = st->compositor->geometry().width;
+    effective.output_height = st->compositor->geometry().height;
+  }
   auto compositor = std::make_unique<stitch::Compositor>(settings.backend);
-  compositor->prepare(**meta->rig, settings);
+  compositor->prepare(**meta->rig, effective);
   const stitch::OutputGeometry& g = compositor->geometry();
   st->compositor = std::move(compositor);
   st->rig_version = meta->version;
