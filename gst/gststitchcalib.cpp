@@ -12,7 +12,9 @@
  * - neither: calibration from the images alone (features, pairwise homographies chained to
  *   the reference camera).
  *
- * It calibrates on the first bundle, again when the `recalibrate` action signal is emitted,
+ * It calibrates on the first bundle, then pools the matches of the first `calibration-frames`
+ * frames (every 5th) into a refined calibration that replaces it (moving people and noise
+ * average out on a static rig). It recalibrates when the `recalibrate` action signal is emitted,
  * and every `recalibrate-interval` seconds if set; later calibrations run in a worker thread
  * while the stream goes on with the previous geometry. Every result is posted as an element
  * message named `stitchcalib` and written to `save-file` when set. When matching fails the
@@ -59,6 +61,7 @@ enum {
   PROP_MIN_INLIERS,
   PROP_OVERLAP_MARGIN,
   PROP_REFERENCE,
+  PROP_CALIBRATION_FRAMES,
   PROP_BACKEND,
 };
 enum { SIGNAL_RECALIBRATE, LAST_SIGNAL };
@@ -70,14 +73,23 @@ static guint signals[LAST_SIGNAL];
 #define DEFAULT_MIN_INLIERS 20
 #define DEFAULT_OVERLAP_MARGIN 0.15
 #define DEFAULT_REFERENCE -1
+#define DEFAULT_CALIBRATION_FRAMES 5
+#define POOL_SPACING_FRAMES 5
 #define MAX_FIRST_ATTEMPTS 10
 #define FRAMES_BETWEEN_ATTEMPTS 15
+
+/* Deep copies of one bundle's views, for calibrations that outlive the buffer. */
+struct FrameSet {
+  std::vector<cv::Mat> storage;
+  std::vector<stitch::ImageView> views;
+};
 
 struct CalibSettings {
   std::string rig_file, load_file, save_file;
   stitch::CalibrationOptions options;
   double interval_s = DEFAULT_INTERVAL;
   int reference = DEFAULT_REFERENCE;
+  int calibration_frames = DEFAULT_CALIBRATION_FRAMES;
   stitch::Backend backend = stitch::Backend::Auto;
 };
 
@@ -91,10 +103,15 @@ struct CalibState {
   guint64 frames_since_attempt = 0;
   GstClockTime last_calibration_pts = GST_CLOCK_TIME_NONE;
   std::atomic<bool> recalibrate_requested{false};
+  /* pooling the first frames of a static rig */
+  std::vector<FrameSet> pool;
+  guint64 frames_seen = 0;
+  bool pooling = false;
   /* worker */
   std::thread worker;
   std::atomic<bool> worker_busy{false};
   std::optional<stitch::CalibrationResult> finished;
+  std::string finished_label;  // what the running worker computes: "pooled" or "recalibration"
   std::string worker_error;
 
   void join() {
@@ -109,6 +126,9 @@ struct CalibState {
     worker_error.clear();
     failed_attempts = 0;
     frames_since_attempt = 0;
+    pool.clear();
+    frames_seen = 0;
+    pooling = false;
     last_calibration_pts = GST_CLOCK_TIME_NONE;
   }
 };
@@ -175,28 +195,26 @@ static void post_result(GstStitchCalib* self, const stitch::CalibrationResult& r
   gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
 }
 
-static std::vector<stitch::ImageView> clone_views(const std::vector<stitch::ImageView>& views,
-                                                  std::vector<cv::Mat>& storage) {
-  std::vector<stitch::ImageView> out;
-  storage.clear();
+static FrameSet clone_views(const std::vector<stitch::ImageView>& views) {
+  FrameSet set;
   for (const auto& v : views) {
     cv::Mat m = cv::Mat(v.height, v.width, CV_8UC4, v.data, v.pitch).clone();
-    storage.push_back(m);
+    set.storage.push_back(m);
     stitch::ImageView c;
     c.data = m.data;
     c.pitch = m.step;
     c.width = m.cols;
     c.height = m.rows;
-    out.push_back(c);
+    set.views.push_back(c);
   }
-  return out;
+  return set;
 }
 
 /* The estimation itself: pure core calls, may run in the worker thread. */
-static stitch::CalibrationResult run_calibration(const CalibSettings& s,
-                                                 const std::optional<stitch::Rig>& rough,
-                                                 const std::shared_ptr<const stitch::Rig>& previous,
-                                                 const std::vector<stitch::ImageView>& frames) {
+static stitch::CalibrationResult run_calibration(
+    const CalibSettings& s, const std::optional<stitch::Rig>& rough,
+    const std::shared_ptr<const stitch::Rig>& previous,
+    const std::vector<std::vector<stitch::ImageView>>& frames) {
   if (rough) {
     stitch::Rig start = *rough;
     if (s.reference >= 0) start.reference = s.reference;
@@ -293,7 +311,7 @@ static gboolean calibrate_now(GstStitchCalib* self, const std::vector<stitch::Im
                           (NULL));
   }
   try {
-    stitch::CalibrationResult r = run_calibration(s, st->rough, st->current, views);
+    stitch::CalibrationResult r = run_calibration(s, st->rough, st->current, {views});
     install(self, r, st->rough ? "rig" : "images");
     return TRUE;
   } catch (const stitch::RigError& e) {
@@ -318,16 +336,19 @@ static gboolean calibrate_now(GstStitchCalib* self, const std::vector<stitch::Im
   }
 }
 
-static void start_worker(GstStitchCalib* self, const std::vector<stitch::ImageView>& views) {
+static void start_worker(GstStitchCalib* self, std::shared_ptr<std::vector<FrameSet>> sets) {
   CalibState* st = self->state;
   st->join();
-  auto storage = std::make_shared<std::vector<cv::Mat>>();
-  std::vector<stitch::ImageView> frames = clone_views(views, *storage);
+  std::vector<std::vector<stitch::ImageView>> frames;
+  for (const auto& set : *sets) frames.push_back(set.views);
   CalibSettings settings = st->settings;
   std::optional<stitch::Rig> rough = st->rough;
   std::shared_ptr<const stitch::Rig> previous = st->current;
+  /* The first pooled refinement starts again from the rough rig or from the images. */
+  if (st->pooling) previous.reset();
+  st->finished_label = st->pooling ? "pooled" : "recalibration";
   st->worker_busy = true;
-  st->worker = std::thread([st, storage, frames, settings, rough, previous]() {
+  st->worker = std::thread([st, sets, frames, settings, rough, previous]() {
     std::optional<stitch::CalibrationResult> result;
     std::string error;
     try {
@@ -371,12 +392,28 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
       st->frames_since_attempt = 0;
       ok = calibrate_now(self, mapping.views(), mapping.sizes());
       st->last_calibration_pts = GST_BUFFER_PTS(buf);
+      if (ok && st->current && st->settings.load_file.empty() && st->settings.calibration_frames > 1) {
+        st->pooling = true;
+        st->frames_seen = 0;
+        st->pool.push_back(clone_views(mapping.views()));
+      }
       return;
+    }
+    if (st->pooling && !st->worker_busy) {
+      if (++st->frames_seen % POOL_SPACING_FRAMES == 0)
+        st->pool.push_back(clone_views(mapping.views()));
+      if (int(st->pool.size()) >= st->settings.calibration_frames) {
+        auto sets = std::make_shared<std::vector<FrameSet>>(std::move(st->pool));
+        st->pool.clear();
+        start_worker(self, sets);
+        st->pooling = false;
+        return;
+      }
     }
     if (st->finished || !st->worker_error.empty()) {
       st->join();
       if (st->finished) {
-        install(self, *st->finished, "recalibration");
+        install(self, *st->finished, st->finished_label.c_str());
       } else {
         GST_ELEMENT_WARNING(self, STREAM, FAILED,
                             ("Recalibration failed (%s); keeping the last good calibration",
@@ -394,7 +431,9 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
       due = true;
     if (due && !st->worker_busy && st->settings.load_file.empty()) {
       st->last_calibration_pts = pts;
-      start_worker(self, mapping.views());
+      auto sets = std::make_shared<std::vector<FrameSet>>();
+      sets->push_back(clone_views(mapping.views()));
+      start_worker(self, sets);
     }
   });
   if (!guarded || !ok) return GST_FLOW_ERROR;
@@ -453,6 +492,7 @@ static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const 
     case PROP_MIN_INLIERS: s.options.min_inliers = g_value_get_int(value); break;
     case PROP_OVERLAP_MARGIN: s.options.overlap_margin = g_value_get_double(value); break;
     case PROP_REFERENCE: s.reference = g_value_get_int(value); break;
+    case PROP_CALIBRATION_FRAMES: s.calibration_frames = g_value_get_int(value); break;
     case PROP_BACKEND: s.backend = stitch::Backend(g_value_get_enum(value)); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
@@ -473,6 +513,7 @@ static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue
     case PROP_MIN_INLIERS: g_value_set_int(value, s.options.min_inliers); break;
     case PROP_OVERLAP_MARGIN: g_value_set_double(value, s.options.overlap_margin); break;
     case PROP_REFERENCE: g_value_set_int(value, s.reference); break;
+    case PROP_CALIBRATION_FRAMES: g_value_set_int(value, s.calibration_frames); break;
     case PROP_BACKEND: g_value_set_enum(value, int(s.backend)); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
@@ -523,6 +564,11 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
       g_param_spec_int("reference", "Reference camera",
                        "Camera whose image plane is the canvas (-1: the rig's, or the middle one)",
                        -1, STITCH_MAX_VIEWS - 1, DEFAULT_REFERENCE, rw));
+  g_object_class_install_property(gobject_class, PROP_CALIBRATION_FRAMES,
+      g_param_spec_int("calibration-frames", "Calibration frames",
+                       "Pool the matches of this many of the first frames (every 5th) into a "
+                       "refined calibration that replaces the first-frame one (1 = first frame only)",
+                       1, 100, DEFAULT_CALIBRATION_FRAMES, rw));
   g_object_class_install_property(gobject_class, PROP_BACKEND,
       g_param_spec_enum("backend", "Backend",
                         "Feature matching runs on the CPU in every mode (it runs rarely)",

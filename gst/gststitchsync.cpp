@@ -118,8 +118,9 @@ static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTempla
                                                const gchar* name, const GstCaps* caps) {
   GstStitchSync* self = GST_STITCH_SYNC(element);
   if (element->numsinkpads >= STITCH_MAX_VIEWS) {
-    GST_ELEMENT_ERROR(self, CORE, PAD, ("stitchsync takes at most %d inputs", STITCH_MAX_VIEWS),
-                      ("refused request for pad %s", name ? name : "(any)"));
+    /* A warning, not an error: one camera too many must not stop the others. */
+    GST_ELEMENT_WARNING(self, CORE, PAD, ("stitchsync takes at most %d inputs", STITCH_MAX_VIEWS),
+                        ("refused request for pad %s", name ? name : "(any)"));
     return NULL;
   }
   /* Repeating an ended input is done here, not with the pads' repeat-after-eos, which

@@ -286,10 +286,18 @@ const char* feature_name(FeatureType f) {
 
 CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageView>& frames,
                                      const CalibrationOptions& o) {
-  if (frames.size() != rough.cameras.size())
-    throw RigError("the rig has " + std::to_string(rough.cameras.size()) + " cameras but " +
-                   std::to_string(frames.size()) + " streams are connected");
-  check_frames(frames);
+  return calibrate_from_rig(rough, std::vector<std::vector<ImageView>>{frames}, o);
+}
+
+CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<std::vector<ImageView>>& sets,
+                                     const CalibrationOptions& o) {
+  if (sets.empty()) throw RigError("no frames to calibrate on");
+  for (const auto& frames : sets) {
+    if (frames.size() != rough.cameras.size())
+      throw RigError("the rig has " + std::to_string(rough.cameras.size()) + " cameras but " +
+                     std::to_string(frames.size()) + " streams are connected");
+    check_frames(frames);
+  }
   CalibrationResult res;
   res.rig = rough;
   bool have_all = true;
@@ -307,8 +315,10 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageVi
     if (!connected[i]) res.warnings.push_back("camera " + std::to_string(i) + " overlaps no other camera");
   if (o.refinement == Refinement::None || n < 2) return res;
 
-  std::vector<cv::Mat> gray(n);
-  for (int i = 0; i < n; ++i) gray[i] = to_gray(frames[i]);
+  // gray[set][camera]: matches are pooled over the sets (several instants of a static rig).
+  std::vector<std::vector<cv::Mat>> gray(sets.size(), std::vector<cv::Mat>(n));
+  for (std::size_t t = 0; t < sets.size(); ++t)
+    for (int i = 0; i < n; ++i) gray[t][i] = to_gray(sets[t][i]);
   std::vector<bool> placed(n, false);
   placed[rig.reference] = true;
   for (const auto& [cam, parent] : spanning_order(n, rig.reference, edges)) {
@@ -327,11 +337,14 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageVi
       box.y -= m;
       box.width += 2 * m;
       box.height += 2 * m;
-      Features fc = detect(gray[cam], camera_mask(rig.cameras[cam], box), o);
-      Features fn = detect(gray[nb], camera_mask(rig.cameras[nb], box), o);
-      for (const auto& mt : match(fc, fn, o.features)) {
-        src.push_back(to_canvas(rig.cameras[cam], fc.keypoints[mt.queryIdx].pt));
-        dst.push_back(to_canvas(rig.cameras[nb], fn.keypoints[mt.trainIdx].pt));
+      const cv::Mat mask_c = camera_mask(rig.cameras[cam], box), mask_n = camera_mask(rig.cameras[nb], box);
+      for (const auto& g : gray) {
+        Features fc = detect(g[cam], mask_c, o);
+        Features fn = detect(g[nb], mask_n, o);
+        for (const auto& mt : match(fc, fn, o.features)) {
+          src.push_back(to_canvas(rig.cameras[cam], fc.keypoints[mt.queryIdx].pt));
+          dst.push_back(to_canvas(rig.cameras[nb], fn.keypoints[mt.trainIdx].pt));
+        }
       }
     }
     rep.matches = int(src.size());
@@ -402,13 +415,24 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageVi
 
 CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, int reference,
                                         const CalibrationOptions& o) {
+  return calibrate_from_images(std::vector<std::vector<ImageView>>{frames}, reference, o);
+}
+
+CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                        const CalibrationOptions& o) {
+  if (sets.empty()) throw RigError("no frames to calibrate on");
+  const std::vector<ImageView>& frames = sets[0];
   const int n = int(frames.size());
   if (n < 2) throw RigError("calibration needs at least two cameras");
-  check_frames(frames);
+  for (const auto& set : sets) {
+    if (int(set.size()) != n) throw RigError("every frame set needs one frame per camera");
+    check_frames(set);
+  }
   if (reference < 0) reference = n / 2;
   if (reference >= n) throw RigError("reference camera index out of range");
-  std::vector<Features> feats(n);
-  for (int i = 0; i < n; ++i) feats[i] = detect(to_gray(frames[i]), cv::Mat(), o);
+  std::vector<std::vector<Features>> feats(sets.size(), std::vector<Features>(n));
+  for (std::size_t t = 0; t < sets.size(); ++t)
+    for (int i = 0; i < n; ++i) feats[t][i] = detect(to_gray(sets[t][i]), cv::Mat(), o);
 
   struct PairH {
     Eigen::Matrix3d H;  // a -> b pixels
@@ -418,14 +442,14 @@ CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, in
   std::vector<Edge> edges;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
-      auto m = match(feats[a], feats[b], o.features);
-      pair[a][b].matches = int(m.size());
-      if (m.size() < 8) continue;
       std::vector<cv::Point2f> pa, pb;
-      for (const auto& mt : m) {
-        pa.push_back(feats[a].keypoints[mt.queryIdx].pt);
-        pb.push_back(feats[b].keypoints[mt.trainIdx].pt);
-      }
+      for (const auto& f : feats)
+        for (const auto& mt : match(f[a], f[b], o.features)) {
+          pa.push_back(f[a].keypoints[mt.queryIdx].pt);
+          pb.push_back(f[b].keypoints[mt.trainIdx].pt);
+        }
+      pair[a][b].matches = int(pa.size());
+      if (pa.size() < 8) continue;
       std::vector<uchar> inl;
       cv::Mat H = cv::findHomography(pa, pb, cv::RANSAC, o.ransac_threshold_px, inl, 2000, 0.995);
       if (H.empty()) continue;
@@ -435,8 +459,8 @@ CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, in
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c) E(r, c) = H.at<double>(r, c);
       if (!homography_problem(E, frames[a].width, frames[a].height).empty()) continue;
-      pair[a][b] = {E, count, int(m.size())};
-      pair[b][a] = {E.inverse(), count, int(m.size())};
+      pair[a][b] = {E, count, int(pa.size())};
+      pair[b][a] = {E.inverse(), count, int(pa.size())};
       edges.push_back({a, b, double(count)});
     }
   CalibrationResult res;

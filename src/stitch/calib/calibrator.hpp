@@ -50,9 +50,18 @@ struct CalibrationResult {
 CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageView>& frames,
                                      const CalibrationOptions& options);
 
+// The same, pooling the matches of several instants (sets[t][camera]) of a static rig: moving
+// people and noise average out, and textureless moments are bridged.
+CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<std::vector<ImageView>>& sets,
+                                     const CalibrationOptions& options);
+
 // No rig: pairwise homographies from features, chained to `reference` (-1: middle camera)
 // along the strongest matches. Throws RigError when a camera matches no other.
 CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, int reference,
+                                        const CalibrationOptions& options);
+
+// The same, pooling the matches of several instants.
+CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& options);
 
 struct AlignmentReport {

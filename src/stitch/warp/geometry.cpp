@@ -8,7 +8,7 @@
 namespace stitch {
 
 namespace {
-int even_at_least_2(double v) { return std::max(2, 2 * static_cast<int>(std::lround(v / 2.0))); }
+int even_at_least_2(double v) { return std::max(2, 2 * static_cast<int>(std::ceil(v / 2.0 - 1e-9))); }
 }  // namespace
 
 Rect largest_covered_rect(const Rig& rig) {
@@ -73,8 +73,10 @@ OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, Cro
   OutputGeometry g;
   g.width = even_at_least_2(ow);
   g.height = even_at_least_2(oh);
-  const double s = std::min(g.width / sw, g.height / sh);
-  const double ox = (g.width - sw * s) * 0.5, oy = (g.height - sh * s) * 0.5;
+  // No size requested: 1:1 with the canvas, padded to even sizes (no resampling).
+  const bool requested = requested_w > 0 || requested_h > 0;
+  const double s = requested ? std::min(g.width / sw, g.height / sh) : 1.0;
+  const double ox = std::floor((g.width - sw * s) * 0.5), oy = std::floor((g.height - sh * s) * 0.5);
   // Pixel-centre convention: canvas (x+0.5) scales to output (x'+0.5).
   Eigen::Matrix3d A;
   A << s, 0, ox + (0.5 - src.x) * s - 0.5, 0, s, oy + (0.5 - src.y) * s - 0.5, 0, 0, 1;

@@ -1,0 +1,667 @@
+// stitchsync element tests: GstHarness pushes frames whose pixels encode (input, frame number)
+// into the aggregator and the tests check which input frame every view of every output bundle
+// holds, the bundle timing, the missing-view mask, the input-eos modes, the framerate property,
+// format conversion, the interlaced refusal and the pad limit.
+#include <gst/check/gstharness.h>
+#include <gst/gst.h>
+#include <gst/video/video.h>
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <cstdlib>
+#include <string>
+#include <thread>
+#include <vector>
+
+// Only the struct layout and the STITCH_* constants are used from here; the functions live
+// in the plugin, which the test does not link.
+#include "../../gst/gststitchbundle.h"
+
+namespace {
+
+class GstEnvironment : public ::testing::Environment {
+ public:
+  void SetUp() override { gst_init(nullptr, nullptr); }
+};
+::testing::Environment* const gst_env = ::testing::AddGlobalTestEnvironment(new GstEnvironment);
+
+constexpr int kWidth = 64;
+constexpr int kHeight = 48;
+
+// ---------------------------------------------------------------------------------------------
+// Inputs: each frame carries a code in its pixels. For RGBA inputs the code identifies
+// (input, frame): R = code, G = 255 - code, B = 17 * input + 3, A = 255, on every pixel.
+
+int frame_code(int input, int frame) { return 1 + input * 100 + frame; }  // frame < 99
+std::array<guint8, 4> code_pixel(int input, int code) {
+  return {guint8(code), guint8(255 - code), guint8(17 * input + 3), 255};
+}
+
+struct Frame {
+  GstClockTime pts = 0;
+  GstClockTime duration = 0;
+  int number = 0;  // frame number within its input
+};
+
+struct Input {
+  std::string caps;                      // full caps string
+  std::vector<Frame> frames;
+  bool send_eos = true;
+  // Raw per-plane fill values for non-RGBA inputs (e.g. Y, U, V); empty = RGBA code pixels.
+  std::vector<guint8> plane_values;
+};
+
+std::string rgba_caps(int fps_n, int fps_d = 1) {
+  return "video/x-raw,format=RGBA,width=" + std::to_string(kWidth) +
+         ",height=" + std::to_string(kHeight) + ",framerate=" + std::to_string(fps_n) + "/" +
+         std::to_string(fps_d);
+}
+
+Input rgba_input(std::string caps, std::vector<Frame> frames) {
+  Input in;
+  in.caps = std::move(caps);
+  in.frames = std::move(frames);
+  return in;
+}
+
+// Frames at `fps`, frame numbers [0, count), shifted by `offset`; numbers in `skip` are left
+// out (a gap). Each frame lasts until the next slot of the nominal rate. Timestamps truncate
+// like videotestsrc's and GstVideoAggregator's output timestamps.
+std::vector<Frame> frames_at(int fps, int count, GstClockTime offset = 0,
+                             const std::vector<int>& skip = {}) {
+  std::vector<Frame> out;
+  for (int f = 0; f < count; ++f) {
+    bool skipped = false;
+    for (int s : skip) skipped = skipped || s == f;
+    if (skipped) continue;
+    const GstClockTime a = gst_util_uint64_scale(guint64(f), GST_SECOND, guint64(fps));
+    const GstClockTime b = gst_util_uint64_scale(guint64(f + 1), GST_SECOND, guint64(fps));
+    out.push_back({offset + a, b - a, f});
+  }
+  return out;
+}
+
+GstClockTime end_of(const Input& in) {
+  if (in.frames.empty()) return 0;
+  return in.frames.back().pts + in.frames.back().duration;
+}
+
+// The frame the aggregator shows at output running time t: the most recent one that started
+// at or before t; -1 when none started yet.
+int frame_at(const Input& in, GstClockTime t) {
+  int best = -1;
+  for (const Frame& f : in.frames)
+    if (f.pts <= t) best = f.number;
+  return best;
+}
+
+GstBuffer* make_buffer(const Input& in, int input_index, const Frame& fr) {
+  GstCaps* caps = gst_caps_from_string(in.caps.c_str());
+  GstVideoInfo info;
+  const gboolean ok = gst_video_info_from_caps(&info, caps);
+  gst_caps_unref(caps);
+  if (!ok) return nullptr;
+  GstBuffer* buf = gst_buffer_new_allocate(nullptr, GST_VIDEO_INFO_SIZE(&info), nullptr);
+  GstVideoFrame vf;
+  if (!gst_video_frame_map(&vf, &info, buf, GST_MAP_WRITE)) {
+    gst_buffer_unref(buf);
+    return nullptr;
+  }
+  if (in.plane_values.empty()) {
+    const auto px = code_pixel(input_index, frame_code(input_index, fr.number));
+    auto* data = static_cast<guint8*>(GST_VIDEO_FRAME_PLANE_DATA(&vf, 0));
+    const int stride = GST_VIDEO_FRAME_PLANE_STRIDE(&vf, 0);
+    for (int y = 0; y < GST_VIDEO_FRAME_HEIGHT(&vf); ++y)
+      for (int x = 0; x < GST_VIDEO_FRAME_WIDTH(&vf); ++x)
+        for (int c = 0; c < 4; ++c) data[y * stride + x * 4 + c] = px[c];
+  } else {
+    for (guint p = 0; p < GST_VIDEO_FRAME_N_PLANES(&vf) && p < in.plane_values.size(); ++p) {
+      auto* data = static_cast<guint8*>(GST_VIDEO_FRAME_PLANE_DATA(&vf, p));
+      const int stride = GST_VIDEO_FRAME_PLANE_STRIDE(&vf, p);
+      const int rows = GST_VIDEO_FRAME_COMP_HEIGHT(&vf, p);
+      for (int y = 0; y < rows; ++y) memset(data + y * stride, in.plane_values[p], gsize(stride));
+    }
+  }
+  gst_video_frame_unmap(&vf);
+  GST_BUFFER_PTS(buf) = fr.pts;
+  GST_BUFFER_DURATION(buf) = fr.duration;
+  return buf;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reading bundles.
+
+const GstStitchBundleMeta* bundle_meta(GstBuffer* buf) {
+  gpointer state = nullptr;
+  while (GstMeta* m = gst_buffer_iterate_meta(buf, &state)) {
+    if (g_strcmp0(g_type_name(m->info->api), "GstStitchBundleMetaAPI") == 0)
+      return reinterpret_cast<const GstStitchBundleMeta*>(m);
+  }
+  return nullptr;
+}
+
+struct View {
+  bool present = false;  // a GstVideoMeta with this id exists and maps
+  GstVideoFormat format = GST_VIDEO_FORMAT_UNKNOWN;
+  int width = 0, height = 0, stride = 0;
+  std::array<guint8, 4> first{}, last{}, middle{};
+  bool uniform = false;  // first, middle and last pixel agree
+};
+
+View read_view(GstBuffer* buf, int id) {
+  View v;
+  GstVideoMeta* vm = gst_buffer_get_video_meta_id(buf, id);
+  if (!vm) return v;
+  v.format = vm->format;
+  v.width = int(vm->width);
+  v.height = int(vm->height);
+  GstMapInfo map;
+  gpointer data = nullptr;
+  gint stride = 0;
+  if (!gst_video_meta_map(vm, 0, &map, &data, &stride, GST_MAP_READ)) return v;
+  v.present = true;
+  v.stride = stride;
+  const auto* p = static_cast<const guint8*>(data);
+  auto px = [&](int x, int y) {
+    std::array<guint8, 4> a;
+    for (int c = 0; c < 4; ++c) a[c] = p[gsize(y) * gsize(stride) + gsize(x) * 4 + gsize(c)];
+    return a;
+  };
+  v.first = px(0, 0);
+  v.middle = px(v.width / 2, v.height / 2);
+  v.last = px(v.width - 1, v.height - 1);
+  v.uniform = v.first == v.last && v.first == v.middle;
+  gst_video_meta_unmap(vm, 0, &map);
+  return v;
+}
+
+// Frame number that a view's pixels encode for `input`; -1 when they encode no frame of it.
+int decode_frame(const View& v, int input) {
+  if (!v.present || !v.uniform) return -1;
+  const int code = v.first[0];
+  if (v.first != code_pixel(input, code)) return -1;
+  const int frame = code - frame_code(input, 0);
+  return frame >= 0 && frame < 99 ? frame : -1;
+}
+
+bool is_black(const View& v) {
+  return v.present && v.uniform && v.first == std::array<guint8, 4>{0, 0, 0, 0};
+}
+
+std::string caps_string(const GstCaps* caps) {
+  gchar* s = gst_caps_to_string(caps);
+  std::string r = s ? s : "";
+  g_free(s);
+  return r;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fixture: one stitchsync with N harnessed inputs; outputs come out of inputs[0]'s harness.
+
+class StitchSyncTest : public ::testing::Test {
+ protected:
+  GstElement* element = nullptr;
+  GstBus* bus = nullptr;
+  std::vector<GstHarness*> harnesses;
+  std::vector<GstBuffer*> outputs;
+  GstCaps* out_caps = nullptr;
+  bool got_eos = false;
+
+  void SetUp() override {
+    element = gst_element_factory_make("stitchsync", nullptr);
+    ASSERT_NE(element, nullptr) << "stitchsync not found (GST_PLUGIN_PATH=" <<
+        (g_getenv("GST_PLUGIN_PATH") ? g_getenv("GST_PLUGIN_PATH") : "") << ")";
+    gst_object_ref_sink(element);
+    bus = gst_bus_new();
+    gst_element_set_bus(element, bus);
+  }
+
+  void TearDown() override {
+    for (GstBuffer* b : outputs) gst_buffer_unref(b);
+    outputs.clear();
+    if (out_caps) gst_caps_unref(out_caps);
+    for (auto it = harnesses.rbegin(); it != harnesses.rend(); ++it) gst_harness_teardown(*it);
+    harnesses.clear();
+    if (element) {
+      gst_element_set_state(element, GST_STATE_NULL);
+      gst_element_set_bus(element, nullptr);
+      gst_object_unref(element);
+    }
+    if (bus) gst_object_unref(bus);
+  }
+
+  // Requests sink pads in `pad_numbers` order; harness 0 also takes the src pad.
+  void attach(const std::vector<int>& pad_numbers) {
+    for (std::size_t i = 0; i < pad_numbers.size(); ++i) {
+      const std::string name = "sink_" + std::to_string(pad_numbers[i]);
+      harnesses.push_back(
+          gst_harness_new_with_element(element, name.c_str(), i == 0 ? "src" : nullptr));
+    }
+  }
+  void attach(int n) {
+    std::vector<int> nums;
+    for (int i = 0; i < n; ++i) nums.push_back(i);
+    attach(nums);
+  }
+
+  // Sets caps on every harness, pushes every input from its own thread (the aggregator holds
+  // one buffer per pad, so pushes block), collects outputs until EOS or `timeout_s`.
+  // inputs[i] goes to harnesses[i]; `pixel_index[i]` is the input number coded into its pixels.
+  void run(const std::vector<Input>& inputs, const std::vector<int>& pixel_index = {},
+           double timeout_s = 10.0) {
+    ASSERT_EQ(inputs.size(), harnesses.size());
+    for (std::size_t i = 0; i < inputs.size(); ++i)
+      gst_harness_set_src_caps_str(harnesses[i], inputs[i].caps.c_str());
+    std::vector<std::thread> pushers;
+    for (std::size_t i = 0; i < inputs.size(); ++i) {
+      const int idx = pixel_index.empty() ? int(i) : pixel_index[i];
+      pushers.emplace_back([h = harnesses[i], &in = inputs[i], idx]() {
+        for (const Frame& f : in.frames) {
+          GstBuffer* b = make_buffer(in, idx, f);
+          if (!b || gst_harness_push(h, b) != GST_FLOW_OK) break;
+        }
+        if (in.send_eos) gst_harness_push_event(h, gst_event_new_eos());
+      });
+    }
+    GstHarness* h0 = harnesses[0];
+    const gint64 deadline = g_get_monotonic_time() + gint64(timeout_s * G_TIME_SPAN_SECOND);
+    while (!got_eos && g_get_monotonic_time() < deadline) {
+      while (GstBuffer* b = gst_harness_try_pull(h0)) outputs.push_back(b);
+      while (GstEvent* e = gst_harness_try_pull_event(h0)) {
+        if (GST_EVENT_TYPE(e) == GST_EVENT_EOS) got_eos = true;
+        gst_event_unref(e);
+      }
+      if (!got_eos) g_usleep(1000);
+    }
+    // EOS comes after the last buffer: whatever was queued before it is here now.
+    while (GstBuffer* b = gst_harness_try_pull(h0)) outputs.push_back(b);
+    out_caps = gst_pad_get_current_caps(h0->sinkpad);
+    // Unblock pushers that wait on a pad the aggregator no longer drains.
+    gst_element_set_state(element, GST_STATE_NULL);
+    for (auto& t : pushers) t.join();
+  }
+
+  // Message and debug text of the next ERROR on the element's bus; empty when none comes.
+  std::pair<std::string, std::string> pop_error(double timeout_s) {
+    GstMessage* m = gst_bus_timed_pop_filtered(bus, GstClockTime(timeout_s * GST_SECOND),
+                                               GST_MESSAGE_ERROR);
+    if (!m) return {};
+    GError* err = nullptr;
+    gchar* dbg = nullptr;
+    gst_message_parse_error(m, &err, &dbg);
+    std::pair<std::string, std::string> text{err ? err->message : "", dbg ? dbg : ""};
+    g_clear_error(&err);
+    g_free(dbg);
+    gst_message_unref(m);
+    return text;
+  }
+
+  // Output timing at `fps_n/fps_d`: PTS of output k (GstVideoAggregator truncates).
+  static GstClockTime out_pts(int k, int fps_n, int fps_d) {
+    return gst_util_uint64_scale(guint64(k), GST_SECOND * guint64(fps_d), guint64(fps_n));
+  }
+
+  // Number of outputs a stream at the given rate has before `end`.
+  static int outputs_before(GstClockTime end, int fps_n, int fps_d) {
+    int k = 0;
+    while (out_pts(k, fps_n, fps_d) < end) ++k;
+    return k;
+  }
+
+  // Checks the caps, timing, layout and view contents of every output against `inputs`
+  // (view i = inputs[i], unless `pixel_index` says which input's code view i carries).
+  void check_bundles(const std::vector<Input>& inputs, int fps_n, int fps_d, int expected_count,
+                     bool allow_missing = false) {
+    const int n = int(inputs.size());
+    ASSERT_NE(out_caps, nullptr);
+    const GstStructure* s = gst_caps_get_structure(out_caps, 0);
+    EXPECT_STREQ(gst_structure_get_string(s, "format"), "RGBA") << caps_string(out_caps);
+    EXPECT_STREQ(gst_structure_get_string(s, "multiview-mode"), "separated");
+    gint views = 0, w = 0, h = 0, cn = 0, cd = 0;
+    EXPECT_TRUE(gst_structure_get_int(s, "views", &views));
+    EXPECT_EQ(views, n);
+    EXPECT_TRUE(gst_structure_get_int(s, "width", &w));
+    EXPECT_TRUE(gst_structure_get_int(s, "height", &h));
+    EXPECT_EQ(w, kWidth);
+    EXPECT_EQ(h, kHeight);
+    EXPECT_TRUE(gst_structure_get_fraction(s, "framerate", &cn, &cd));
+    EXPECT_EQ(gint64(cn) * fps_d, gint64(fps_n) * cd) << "output framerate " << cn << "/" << cd;
+
+    ASSERT_EQ(int(outputs.size()), expected_count);
+    for (int k = 0; k < expected_count; ++k) {
+      SCOPED_TRACE("output " + std::to_string(k));
+      GstBuffer* b = outputs[std::size_t(k)];
+      const GstClockTime t = out_pts(k, fps_n, fps_d);
+      EXPECT_EQ(GST_BUFFER_PTS(b), t);
+      EXPECT_EQ(GST_BUFFER_DURATION(b), out_pts(k + 1, fps_n, fps_d) - t);
+      EXPECT_EQ(int(gst_buffer_n_memory(b)), n);
+      const GstStitchBundleMeta* bm = bundle_meta(b);
+      ASSERT_NE(bm, nullptr) << "no GstStitchBundleMeta";
+      EXPECT_EQ(int(bm->n_views), n);
+      for (int i = 0; i < n; ++i) {
+        SCOPED_TRACE("view " + std::to_string(i));
+        const View v = read_view(b, i);
+        ASSERT_TRUE(v.present) << "no mappable GstVideoMeta with id " << i;
+        EXPECT_EQ(v.format, GST_VIDEO_FORMAT_RGBA);
+        EXPECT_EQ(v.width, kWidth);
+        EXPECT_EQ(v.height, kHeight);
+        const int want = frame_at(inputs[std::size_t(i)], t);
+        const bool missing = (bm->missing_mask >> i) & 1;
+        if (want < 0) {
+          EXPECT_TRUE(allow_missing) << "test setup: input " << i << " has no frame yet";
+          EXPECT_TRUE(missing) << "view without any frame yet is not marked missing";
+          EXPECT_TRUE(is_black(v)) << "missing view is not black";
+        } else {
+          EXPECT_FALSE(missing) << "view wrongly marked missing";
+          EXPECT_EQ(decode_frame(v, i), want)
+              << "pixel " << int(v.first[0]) << "," << int(v.first[1]) << "," << int(v.first[2])
+              << "," << int(v.first[3]);
+        }
+      }
+    }
+  }
+};
+
+// 1. Two rates: the output runs at the fastest (30 fps) and the 15 fps view holds the frame
+//    covering each output time.
+TEST_F(StitchSyncTest, DifferentRatesFollowFastestInput) {
+  attach(2);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  in[1] = rgba_input(rgba_caps(15), frames_at(15, 15));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  const int count = outputs_before(std::max(end_of(in[0]), end_of(in[1])), 30, 1);
+  EXPECT_EQ(count, 30);
+  check_bundles(in, 30, 1, count);
+  // The slow view really changes every second output (guards against a constant view).
+  if (outputs.size() == 30) {
+    EXPECT_EQ(decode_frame(read_view(outputs[2], 1), 1), 1);
+    EXPECT_EQ(decode_frame(read_view(outputs[3], 1), 1), 1);
+    EXPECT_EQ(decode_frame(read_view(outputs[29], 1), 1), 14);
+  }
+}
+
+// Views follow pad numbers, not the order the pads were requested in.
+TEST_F(StitchSyncTest, ViewsOrderedByPadNumber) {
+  attach(std::vector<int>{2, 0, 1});  // harness j feeds sink_{2,0,1}[j]
+  std::vector<Input> in(3);
+  for (auto& i : in) i = rgba_input(rgba_caps(30), frames_at(30, 6));
+  // Harness j pushes pixels coded as input number = its pad number.
+  run(in, {2, 0, 1});
+  EXPECT_TRUE(got_eos);
+  ASSERT_EQ(outputs.size(), 6u);
+  for (std::size_t k = 0; k < outputs.size(); ++k) {
+    for (int v = 0; v < 3; ++v)
+      EXPECT_EQ(decode_frame(read_view(outputs[k], v), v), int(k)) << "output " << k << " view " << v;
+  }
+}
+
+// 2. An input that starts 100 ms late is black and marked missing until its first frame.
+TEST_F(StitchSyncTest, LateInputMarkedMissingUntilFirstFrame) {
+  attach(2);
+  const GstClockTime offset = 100 * GST_MSECOND;
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 27, offset));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  const int count = outputs_before(std::max(end_of(in[0]), end_of(in[1])), 30, 1);
+  check_bundles(in, 30, 1, count, /*allow_missing=*/true);
+  // Outputs before the late input's first frame (3 at 30 fps) had it missing, later ones not.
+  const int n_missing = outputs_before(offset, 30, 1);
+  ASSERT_EQ(n_missing, 3);
+  for (int k = 0; k < int(outputs.size()); ++k) {
+    const GstStitchBundleMeta* bm = bundle_meta(outputs[std::size_t(k)]);
+    ASSERT_NE(bm, nullptr);
+    EXPECT_EQ(bm->missing_mask, k < n_missing ? 0x2u : 0x0u) << "output " << k;
+  }
+}
+
+// 3. A gap (frames 3..8 never sent): the view keeps the most recent frame that started at or
+//    before the output time, then picks up again.
+TEST_F(StitchSyncTest, GapRepeatsMostRecentFrame) {
+  attach(2);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 30, 0, {3, 4, 5, 6, 7, 8}));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  check_bundles(in, 30, 1, 30);
+  if (outputs.size() == 30) {
+    for (int k = 3; k <= 8; ++k)
+      EXPECT_EQ(decode_frame(read_view(outputs[std::size_t(k)], 1), 1), 2) << "output " << k;
+    EXPECT_EQ(decode_frame(read_view(outputs[9], 1), 1), 9);
+  }
+}
+
+// 4. input-eos=repeat-last: the ended input's last frame is repeated until the other ends.
+TEST_F(StitchSyncTest, RepeatLastAfterInputEos) {
+  gst_util_set_object_arg(G_OBJECT(element), "input-eos", "repeat-last");
+  attach(2);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 15));
+  run(in);
+  EXPECT_TRUE(got_eos) << "no EOS after every input ended";
+  const int count = outputs_before(end_of(in[0]), 30, 1);
+  EXPECT_EQ(count, 30);
+  check_bundles(in, 30, 1, count);
+  if (outputs.size() == 30) {
+    for (int k = 15; k < 30; ++k) {
+      EXPECT_EQ(decode_frame(read_view(outputs[std::size_t(k)], 1), 1), 14) << "output " << k;
+      EXPECT_EQ(decode_frame(read_view(outputs[std::size_t(k)], 0), 0), k) << "output " << k;
+    }
+  }
+}
+
+// 5. input-eos=end-stream: the output ends right after the shorter input's last frame.
+TEST_F(StitchSyncTest, EndStreamWhenAnyInputEnds) {
+  gst_util_set_object_arg(G_OBJECT(element), "input-eos", "end-stream");
+  attach(2);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 15));
+  run(in);
+  EXPECT_TRUE(got_eos) << "no EOS after the first input ended";
+  const int count = outputs_before(std::min(end_of(in[0]), end_of(in[1])), 30, 1);
+  EXPECT_EQ(count, 15);
+  check_bundles(in, 30, 1, count);
+}
+
+// The same holds when the *first* pad is the one that ends.
+TEST_F(StitchSyncTest, EndStreamWhenFirstPadEnds) {
+  gst_util_set_object_arg(G_OBJECT(element), "input-eos", "end-stream");
+  attach(2);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 10));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  check_bundles(in, 30, 1, 10);
+}
+
+// 6. framerate=10/1 overrides the inputs' 30 fps.
+TEST_F(StitchSyncTest, FrameratePropertyOverridesOutputRate) {
+  GValue v = G_VALUE_INIT;
+  g_value_init(&v, GST_TYPE_FRACTION);
+  gst_value_set_fraction(&v, 10, 1);
+  g_object_set_property(G_OBJECT(element), "framerate", &v);
+  g_value_unset(&v);
+  attach(2);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 30));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  const int count = outputs_before(end_of(in[0]), 10, 1);
+  EXPECT_EQ(count, 10);
+  ASSERT_NE(out_caps, nullptr);
+  gint n = 0, d = 0;
+  EXPECT_TRUE(gst_structure_get_fraction(gst_caps_get_structure(out_caps, 0), "framerate", &n, &d));
+  EXPECT_EQ(n, 10);
+  EXPECT_EQ(d, 1);
+  ASSERT_EQ(int(outputs.size()), count);
+  int prev[2] = {-1, -1};
+  for (int k = 0; k < count; ++k) {
+    GstBuffer* b = outputs[std::size_t(k)];
+    const GstClockTime t = out_pts(k, 10, 1), t_end = out_pts(k + 1, 10, 1);
+    EXPECT_EQ(GST_BUFFER_PTS(b), t) << "output " << k;
+    EXPECT_EQ(GST_BUFFER_DURATION(b), t_end - t) << "output " << k;
+    // Downsampling: each view shows one input frame of the output's interval [t, t_end) and
+    // time only moves forward. Which frame of the interval is not fixed: GstVideoAggregator
+    // takes any queued frame that overlaps the interval, depending on thread timing
+    // (documented in docs/ARCHITECTURE.md; put videorate before the inputs for exact decimation).
+    for (int i = 0; i < 2; ++i) {
+      const int f = decode_frame(read_view(b, i), i);
+      ASSERT_GE(f, 0) << "output " << k << " view " << i;
+      EXPECT_GT(f, prev[i]) << "output " << k << " view " << i << " went back in time";
+      prev[i] = f;
+      const Frame& fr = in[std::size_t(i)].frames[std::size_t(f)];
+      EXPECT_LT(fr.pts, t_end) << "output " << k << " view " << i << " frame " << f;
+      EXPECT_GT(fr.pts + fr.duration, t) << "output " << k << " view " << i << " frame " << f;
+    }
+  }
+}
+
+// RGBA that GStreamer's own converter makes of `in`'s first frame (first pixel).
+std::array<guint8, 4> reference_rgba(const Input& in) {
+  std::array<guint8, 4> px{};
+  GstCaps* caps = gst_caps_from_string(in.caps.c_str());
+  GstVideoInfo src_info, dst_info;
+  const gboolean ok = gst_video_info_from_caps(&src_info, caps);
+  gst_caps_unref(caps);
+  if (!ok) return px;
+  gst_video_info_set_format(&dst_info, GST_VIDEO_FORMAT_RGBA, guint(src_info.width),
+                            guint(src_info.height));
+  GST_VIDEO_INFO_FPS_N(&dst_info) = GST_VIDEO_INFO_FPS_N(&src_info);
+  GST_VIDEO_INFO_FPS_D(&dst_info) = GST_VIDEO_INFO_FPS_D(&src_info);
+  GstBuffer* sb = make_buffer(in, 0, in.frames.at(0));
+  GstBuffer* db = gst_buffer_new_allocate(nullptr, GST_VIDEO_INFO_SIZE(&dst_info), nullptr);
+  GstVideoFrame sf, df;
+  if (sb && gst_video_frame_map(&sf, &src_info, sb, GST_MAP_READ)) {
+    if (gst_video_frame_map(&df, &dst_info, db, GST_MAP_WRITE)) {
+      if (GstVideoConverter* conv = gst_video_converter_new(&src_info, &dst_info, nullptr)) {
+        gst_video_converter_frame(conv, &sf, &df);
+        gst_video_converter_free(conv);
+        memcpy(px.data(), GST_VIDEO_FRAME_PLANE_DATA(&df, 0), 4);
+      }
+      gst_video_frame_unmap(&df);
+    }
+    gst_video_frame_unmap(&sf);
+  }
+  if (sb) gst_buffer_unref(sb);
+  gst_buffer_unref(db);
+  return px;
+}
+
+// 7. A non-RGBA input is converted: an I420 frame of known Y/U/V comes out as RGBA close to
+//    the BT.601 limited-range matrix (loosely: GStreamer's 8-bit fast path is off by up to 4)
+//    and to what GstVideoConverter makes of the same frame (tightly).
+TEST_F(StitchSyncTest, I420InputConvertedToRgba) {
+  attach(2);
+  const guint8 Y = 128, U = 100, V = 160;
+  std::vector<Input> in(2);
+  in[0].caps = "video/x-raw,format=I420,width=" + std::to_string(kWidth) +
+               ",height=" + std::to_string(kHeight) + ",framerate=30/1,colorimetry=bt601";
+  in[0].frames = frames_at(30, 3);
+  in[0].plane_values = {Y, U, V};
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 3));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  ASSERT_EQ(outputs.size(), 3u);
+  gdouble Kr = 0, Kb = 0;
+  ASSERT_TRUE(gst_video_color_matrix_get_Kr_Kb(GST_VIDEO_COLOR_MATRIX_BT601, &Kr, &Kb));
+  const double Kg = 1.0 - Kr - Kb;
+  const double yn = (Y - 16) / 219.0, un = (U - 128) / 224.0, vn = (V - 128) / 224.0;
+  const double rgb[3] = {255 * (yn + 2 * (1 - Kr) * vn),
+                         255 * (yn - 2 * Kb * (1 - Kb) / Kg * un - 2 * Kr * (1 - Kr) / Kg * vn),
+                         255 * (yn + 2 * (1 - Kb) * un)};
+  const std::array<guint8, 4> ref = reference_rgba(in[0]);
+  ASSERT_EQ(ref[3], 255) << "reference conversion failed";
+  for (std::size_t k = 0; k < outputs.size(); ++k) {
+    const View v0 = read_view(outputs[k], 0);
+    ASSERT_TRUE(v0.present);
+    EXPECT_EQ(v0.format, GST_VIDEO_FORMAT_RGBA);
+    EXPECT_EQ(v0.width, kWidth);
+    EXPECT_EQ(v0.height, kHeight);
+    EXPECT_GE(v0.stride, kWidth * 4);
+    EXPECT_TRUE(v0.uniform);
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_NEAR(double(v0.first[c]), rgb[c], 6.0) << "output " << k << " channel " << c;
+      EXPECT_NEAR(double(v0.first[c]), double(ref[c]), 2.0) << "output " << k << " channel " << c;
+    }
+    EXPECT_EQ(v0.first[3], 255);
+    const GstStitchBundleMeta* bm = bundle_meta(outputs[k]);
+    ASSERT_NE(bm, nullptr);
+    EXPECT_EQ(bm->missing_mask, 0u);
+    // The RGBA input next to it is untouched.
+    EXPECT_EQ(decode_frame(read_view(outputs[k], 1), 1), int(k));
+  }
+}
+
+// 8. Interlaced caps are refused with an error that names the pad.
+TEST_F(StitchSyncTest, InterlacedInputErrorNamesPad) {
+  attach(2);
+  gst_harness_set_src_caps_str(harnesses[0], rgba_caps(30).c_str());
+  // Pushed directly: gst_harness_set_src_caps asserts that the event is accepted.
+  GstCaps* caps = gst_caps_from_string((rgba_caps(30) + ",interlace-mode=interleaved").c_str());
+  gst_pad_push_event(harnesses[1]->srcpad, gst_event_new_caps(caps));
+  gst_caps_unref(caps);
+  const auto [message, debug] = pop_error(5.0);
+  ASSERT_FALSE(message.empty()) << "no error message for interlaced input";
+  EXPECT_NE(message.find("sink_1"), std::string::npos) << message << " | " << debug;
+  EXPECT_EQ(message.find("sink_0"), std::string::npos) << message;
+  EXPECT_NE(message.find("interlaced"), std::string::npos) << message;
+  // Nothing was bundled from the refused input.
+  GstBuffer* out = gst_harness_try_pull(harnesses[0]);
+  EXPECT_EQ(out, nullptr);
+  if (out) gst_buffer_unref(out);
+}
+
+// 9. At most 16 inputs: the 17th request fails; a released pad frees a slot.
+TEST_F(StitchSyncTest, SeventeenthPadRefused) {
+  std::vector<GstPad*> pads;
+  for (int i = 0; i < STITCH_MAX_VIEWS; ++i) {
+    GstPad* p = gst_element_request_pad_simple(element, "sink_%u");
+    ASSERT_NE(p, nullptr) << "request " << i;
+    pads.push_back(p);
+  }
+  EXPECT_EQ(int(element->numsinkpads), 16);
+  GstPad* extra = gst_element_request_pad_simple(element, "sink_%u");
+  EXPECT_EQ(extra, nullptr);
+  if (extra) pads.push_back(extra);
+  EXPECT_EQ(int(element->numsinkpads), 16);
+  // Freeing one slot lets a new request through.
+  gst_element_release_request_pad(element, pads.back());
+  gst_object_unref(pads.back());
+  pads.pop_back();
+  GstPad* again = gst_element_request_pad_simple(element, "sink_%u");
+  EXPECT_NE(again, nullptr);
+  if (again) pads.push_back(again);
+  for (GstPad* p : pads) {
+    gst_element_release_request_pad(element, p);
+    gst_object_unref(p);
+  }
+}
+
+// Property defaults and enum nicks the other tests rely on.
+TEST_F(StitchSyncTest, PropertyDefaults) {
+  GValue v = G_VALUE_INIT;
+  g_value_init(&v, GST_TYPE_FRACTION);
+  g_object_get_property(G_OBJECT(element), "framerate", &v);
+  EXPECT_EQ(gst_value_get_fraction_numerator(&v), 0);
+  EXPECT_EQ(gst_value_get_fraction_denominator(&v), 1);
+  g_value_unset(&v);
+  GParamSpec* ps = g_object_class_find_property(G_OBJECT_GET_CLASS(element), "input-eos");
+  ASSERT_NE(ps, nullptr);
+  gint eos_mode = -1;
+  g_object_get(element, "input-eos", &eos_mode, NULL);
+  GEnumValue* ev = g_enum_get_value(G_PARAM_SPEC_ENUM(ps)->enum_class, eos_mode);
+  ASSERT_NE(ev, nullptr);
+  EXPECT_STREQ(ev->value_nick, "repeat-last");
+  EXPECT_NE(g_enum_get_value_by_nick(G_PARAM_SPEC_ENUM(ps)->enum_class, "end-stream"), nullptr);
+}
+
+}  // namespace
