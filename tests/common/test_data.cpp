@@ -1,5 +1,7 @@
 #include "test_data.hpp"
 
+#include <Eigen/Dense>
+
 #include <cstdlib>
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
@@ -39,6 +41,29 @@ cv::Mat load_rgba(const std::string& path) {
   cv::Mat rgba;
   cv::cvtColor(bgr, rgba, cv::COLOR_BGR2RGBA);
   return rgba;
+}
+
+stitch::Camera pinhole(int width, int height, double f) {
+  stitch::Camera c;
+  c.width = width;
+  c.height = height;
+  c.fx = c.fy = f;
+  c.cx = (width - 1) * 0.5;
+  c.cy = (height - 1) * 0.5;
+  return c;
+}
+
+stitch::Rig shifted_rig(int n, int width, int height, double shift) {
+  stitch::Rig rig;
+  for (int i = 0; i < n; ++i) {
+    stitch::Camera c = pinhole(width, height, width);
+    Eigen::Matrix3d H = Eigen::Matrix3d::Identity();
+    H(0, 2) = shift * i;
+    c.homography = H;
+    rig.cameras.push_back(c);
+  }
+  stitch::rig_layout_canvas(rig);
+  return rig;
 }
 
 }  // namespace testdata

@@ -24,19 +24,7 @@ CropRig make_crop_rig(int shift = 200) {
   c.photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
   c.cam0 = c.photo(cv::Rect(0, 0, 400, 300)).clone();
   c.cam1 = c.photo(cv::Rect(shift, 0, 400, 300)).clone();
-  for (int i = 0; i < 2; ++i) {
-    Camera cam;
-    cam.width = 400;
-    cam.height = 300;
-    cam.fx = cam.fy = 400;
-    cam.cx = 199.5;
-    cam.cy = 149.5;
-    Eigen::Matrix3d H = Eigen::Matrix3d::Identity();
-    H(0, 2) = i * shift;
-    cam.homography = H;
-    c.rig.cameras.push_back(cam);
-  }
-  rig_layout_canvas(c.rig);
+  c.rig = testdata::shifted_rig(2, 400, 300, shift);
   return c;
 }
 

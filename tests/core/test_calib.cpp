@@ -71,12 +71,7 @@ Rig rig_with(const Eigen::Matrix3d& H1) {
   Rig rig;
   rig.reference = 0;
   for (int i = 0; i < 2; ++i) {
-    Camera c;
-    c.width = 640;
-    c.height = 480;
-    c.fx = c.fy = 600;
-    c.cx = 319.5;
-    c.cy = 239.5;
+    Camera c = testdata::pinhole(640, 480, 600);
     c.homography = i == 0 ? Eigen::Matrix3d::Identity() : H1;
     rig.cameras.push_back(c);
   }

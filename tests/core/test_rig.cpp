@@ -17,12 +17,7 @@ Rig two_camera_rig(double yaw1) {
   Rig rig;
   rig.reference = 0;
   for (double yaw : {0.0, yaw1}) {
-    Camera c;
-    c.width = 640;
-    c.height = 480;
-    c.fx = c.fy = 600;
-    c.cx = 319.5;
-    c.cy = 239.5;
+    Camera c = testdata::pinhole(640, 480, 600);
     c.yaw_deg = yaw;
     rig.cameras.push_back(c);
   }

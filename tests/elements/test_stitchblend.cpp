@@ -22,21 +22,8 @@ struct Scene {
 Scene scene() {
   Scene s;
   s.photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
-  Rig rig;
-  for (int i = 0; i < 2; ++i) {
-    s.views.push_back(s.photo(cv::Rect(400 * i, 200, 640, 480)).clone());
-    Camera c;
-    c.width = 640;
-    c.height = 480;
-    c.fx = c.fy = 600;
-    c.cx = 319.5;
-    c.cy = 239.5;
-    Eigen::Matrix3d H = Eigen::Matrix3d::Identity();
-    H(0, 2) = 400 * i;
-    c.homography = H;
-    rig.cameras.push_back(c);
-  }
-  rig_layout_canvas(rig);
+  for (int i = 0; i < 2; ++i) s.views.push_back(s.photo(cv::Rect(400 * i, 200, 640, 480)).clone());
+  const Rig rig = testdata::shifted_rig(2, 640, 480, 400);
   s.calib = testdata::temp_dir() + "/blend_exact.json";
   rig_save(rig, s.calib);
   return s;

@@ -89,20 +89,7 @@ TEST(StitchCalib, RigFileIsRefinedSavedAndAnnounced) {
 }
 
 TEST(StitchCalib, LoadFileIsUsedAsIs) {
-  Rig rig;
-  for (int i = 0; i < 2; ++i) {
-    Camera c;
-    c.width = 640;
-    c.height = 480;
-    c.fx = c.fy = 600;
-    c.cx = 319.5;
-    c.cy = 239.5;
-    Eigen::Matrix3d H = Eigen::Matrix3d::Identity();
-    H(0, 2) = 400 * i;
-    c.homography = H;
-    rig.cameras.push_back(c);
-  }
-  rig_layout_canvas(rig);
+  const Rig rig = testdata::shifted_rig(2, 640, 480, 400);
   const std::string path = testdata::temp_dir() + "/exact2.json";
   rig_save(rig, path);
   gsttest::RunResult r;
