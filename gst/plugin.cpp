@@ -2,12 +2,14 @@
 
 #include "gststitchblend.h"
 #include "gststitchcalib.h"
+#include "gststitchcolor.h"
 #include "gststitchsync.h"
 
 static gboolean plugin_init(GstPlugin* plugin) {
   gboolean ok = FALSE;
   ok |= GST_ELEMENT_REGISTER(stitchsync, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchcalib, plugin);
+  ok |= GST_ELEMENT_REGISTER(stitchcolor, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchblend, plugin);
   return ok;
 }

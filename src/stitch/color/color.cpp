@@ -1,0 +1,410 @@
+#include "stitch/color/color.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+namespace stitch {
+namespace {
+
+std::vector<cv::Point2f> canvas_quad(const Camera& c) {
+  std::vector<cv::Point2f> q;
+  for (const auto& p : camera_canvas_corners(c)) q.emplace_back(float(p.x()), float(p.y()));
+  return q;
+}
+
+bool in_image(const Eigen::Vector3d& q, int w, int h, double& x, double& y) {
+  if (!(q.z() > 1e-9)) return false;
+  x = q.x() / q.z();
+  y = q.y() / q.z();
+  return x >= 1 && y >= 1 && x <= w - 2 && y <= h - 2;
+}
+
+bool usable(const std::array<uint8_t, 3>& p, const ColorOptions& o) {
+  const bool dark = p[0] <= o.dark_level && p[1] <= o.dark_level && p[2] <= o.dark_level;
+  const bool bright = p[0] >= o.bright_level || p[1] >= o.bright_level || p[2] >= o.bright_level;
+  return !dark && !bright;
+}
+
+Eigen::Matrix3d clamp_matrix(const Eigen::Matrix3d& M) {
+  Eigen::Matrix3d C = M;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) C(r, c) = r == c ? std::clamp(C(r, c), 0.2, 5.0) : std::clamp(C(r, c), -1.0, 1.0);
+  return C;
+}
+
+}  // namespace
+
+std::array<uint8_t, 256> histogram_specification(const std::array<uint32_t, 256>& src,
+                                                 const std::array<uint32_t, 256>& ref) {
+  std::array<uint8_t, 256> lut;
+  double ns = 0, nr = 0;
+  for (int v = 0; v < 256; ++v) {
+    ns += src[v];
+    nr += ref[v];
+  }
+  if (ns <= 0 || nr <= 0) {
+    for (int v = 0; v < 256; ++v) lut[v] = uint8_t(v);
+    return lut;
+  }
+  std::array<double, 256> cdf_ref;
+  double acc = 0;
+  for (int v = 0; v < 256; ++v) cdf_ref[v] = (acc += ref[v]) / nr;
+  acc = 0;
+  int u = 0;
+  for (int v = 0; v < 256; ++v) {
+    // Centre of this level's mass in the source CDF, matched to the first reference level
+    // whose CDF reaches it.
+    const double target = (acc + 0.5 * src[v]) / ns;
+    acc += src[v];
+    while (u < 255 && cdf_ref[u] < target) ++u;
+    lut[v] = uint8_t(u);
+  }
+  return lut;
+}
+
+double piecewise_balance_value(double x, double m1, double m2, double lambda) {
+  if (!(m2 - m1 >= 1.0) || !std::isfinite(m1) || !std::isfinite(m2)) return x;
+  // Targets: m1 -> lambda and m2 -> 1 - lambda of the range (a histogram stretch), but never
+  // lifting a dark level or lowering a bright one by more than 2x ...
+  double t1 = std::min(255.0 * lambda, 2.0 * m1);
+  double t2 = std::max(255.0 * (1 - lambda), 255.0 - 2.0 * (255.0 - m2));
+  // ... and never stretching the mid-tones more than 2x: move the targets back toward the
+  // identity until the linear part's slope is at most 2.
+  const double span = m2 - m1, wanted = t2 - t1;
+  if (wanted > 2 * span) {
+    const double beta = span / (wanted - span);  // (1-b) span + b wanted = 2 span
+    t1 = m1 + beta * (t1 - m1);
+    t2 = m2 + beta * (t2 - m2);
+  }
+  const double s = (t2 - t1) / span;
+  if (x < m1) {
+    if (m1 <= 0 || t1 <= 0) return std::max(0.0, t1 * x / std::max(m1, 1e-9));
+    // Gamma segment through (0, 0) and (m1, t1) with the linear part's slope at m1.
+    const double g = std::clamp(s * m1 / t1, 0.2, 5.0);
+    return t1 * std::pow(std::max(0.0, x) / m1, g);
+  }
+  if (x > m2) {
+    if (m2 >= 255 || t2 >= 255) return t2 + (x - m2) * (255.0 - t2) / std::max(255.0 - m2, 1e-9);
+    const double g = std::clamp(s * (255 - m2) / (255 - t2), 0.2, 5.0);
+    return 255 - (255 - t2) * std::pow(std::max(0.0, 255 - x) / (255 - m2), g);
+  }
+  return t1 + (x - m1) * s;
+}
+
+std::array<uint8_t, 256> piecewise_balance_curve(double m1, double m2, double lambda) {
+  std::array<uint8_t, 256> lut;
+  for (int v = 0; v < 256; ++v)
+    lut[v] = uint8_t(std::clamp(std::lround(piecewise_balance_value(v, m1, m2, lambda)), 0L, 255L));
+  return lut;
+}
+
+ColorCorrector::ColorCorrector(Backend backend) : ops_(ColorOps::create(backend)) { reset(); }
+
+void ColorCorrector::set_options(const ColorOptions& o) {
+  const bool restart = o.method != options_.method || o.window != options_.window ||
+                       o.pairing != options_.pairing || o.balance != options_.balance;
+  options_ = o;
+  options_.window = std::max(1, options_.window);
+  if (restart) reset();
+}
+
+void ColorCorrector::reset() {
+  for (auto& h : history_) {
+    h.AtA.clear();
+    h.AtB.clear();
+  }
+  std::fill(current_.begin(), current_.end(), Eigen::Matrix3d::Identity());
+  std::fill(has_current_.begin(), has_current_.end(), false);
+  std::fill(gains_.begin(), gains_.end(), Eigen::Vector3d::Ones());
+  thresholds_.clear();
+  for (int c = 0; c < 3; ++c)
+    for (int v = 0; v < 256; ++v) lut_[c][v] = uint8_t(v);
+}
+
+void ColorCorrector::prepare_geometry(const Rig& rig) {
+  const int n = int(rig.cameras.size());
+  reference_ = rig.reference;
+  pairs_.clear();
+  std::vector<std::array<double, 3>> edges;  // a, b, weight
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      std::vector<cv::Point2f> inter;
+      const float area = cv::intersectConvexConvex(canvas_quad(rig.cameras[a]), canvas_quad(rig.cameras[b]), inter, true);
+      if (area < 64.0f || inter.size() < 3) continue;
+      const cv::Rect box = cv::boundingRect(inter);
+      const double step = std::max(1.0, std::sqrt(double(area) / options_.max_samples_per_pair));
+      const Eigen::Matrix3d Ha = rig.cameras[a].homography->inverse(), Hb = rig.cameras[b].homography->inverse();
+      PairGeometry g{a, b, {}, {}};
+      for (double y = box.y + step * 0.5; y < box.y + box.height; y += step)
+        for (double x = box.x + step * 0.5; x < box.x + box.width; x += step) {
+          if (cv::pointPolygonTest(inter, cv::Point2f(float(x), float(y)), false) < 0) continue;
+          double xa, ya, xb, yb;
+          const Eigen::Vector3d p(x, y, 1);
+          if (!in_image(Ha * p, rig.cameras[a].width, rig.cameras[a].height, xa, ya)) continue;
+          if (!in_image(Hb * p, rig.cameras[b].width, rig.cameras[b].height, xb, yb)) continue;
+          g.xy_a.push_back(int32_t(std::lround(xa)));
+          g.xy_a.push_back(int32_t(std::lround(ya)));
+          g.xy_b.push_back(int32_t(std::lround(xb)));
+          g.xy_b.push_back(int32_t(std::lround(yb)));
+        }
+      if (g.xy_a.size() / 2 < 16) continue;
+      edges.push_back({double(a), double(b), double(g.xy_a.size())});
+      pairs_.push_back(std::move(g));
+    }
+  // Chain outward from the reference along the largest overlaps (Prim's maximum tree).
+  tree_.clear();
+  std::vector<bool> in(n, false);
+  in[reference_] = true;
+  for (;;) {
+    int best = -1;
+    for (std::size_t e = 0; e < edges.size(); ++e) {
+      const int a = int(edges[e][0]), b = int(edges[e][1]);
+      if (in[a] != in[b] && (best < 0 || edges[e][2] > edges[best][2])) best = int(e);
+    }
+    if (best < 0) break;
+    const int a = int(edges[best][0]), b = int(edges[best][1]);
+    const int child = in[a] ? b : a, parent = in[a] ? a : b;
+    in[child] = true;
+    tree_.emplace_back(child, parent);
+  }
+  balance_xy_.assign(n, {});
+  for (int i = 0; i < n; ++i) {
+    const Camera& c = rig.cameras[i];
+    const int step = std::max(2, int(std::sqrt(double(c.width) * c.height / 4096.0)));
+    for (int y = step / 2; y < c.height; y += step)
+      for (int x = step / 2; x < c.width; x += step) {
+        balance_xy_[i].push_back(x);
+        balance_xy_[i].push_back(y);
+      }
+  }
+  history_.assign(tree_.size(), PairHistory{});
+  if (int(current_.size()) != n) {
+    current_.assign(n, Eigen::Matrix3d::Identity());
+    has_current_.assign(n, false);
+    gains_.assign(n, Eigen::Vector3d::Ones());
+  }
+}
+
+Eigen::Matrix3d ColorCorrector::limited_update(const Eigen::Matrix3d& previous, const Eigen::Matrix3d& wanted,
+                                               bool first) const {
+  if (!wanted.allFinite()) return previous;
+  if (first) return clamp_matrix(wanted);
+  // Exponential smoothing toward the new estimate, then a bounded step.
+  const Eigen::Matrix3d target = previous + std::clamp(options_.follow, 0.0, 1.0) * (clamp_matrix(wanted) - previous);
+  const Eigen::Matrix3d delta = target - previous;
+  const double norm = delta.norm();
+  // Hysteresis: estimation noise must not make a static scene shimmer.
+  if (norm < options_.deadband) return previous;
+  if (norm <= options_.max_step) return target;
+  return previous + delta * (options_.max_step / norm);
+}
+
+void ColorCorrector::estimate_matrices(const std::vector<ImageView>& views) {
+  std::vector<std::array<uint8_t, 3>> sc, sp;
+  for (std::size_t e = 0; e < tree_.size(); ++e) {
+    const auto [c, p] = tree_[e];
+    if (views[c].empty() || views[p].empty()) continue;
+    const PairGeometry* g = nullptr;
+    bool c_is_a = true;
+    for (const auto& pg : pairs_)
+      if ((pg.a == c && pg.b == p) || (pg.a == p && pg.b == c)) {
+        g = &pg;
+        c_is_a = pg.a == c;
+      }
+    if (!g) continue;
+    ops_->gather(views[c], c_is_a ? g->xy_a : g->xy_b, sc);
+    ops_->gather(views[p], c_is_a ? g->xy_b : g->xy_a, sp);
+    // Target: the parent's pixels as the parent will look after its own correction.
+    const Eigen::Matrix3d& Mp = current_[p];
+    std::vector<Eigen::Vector3d> x, y;
+    x.reserve(sc.size());
+    y.reserve(sc.size());
+    std::array<uint32_t, 256> hist_c[3] = {}, hist_p[3] = {};
+    for (std::size_t k = 0; k < sc.size(); ++k) {
+      if (!usable(sc[k], options_) || !usable(sp[k], options_)) continue;
+      const Eigen::RowVector3d in_p(sp[k][0], sp[k][1], sp[k][2]);
+      Eigen::RowVector3d t = in_p * Mp;
+      for (int ch = 0; ch < 3; ++ch) t[ch] = std::clamp(t[ch], 0.0, 255.0);
+      x.emplace_back(sc[k][0], sc[k][1], sc[k][2]);
+      y.emplace_back(t.transpose());
+      for (int ch = 0; ch < 3; ++ch) {
+        hist_c[ch][sc[k][ch]]++;
+        hist_p[ch][int(std::lround(t[ch]))]++;
+      }
+    }
+    if (int(x.size()) < options_.min_samples) continue;  // keep the last correction
+    if (options_.pairing == ColorPairing::Histogram) {
+      // Step 3: view c's overlap revised to the parent's histogram, pixel by pixel.
+      std::array<uint8_t, 256> spec[3];
+      for (int ch = 0; ch < 3; ++ch) spec[ch] = histogram_specification(hist_c[ch], hist_p[ch]);
+      for (std::size_t k = 0; k < x.size(); ++k)
+        for (int ch = 0; ch < 3; ++ch) y[k][ch] = spec[ch][int(x[k][ch])];
+    }
+    Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero(), AtB = Eigen::Matrix3d::Zero();
+    for (std::size_t k = 0; k < x.size(); ++k) {
+      const Eigen::Vector3d xi = x[k] / 255.0, yi = y[k] / 255.0;
+      AtA += xi * xi.transpose();
+      AtB += xi * yi.transpose();
+    }
+    // Normalise per sample so frames weigh the same whatever their overlap's valid count.
+    AtA /= double(x.size());
+    AtB /= double(x.size());
+    PairHistory& h = history_[e];
+    h.AtA.push_back(AtA);
+    h.AtB.push_back(AtB);
+    const std::size_t window = options_.method == ColorMethod::Matrix3D ? std::size_t(options_.window) : 1;
+    while (h.AtA.size() > window) {
+      h.AtA.pop_front();
+      h.AtB.pop_front();
+    }
+    // Eq. 3: the stacked 3n x 3 system is the sum of the frames' normal equations.
+    Eigen::Matrix3d A = Eigen::Matrix3d::Zero(), B = Eigen::Matrix3d::Zero();
+    for (std::size_t k = 0; k < h.AtA.size(); ++k) {
+      A += h.AtA[k];
+      B += h.AtB[k];
+    }
+    // Ridge toward the identity: an ill-conditioned overlap (one colour) cannot explode M.
+    const double r = options_.ridge * std::max(1e-6, A.trace() / 3.0);
+    const Eigen::Matrix3d M = (A + r * Eigen::Matrix3d::Identity()).ldlt().solve(B + r * Eigen::Matrix3d::Identity());
+    current_[c] = limited_update(current_[c], M, !has_current_[c]);
+    has_current_[c] = true;
+  }
+  current_[reference_] = Eigen::Matrix3d::Identity();
+}
+
+void ColorCorrector::estimate_gains(const std::vector<ImageView>& views) {
+  const int n = int(current_.size());
+  // Brown & Lowe: minimise sum N_ij ((g_i I_ij - g_j I_ji)^2 / sN^2 + (1 - g)^2 / sg^2).
+  // Their prior (sg = 0.1) pulls every gain toward 1 as strongly as the data pulls the views
+  // together; here the reference camera fixes the scale, so it alone gets the strong prior and
+  // the others a weak one that only keeps the system well posed.
+  constexpr double sN = 10.0, sg_ref = 0.1, sg = 3.0;
+  Eigen::MatrixXd A[3];
+  Eigen::VectorXd b[3];
+  for (int ch = 0; ch < 3; ++ch) {
+    A[ch] = Eigen::MatrixXd::Zero(n, n);
+    b[ch] = Eigen::VectorXd::Zero(n);
+  }
+  std::vector<std::array<uint8_t, 3>> sa, sb;
+  std::vector<int> overlaps(n, 0);
+  for (const auto& g : pairs_) {
+    if (views[g.a].empty() || views[g.b].empty()) continue;
+    ops_->gather(views[g.a], g.xy_a, sa);
+    ops_->gather(views[g.b], g.xy_b, sb);
+    Eigen::Vector3d ma = Eigen::Vector3d::Zero(), mb = Eigen::Vector3d::Zero();
+    int count = 0;
+    for (std::size_t k = 0; k < sa.size(); ++k) {
+      if (!usable(sa[k], options_) || !usable(sb[k], options_)) continue;
+      ma += Eigen::Vector3d(sa[k][0], sa[k][1], sa[k][2]);
+      mb += Eigen::Vector3d(sb[k][0], sb[k][1], sb[k][2]);
+      ++count;
+    }
+    if (count < options_.min_samples) continue;
+    ma /= count;
+    mb /= count;
+    const double N = count;
+    ++overlaps[g.a];
+    ++overlaps[g.b];
+    for (int ch = 0; ch < 3; ++ch) {
+      const double Ia = ma[ch], Ib = mb[ch];
+      const double pa = 1 / std::pow(g.a == reference_ ? sg_ref : sg, 2);
+      const double pb = 1 / std::pow(g.b == reference_ ? sg_ref : sg, 2);
+      A[ch](g.a, g.a) += N * (Ia * Ia / (sN * sN) + pa);
+      A[ch](g.b, g.b) += N * (Ib * Ib / (sN * sN) + pb);
+      A[ch](g.a, g.b) -= N * Ia * Ib / (sN * sN);
+      A[ch](g.b, g.a) -= N * Ia * Ib / (sN * sN);
+      b[ch](g.a) += N * pa;
+      b[ch](g.b) += N * pb;
+    }
+  }
+  Eigen::MatrixXd gains(n, 3);
+  for (int ch = 0; ch < 3; ++ch) {
+    for (int i = 0; i < n; ++i)
+      if (overlaps[i] == 0) {
+        A[ch](i, i) = 1;
+        b[ch](i) = 1;
+      }
+    gains.col(ch) = A[ch].ldlt().solve(b[ch]);
+  }
+  if (!gains.allFinite() || gains(reference_, 0) <= 0 || gains(reference_, 1) <= 0 || gains(reference_, 2) <= 0)
+    return;  // keep the last gains
+  const double alpha = 1.0 / std::max(1, options_.window);  // gains averaged over ~window frames
+  for (int i = 0; i < n; ++i) {
+    if (overlaps[i] == 0 && i != reference_) continue;
+    Eigen::Vector3d g;
+    for (int ch = 0; ch < 3; ++ch) g[ch] = std::clamp(gains(i, ch) / gains(reference_, ch), 0.25, 4.0);
+    gains_[i] = has_current_[i] ? Eigen::Vector3d(gains_[i] + alpha * (g - gains_[i])) : g;
+    current_[i] = limited_update(current_[i], gains_[i].asDiagonal().toDenseMatrix(), !has_current_[i]);
+    has_current_[i] = true;
+  }
+}
+
+void ColorCorrector::update_balance(const std::vector<ImageView>& views) {
+  std::array<uint32_t, 256> hist[3] = {};
+  std::vector<std::array<uint8_t, 3>> s;
+  uint64_t total = 0;
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    if (views[i].empty()) continue;
+    ops_->gather(views[i], balance_xy_[i], s);
+    const Eigen::Matrix3d& M = current_[i];
+    for (const auto& px : s) {
+      const Eigen::RowVector3d v = Eigen::RowVector3d(px[0], px[1], px[2]) * M;
+      for (int ch = 0; ch < 3; ++ch) hist[ch][std::clamp(int(std::lround(v[ch])), 0, 255)]++;
+    }
+    total += s.size();
+  }
+  if (total == 0) return;
+  std::array<double, 6> t;
+  for (int ch = 0; ch < 3; ++ch) {
+    uint64_t acc = 0;
+    double m1 = 0, m2 = 255;
+    bool got1 = false;
+    for (int v = 0; v < 256; ++v) {
+      acc += hist[ch][v];
+      if (!got1 && acc >= options_.lambda * total) {
+        m1 = v;
+        got1 = true;
+      }
+      if (acc >= (1 - options_.lambda) * total) {
+        m2 = v;
+        break;
+      }
+    }
+    t[2 * ch] = m1;
+    t[2 * ch + 1] = m2;
+  }
+  // Eq. 6-7: thresholds averaged over the current and previous two frames (frame 1 alone,
+  // frame 2 the mean of two).
+  thresholds_.push_back(t);
+  while (thresholds_.size() > 3) thresholds_.pop_front();
+  for (int ch = 0; ch < 3; ++ch) {
+    double m1 = 0, m2 = 0;
+    for (const auto& f : thresholds_) {
+      m1 += f[2 * ch];
+      m2 += f[2 * ch + 1];
+    }
+    lut_[ch] = piecewise_balance_curve(m1 / thresholds_.size(), m2 / thresholds_.size(), options_.lambda);
+  }
+}
+
+void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::vector<ImageView>& views) {
+  if (views.size() != rig.cameras.size()) throw RigError("view count differs from the rig");
+  if (rig_version != rig_version_ || current_.size() != views.size()) {
+    prepare_geometry(rig);
+    rig_version_ = rig_version;
+  }
+  switch (options_.method) {
+    case ColorMethod::None: break;
+    case ColorMethod::Matrix2D:
+    case ColorMethod::Matrix3D: estimate_matrices(views); break;
+    case ColorMethod::Gain: estimate_gains(views); break;
+  }
+  if (options_.balance) update_balance(views);
+  if (options_.method == ColorMethod::None && !options_.balance) return;
+  for (std::size_t i = 0; i < views.size(); ++i)
+    if (!views[i].empty()) ops_->apply(views[i], current_[i], lut_);
+}
+
+}  // namespace stitch

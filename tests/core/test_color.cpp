@@ -1,0 +1,245 @@
+// Color correction on real images: known distortions recovered, the balancing curve's shape,
+// degenerate frames, bounded temporal behaviour.
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <opencv2/imgproc.hpp>
+#include <random>
+
+#include "stitch/color/color.hpp"
+#include "stitch/cv_interop.hpp"
+#include "test_data.hpp"
+
+using namespace stitch;
+
+namespace {
+
+// Two 640x480 crops of a real photo 320 px apart (50% overlap), exactly calibrated.
+struct TwoViews {
+  cv::Mat ref, other, other_truth;
+  Rig rig;
+};
+
+TwoViews two_views(const std::string& photo_path) {
+  TwoViews t;
+  cv::Mat photo = testdata::load_rgba(photo_path);
+  cv::resize(photo, photo, cv::Size(960, 640));
+  t.ref = photo(cv::Rect(0, 80, 640, 480)).clone();
+  t.other_truth = photo(cv::Rect(320, 80, 640, 480)).clone();
+  t.other = t.other_truth.clone();
+  t.rig = testdata::shifted_rig(2, 640, 480, 320);
+  t.rig.reference = 0;
+  return t;
+}
+
+// out = in * M per pixel (row vector convention of eq. 4), rounded and clamped.
+void distort(cv::Mat& img, const Eigen::Matrix3d& M) {
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x) {
+      cv::Vec4b& p = img.at<cv::Vec4b>(y, x);
+      const Eigen::RowVector3d v = Eigen::RowVector3d(p[0], p[1], p[2]) * M;
+      for (int c = 0; c < 3; ++c) p[c] = cv::saturate_cast<uint8_t>(v[c]);
+    }
+}
+
+double psnr_rgb(const cv::Mat& a, const cv::Mat& b) {
+  cv::Mat a3, b3;
+  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
+  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
+  return cv::PSNR(a3, b3);
+}
+
+std::vector<std::string> photos() {
+  std::vector<std::string> p = {testdata::repo_path("data/photos/boat1_1600.jpg")};
+  const std::string shared = testdata::shared_path("images/eadcat_apap_demo/demo2/boat03.jpg");
+  if (!shared.empty()) p.push_back(shared);
+  return p;
+}
+
+double correct_once(TwoViews& t, const ColorOptions& o) {
+  ColorCorrector cc(Backend::Cpu);
+  cc.set_options(o);
+  std::vector<ImageView> views = {as_view(t.ref), as_view(t.other)};
+  cc.process(t.rig, 1, views);
+  EXPECT_TRUE(cc.corrections()[0].isIdentity(1e-12));  // the reference is never changed
+  return psnr_rgb(t.other, t.other_truth);
+}
+
+}  // namespace
+
+TEST(ColorTransfer, Known3x3DistortionIsRecovered) {
+  // Cross-channel mixing (no channel saturates): the 2D-M fit on co-located pixels inverts it.
+  Eigen::Matrix3d M;
+  M << 0.84, 0.08, 0.02, 0.05, 0.86, 0.03, 0.02, 0.06, 0.80;
+  for (const auto& path : photos()) {
+    TwoViews t = two_views(path);
+    distort(t.other, M);
+    const double before = psnr_rgb(t.other, t.other_truth);
+    ColorOptions o;
+    o.method = ColorMethod::Matrix2D;
+    o.pairing = ColorPairing::Pixels;
+    const double after = correct_once(t, o);
+    std::printf("%s: PSNR %.2f dB -> %.2f dB\n", path.c_str(), before, after);
+    EXPECT_LT(before, 30.0);
+    EXPECT_GE(after, 40.0) << path;
+  }
+}
+
+TEST(ColorTransfer, HistogramPairingRecoversPerChannelGains) {
+  // Paper Step 3: matching histograms needs no pixel alignment; per-channel gains come back.
+  Eigen::Matrix3d M = Eigen::Vector3d(0.8, 0.9, 0.75).asDiagonal();
+  TwoViews t = two_views(photos()[0]);
+  distort(t.other, M);
+  const double before = psnr_rgb(t.other, t.other_truth);
+  ColorOptions o;
+  o.method = ColorMethod::Matrix3D;
+  o.pairing = ColorPairing::Histogram;
+  const double after = correct_once(t, o);
+  EXPECT_GT(after, before + 10.0);
+  EXPECT_GE(after, 35.0);
+}
+
+TEST(ColorTransfer, GainCompensationRecoversExposure) {
+  TwoViews t = two_views(photos()[0]);
+  distort(t.other, Eigen::Vector3d(0.7, 0.7, 0.7).asDiagonal());
+  ColorOptions o;
+  o.method = ColorMethod::Gain;
+  const double after = correct_once(t, o);
+  EXPECT_GE(after, 35.0);
+}
+
+TEST(ColorTransfer, ThreeViewsChainOutwardFromReference) {
+  cv::Mat photo = testdata::load_rgba(photos()[0]);
+  std::vector<cv::Mat> truth, views;
+  for (int i = 0; i < 3; ++i) truth.push_back(photo(cv::Rect(400 * i, 200, 640, 480)).clone());
+  views = {truth[0].clone(), truth[1].clone(), truth[2].clone()};
+  Rig rig = testdata::shifted_rig(3, 640, 480, 400);
+  rig.reference = 1;
+  distort(views[0], Eigen::Vector3d(0.8, 0.85, 0.9).asDiagonal());
+  distort(views[2], Eigen::Vector3d(0.75, 0.8, 0.7).asDiagonal());  // only reachable through view 1
+  ColorCorrector cc(Backend::Cpu);
+  ColorOptions o;
+  o.method = ColorMethod::Matrix2D;
+  o.pairing = ColorPairing::Pixels;
+  cc.set_options(o);
+  std::vector<ImageView> v = {as_view(views[0]), as_view(views[1]), as_view(views[2])};
+  cc.process(rig, 1, v);
+  EXPECT_GE(psnr_rgb(views[0], truth[0]), 38.0);
+  EXPECT_GE(psnr_rgb(views[2], truth[2]), 38.0);
+  EXPECT_EQ(cv::norm(views[1], truth[1], cv::NORM_INF), 0.0);  // the reference is untouched
+}
+
+TEST(BalanceCurve, ContinuousAndMonotonicForRandomThresholds) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(0, 255), lam(0.01, 0.2);
+  for (int trial = 0; trial < 500; ++trial) {
+    double m1 = u(rng), m2 = u(rng);
+    if (m1 > m2) std::swap(m1, m2);
+    const double l = lam(rng);
+    double prev = -1;
+    for (double x = 0; x <= 255; x += 0.05) {
+      const double y = piecewise_balance_value(x, m1, m2, l);
+      ASSERT_TRUE(std::isfinite(y));
+      ASSERT_GE(y, prev - 1e-9) << "not monotonic at x=" << x << " m1=" << m1 << " m2=" << m2;
+      prev = y;
+    }
+    // Each piece is continuous; the curve is continuous where the pieces meet (the knees).
+    if (m2 - m1 >= 1) {
+      EXPECT_NEAR(piecewise_balance_value(m1 - 1e-7, m1, m2, l), piecewise_balance_value(m1 + 1e-7, m1, m2, l), 1e-4);
+      EXPECT_NEAR(piecewise_balance_value(m2 - 1e-7, m1, m2, l), piecewise_balance_value(m2 + 1e-7, m1, m2, l), 1e-4);
+    }
+    const auto lut = piecewise_balance_curve(m1, m2, l);
+    for (int v = 1; v < 256; ++v) ASSERT_GE(lut[v], lut[v - 1]);
+  }
+}
+
+TEST(BalanceCurve, StretchesTheThresholdsApart) {
+  // A low-contrast histogram [60, 180] is stretched toward [lambda, 1 - lambda] of the range.
+  const auto lut = piecewise_balance_curve(60, 180, 0.05);
+  EXPECT_LT(lut[60], 60);
+  EXPECT_GT(lut[180], 180);
+  EXPECT_EQ(lut[0], 0);
+  EXPECT_EQ(lut[255], 255);
+  // A histogram that already spans the range is (almost) left alone.
+  const auto full = piecewise_balance_curve(255 * 0.05, 255 * 0.95, 0.05);
+  for (int v = 0; v < 256; ++v) EXPECT_NEAR(full[v], v, 1);
+}
+
+TEST(HistogramSpecification, MatchesTheReferenceHistogram) {
+  std::array<uint32_t, 256> src{}, ref{};
+  for (int v = 0; v < 100; ++v) src[v] = 10;        // uniform on [0, 100)
+  for (int v = 100; v < 200; ++v) ref[v] = 10;      // uniform on [100, 200)
+  const auto lut = histogram_specification(src, ref);
+  for (int v = 0; v < 100; ++v) EXPECT_NEAR(lut[v], 100 + v, 1);
+}
+
+TEST(ColorRobustness, DegenerateFramesGiveNoNaN) {
+  const Rig rig = testdata::shifted_rig(2, 320, 240, 160);
+  for (ColorMethod m : {ColorMethod::Matrix2D, ColorMethod::Matrix3D, ColorMethod::Gain}) {
+    for (const cv::Scalar& fill : {cv::Scalar(0, 0, 0, 255), cv::Scalar(255, 255, 255, 255), cv::Scalar(30, 140, 220, 255)}) {
+      cv::Mat a(240, 320, CV_8UC4, fill), b(240, 320, CV_8UC4, fill * 0.8);
+      ColorCorrector cc(Backend::Cpu);
+      ColorOptions o;
+      o.method = m;
+      o.balance = true;
+      cc.set_options(o);
+      std::vector<ImageView> v = {as_view(a), as_view(b)};
+      for (int f = 0; f < 4; ++f) cc.process(rig, 1, v);
+      for (const auto& M : cc.corrections()) EXPECT_TRUE(M.allFinite());
+      // Single-colour views stay single-colour (the correction is applied, nothing breaks).
+      double lo, hi;
+      cv::Mat g;
+      cv::cvtColor(b, g, cv::COLOR_RGBA2GRAY);
+      cv::minMaxLoc(g, &lo, &hi);
+      EXPECT_EQ(lo, hi);
+    }
+  }
+}
+
+TEST(ColorRobustness, SuddenChangeMovesTheCorrectionBoundedly) {
+  TwoViews t = two_views(photos()[0]);
+  ColorCorrector cc(Backend::Cpu);
+  ColorOptions o;
+  o.method = ColorMethod::Matrix2D;
+  o.pairing = ColorPairing::Pixels;
+  cc.set_options(o);
+  std::vector<Eigen::Matrix3d> seen;
+  for (int f = 0; f < 12; ++f) {
+    cv::Mat ref = t.ref.clone(), other = t.other_truth.clone();
+    // Frames 0-5: a mild cast. From frame 6 on: the camera suddenly halves its exposure.
+    distort(other, f < 6 ? Eigen::Matrix3d(Eigen::Vector3d(0.9, 0.95, 0.9).asDiagonal())
+                         : Eigen::Matrix3d(Eigen::Vector3d(0.45, 0.5, 0.45).asDiagonal()));
+    std::vector<ImageView> v = {as_view(ref), as_view(other)};
+    cc.process(t.rig, 1, v);
+    seen.push_back(cc.corrections()[1]);
+  }
+  for (std::size_t f = 1; f < seen.size(); ++f) {
+    ASSERT_TRUE(seen[f].allFinite());
+    EXPECT_LE((seen[f] - seen[f - 1]).norm(), o.max_step + 1e-9) << "frame " << f;
+  }
+  // It converges toward the new exposure (gain ~2) instead of exploding or freezing.
+  EXPECT_GT(seen.back()(0, 0), seen[5](0, 0) + 0.2);
+  EXPECT_LT(seen.back().maxCoeff(), 5.0 + 1e-9);
+}
+
+TEST(ColorRobustness, TooFewValidPixelsKeepTheLastCorrection) {
+  TwoViews t = two_views(photos()[0]);
+  ColorCorrector cc(Backend::Cpu);
+  ColorOptions o;
+  o.method = ColorMethod::Matrix2D;
+  cc.set_options(o);
+  cv::Mat ref = t.ref.clone(), other = t.other.clone();
+  distort(other, Eigen::Vector3d(0.8, 0.8, 0.8).asDiagonal());
+  std::vector<ImageView> v = {as_view(ref), as_view(other)};
+  cc.process(t.rig, 1, v);
+  const Eigen::Matrix3d first = cc.corrections()[1];
+  EXPECT_FALSE(first.isIdentity(1e-3));
+  // A black frame in the overlap (a covered lens): nothing valid to fit, the correction holds.
+  cv::Mat black_ref(480, 640, CV_8UC4, cv::Scalar(0, 0, 0, 255)), black(480, 640, CV_8UC4, cv::Scalar(0, 0, 0, 255));
+  std::vector<ImageView> vb = {as_view(black_ref), as_view(black)};
+  cc.process(t.rig, 1, vb);
+  EXPECT_TRUE(cc.corrections()[1].isApprox(first));
+  // reset() forgets it (flush, seek, caps change).
+  cc.reset();
+  EXPECT_TRUE(cc.corrections()[1].isIdentity());
+}
