@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "stitch/blend/compositor.hpp"
+#include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
 
 using namespace stitch;
@@ -63,7 +64,8 @@ int main(int argc, char** argv) {
   }
   cv::cvtColor(photo, photo, cv::COLOR_BGR2RGBA);
   const std::vector<Case> cases = {{3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {6, 1920, 1080}, {3, 3840, 2160}};
-  std::printf("%-16s %-12s %10s %10s %14s %8s\n", "cameras", "panorama", "ms/frame", "fps", "memcpy ms", "threads");
+  std::printf("%-16s %-12s %10s %10s %14s %12s %12s %8s\n", "cameras", "panorama", "ms/frame", "fps", "memcpy ms",
+              "color 3dm ms", "color gain", "threads");
   std::string json = "[";
   for (const Case& c : cases) {
     Rig rig = ring(c);
@@ -99,13 +101,37 @@ int main(int argc, char** argv) {
     }
     const double copy_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - m0).count() / frames;
+    // The color stage (estimation on the overlaps + applying the correction to every view),
+    // on views whose exposures differ.
+    auto time_color = [&](ColorMethod method) {
+      ColorCorrector cc(Backend::Cpu);
+      ColorOptions o;
+      o.method = method;
+      cc.set_options(o);
+      std::vector<cv::Mat> work(views.size());
+      std::vector<ImageView> wv(views.size());
+      double total = 0;
+      for (int k = 0; k < frames; ++k) {
+        for (std::size_t i = 0; i < views.size(); ++i) {
+          views[i].convertTo(work[i], -1, i % 2 ? 0.85 : 1.0);
+          wv[i] = as_view(work[i]);
+        }
+        const auto c0 = std::chrono::steady_clock::now();
+        cc.process(rig, 1, wv);
+        total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - c0).count();
+      }
+      return total / frames;
+    };
+    const double color_ms = time_color(ColorMethod::Matrix3D), gain_ms = time_color(ColorMethod::Gain);
     char name[64], pano[64];
     std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
     std::snprintf(pano, sizeof pano, "%dx%d", out.cols, out.rows);
-    std::printf("%-16s %-12s %10.2f %10.1f %14.2f %8d\n", name, pano, ms, 1000.0 / ms, copy_ms, cv::getNumThreads());
+    std::printf("%-16s %-12s %10.2f %10.1f %14.2f %12.2f %12.2f %8d\n", name, pano, ms, 1000.0 / ms, copy_ms, color_ms,
+                gain_ms, cv::getNumThreads());
     json += std::string(json.size() > 1 ? "," : "") + "{\"case\":\"" + name + "\",\"panorama\":\"" + pano +
             "\",\"backend\":\"cpu\",\"ms_per_frame\":" + std::to_string(ms) +
-            ",\"memcpy_ms\":" + std::to_string(copy_ms) + "}";
+            ",\"memcpy_ms\":" + std::to_string(copy_ms) +
+            ",\"color_3dm_ms\":" + std::to_string(color_ms) + ",\"color_gain_ms\":" + std::to_string(gain_ms) + "}";
   }
   json += "]\n";
   if (!json_path.empty()) std::ofstream(json_path) << json;
