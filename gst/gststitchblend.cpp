@@ -143,11 +143,7 @@ static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDire
 
 static gboolean gst_stitch_blend_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps* outcaps) {
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
-  if (stitch_bundle_caps_views(incaps) < 2) {
-    GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("stitchblend needs a bundle of at least 2 views"),
-                      ("caps %" GST_PTR_FORMAT, incaps));
-    return FALSE;
-  }
+  if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
   return gst_video_info_from_caps(&self->state->out_info, outcaps);
 }
 
@@ -213,13 +209,8 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta) {
 static GstFlowReturn gst_stitch_blend_prepare_output_buffer(GstBaseTransform* trans,
                                                             GstBuffer* input, GstBuffer** outbuf) {
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
-  GstStitchRigMeta* meta = gst_buffer_get_stitch_rig_meta(input);
-  if (!meta || !meta->rig || !*meta->rig) {
-    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
-                      ("The bundle carries no calibration: put stitchcalib before stitchblend"),
-                      (NULL));
-    return GST_FLOW_ERROR;
-  }
+  GstStitchRigMeta* meta = stitch_bundle_require_rig(GST_ELEMENT(self), input);
+  if (!meta) return GST_FLOW_ERROR;
   gboolean ok = FALSE;
   if (!stitch_guard(GST_ELEMENT(self), "stitchblend: cannot build the panorama geometry",
                     [&]() { ok = update_geometry(self, meta); }) || !ok)

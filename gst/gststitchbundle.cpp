@@ -182,3 +182,23 @@ guint stitch_bundle_caps_views(const GstCaps* caps) {
   if (!gst_structure_get_int(s, "views", &views) || views < 1) return 0;
   return guint(views);
 }
+
+gboolean stitch_bundle_accept_caps(GstElement* element, GstCaps* caps) {
+  if (stitch_bundle_caps_views(caps) >= 2) return TRUE;
+  GST_ELEMENT_ERROR(element, STREAM, FORMAT,
+                    ("%s needs a bundle of at least 2 views (put stitchsync before it)",
+                     GST_ELEMENT_NAME(element)),
+                    ("caps %" GST_PTR_FORMAT, caps));
+  return FALSE;
+}
+
+GstStitchRigMeta* stitch_bundle_require_rig(GstElement* element, GstBuffer* buffer) {
+  GstStitchRigMeta* meta = gst_buffer_get_stitch_rig_meta(buffer);
+  if (meta && meta->rig && *meta->rig) return meta;
+  GstElementFactory* f = gst_element_get_factory(element);
+  GST_ELEMENT_ERROR(element, STREAM, FORMAT,
+                    ("The bundle carries no calibration: put stitchcalib before %s",
+                     f ? GST_OBJECT_NAME(f) : GST_ELEMENT_NAME(element)),
+                    (NULL));
+  return NULL;
+}

@@ -84,6 +84,12 @@ class StitchBundleMapping {
 /* Number of views that bundle caps announce, 0 when the caps are no bundle. */
 guint stitch_bundle_caps_views(const GstCaps* caps);
 
+/* For set_caps: TRUE when `caps` are a bundle of at least 2 views, else an element error. */
+gboolean stitch_bundle_accept_caps(GstElement* element, GstCaps* caps);
+
+/* The bundle's rig, or NULL after an element error telling to put stitchcalib before `element`. */
+GstStitchRigMeta* stitch_bundle_require_rig(GstElement* element, GstBuffer* buffer);
+
 /* Runs `body`; a C++ exception becomes a GST_ELEMENT_ERROR naming `what`, never escaping
  * into GStreamer. Returns FALSE when an exception was caught. */
 template <typename F>

@@ -459,13 +459,7 @@ static gboolean gst_stitch_calib_stop(GstBaseTransform* trans) {
 
 static gboolean gst_stitch_calib_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps*) {
   GstStitchCalib* self = GST_STITCH_CALIB(trans);
-  const guint views = stitch_bundle_caps_views(incaps);
-  if (views < 2) {
-    GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("stitchcalib needs a bundle of at least 2 views"),
-                      ("caps %" GST_PTR_FORMAT, incaps));
-    return FALSE;
-  }
-  return TRUE;
+  return stitch_bundle_accept_caps(GST_ELEMENT(self), incaps);
 }
 
 static void gst_stitch_calib_recalibrate(GstStitchCalib* self) {

@@ -120,12 +120,8 @@ static void request_reset(GstStitchColor* self) {
 static GstFlowReturn gst_stitch_color_transform_ip(GstBaseTransform* trans, GstBuffer* buf) {
   GstStitchColor* self = GST_STITCH_COLOR(trans);
   ColorElementState* st = self->state;
-  GstStitchRigMeta* meta = gst_buffer_get_stitch_rig_meta(buf);
-  if (!meta || !meta->rig || !*meta->rig) {
-    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
-                      ("The bundle carries no calibration: put stitchcalib before stitchcolor"), (NULL));
-    return GST_FLOW_ERROR;
-  }
+  GstStitchRigMeta* meta = stitch_bundle_require_rig(GST_ELEMENT(self), buf);
+  if (!meta) return GST_FLOW_ERROR;
   stitch::ColorOptions options;
   stitch::Backend backend;
   bool reset;
@@ -169,11 +165,7 @@ static gboolean gst_stitch_color_sink_event(GstBaseTransform* trans, GstEvent* e
 
 static gboolean gst_stitch_color_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps*) {
   GstStitchColor* self = GST_STITCH_COLOR(trans);
-  if (stitch_bundle_caps_views(incaps) < 2) {
-    GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("stitchcolor needs a bundle of at least 2 views"),
-                      ("caps %" GST_PTR_FORMAT, incaps));
-    return FALSE;
-  }
+  if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
   request_reset(self);
   return TRUE;
 }
