@@ -64,10 +64,8 @@ PairStats compare(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
   cv::absdiff(a, b, d);
   d.convertTo(d, CV_64F);
   d = d.mul(d);
-  const cv::Scalar sum = cv::sum(d.reshape(1, d.rows * d.cols * 0 + d.rows).reshape(3)) ;
-  cv::Scalar msum = cv::mean(d, mask);
+  const cv::Scalar msum = cv::mean(d, mask);
   const double mse = (msum[0] + msum[1] + msum[2]) / 3.0;
-  (void)sum;
   s.psnr = mse > 0 ? 10 * std::log10(255.0 * 255.0 / mse) : 99.0;
   // SSIM (Wang et al.) on luma, Gaussian 11x11 sigma 1.5, averaged over the mask.
   cv::Mat ga, gb;

@@ -28,13 +28,6 @@ CropRig make_crop_rig(int shift = 200) {
   return c;
 }
 
-double psnr(const cv::Mat& a, const cv::Mat& b) {
-  cv::Mat a3, b3;
-  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
-  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
-  return cv::PSNR(a3, b3);
-}
-
 }  // namespace
 
 TEST(Blend, ConsistentViewsReproduceThePhoto) {
@@ -47,7 +40,7 @@ TEST(Blend, ConsistentViewsReproduceThePhoto) {
   comp.compose({as_view(c.cam0), as_view(c.cam1)}, as_view(out));
   const cv::Mat truth = c.photo(cv::Rect(0, 0, 600, 300));
   // Blending two identical overlaps gives the photo back (up to rounding).
-  EXPECT_GT(psnr(out, truth), 50.0);
+  EXPECT_GT(testdata::psnr_rgb(out, truth), 50.0);
 }
 
 TEST(Blend, WeightsFollowPositionAcrossTheOverlap) {
@@ -103,7 +96,7 @@ TEST(Blend, MissingViewIsLeftOutNotBlendedAsBlack) {
   cv::Mat out(300, 600, CV_8UC4);
   comp.compose({as_view(c.cam0), ImageView{}}, as_view(out));
   // The overlap shows view 0 at full strength; the rest of view 1's area is black.
-  EXPECT_GT(psnr(out(cv::Rect(0, 0, 395, 300)), c.photo(cv::Rect(0, 0, 395, 300))), 45.0);
+  EXPECT_GT(testdata::psnr_rgb(out(cv::Rect(0, 0, 395, 300)), c.photo(cv::Rect(0, 0, 395, 300))), 45.0);
   EXPECT_EQ(out.at<cv::Vec4b>(150, 550)[0], 0);
 }
 

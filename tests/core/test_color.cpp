@@ -42,13 +42,6 @@ void distort(cv::Mat& img, const Eigen::Matrix3d& M) {
     }
 }
 
-double psnr_rgb(const cv::Mat& a, const cv::Mat& b) {
-  cv::Mat a3, b3;
-  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
-  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
-  return cv::PSNR(a3, b3);
-}
-
 std::vector<std::string> photos() {
   std::vector<std::string> p = {testdata::repo_path("data/photos/boat1_1600.jpg")};
   const std::string shared = testdata::shared_path("images/eadcat_apap_demo/demo2/boat03.jpg");
@@ -62,7 +55,7 @@ double correct_once(TwoViews& t, const ColorOptions& o) {
   std::vector<ImageView> views = {as_view(t.ref), as_view(t.other)};
   cc.process(t.rig, 1, views);
   EXPECT_TRUE(cc.corrections()[0].isIdentity(1e-12));  // the reference is never changed
-  return psnr_rgb(t.other, t.other_truth);
+  return testdata::psnr_rgb(t.other, t.other_truth);
 }
 
 }  // namespace
@@ -74,7 +67,7 @@ TEST(ColorTransfer, Known3x3DistortionIsRecovered) {
   for (const auto& path : photos()) {
     TwoViews t = two_views(path);
     distort(t.other, M);
-    const double before = psnr_rgb(t.other, t.other_truth);
+    const double before = testdata::psnr_rgb(t.other, t.other_truth);
     ColorOptions o;
     o.method = ColorMethod::Matrix2D;
     o.pairing = ColorPairing::Pixels;
@@ -90,7 +83,7 @@ TEST(ColorTransfer, HistogramPairingRecoversPerChannelGains) {
   Eigen::Matrix3d M = Eigen::Vector3d(0.8, 0.9, 0.75).asDiagonal();
   TwoViews t = two_views(photos()[0]);
   distort(t.other, M);
-  const double before = psnr_rgb(t.other, t.other_truth);
+  const double before = testdata::psnr_rgb(t.other, t.other_truth);
   ColorOptions o;
   o.method = ColorMethod::Matrix3D;
   o.pairing = ColorPairing::Histogram;
@@ -124,8 +117,8 @@ TEST(ColorTransfer, ThreeViewsChainOutwardFromReference) {
   cc.set_options(o);
   std::vector<ImageView> v = {as_view(views[0]), as_view(views[1]), as_view(views[2])};
   cc.process(rig, 1, v);
-  EXPECT_GE(psnr_rgb(views[0], truth[0]), 38.0);
-  EXPECT_GE(psnr_rgb(views[2], truth[2]), 38.0);
+  EXPECT_GE(testdata::psnr_rgb(views[0], truth[0]), 38.0);
+  EXPECT_GE(testdata::psnr_rgb(views[2], truth[2]), 38.0);
   EXPECT_EQ(cv::norm(views[1], truth[1], cv::NORM_INF), 0.0);  // the reference is untouched
 }
 

@@ -29,13 +29,6 @@ Scene scene() {
   return s;
 }
 
-double psnr_rgb(const cv::Mat& a, const cv::Mat& b) {
-  cv::Mat a3, b3;
-  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
-  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
-  return cv::PSNR(a3, b3);
-}
-
 }  // namespace
 
 TEST(StitchBlend, PanoramaReproducesTheScene) {
@@ -49,7 +42,7 @@ TEST(StitchBlend, PanoramaReproducesTheScene) {
   const cv::Mat& pano = r.frames[0];
   EXPECT_EQ(pano.cols, 1040);  // wider than any input
   EXPECT_EQ(pano.rows, 480);
-  EXPECT_GT(psnr_rgb(pano(cv::Rect(0, 0, 1040, 480)), s.photo(cv::Rect(0, 200, 1040, 480))), 45.0);
+  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, 0, 1040, 480)), s.photo(cv::Rect(0, 200, 1040, 480))), 45.0);
 }
 
 TEST(StitchBlend, OutputWidthScales) {
