@@ -18,6 +18,7 @@
 #include "stitch/calib/calibrator.hpp"
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
+#include "stitch/rig/overlap.hpp"
 
 using namespace stitch;
 
@@ -30,10 +31,11 @@ struct PairStats {
 // Both views of a pair warped into the canvas box of their overlap; mask = both valid.
 void overlap_images(const Rig& rig, int a, int b, const cv::Mat& va, const cv::Mat& vb, cv::Mat& oa, cv::Mat& ob,
                     cv::Mat& mask) {
-  std::vector<cv::Point2f> qa, qb, inter;
-  for (const auto& p : camera_canvas_corners(rig.cameras[a])) qa.emplace_back(float(p.x()), float(p.y()));
-  for (const auto& p : camera_canvas_corners(rig.cameras[b])) qb.emplace_back(float(p.x()), float(p.y()));
-  cv::intersectConvexConvex(qa, qb, inter, true);
+  const std::vector<cv::Point2f> inter = canvas_overlap(rig.cameras[a], rig.cameras[b]);
+  if (inter.empty()) {
+    mask = cv::Mat();
+    return;
+  }
   const cv::Rect box = cv::boundingRect(inter) & cv::Rect(0, 0, rig.canvas_width, rig.canvas_height);
   auto warp = [&](const cv::Mat& v, int cam, cv::Mat& out, cv::Mat& valid) {
     Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
@@ -210,7 +212,7 @@ int main(int argc, char** argv) {
         for (int b = a + 1; b < int(set.size()); ++b) {
           cv::Mat oa, ob, mask;
           overlap_images(rig, a, b, set[a], set[b], oa, ob, mask);
-          if (cv::countNonZero(mask) < 500) continue;
+          if (mask.empty() || cv::countNonZero(mask) < 500) continue;
           if (t == 0) {
             psnr.emplace_back();
             ssim.emplace_back();

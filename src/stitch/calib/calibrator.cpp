@@ -11,6 +11,7 @@
 #include <random>
 
 #include "stitch/cv_interop.hpp"
+#include "stitch/rig/overlap.hpp"
 
 namespace stitch {
 namespace {
@@ -80,16 +81,10 @@ std::vector<cv::DMatch> match(const Features& a, const Features& b, FeatureType 
   return good;
 }
 
-std::vector<cv::Point2f> quad_of(const Camera& c) {
-  std::vector<cv::Point2f> q;
-  for (const auto& p : camera_canvas_corners(c)) q.emplace_back(float(p.x()), float(p.y()));
-  return q;
-}
-
-// Canvas-space overlap of two views; empty when they do not overlap.
+// Canvas-space bounding box of the overlap of two views; empty when they do not overlap.
 cv::Rect2d overlap_box(const Camera& a, const Camera& b) {
-  std::vector<cv::Point2f> inter;
-  float area = cv::intersectConvexConvex(quad_of(a), quad_of(b), inter, true);
+  float area = 0;
+  const std::vector<cv::Point2f> inter = canvas_overlap(a, b, &area);
   if (area <= 1.0f || inter.empty()) return {};
   float x0 = inter[0].x, y0 = inter[0].y, x1 = x0, y1 = y0;
   for (const auto& p : inter) {
@@ -224,14 +219,9 @@ double rms_of(const std::vector<cv::Point2f>& src, const std::vector<cv::Point2f
   return n ? std::sqrt(sum / n) : 0;
 }
 
-// Overlap graph edges from the current homographies: (a, b, overlap area).
-struct Edge {
-  int a, b;
-  double weight;
-};
-
-std::vector<Edge> overlap_edges(const Rig& rig) {
-  std::vector<Edge> edges;
+// Overlap graph edges from the current homographies, weighted by overlap area.
+std::vector<OverlapEdge> overlap_edges(const Rig& rig) {
+  std::vector<OverlapEdge> edges;
   const int n = int(rig.cameras.size());
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
@@ -239,24 +229,6 @@ std::vector<Edge> overlap_edges(const Rig& rig) {
       if (box.area() > 0) edges.push_back({a, b, box.area()});
     }
   return edges;
-}
-
-// Breadth-first order from the reference along the strongest edges (Prim's maximum tree).
-std::vector<std::pair<int, int>> spanning_order(int n, int root, const std::vector<Edge>& edges) {
-  std::vector<std::pair<int, int>> order;  // (camera, parent)
-  std::vector<bool> in(n, false);
-  in[root] = true;
-  for (;;) {
-    const Edge* best = nullptr;
-    for (const auto& e : edges)
-      if (in[e.a] != in[e.b] && (!best || e.weight > best->weight)) best = &e;
-    if (!best) break;
-    const int child = in[best->a] ? best->b : best->a;
-    const int parent = in[best->a] ? best->a : best->b;
-    in[child] = true;
-    order.emplace_back(child, parent);
-  }
-  return order;
 }
 
 void check_frames(const std::vector<ImageView>& frames) {
@@ -307,7 +279,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<std::ve
   Rig& rig = res.rig;
   const int n = int(rig.cameras.size());
 
-  const std::vector<Edge> edges = overlap_edges(rig);
+  const std::vector<OverlapEdge> edges = overlap_edges(rig);
   std::vector<bool> connected(n, false);
   connected[rig.reference] = true;
   for (const auto& e : edges) connected[e.a] = connected[e.b] = true;
@@ -321,7 +293,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<std::ve
     for (int i = 0; i < n; ++i) gray[t][i] = to_gray(sets[t][i]);
   std::vector<bool> placed(n, false);
   placed[rig.reference] = true;
-  for (const auto& [cam, parent] : spanning_order(n, rig.reference, edges)) {
+  for (const auto& [cam, parent] : max_spanning_order(n, rig.reference, edges)) {
     // Correspondences with every already-placed neighbour, in canvas coordinates.
     std::vector<cv::Point2f> src, dst;
     PairReport rep;
@@ -439,7 +411,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     int inliers = 0, matches = 0;
   };
   std::vector<std::vector<PairH>> pair(n, std::vector<PairH>(n));
-  std::vector<Edge> edges;
+  std::vector<OverlapEdge> edges;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
       std::vector<cv::Point2f> pa, pb;
@@ -477,7 +449,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     c.cy = (c.height - 1) * 0.5;
   }
   rig.cameras[reference].homography = Eigen::Matrix3d::Identity();
-  for (const auto& [cam, parent] : spanning_order(n, reference, edges)) {
+  for (const auto& [cam, parent] : max_spanning_order(n, reference, edges)) {
     const Eigen::Matrix3d H = *rig.cameras[parent].homography * pair[cam][parent].H;
     rig.cameras[cam].homography = H / H(2, 2);
     PairReport rep;

@@ -1,4 +1,5 @@
 #include "stitch/color/color.hpp"
+#include "stitch/rig/overlap.hpp"
 
 #include <Eigen/Dense>
 #include <algorithm>
@@ -7,12 +8,6 @@
 
 namespace stitch {
 namespace {
-
-std::vector<cv::Point2f> canvas_quad(const Camera& c) {
-  std::vector<cv::Point2f> q;
-  for (const auto& p : camera_canvas_corners(c)) q.emplace_back(float(p.x()), float(p.y()));
-  return q;
-}
 
 bool in_image(const Eigen::Vector3d& q, int w, int h, double& x, double& y) {
   if (!(q.z() > 1e-9)) return false;
@@ -127,12 +122,12 @@ void ColorCorrector::prepare_geometry(const Rig& rig) {
   const int n = int(rig.cameras.size());
   reference_ = rig.reference;
   pairs_.clear();
-  std::vector<std::array<double, 3>> edges;  // a, b, weight
+  std::vector<OverlapEdge> edges;  // weighted by valid sample count
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
-      std::vector<cv::Point2f> inter;
-      const float area = cv::intersectConvexConvex(canvas_quad(rig.cameras[a]), canvas_quad(rig.cameras[b]), inter, true);
-      if (area < 64.0f || inter.size() < 3) continue;
+      float area = 0;
+      const std::vector<cv::Point2f> inter = canvas_overlap(rig.cameras[a], rig.cameras[b], &area);
+      if (area < 64.0f || inter.empty()) continue;
       const cv::Rect box = cv::boundingRect(inter);
       const double step = std::max(1.0, std::sqrt(double(area) / options_.max_samples_per_pair));
       const Eigen::Matrix3d Ha = rig.cameras[a].homography->inverse(), Hb = rig.cameras[b].homography->inverse();
@@ -150,25 +145,11 @@ void ColorCorrector::prepare_geometry(const Rig& rig) {
           g.xy_b.push_back(int32_t(std::lround(yb)));
         }
       if (g.xy_a.size() / 2 < 16) continue;
-      edges.push_back({double(a), double(b), double(g.xy_a.size())});
+      edges.push_back({a, b, double(g.xy_a.size())});
       pairs_.push_back(std::move(g));
     }
-  // Chain outward from the reference along the largest overlaps (Prim's maximum tree).
-  tree_.clear();
-  std::vector<bool> in(n, false);
-  in[reference_] = true;
-  for (;;) {
-    int best = -1;
-    for (std::size_t e = 0; e < edges.size(); ++e) {
-      const int a = int(edges[e][0]), b = int(edges[e][1]);
-      if (in[a] != in[b] && (best < 0 || edges[e][2] > edges[best][2])) best = int(e);
-    }
-    if (best < 0) break;
-    const int a = int(edges[best][0]), b = int(edges[best][1]);
-    const int child = in[a] ? b : a, parent = in[a] ? a : b;
-    in[child] = true;
-    tree_.emplace_back(child, parent);
-  }
+  // Chain outward from the reference along the largest overlaps.
+  tree_ = max_spanning_order(n, reference_, edges);
   balance_xy_.assign(n, {});
   for (int i = 0; i < n; ++i) {
     const Camera& c = rig.cameras[i];

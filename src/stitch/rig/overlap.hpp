@@ -1,0 +1,25 @@
+// Where views overlap on the canvas, and the order in which stages chain outward from the
+// reference camera (calibration refinement, color transfer).
+#pragma once
+
+#include <opencv2/core.hpp>
+#include <utility>
+#include <vector>
+
+#include "stitch/rig/rig.hpp"
+
+namespace stitch {
+
+// Canvas polygon shared by two calibrated views; empty when they do not overlap.
+std::vector<cv::Point2f> canvas_overlap(const Camera& a, const Camera& b, float* area = nullptr);
+
+struct OverlapEdge {
+  int a, b;
+  double weight;  // how much the two views share (area, sample count, matches)
+};
+
+// (view, parent) pairs in the order Prim's maximum spanning tree reaches them from `root`:
+// each view hangs off the neighbour it shares the most with. Unreached views are left out.
+std::vector<std::pair<int, int>> max_spanning_order(int n, int root, const std::vector<OverlapEdge>& edges);
+
+}  // namespace stitch
