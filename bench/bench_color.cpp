@@ -19,16 +19,13 @@
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/overlap.hpp"
+#include "bench_common.hpp"
 
 using namespace stitch;
+using stitch_bench::Series;
 
 namespace {
 
-struct PairStats {
-  double psnr = 0, ssim = 0;
-};
-
-// Both views of a pair warped into the canvas box of their overlap; mask = both valid.
 void overlap_images(const Rig& rig, int a, int b, const cv::Mat& va, const cv::Mat& vb, cv::Mat& oa, cv::Mat& ob,
                     cv::Mat& mask) {
   const std::vector<cv::Point2f> inter = canvas_overlap(rig.cameras[a], rig.cameras[b]);
@@ -58,58 +55,6 @@ void overlap_images(const Rig& rig, int a, int b, const cv::Mat& va, const cv::M
   mask = ma & mb;
 }
 
-PairStats compare(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
-  PairStats s;
-  const double n = cv::countNonZero(mask);
-  if (n < 100) return s;
-  cv::Mat d;
-  cv::absdiff(a, b, d);
-  d.convertTo(d, CV_64F);
-  d = d.mul(d);
-  const cv::Scalar msum = cv::mean(d, mask);
-  const double mse = (msum[0] + msum[1] + msum[2]) / 3.0;
-  s.psnr = mse > 0 ? 10 * std::log10(255.0 * 255.0 / mse) : 99.0;
-  // SSIM (Wang et al.) on luma, Gaussian 11x11 sigma 1.5, averaged over the mask.
-  cv::Mat ga, gb;
-  cv::cvtColor(a, ga, cv::COLOR_RGB2GRAY);
-  cv::cvtColor(b, gb, cv::COLOR_RGB2GRAY);
-  ga.convertTo(ga, CV_64F);
-  gb.convertTo(gb, CV_64F);
-  const double C1 = 6.5025, C2 = 58.5225;
-  cv::Mat mu1, mu2, s11, s22, s12;
-  cv::GaussianBlur(ga, mu1, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(gb, mu2, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(ga.mul(ga), s11, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(gb.mul(gb), s22, cv::Size(11, 11), 1.5);
-  cv::GaussianBlur(ga.mul(gb), s12, cv::Size(11, 11), 1.5);
-  cv::Mat mu11 = mu1.mul(mu1), mu22 = mu2.mul(mu2), mu12 = mu1.mul(mu2);
-  s11 -= mu11;
-  s22 -= mu22;
-  s12 -= mu12;
-  cv::Mat num = (2 * mu12 + C1).mul(2 * s12 + C2), den = (mu11 + mu22 + C1).mul(s11 + s22 + C2);
-  cv::Mat ssim_map;
-  cv::divide(num, den, ssim_map);
-  cv::Mat m2;
-  cv::erode(mask, m2, cv::Mat::ones(11, 11, CV_8U));
-  s.ssim = cv::mean(ssim_map, m2.empty() || cv::countNonZero(m2) == 0 ? mask : m2)[0];
-  return s;
-}
-
-struct Series {
-  std::vector<double> v;
-  double mean() const {
-    double s = 0;
-    for (double x : v) s += x;
-    return v.empty() ? 0 : s / v.size();
-  }
-  double sigma() const {
-    const double m = mean();
-    double s = 0;
-    for (double x : v) s += (x - m) * (x - m);
-    return v.size() > 1 ? std::sqrt(s / (v.size() - 1)) : 0;
-  }
-};
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -135,31 +80,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   // Read the frames once.
-  std::vector<std::vector<cv::Mat>> seq;  // seq[t][camera], RGBA
-  {
-    std::vector<cv::VideoCapture> caps;
-    for (const auto& c : clips) {
-      caps.emplace_back(c);
-      if (!caps.back().isOpened()) {
-        std::fprintf(stderr, "cannot open %s\n", c.c_str());
-        return 2;
-      }
-    }
-    for (int t = 0; t < frames * step; ++t) {
-      std::vector<cv::Mat> set;
-      bool ok = true;
-      for (auto& cap : caps) {
-        cv::Mat f;
-        if (!cap.read(f)) ok = false;
-        else {
-          cv::cvtColor(f, f, cv::COLOR_BGR2RGBA);
-          set.push_back(f);
-        }
-      }
-      if (!ok) break;
-      if (t % step == 0) seq.push_back(set);
-    }
-  }
+  std::vector<std::vector<cv::Mat>> seq = stitch_bench::read_sets(clips, frames, step);
   if (seq.size() < 3) {
     std::fprintf(stderr, "too few frames\n");
     return 2;
@@ -218,7 +139,7 @@ int main(int argc, char** argv) {
             ssim.emplace_back();
             pair_ids.emplace_back(a, b);
           }
-          const PairStats s = compare(oa, ob, mask);
+          const stitch_bench::Comparison s = stitch_bench::compare(oa, ob, mask);
           if (t == 0 && m == 0 && std::getenv("STITCH_DUMP")) {
             cv::Mat both;
             cv::hconcat(oa, ob, both);

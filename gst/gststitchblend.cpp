@@ -3,7 +3,7 @@
  * @title: stitchblend
  *
  * Turns a calibrated bundle into one panorama frame: it warps each view onto the canvas by
- * its homography and fuses the views with the paper's position-weighted mean (eq. 15-16):
+ * its homography (or takes the views stitchflowwarp already warped) and fuses the views with the paper's position-weighted mean (eq. 15-16):
  * each view's weight falls linearly to zero at its own border, so seams fade across the
  * whole overlap. The output is plain `video/x-raw, format=RGBA` that any element accepts.
  * The output size follows the calibration's canvas; `output-width`/`output-height` scale it
@@ -148,14 +148,18 @@ static gboolean gst_stitch_blend_set_caps(GstBaseTransform* trans, GstCaps* inca
 }
 
 /* Rebuilds the compositor when the rig or the settings changed; renegotiates the output. */
-static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta) {
+static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, GstStitchWarpMeta* warped) {
   BlendState* st = self->state;
+  const stitch::CompositorInput input =
+      warped ? stitch::CompositorInput::Prewarped : stitch::CompositorInput::CameraFrames;
   GST_OBJECT_LOCK(self);
   const bool settings_changed = st->settings_changed;
   const stitch::CompositorSettings settings = st->settings;
   st->settings_changed = false;
   GST_OBJECT_UNLOCK(self);
-  if (st->compositor && meta->version == st->rig_version && !settings_changed) return TRUE;
+  if (st->compositor && meta->version == st->rig_version && !settings_changed &&
+      st->compositor->input() == input)
+    return TRUE;
 
   stitch::CompositorSettings effective = settings;
   if (st->compositor && !settings_changed) {
@@ -165,7 +169,19 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta) {
     effective.output_height = st->compositor->geometry().height;
   }
   auto compositor = std::make_unique<stitch::Compositor>(settings.backend);
-  compositor->prepare(**meta->rig, effective);
+  compositor->prepare(**meta->rig, effective, input);
+  if (warped) {
+    /* stitchflowwarp lays the views out on the canvas; we must read them where it put them */
+    const auto& views = compositor->prewarped_placements();
+    bool same = warped->rig_version == meta->version && warped->n_views == views.size();
+    for (std::size_t i = 0; same && i < views.size(); ++i) {
+      const stitch::Rect& r = views[i].roi;
+      same = r.empty() ? warped->rois[i][2] <= 0 || warped->rois[i][3] <= 0
+                       : warped->rois[i][0] == r.x && warped->rois[i][1] == r.y &&
+                             warped->rois[i][2] == r.width && warped->rois[i][3] == r.height;
+    }
+    if (!same) throw std::runtime_error("the pre-warped views do not match the calibration's canvas");
+  }
   const stitch::OutputGeometry& g = compositor->geometry();
   st->compositor = std::move(compositor);
   st->rig_version = meta->version;
@@ -213,7 +229,8 @@ static GstFlowReturn gst_stitch_blend_prepare_output_buffer(GstBaseTransform* tr
   if (!meta) return GST_FLOW_ERROR;
   gboolean ok = FALSE;
   if (!stitch_guard(GST_ELEMENT(self), "stitchblend: cannot build the panorama geometry",
-                    [&]() { ok = update_geometry(self, meta); }) || !ok)
+                    [&]() { ok = update_geometry(self, meta, gst_buffer_get_stitch_warp_meta(input)); }) ||
+      !ok)
     return GST_FLOW_ERROR;
   GstFlowReturn ret = gst_buffer_pool_acquire_buffer(self->state->pool, outbuf, NULL);
   if (ret != GST_FLOW_OK) return ret;

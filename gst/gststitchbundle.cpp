@@ -116,6 +116,62 @@ GstStitchRigMeta* gst_buffer_get_stitch_rig_meta(GstBuffer* buffer) {
       gst_buffer_get_meta(buffer, gst_stitch_rig_meta_api_get_type()));
 }
 
+/* ---- warp meta ---- */
+
+GType gst_stitch_warp_meta_api_get_type(void) {
+  static GType type = 0;
+  static const gchar* tags[] = {"stitch", NULL};
+  if (g_once_init_enter(&type)) {
+    GType t = gst_meta_api_type_register("GstStitchWarpMetaAPI", tags);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static gboolean warp_meta_init(GstMeta* meta, gpointer, GstBuffer*) {
+  auto* m = reinterpret_cast<GstStitchWarpMeta*>(meta);
+  m->rig_version = 0;
+  m->canvas_width = m->canvas_height = 0;
+  m->n_views = 0;
+  std::memset(m->rois, 0, sizeof(m->rois));
+  return TRUE;
+}
+
+static gboolean warp_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*, GQuark type,
+                                    gpointer) {
+  if (!GST_META_TRANSFORM_IS_COPY(type)) return FALSE;
+  return gst_buffer_add_stitch_warp_meta(dest, reinterpret_cast<GstStitchWarpMeta*>(meta)) != NULL;
+}
+
+const GstMetaInfo* gst_stitch_warp_meta_get_info(void) {
+  static const GstMetaInfo* info = NULL;
+  if (g_once_init_enter(&info)) {
+    const GstMetaInfo* mi = gst_meta_register(
+        gst_stitch_warp_meta_api_get_type(), "GstStitchWarpMeta", sizeof(GstStitchWarpMeta),
+        warp_meta_init, NULL, warp_meta_transform);
+    g_once_init_leave(&info, mi);
+  }
+  return info;
+}
+
+GstStitchWarpMeta* gst_buffer_add_stitch_warp_meta(GstBuffer* buffer, const GstStitchWarpMeta* from) {
+  auto* m = reinterpret_cast<GstStitchWarpMeta*>(
+      gst_buffer_add_meta(buffer, gst_stitch_warp_meta_get_info(), NULL));
+  if (m) {
+    m->rig_version = from->rig_version;
+    m->canvas_width = from->canvas_width;
+    m->canvas_height = from->canvas_height;
+    m->n_views = from->n_views;
+    std::memcpy(m->rois, from->rois, sizeof(m->rois));
+  }
+  return m;
+}
+
+GstStitchWarpMeta* gst_buffer_get_stitch_warp_meta(GstBuffer* buffer) {
+  return reinterpret_cast<GstStitchWarpMeta*>(
+      gst_buffer_get_meta(buffer, gst_stitch_warp_meta_api_get_type()));
+}
+
 /* ---- backend enum ---- */
 
 GType gst_stitch_backend_get_type(void) {

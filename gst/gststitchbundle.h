@@ -51,6 +51,22 @@ GstStitchRigMeta* gst_buffer_add_stitch_rig_meta(GstBuffer* buffer,
                                                  guint64 version);
 GstStitchRigMeta* gst_buffer_get_stitch_rig_meta(GstBuffer* buffer);
 
+/* Set by stitchflowwarp: the views are no longer camera frames but already warped into their
+ * rectangles (x, y, width, height) of the canvas, canvas_width x canvas_height, for the rig of
+ * `rig_version`. stitchblend then only fuses. */
+typedef struct {
+  GstMeta meta;
+  guint64 rig_version;
+  gint canvas_width, canvas_height;
+  guint n_views;
+  gint rois[STITCH_MAX_VIEWS][4];
+} GstStitchWarpMeta;
+
+GType gst_stitch_warp_meta_api_get_type(void);
+const GstMetaInfo* gst_stitch_warp_meta_get_info(void);
+GstStitchWarpMeta* gst_buffer_add_stitch_warp_meta(GstBuffer* buffer, const GstStitchWarpMeta* from);
+GstStitchWarpMeta* gst_buffer_get_stitch_warp_meta(GstBuffer* buffer);
+
 /* backend=auto|cpu|cuda, shared by every element. */
 #define GST_TYPE_STITCH_BACKEND (gst_stitch_backend_get_type())
 GType gst_stitch_backend_get_type(void);

@@ -3,6 +3,7 @@
 #include "gststitchblend.h"
 #include "gststitchcalib.h"
 #include "gststitchcolor.h"
+#include "gststitchflowwarp.h"
 #include "gststitchsync.h"
 
 static gboolean plugin_init(GstPlugin* plugin) {
@@ -10,6 +11,7 @@ static gboolean plugin_init(GstPlugin* plugin) {
   ok |= GST_ELEMENT_REGISTER(stitchsync, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchcalib, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchcolor, plugin);
+  ok |= GST_ELEMENT_REGISTER(stitchflowwarp, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchblend, plugin);
   return ok;
 }

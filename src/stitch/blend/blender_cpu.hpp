@@ -6,6 +6,9 @@
 
 namespace stitch {
 
+// position_weight() of every pixel of the view's roi (CV_32F, roi-sized; empty for an empty roi).
+cv::Mat position_weight_map(const ViewPlacement& view);
+
 class BlenderCpu final : public Blender {
  public:
   static constexpr int kWeightBits = 14;  // weights are Q14 and sum to exactly 1 << 14

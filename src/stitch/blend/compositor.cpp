@@ -1,5 +1,6 @@
 #include "stitch/blend/compositor.hpp"
 
+#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 
 namespace stitch {
@@ -7,7 +8,7 @@ namespace stitch {
 Compositor::Compositor(Backend backend)
     : warper_(Warper::create(backend)), blender_(Blender::create(backend)) {}
 
-void Compositor::prepare(const Rig& rig, const CompositorSettings& settings) {
+void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, CompositorInput input) {
   if (!rig.calibrated()) throw RigError("the rig carries no calibration (homographies and canvas)");
   for (std::size_t i = 0; i < rig.cameras.size(); ++i) {
     const Camera& c = rig.cameras[i];
@@ -17,11 +18,61 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings) {
   }
   geometry_ = plan_output(rig, settings.output_width, settings.output_height, settings.crop);
   views_ = place_views(rig, geometry_);
-  warper_->prepare(views_);
-  blender_->prepare(views_, geometry_.width, geometry_.height);
+  input_ = input;
   scratch_.assign(views_.size(), {});
-  for (std::size_t i = 0; i < views_.size(); ++i)
-    scratch_[i].resize(static_cast<std::size_t>(views_[i].roi.width) * views_[i].roi.height * 4);
+  canvas_.clear();
+  if (input == CompositorInput::Prewarped) {
+    // Fuse on the canvas, where the views were warped, then crop/scale into the output.
+    blend_geometry_ = canvas_geometry(rig);
+    blend_views_ = place_views(rig, blend_geometry_);
+    if (!(blend_geometry_.canvas_to_output.isApprox(geometry_.canvas_to_output) &&
+          blend_geometry_.width == geometry_.width && blend_geometry_.height == geometry_.height))
+      canvas_.resize(static_cast<std::size_t>(blend_geometry_.width) * blend_geometry_.height * 4);
+  } else {
+    blend_geometry_ = geometry_;
+    blend_views_ = views_;
+    warper_->prepare(views_);
+    for (std::size_t i = 0; i < views_.size(); ++i)
+      scratch_[i].resize(static_cast<std::size_t>(views_[i].roi.width) * views_[i].roi.height * 4);
+  }
+  blender_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
+}
+
+void Compositor::compose_prewarped(const std::vector<ImageView>& views, const ImageView& out) {
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const Rect& r = blend_views_[i].roi;
+    if (!views[i].empty() && (views[i].width != r.width || views[i].height != r.height))
+      throw std::invalid_argument("pre-warped view " + std::to_string(i) + " is " +
+                                  std::to_string(views[i].width) + "x" + std::to_string(views[i].height) +
+                                  ", its canvas rectangle is " + std::to_string(r.width) + "x" +
+                                  std::to_string(r.height));
+  }
+  if (canvas_.empty()) {
+    blender_->fuse(views, out);
+    return;
+  }
+  ImageView canvas;
+  canvas.data = canvas_.data();
+  canvas.width = blend_geometry_.width;
+  canvas.height = blend_geometry_.height;
+  canvas.pitch = static_cast<std::size_t>(canvas.width) * 4;
+  blender_->fuse(views, canvas);
+  const cv::Mat src(canvas.height, canvas.width, CV_8UC4, canvas.data, canvas.pitch);
+  cv::Mat dst(out.height, out.width, CV_8UC4, out.data, out.pitch);
+  const Eigen::Matrix3d& A = geometry_.canvas_to_output;
+  const cv::Matx23d affine(A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2));
+  if (A(0, 0) < 0.75) {
+    // Area-average first so that a strong downscale does not alias; then the rest of the
+    // affine map (pixel centres: canvas x -> s·x + t, resized u <-> (u + 0.5)/k - 0.5).
+    cv::Mat small;
+    cv::resize(src, small, cv::Size(), A(0, 0), A(1, 1), cv::INTER_AREA);
+    const double kx = double(small.cols) / src.cols, ky = double(small.rows) / src.rows;
+    const double ax = A(0, 0) / kx, ay = A(1, 1) / ky;
+    const cv::Matx23d rest(ax, 0, 0.5 * ax - 0.5 * A(0, 0) + A(0, 2), 0, ay, 0.5 * ay - 0.5 * A(1, 1) + A(1, 2));
+    cv::warpAffine(small, dst, rest, dst.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0, 0, 0, 255));
+    return;
+  }
+  cv::warpAffine(src, dst, affine, dst.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0, 0, 0, 255));
 }
 
 void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& out) {
@@ -29,6 +80,10 @@ void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& 
   if (frames.size() != views_.size())
     throw std::invalid_argument("got " + std::to_string(frames.size()) + " frames for " +
                                 std::to_string(views_.size()) + " cameras");
+  if (input_ == CompositorInput::Prewarped) {
+    compose_prewarped(frames, out);
+    return;
+  }
   std::vector<ImageView> warped(frames.size());
   for (std::size_t i = 0; i < frames.size(); ++i) {
     const ViewPlacement& v = views_[i];

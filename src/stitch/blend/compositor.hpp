@@ -12,6 +12,10 @@
 
 namespace stitch {
 
+// What compose() receives: the cameras' frames (warped here by the homographies), or views
+// that stitchflowwarp already warped into their rectangles of canvas_geometry(rig).
+enum class CompositorInput { CameraFrames, Prewarped };
+
 struct CompositorSettings {
   int output_width = 0;   // 0: from the canvas / crop
   int output_height = 0;
@@ -23,20 +27,32 @@ class Compositor {
  public:
   explicit Compositor(Backend backend = Backend::Auto);
   // Throws RigError when the rig is not calibrated or its geometry is degenerate.
-  void prepare(const Rig& rig, const CompositorSettings& settings);
+  void prepare(const Rig& rig, const CompositorSettings& settings,
+               CompositorInput input = CompositorInput::CameraFrames);
+  CompositorInput input() const { return input_; }
   bool prepared() const { return geometry_.width > 0; }
   const OutputGeometry& geometry() const { return geometry_; }
   const std::vector<ViewPlacement>& placements() const { return views_; }
 
-  // frames[i] is camera i's frame (empty view = camera missing). `out` is output-sized.
+  // Where the views must lie for CompositorInput::Prewarped (the canvas, 1:1).
+  const std::vector<ViewPlacement>& prewarped_placements() const { return blend_views_; }
+
+  // frames[i] is camera i's frame, or its pre-warped view (empty view = camera missing).
+  // `out` is output-sized.
   void compose(const std::vector<ImageView>& frames, const ImageView& out);
 
  private:
+  void compose_prewarped(const std::vector<ImageView>& views, const ImageView& out);
+
   std::unique_ptr<Warper> warper_;
   std::unique_ptr<Blender> blender_;
   OutputGeometry geometry_;
   std::vector<ViewPlacement> views_;
+  CompositorInput input_ = CompositorInput::CameraFrames;
+  std::vector<ViewPlacement> blend_views_;     // where the blender finds each view
+  OutputGeometry blend_geometry_;              // what the blender fills: output, or canvas
   std::vector<std::vector<uint8_t>> scratch_;  // warped rectangles, reused every frame
+  std::vector<uint8_t> canvas_;                // pre-warped input fused before crop/scale
 };
 
 }  // namespace stitch

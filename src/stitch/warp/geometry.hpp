@@ -32,6 +32,9 @@ struct ViewPlacement {
 // Sizes are rounded to even numbers so that 4:2:0 encoders accept them.
 OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, CropMode crop);
 
+// The canvas itself, 1:1 (padded to even sizes): where stitchflowwarp pre-warps the views.
+inline OutputGeometry canvas_geometry(const Rig& rig) { return plan_output(rig, 0, 0, CropMode::None); }
+
 // Largest axis-aligned rectangle of the canvas that every pixel of is covered by a view.
 Rect largest_covered_rect(const Rig& rig);
 

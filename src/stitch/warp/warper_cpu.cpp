@@ -7,29 +7,41 @@
 
 namespace stitch {
 
+void camera_maps(const ViewPlacement& v, const Rect& part, const cv::Mat& displacement,
+                 cv::Mat& map_x, cv::Mat& map_y) {
+  map_x.create(part.height, part.width, CV_32F);
+  map_y.create(part.height, part.width, CV_32F);
+  const Eigen::Matrix3d& M = v.output_to_camera;
+  const bool moved = !displacement.empty();
+  cv::parallel_for_(cv::Range(0, part.height), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) {
+      float* px = map_x.ptr<float>(y);
+      float* py = map_y.ptr<float>(y);
+      const cv::Vec2f* pd = moved ? displacement.ptr<cv::Vec2f>(y) : nullptr;
+      for (int x = 0; x < part.width; ++x) {
+        double ox = v.roi.x + part.x + x, oy = v.roi.y + part.y + y;
+        if (pd) {
+          ox += pd[x][0];
+          oy += pd[x][1];
+        }
+        const double X = M(0, 0) * ox + M(0, 1) * oy + M(0, 2);
+        const double Y = M(1, 0) * ox + M(1, 1) * oy + M(1, 2);
+        const double Z = M(2, 0) * ox + M(2, 1) * oy + M(2, 2);
+        const bool ok = Z > 1e-12;
+        px[x] = ok ? float(X / Z) : -1e6f;
+        py[x] = ok ? float(Y / Z) : -1e6f;
+      }
+    }
+  });
+}
+
 void WarperCpu::prepare(const std::vector<ViewPlacement>& views) {
   maps_.assign(views.size(), {});
   for (std::size_t i = 0; i < views.size(); ++i) {
     const ViewPlacement& v = views[i];
     if (v.roi.empty()) continue;
-    cv::Mat fx(v.roi.height, v.roi.width, CV_32F), fy(v.roi.height, v.roi.width, CV_32F);
-    const Eigen::Matrix3d& M = v.output_to_camera;
-    cv::parallel_for_(cv::Range(0, v.roi.height), [&](const cv::Range& r) {
-      for (int y = r.start; y < r.end; ++y) {
-        float* px = fx.ptr<float>(y);
-        float* py = fy.ptr<float>(y);
-        const double oy = v.roi.y + y;
-        for (int x = 0; x < v.roi.width; ++x) {
-          const double ox = v.roi.x + x;
-          const double X = M(0, 0) * ox + M(0, 1) * oy + M(0, 2);
-          const double Y = M(1, 0) * ox + M(1, 1) * oy + M(1, 2);
-          const double Z = M(2, 0) * ox + M(2, 1) * oy + M(2, 2);
-          const bool ok = Z > 1e-12;
-          px[x] = ok ? float(X / Z) : -1e6f;
-          py[x] = ok ? float(Y / Z) : -1e6f;
-        }
-      }
-    });
+    cv::Mat fx, fy;
+    camera_maps(v, {0, 0, v.roi.width, v.roi.height}, cv::Mat(), fx, fy);
     // Fixed-point maps: remap is about twice as fast with them and the error is < 1/32 px.
     cv::convertMaps(fx, fy, maps_[i].xy, maps_[i].frac, CV_16SC2);
   }

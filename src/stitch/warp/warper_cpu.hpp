@@ -5,6 +5,12 @@
 
 namespace stitch {
 
+// Camera coordinates of the pixels of `part` (in roi coordinates) of a view, CV_32F each.
+// `displacement` (CV_32FC2, part-sized, output pixels) moves each pixel before the lookup;
+// empty means none. Pixels behind the camera map far outside it (transparent).
+void camera_maps(const ViewPlacement& view, const Rect& part, const cv::Mat& displacement,
+                 cv::Mat& map_x, cv::Mat& map_y);
+
 class WarperCpu final : public Warper {
  public:
   void prepare(const std::vector<ViewPlacement>& views) override;

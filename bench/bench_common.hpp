@@ -1,0 +1,42 @@
+// Helpers the benchmarks share: reading clip sets, photometric comparison, running statistics.
+#pragma once
+
+#include <cmath>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+namespace stitch_bench {
+
+// seq[t][camera] (RGBA): `frames` instants every `step` frames of synchronised clips, or one
+// instant from still images (any path ending in .jpg/.jpeg/.png). Empty with a message on error.
+std::vector<std::vector<cv::Mat>> read_sets(const std::vector<std::string>& paths, int frames, int step);
+
+struct Comparison {
+  double psnr = 0, ssim = 0, mad = 0;  // mad: mean absolute difference, levels, RGB mean
+  // MAD of the detail (each image minus its Gaussian local mean, sigma 8 px): what ghosting
+  // and misalignment change, without the smooth exposure and vignetting differences between
+  // two cameras that no warp can remove.
+  double mad_detail = 0;
+  int pixels = 0;
+};
+
+// a, b: RGB images of the same size; mask: CV_8U. SSIM (Wang et al.) on luma, Gaussian 11x11.
+Comparison compare(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask);
+
+struct Series {
+  std::vector<double> v;
+  double mean() const {
+    double s = 0;
+    for (double x : v) s += x;
+    return v.empty() ? 0 : s / v.size();
+  }
+  double sigma() const {
+    const double m = mean();
+    double s = 0;
+    for (double x : v) s += (x - m) * (x - m);
+    return v.size() > 1 ? std::sqrt(s / (v.size() - 1)) : 0;
+  }
+};
+
+}  // namespace stitch_bench

@@ -1,0 +1,370 @@
+/**
+ * SECTION:element-stitchflowwarp
+ * @title: stitchflowwarp
+ *
+ * Coarse-to-fine frame warping (paper §3.2). Every view of a calibrated bundle is pre-warped
+ * onto the canvas by its homography; then, in each overlap, bidirectional dense optical flow
+ * (DIS) moves each view toward its neighbour by the other view's blend weight, so both meet
+ * in between and stitchblend fuses them without the ghosting that parallax and near objects
+ * cause. The displacement fades to zero where an overlap ends.
+ *
+ * Beyond the paper: each frame's flow starts from the previous frame's and is blended with it
+ * where neither view changed (`temporal-smoothing`), so static scenes do not shimmer while
+ * moving objects are followed at once; where the two flow directions disagree (occlusion, no
+ * texture) the flow is scaled toward zero, i.e. back to the homography. History resets on
+ * flush, seek and caps change.
+ *
+ * The output is a bundle of the same caps whose views are the warped rectangles of the canvas
+ * (a GstStitchWarpMeta says where each lies); stitchblend detects it and only fuses.
+ * `flow=false` keeps the homography alone.
+ *
+ * ## Example launch lines
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchcolor ! stitchflowwarp ! \
+ *   stitchblend crop=auto ! videoconvert ! autovideosink \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * |[
+ * gst-launch-1.0 -e stitchsync name=s ! stitchcalib ! stitchflowwarp quality=fine margin=32 \
+ *   temporal-smoothing=0.7 ! stitchblend ! videoconvert ! x264enc ! mp4mux ! \
+ *   filesink location=pano.mp4 \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ */
+#include "gststitchflowwarp.h"
+
+#include <gst/video/video.h>
+
+#include <mutex>
+
+#include "gststitchbundle.h"
+#include "stitch/warp/flow_warper.hpp"
+
+GST_DEBUG_CATEGORY_STATIC(gst_stitch_flow_warp_debug);
+#define GST_CAT_DEFAULT gst_stitch_flow_warp_debug
+
+enum { PROP_0, PROP_FLOW, PROP_QUALITY, PROP_ALGORITHM, PROP_MARGIN, PROP_TEMPORAL_SMOOTHING, PROP_BACKEND };
+
+#define DEFAULT_FLOW TRUE
+#define DEFAULT_QUALITY stitch::FlowQuality::Medium
+#define DEFAULT_ALGORITHM stitch::FlowAlgorithm::Dis
+#define DEFAULT_MARGIN 16
+#define DEFAULT_TEMPORAL_SMOOTHING 0.95
+
+struct FlowWarpElementState {
+  std::mutex lock;  // guards the settings
+  stitch::FlowWarpSettings settings;
+  stitch::Backend backend = stitch::Backend::Auto;
+  bool reset_requested = false;
+  /* streaming thread only */
+  std::unique_ptr<stitch::FlowWarper> warper;
+  stitch::Backend warper_backend = stitch::Backend::Auto;
+  guint64 rig_version = G_MAXUINT64;
+  GstStitchWarpMeta layout{};  /* where each view lands; also the meta we attach */
+  gsize view_offsets[STITCH_MAX_VIEWS] = {};
+  GstBufferPool* pool = nullptr;
+  void clear() {
+    warper.reset();
+    rig_version = G_MAXUINT64;
+    if (pool) {
+      gst_buffer_pool_set_active(pool, FALSE);
+      gst_object_unref(pool);
+      pool = nullptr;
+    }
+  }
+};
+
+struct _GstStitchFlowWarp {
+  GstBaseTransform parent;
+  FlowWarpElementState* state;
+};
+
+G_DEFINE_TYPE(GstStitchFlowWarp, gst_stitch_flow_warp, GST_TYPE_BASE_TRANSFORM);
+GST_ELEMENT_REGISTER_DEFINE(stitchflowwarp, "stitchflowwarp", GST_RANK_NONE, GST_TYPE_STITCH_FLOW_WARP);
+
+static GType quality_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::FlowQuality::Fast), "Half-resolution flow, fewest iterations", "fast"},
+      {int(stitch::FlowQuality::Medium), "Half-resolution flow", "medium"},
+      {int(stitch::FlowQuality::Fine), "Full-resolution flow, most iterations", "fine"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchFlowQuality", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GType algorithm_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::FlowAlgorithm::Dis), "Dense inverse search (Kroeger et al.)", "dis"},
+      {int(stitch::FlowAlgorithm::Farneback), "Farneback polynomial expansion", "farneback"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchFlowAlgorithm", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GstStaticPadTemplate sink_template =
+    GST_STATIC_PAD_TEMPLATE("sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+static GstStaticPadTemplate src_template =
+    GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+
+static void request_reset(GstStitchFlowWarp* self) {
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  self->state->reset_requested = true;
+}
+
+/* Rebuilds the warper and the output pool when the rig or the backend changed. */
+static void update_layout(GstStitchFlowWarp* self, GstStitchRigMeta* meta, stitch::Backend backend) {
+  FlowWarpElementState* st = self->state;
+  if (st->warper && st->warper_backend == backend && meta->version == st->rig_version) return;
+  const stitch::Rig& rig = **meta->rig;
+  if (rig.cameras.size() > STITCH_MAX_VIEWS) throw std::invalid_argument("too many cameras");
+  const stitch::OutputGeometry canvas = stitch::canvas_geometry(rig);
+  const std::vector<stitch::ViewPlacement> views = stitch::place_views(rig, canvas);
+  if (!st->warper || st->warper_backend != backend) {
+    st->warper = stitch::FlowWarper::create(backend);
+    st->warper_backend = backend;
+  }
+  st->warper->prepare(views, canvas.width, canvas.height);
+  st->rig_version = meta->version;
+
+  GstStitchWarpMeta& layout = st->layout;
+  layout.rig_version = meta->version;
+  layout.canvas_width = canvas.width;
+  layout.canvas_height = canvas.height;
+  layout.n_views = guint(views.size());
+  gsize total = 0;
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const stitch::Rect& r = views[i].roi;
+    layout.rois[i][0] = r.x;
+    layout.rois[i][1] = r.y;
+    layout.rois[i][2] = r.width;
+    layout.rois[i][3] = r.height;
+    st->view_offsets[i] = total;
+    /* an invisible view still gets a 1x1 placeholder, marked missing */
+    total += gsize(std::max(r.width, 1)) * std::max(r.height, 1) * 4;
+  }
+  if (st->pool) {
+    gst_buffer_pool_set_active(st->pool, FALSE);
+    gst_object_unref(st->pool);
+  }
+  st->pool = gst_buffer_pool_new();
+  GstStructure* config = gst_buffer_pool_get_config(st->pool);
+  gst_buffer_pool_config_set_params(config, NULL, guint(total), 2, 0);
+  if (!gst_buffer_pool_set_config(st->pool, config) || !gst_buffer_pool_set_active(st->pool, TRUE))
+    throw std::runtime_error("cannot allocate the warped views (" + std::to_string(total) + " bytes)");
+  GST_INFO_OBJECT(self, "canvas %dx%d, %u views, %" G_GSIZE_FORMAT " bytes per bundle", canvas.width,
+                  canvas.height, layout.n_views, total);
+}
+
+static GstFlowReturn gst_stitch_flow_warp_prepare_output_buffer(GstBaseTransform* trans,
+                                                                GstBuffer* input, GstBuffer** outbuf) {
+  GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(trans);
+  FlowWarpElementState* st = self->state;
+  GstStitchRigMeta* meta = stitch_bundle_require_rig(GST_ELEMENT(self), input);
+  if (!meta) return GST_FLOW_ERROR;
+  stitch::Backend backend;
+  {
+    std::lock_guard<std::mutex> guard(st->lock);
+    backend = st->backend;
+  }
+  if (!stitch_guard(GST_ELEMENT(self), "stitchflowwarp: cannot build the canvas layout",
+                    [&]() { update_layout(self, meta, backend); }))
+    return GST_FLOW_ERROR;
+  GstFlowReturn ret = gst_buffer_pool_acquire_buffer(st->pool, outbuf, NULL);
+  if (ret != GST_FLOW_OK) return ret;
+  gst_buffer_copy_into(*outbuf, input, GstBufferCopyFlags(GST_BUFFER_COPY_FLAGS | GST_BUFFER_COPY_TIMESTAMPS), 0, -1);
+
+  GstStitchBundleMeta* in_bundle = gst_buffer_get_stitch_bundle_meta(input);
+  guint64 missing = in_bundle ? in_bundle->missing_mask : 0;
+  for (guint i = 0; i < st->layout.n_views; ++i) {
+    const gint w = st->layout.rois[i][2], h = st->layout.rois[i][3];
+    if (w <= 0 || h <= 0) missing |= guint64(1) << i;
+    gsize offset[GST_VIDEO_MAX_PLANES] = {st->view_offsets[i]};
+    gint stride[GST_VIDEO_MAX_PLANES] = {MAX(w, 1) * 4};
+    GstVideoMeta* vm = gst_buffer_add_video_meta_full(*outbuf, GST_VIDEO_FRAME_FLAG_NONE, GST_VIDEO_FORMAT_RGBA,
+                                                      guint(MAX(w, 1)), guint(MAX(h, 1)), 1, offset, stride);
+    vm->id = gint(i);
+  }
+  gst_buffer_add_stitch_bundle_meta(*outbuf, st->layout.n_views, missing);
+  gst_buffer_add_stitch_rig_meta(*outbuf, *meta->rig, meta->version);
+  gst_buffer_add_stitch_warp_meta(*outbuf, &st->layout);
+  return GST_FLOW_OK;
+}
+
+static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, GstBuffer* inbuf,
+                                                    GstBuffer* outbuf) {
+  GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(trans);
+  FlowWarpElementState* st = self->state;
+  stitch::FlowWarpSettings settings;
+  bool reset;
+  {
+    std::lock_guard<std::mutex> guard(st->lock);
+    settings = st->settings;
+    reset = st->reset_requested;
+    st->reset_requested = false;
+  }
+  const guint n_views = st->layout.n_views;
+  StitchBundleMapping in, out;
+  std::string error;
+  if (!in.map(inbuf, n_views, GST_MAP_READ, error)) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
+    return GST_FLOW_ERROR;
+  }
+  if (!out.map(outbuf, n_views, GST_MAP_WRITE, error)) {
+    GST_ELEMENT_ERROR(self, STREAM, FAILED, ("Cannot map the warped views: %s", error.c_str()), (NULL));
+    return GST_FLOW_ERROR;
+  }
+  std::vector<stitch::ImageView> frames = in.views();
+  for (guint i = 0; i < n_views; ++i)
+    if (out.views()[i].empty()) frames[i] = stitch::ImageView();  /* not visible: not warped */
+  const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchflowwarp", [&]() {
+    st->warper->set_settings(settings);
+    if (reset) st->warper->reset();
+    st->warper->warp(frames, out.views());
+  });
+  if (ok) {
+    for (const auto& s : st->warper->stats())
+      GST_LOG_OBJECT(self, "views %d-%d: mean flow %.2f px, %.0f%% consistent", s.view_a, s.view_b,
+                     s.mean_magnitude, 100.0 * s.confident_fraction);
+  }
+  return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
+}
+
+static gboolean gst_stitch_flow_warp_transform_meta(GstBaseTransform*, GstBuffer*, GstMeta* meta, GstBuffer*) {
+  /* The views' metas describe the camera frames; prepare_output_buffer adds the new ones. */
+  const GstMetaInfo* info = meta->info;
+  return !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string("stitch")) &&
+         !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string(GST_META_TAG_VIDEO_STR));
+}
+
+static gboolean gst_stitch_flow_warp_sink_event(GstBaseTransform* trans, GstEvent* event) {
+  switch (GST_EVENT_TYPE(event)) {
+    case GST_EVENT_FLUSH_STOP:
+    case GST_EVENT_SEGMENT:  /* a seek or a new stream: the previous flow no longer applies */
+      request_reset(GST_STITCH_FLOW_WARP(trans));
+      break;
+    default: break;
+  }
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_flow_warp_parent_class)->sink_event(trans, event);
+}
+
+static gboolean gst_stitch_flow_warp_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps*) {
+  GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(trans);
+  if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
+  request_reset(self);
+  return TRUE;
+}
+
+static gboolean gst_stitch_flow_warp_stop(GstBaseTransform* trans) {
+  GST_STITCH_FLOW_WARP(trans)->state->clear();
+  return TRUE;
+}
+
+static void gst_stitch_flow_warp_set_property(GObject* object, guint prop_id, const GValue* value,
+                                              GParamSpec* pspec) {
+  GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(object);
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  stitch::FlowWarpSettings& s = self->state->settings;
+  switch (prop_id) {
+    case PROP_FLOW: s.flow = g_value_get_boolean(value); break;
+    case PROP_QUALITY: s.quality = stitch::FlowQuality(g_value_get_enum(value)); break;
+    case PROP_ALGORITHM: s.algorithm = stitch::FlowAlgorithm(g_value_get_enum(value)); break;
+    case PROP_MARGIN: s.margin = g_value_get_int(value); break;
+    case PROP_TEMPORAL_SMOOTHING: s.temporal_smoothing = g_value_get_double(value); break;
+    case PROP_BACKEND: self->state->backend = stitch::Backend(g_value_get_enum(value)); break;
+    default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
+  }
+}
+
+static void gst_stitch_flow_warp_get_property(GObject* object, guint prop_id, GValue* value,
+                                              GParamSpec* pspec) {
+  GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(object);
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  const stitch::FlowWarpSettings& s = self->state->settings;
+  switch (prop_id) {
+    case PROP_FLOW: g_value_set_boolean(value, s.flow); break;
+    case PROP_QUALITY: g_value_set_enum(value, int(s.quality)); break;
+    case PROP_ALGORITHM: g_value_set_enum(value, int(s.algorithm)); break;
+    case PROP_MARGIN: g_value_set_int(value, s.margin); break;
+    case PROP_TEMPORAL_SMOOTHING: g_value_set_double(value, s.temporal_smoothing); break;
+    case PROP_BACKEND: g_value_set_enum(value, int(self->state->backend)); break;
+    default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
+  }
+}
+
+static void gst_stitch_flow_warp_finalize(GObject* object) {
+  GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(object);
+  self->state->clear();
+  delete self->state;
+  G_OBJECT_CLASS(gst_stitch_flow_warp_parent_class)->finalize(object);
+}
+
+static void gst_stitch_flow_warp_class_init(GstStitchFlowWarpClass* klass) {
+  GObjectClass* gobject_class = G_OBJECT_CLASS(klass);
+  GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
+  GstBaseTransformClass* trans_class = GST_BASE_TRANSFORM_CLASS(klass);
+  const GParamFlags rw = GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS);
+
+  gobject_class->set_property = gst_stitch_flow_warp_set_property;
+  gobject_class->get_property = gst_stitch_flow_warp_get_property;
+  gobject_class->finalize = gst_stitch_flow_warp_finalize;
+
+  g_object_class_install_property(gobject_class, PROP_FLOW,
+      g_param_spec_boolean("flow", "Flow", "Local warping by optical flow in the overlaps "
+                           "(false: homography only)", DEFAULT_FLOW, rw));
+  g_object_class_install_property(gobject_class, PROP_QUALITY,
+      g_param_spec_enum("quality", "Quality", "Flow quality preset (resolution and iterations)",
+                        quality_get_type(), int(DEFAULT_QUALITY), rw));
+  g_object_class_install_property(gobject_class, PROP_ALGORITHM,
+      g_param_spec_enum("algorithm", "Algorithm", "Dense optical flow method",
+                        algorithm_get_type(), int(DEFAULT_ALGORITHM), rw));
+  g_object_class_install_property(gobject_class, PROP_MARGIN,
+      g_param_spec_int("margin", "Margin", "Pixels the overlap is widened by for the flow", 0, 512,
+                       DEFAULT_MARGIN, rw));
+  g_object_class_install_property(gobject_class, PROP_TEMPORAL_SMOOTHING,
+      g_param_spec_double("temporal-smoothing", "Temporal smoothing",
+                          "Weight of the previous frame's flow where neither view changed (static "
+                          "scene); where the content moves the new flow is taken at once (0: every "
+                          "frame alone)", 0.0, 0.99, DEFAULT_TEMPORAL_SMOOTHING, rw));
+  g_object_class_install_property(gobject_class, PROP_BACKEND,
+      g_param_spec_enum("backend", "Backend", "Implementation of the warp and the flow",
+                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+
+  gst_element_class_add_static_pad_template(element_class, &sink_template);
+  gst_element_class_add_static_pad_template(element_class, &src_template);
+  gst_element_class_set_static_metadata(element_class, "Stitch flow warp", "Filter/Effect/Video",
+      "Pre-warps the views of a calibrated stitch bundle onto the canvas and aligns their "
+      "overlaps with bidirectional dense optical flow",
+      "gst-stitch developers");
+
+  trans_class->prepare_output_buffer = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_prepare_output_buffer);
+  trans_class->transform = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_transform);
+  trans_class->transform_meta = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_transform_meta);
+  trans_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_sink_event);
+  trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_set_caps);
+  trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_stop);
+  trans_class->passthrough_on_same_caps = FALSE;
+
+  gst_type_mark_as_plugin_api(quality_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(algorithm_get_type(), GstPluginAPIFlags(0));
+  GST_DEBUG_CATEGORY_INIT(gst_stitch_flow_warp_debug, "stitchflowwarp", 0, "stitch flow warp");
+}
+
+static void gst_stitch_flow_warp_init(GstStitchFlowWarp* self) {
+  self->state = new FlowWarpElementState();
+  stitch::FlowWarpSettings& s = self->state->settings;
+  s.flow = DEFAULT_FLOW;
+  s.quality = DEFAULT_QUALITY;
+  s.algorithm = DEFAULT_ALGORITHM;
+  s.margin = DEFAULT_MARGIN;
+  s.temporal_smoothing = DEFAULT_TEMPORAL_SMOOTHING;
+}

@@ -1,0 +1,362 @@
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
+
+#include "stitch/blend/blender_cpu.hpp"
+#include "stitch/warp/flow_warper.hpp"
+#include "stitch/warp/warper_cpu.hpp"
+
+namespace stitch {
+namespace {
+
+// Resolution of the flow relative to the output: half is ample for seams (the flow is
+// smooth) and four times cheaper.
+double flow_scale(FlowQuality q) { return q == FlowQuality::Fine ? 1.0 : 0.5; }
+
+constexpr float kNegligiblePx = 1.f / 32.f;  // below remap's sub-pixel resolution
+
+cv::Rect to_cv(const Rect& r) { return {r.x, r.y, r.width, r.height}; }
+
+Rect intersect(const Rect& a, const Rect& b) {
+  const int x0 = std::max(a.x, b.x), y0 = std::max(a.y, b.y);
+  const int x1 = std::min(a.x + a.width, b.x + b.width), y1 = std::min(a.y + a.height, b.y + b.height);
+  if (x1 <= x0 || y1 <= y0) return {};
+  return {x0, y0, x1 - x0, y1 - y0};
+}
+
+Rect bounding(const Rect& a, const Rect& b) {
+  const int x0 = std::min(a.x, b.x), y0 = std::min(a.y, b.y);
+  const int x1 = std::max(a.x + a.width, b.x + b.width), y1 = std::max(a.y + a.height, b.y + b.height);
+  return {x0, y0, x1 - x0, y1 - y0};
+}
+
+Rect shifted(const Rect& r, int dx, int dy) { return {r.x + dx, r.y + dy, r.width, r.height}; }
+
+cv::Mat as_mat(const ImageView& v) { return cv::Mat(v.height, v.width, CV_8UC4, v.data, v.pitch); }
+
+// exp(-(|fwd(p) + bwd(p + fwd(p))| / tau)^2): 1 where the two directions agree.
+cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, float tau) {
+  cv::Mat map(fwd.size(), CV_32FC2);
+  for (int y = 0; y < fwd.rows; ++y) {
+    const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
+    cv::Vec2f* pm = map.ptr<cv::Vec2f>(y);
+    for (int x = 0; x < fwd.cols; ++x) pm[x] = cv::Vec2f(x + pf[x][0], y + pf[x][1]);
+  }
+  cv::Mat back;
+  cv::remap(bwd, back, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  cv::Mat conf(fwd.size(), CV_32F);
+  const float inv = 1.f / (tau * tau);
+  for (int y = 0; y < fwd.rows; ++y) {
+    const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
+    const cv::Vec2f* pb = back.ptr<cv::Vec2f>(y);
+    float* pc = conf.ptr<float>(y);
+    for (int x = 0; x < fwd.cols; ++x) {
+      const float ex = pf[x][0] + pb[x][0], ey = pf[x][1] + pb[x][1];
+      pc[x] = std::exp(-(ex * ex + ey * ey) * inv);
+    }
+  }
+  return conf;
+}
+
+class FlowWarperCpu final : public FlowWarper {
+ public:
+  FlowWarperCpu() : warper_(Warper::create(Backend::Cpu)) {}
+
+  void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) override {
+    views_ = views;
+    out_w_ = out_width;
+    out_h_ = out_height;
+    warper_->prepare(views_);
+    build();
+  }
+
+  void set_settings(const FlowWarpSettings& s) override {
+    const bool rebuild = s.margin != settings_.margin || s.quality != settings_.quality ||
+                         s.algorithm != settings_.algorithm;
+    settings_ = s;
+    settings_.temporal_smoothing = std::clamp(s.temporal_smoothing, 0.0, 0.99);
+    if (rebuild && !views_.empty()) build();
+  }
+
+  void reset() override {
+    for (auto& p : pairs_) p.history = false;
+  }
+
+  void warp(const std::vector<ImageView>& frames, const std::vector<ImageView>& warped) override {
+    if (frames.size() != views_.size() || warped.size() != views_.size())
+      throw std::invalid_argument("flow warp: view count differs from prepare()");
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      if (frames[i].empty() || views_[i].roi.empty()) continue;
+      if (frames[i].on_device || warped[i].on_device)
+        throw std::invalid_argument("CPU flow warper got device memory");
+      if (frames[i].width != views_[i].camera_width || frames[i].height != views_[i].camera_height)
+        throw std::invalid_argument("frame " + std::to_string(i) + " is " + std::to_string(frames[i].width) +
+                                    "x" + std::to_string(frames[i].height) + ", the rig expects " +
+                                    std::to_string(views_[i].camera_width) + "x" +
+                                    std::to_string(views_[i].camera_height));
+      if (warped[i].width != views_[i].roi.width || warped[i].height != views_[i].roi.height)
+        throw std::invalid_argument("flow warp: destination " + std::to_string(i) + " is not roi-sized");
+      warper_->warp(int(i), frames[i], warped[i]);
+    }
+    stats_.clear();
+    if (!settings_.flow) return;
+    for (auto& p : pairs_) {
+      if (frames[p.a].empty() || frames[p.b].empty()) {
+        p.history = false;
+        continue;
+      }
+      estimate(p, frames);
+    }
+    for (std::size_t i = 0; i < views_.size(); ++i)
+      if (!frames[i].empty()) displace(int(i), frames[i], warped[i], frames);
+  }
+
+  const std::vector<FlowPairStats>& stats() const override { return stats_; }
+  Backend backend() const override { return Backend::Cpu; }
+
+ private:
+  struct ViewSide {
+    cv::Mat map_xy, map_frac;  // flow-resolution lookup into the camera (fixed point)
+    cv::Mat valid;             // CV_8U: the camera covers the pixel
+    cv::Mat theta;             // CV_32F, rect-sized: normalised blend weight
+  };
+  struct Pair {
+    int a = 0, b = 0;
+    Rect rect;               // output pixels
+    cv::Size work;           // flow resolution
+    ViewSide side[2];
+    cv::Mat flow_ab, flow_ba;  // flow resolution, history for the next frame
+    cv::Mat prev_gray[2];      // the views' overlap last frame, to tell static from moving
+    cv::Mat full_ab, full_ba;  // output resolution, this frame
+    bool history = false;
+  };
+
+  void build() {
+    pairs_.clear();
+    bands_.assign(views_.size(), {});
+    flow_ = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
+    const double scale = flow_scale(settings_.quality);
+    std::vector<cv::Mat> weight(views_.size());
+    cv::Mat sum(out_h_, out_w_, CV_32F, cv::Scalar(0));
+    for (std::size_t i = 0; i < views_.size(); ++i) {
+      weight[i] = position_weight_map(views_[i]);
+      if (!weight[i].empty()) sum(to_cv(views_[i].roi)) += weight[i];
+    }
+    for (int a = 0; a < int(views_.size()); ++a) {
+      for (int b = a + 1; b < int(views_.size()); ++b) {
+        const Rect common = intersect(views_[a].roi, views_[b].roi);
+        if (common.empty()) continue;
+        const Rect& ra = views_[a].roi;
+        const Rect& rb = views_[b].roi;
+        cv::Mat both = (weight[a](to_cv(shifted(common, -ra.x, -ra.y))) > 0) &
+                       (weight[b](to_cv(shifted(common, -rb.x, -rb.y))) > 0);
+        const cv::Rect box = cv::boundingRect(both);
+        if (box.empty()) continue;
+        const int m = std::max(0, settings_.margin);
+        Rect rect = intersect({common.x + box.x - m, common.y + box.y - m, box.width + 2 * m,
+                               box.height + 2 * m}, common);
+        Pair p;
+        p.a = a;
+        p.b = b;
+        p.rect = rect;
+        p.work = cv::Size(std::max(1, int(std::lround(rect.width * scale))),
+                          std::max(1, int(std::lround(rect.height * scale))));
+        if (p.work.width < 8 || p.work.height < 8) continue;  // a sliver: nothing to align
+        const cv::Mat s = sum(to_cv(rect));
+        for (int k = 0; k < 2; ++k) {
+          const int v = k == 0 ? a : b;
+          const ViewPlacement& view = views_[v];
+          const Rect part = shifted(rect, -view.roi.x, -view.roi.y);
+          cv::Mat fx, fy;
+          camera_maps(view, part, cv::Mat(), fx, fy);
+          cv::resize(fx, fx, p.work, 0, 0, cv::INTER_LINEAR);
+          cv::resize(fy, fy, p.work, 0, 0, cv::INTER_LINEAR);
+          p.side[k].valid = (fx >= 0) & (fx <= view.camera_width - 1) & (fy >= 0) &
+                            (fy <= view.camera_height - 1);
+          cv::convertMaps(fx, fy, p.side[k].map_xy, p.side[k].map_frac, CV_16SC2);
+          cv::Mat theta;
+          cv::divide(weight[v](to_cv(part)), cv::max(s, 1e-12), theta);
+          p.side[k].theta = theta;
+        }
+        bands_[a].push_back(rect);
+        bands_[b].push_back(rect);
+        pairs_.push_back(std::move(p));
+      }
+    }
+    // A view's rects that overlap (3 views meeting) are merged: displacements there add up.
+    for (auto& list : bands_) {
+      for (bool merged = true; merged;) {
+        merged = false;
+        for (std::size_t i = 0; i < list.size() && !merged; ++i)
+          for (std::size_t j = i + 1; j < list.size() && !merged; ++j)
+            if (!intersect(list[i], list[j]).empty()) {
+              list[i] = bounding(list[i], list[j]);
+              list.erase(list.begin() + long(j));
+              merged = true;
+            }
+      }
+    }
+  }
+
+  void estimate(Pair& p, const std::vector<ImageView>& frames) {
+    cv::Mat gray[2];
+    for (int k = 0; k < 2; ++k) {
+      cv::Mat rgba;
+      cv::remap(as_mat(frames[k == 0 ? p.a : p.b]), rgba, p.side[k].map_xy, p.side[k].map_frac,
+                cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+      cv::cvtColor(rgba, gray[k], cv::COLOR_RGBA2GRAY);
+    }
+    // Where one view has no pixels, show it the other's: zero flow there, and no false
+    // edges from the black outside a camera for the flow to latch onto.
+    gray[1].copyTo(gray[0], ~p.side[0].valid);
+    gray[0].copyTo(gray[1], ~p.side[1].valid);
+
+    const double scale = flow_scale(settings_.quality);
+    const bool init = p.history;
+    cv::Mat prev_ab = init ? p.flow_ab.clone() : cv::Mat();
+    cv::Mat prev_ba = init ? p.flow_ba.clone() : cv::Mat();
+    cv::Mat ab = init ? p.flow_ab : cv::Mat(), ba = init ? p.flow_ba : cv::Mat();
+    flow_->compute(gray[0], gray[1], ab, init);
+    flow_->compute(gray[1], gray[0], ba, init);
+
+    const float tau = float(settings_.consistency_px * scale);
+    const cv::Mat conf_ab = forward_backward_confidence(ab, ba, std::max(tau, 0.25f));
+    const cv::Mat conf_ba = forward_backward_confidence(ba, ab, std::max(tau, 0.25f));
+    cv::Mat both = p.side[0].valid & p.side[1].valid;
+    FlowPairStats st;
+    st.view_a = p.a;
+    st.view_b = p.b;
+    st.rect = p.rect;
+    const int n_valid = cv::countNonZero(both);
+    st.confident_fraction = n_valid ? cv::countNonZero((conf_ab > 0.5) & both) / double(n_valid) : 0.0;
+
+    const cv::Mat still = init ? stillness(gray, p.prev_gray) : cv::Mat();
+    p.flow_ab = refine(ab, conf_ab, prev_ab, still);
+    p.flow_ba = refine(ba, conf_ba, prev_ba, still);
+    p.prev_gray[0] = gray[0];
+    p.prev_gray[1] = gray[1];
+    p.history = true;
+
+    cv::Mat mag;
+    std::vector<cv::Mat> ch;
+    cv::split(p.flow_ab, ch);
+    cv::magnitude(ch[0], ch[1], mag);
+    st.mean_magnitude = n_valid ? cv::mean(mag, both)[0] / scale : 0.0;
+    stats_.push_back(st);
+
+    const cv::Size full(p.rect.width, p.rect.height);
+    cv::resize(p.flow_ab, p.full_ab, full, 0, 0, cv::INTER_LINEAR);
+    cv::resize(p.flow_ba, p.full_ba, full, 0, 0, cv::INTER_LINEAR);
+    p.full_ab *= 1.0 / scale;
+    p.full_ba *= 1.0 / scale;
+  }
+
+  // Confidence-weighted flow (unreliable pixels fall back toward the homography), lightly
+  // smoothed, then blended with the previous frame's where neither view changed: there the
+  // scene is static and so is the right flow, so estimation jitter is averaged away; where
+  // the content moved, the new flow is taken at once.
+  cv::Mat refine(const cv::Mat& flow, const cv::Mat& conf, const cv::Mat& prev, const cv::Mat& stillness) const {
+    cv::Mat out(flow.size(), CV_32FC2);
+    for (int y = 0; y < flow.rows; ++y) {
+      const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
+      const float* pc = conf.ptr<float>(y);
+      cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
+      for (int x = 0; x < flow.cols; ++x) po[x] = pf[x] * pc[x];
+    }
+    cv::GaussianBlur(out, out, cv::Size(0, 0), 1.5);
+    const float s = float(settings_.temporal_smoothing);
+    if (prev.empty() || stillness.empty() || s <= 0.f) return out;
+    for (int y = 0; y < out.rows; ++y) {
+      const cv::Vec2f* pp = prev.ptr<cv::Vec2f>(y);
+      const float* ps = stillness.ptr<float>(y);
+      cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
+      for (int x = 0; x < out.cols; ++x) {
+        const float keep = s * ps[x];
+        po[x] = keep * pp[x] + (1.f - keep) * po[x];
+      }
+    }
+    return out;
+  }
+
+  // 1 where neither view's overlap changed since the last frame, falling to 0 where either
+  // changed by a few grey levels. Local means are compared, so sensor noise is not motion.
+  static cv::Mat stillness(const cv::Mat gray[2], const cv::Mat prev[2]) {
+    if (prev[0].empty() || prev[0].size() != gray[0].size()) return cv::Mat();
+    cv::Mat change;
+    for (int k = 0; k < 2; ++k) {
+      cv::Mat a, b, d;
+      gray[k].convertTo(a, CV_32F);
+      prev[k].convertTo(b, CV_32F);
+      cv::GaussianBlur(a, a, cv::Size(0, 0), 2.0);
+      cv::GaussianBlur(b, b, cv::Size(0, 0), 2.0);
+      cv::absdiff(a, b, d);
+      change = k == 0 ? d : cv::max(change, d);
+    }
+    cv::Mat still(change.size(), CV_32F);
+    for (int y = 0; y < change.rows; ++y) {
+      const float* pc = change.ptr<float>(y);
+      float* ps = still.ptr<float>(y);
+      for (int x = 0; x < change.cols; ++x) {
+        const float c = std::max(0.f, pc[x] - 1.f) / 2.f;
+        ps[x] = std::exp(-c * c);
+      }
+    }
+    return still;
+  }
+
+  // Moves view v by the weighted flow toward each neighbour it overlaps, band by band.
+  void displace(int v, const ImageView& frame, const ImageView& dst, const std::vector<ImageView>& frames) {
+    const ViewPlacement& view = views_[v];
+    for (const Rect& band : bands_[v]) {
+      cv::Mat d(band.height, band.width, CV_32FC2, cv::Scalar::all(0));
+      bool any = false;
+      for (const Pair& p : pairs_) {
+        if ((p.a != v && p.b != v) || !p.history || frames[p.a].empty() || frames[p.b].empty()) continue;
+        if (intersect(p.rect, band).empty()) continue;
+        // View a samples at p + θ_b flow_{b→a}; view b at p + θ_a flow_{a→b}.
+        const bool is_a = p.a == v;
+        const cv::Mat& flow = is_a ? p.full_ba : p.full_ab;
+        const cv::Mat& theta = p.side[is_a ? 1 : 0].theta;
+        cv::Mat part = d(to_cv(shifted(p.rect, -band.x, -band.y)));
+        for (int y = 0; y < part.rows; ++y) {
+          const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
+          const float* pt = theta.ptr<float>(y);
+          cv::Vec2f* pd = part.ptr<cv::Vec2f>(y);
+          for (int x = 0; x < part.cols; ++x) pd[x] += pt[x] * pf[x];
+        }
+        any = true;
+      }
+      if (!any) continue;
+      double lo = 0, hi = 0;
+      cv::minMaxLoc(d.reshape(1), &lo, &hi);
+      if (std::max(-lo, hi) < kNegligiblePx) continue;
+      const Rect part = shifted(band, -view.roi.x, -view.roi.y);
+      cv::Mat mx, my;
+      camera_maps(view, part, d, mx, my);
+      cv::Mat out = as_mat(dst)(to_cv(part));
+      cv::remap(as_mat(frame), out, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+    }
+  }
+
+  std::unique_ptr<Warper> warper_;
+  std::unique_ptr<DenseFlow> flow_;
+  FlowWarpSettings settings_;
+  std::vector<ViewPlacement> views_;
+  int out_w_ = 0, out_h_ = 0;
+  std::vector<Pair> pairs_;
+  std::vector<std::vector<Rect>> bands_;  // per view: output rects its flow moves
+  std::vector<FlowPairStats> stats_;
+};
+
+}  // namespace
+
+std::unique_ptr<FlowWarper> FlowWarper::create(Backend backend) {
+  switch (resolve_backend(backend)) {
+    case Backend::Cpu: return std::make_unique<FlowWarperCpu>();
+    default: break;
+  }
+  throw std::runtime_error("no flow warper for this backend");
+}
+
+}  // namespace stitch

@@ -1,0 +1,178 @@
+// Coarse-to-fine warping: parallax inside an overlap is aligned by the flow; identical views,
+// uniform frames and views without overlap give exactly the homography-only result.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/cv_interop.hpp"
+#include "stitch/warp/flow_warper.hpp"
+#include "test_data.hpp"
+
+using namespace stitch;
+
+namespace {
+
+constexpr int kW = 320, kH = 240, kShift = 200;  // 120 px of overlap
+
+// Shifts the content of `img` by a smooth field (up to `amplitude` px): local parallax.
+cv::Mat with_parallax(const cv::Mat& img, double amplitude) {
+  cv::Mat mx(img.size(), CV_32F), my(img.size(), CV_32F);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x) {
+      mx.at<float>(y, x) = float(x - amplitude * std::sin(CV_PI * y / img.rows) * std::cos(0.01 * x));
+      my.at<float>(y, x) = float(y - 0.5 * amplitude * std::cos(CV_PI * x / img.cols));
+    }
+  cv::Mat out;
+  cv::remap(img, out, mx, my, cv::INTER_CUBIC, cv::BORDER_REFLECT);
+  return out;
+}
+
+struct Scene {
+  std::vector<cv::Mat> frames;
+  std::vector<ViewPlacement> views;
+  OutputGeometry geometry;
+};
+
+// Camera i sees the photo from x = i * kShift; camera 1 sees it with parallax.
+Scene make_scene(int cameras, double parallax, bool uniform = false) {
+  cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  cv::resize(photo, photo, cv::Size(kW + (cameras - 1) * kShift, kH), 0, 0, cv::INTER_AREA);
+  if (uniform) photo.setTo(cv::Scalar(90, 90, 90, 255));
+  Scene s;
+  const Rig rig = testdata::shifted_rig(cameras, kW, kH, kShift);
+  s.geometry = canvas_geometry(rig);
+  s.views = place_views(rig, s.geometry);
+  for (int i = 0; i < cameras; ++i) {
+    const cv::Mat source = i == 1 && parallax > 0 ? with_parallax(photo, parallax) : photo;
+    s.frames.push_back(source(cv::Rect(i * kShift, 0, kW, kH)).clone());
+  }
+  return s;
+}
+
+std::vector<cv::Mat> warp_views(const Scene& s, FlowWarper& w, int repeat = 1) {
+  std::vector<cv::Mat> out;
+  std::vector<ImageView> dst, src;
+  for (const auto& v : s.views) out.emplace_back(v.roi.height, v.roi.width, CV_8UC4, cv::Scalar::all(0));
+  for (auto& m : out) dst.push_back(as_view(m));
+  for (const auto& f : s.frames) src.push_back(as_view(const_cast<cv::Mat&>(f)));
+  for (int k = 0; k < repeat; ++k) w.warp(src, dst);
+  return out;
+}
+
+std::unique_ptr<FlowWarper> warper(const Scene& s, bool flow) {
+  auto w = FlowWarper::create(Backend::Cpu);
+  FlowWarpSettings settings;
+  settings.flow = flow;
+  w->set_settings(settings);
+  w->prepare(s.views, s.geometry.width, s.geometry.height);
+  return w;
+}
+
+// Mean absolute RGB difference between views a and b where both are valid, in their overlap.
+double overlap_mad(const Scene& s, const std::vector<cv::Mat>& warped, int a, int b) {
+  const Rect& ra = s.views[a].roi;
+  const Rect& rb = s.views[b].roi;
+  const cv::Rect box = cv::Rect(ra.x, ra.y, ra.width, ra.height) & cv::Rect(rb.x, rb.y, rb.width, rb.height);
+  const cv::Mat va = warped[a](box - cv::Point(ra.x, ra.y)), vb = warped[b](box - cv::Point(rb.x, rb.y));
+  // Leave out the outer 12 px, where the displaced content has no counterpart.
+  const cv::Rect inner(12, 12, box.width - 24, box.height - 24);
+  cv::Mat d;
+  cv::absdiff(va(inner), vb(inner), d);
+  const cv::Scalar m = cv::mean(d);
+  return (m[0] + m[1] + m[2]) / 3.0;
+}
+
+bool all_equal(const std::vector<cv::Mat>& a, const std::vector<cv::Mat>& b) {
+  for (std::size_t i = 0; i < a.size(); ++i)
+    if (cv::norm(a[i], b[i], cv::NORM_INF) != 0) return false;
+  return true;
+}
+
+}  // namespace
+
+TEST(FlowWarp, ParallaxInTheOverlapIsAligned) {
+  const Scene s = make_scene(2, 4.0);
+  auto coarse = warper(s, false);
+  auto fine = warper(s, true);
+  const double before = overlap_mad(s, warp_views(s, *coarse), 0, 1);
+  const double after = overlap_mad(s, warp_views(s, *fine), 0, 1);
+  std::printf("overlap MAD: homography %.2f, flow %.2f\n", before, after);
+  EXPECT_GT(before, 3.0);  // the parallax is visible
+  EXPECT_LT(after, 0.5 * before);
+  ASSERT_EQ(fine->stats().size(), 1u);
+  EXPECT_GT(fine->stats()[0].mean_magnitude, 0.5);
+  EXPECT_GT(fine->stats()[0].confident_fraction, 0.5);
+}
+
+TEST(FlowWarp, IdenticalViewsGiveTheHomographyOnlyOutput) {
+  const Scene s = make_scene(2, 0.0);
+  auto coarse = warper(s, false);
+  auto fine = warper(s, true);
+  const auto a = warp_views(s, *coarse), b = warp_views(s, *fine, 3);
+  ASSERT_EQ(fine->stats().size(), 1u);
+  EXPECT_LT(fine->stats()[0].mean_magnitude, 0.05);
+  EXPECT_TRUE(all_equal(a, b));
+}
+
+TEST(FlowWarp, UniformFramesGiveZeroFlowAndNoNaN) {
+  const Scene s = make_scene(2, 0.0, true);
+  auto coarse = warper(s, false);
+  auto fine = warper(s, true);
+  const auto a = warp_views(s, *coarse), b = warp_views(s, *fine, 2);
+  ASSERT_EQ(fine->stats().size(), 1u);
+  EXPECT_TRUE(std::isfinite(fine->stats()[0].mean_magnitude));
+  EXPECT_EQ(fine->stats()[0].mean_magnitude, 0.0);
+  EXPECT_TRUE(all_equal(a, b));
+}
+
+TEST(FlowWarp, ViewWithoutOverlapPassesThroughWithTheHomography) {
+  Scene s = make_scene(2, 4.0);
+  // A third camera far to the right of the others: no overlap with anyone.
+  Rig rig = testdata::shifted_rig(3, kW, kH, kShift);
+  rig.cameras[2].homography = (Eigen::Matrix3d() << 1, 0, 2 * kShift + kW + 100, 0, 1, 0, 0, 0, 1).finished();
+  rig_layout_canvas(rig);
+  s.geometry = canvas_geometry(rig);
+  s.views = place_views(rig, s.geometry);
+  s.frames.push_back(s.frames[0].clone());
+  auto coarse = warper(s, false);
+  auto fine = warper(s, true);
+  const auto a = warp_views(s, *coarse), b = warp_views(s, *fine);
+  EXPECT_EQ(fine->stats().size(), 1u);  // only the 0-1 pair
+  EXPECT_EQ(cv::norm(a[2], b[2], cv::NORM_INF), 0.0);
+  EXPECT_GT(cv::norm(a[1], b[1], cv::NORM_INF), 0.0);  // the overlapping ones did move
+}
+
+TEST(FlowWarp, ResetForgetsTheHistory) {
+  const Scene moved = make_scene(2, 4.0), still = make_scene(2, 0.0);
+  auto fresh = warper(moved, true);
+  const auto expected = warp_views(moved, *fresh);
+  auto used = warper(moved, true);
+  warp_views(still, *used, 3);  // history from other content
+  used->reset();
+  EXPECT_TRUE(all_equal(warp_views(moved, *used), expected));
+}
+
+TEST(FlowWarp, MissingViewIsLeftOutAndOthersStillWarp) {
+  const Scene s = make_scene(2, 4.0);
+  auto coarse = warper(s, false);
+  auto fine = warper(s, true);
+  std::vector<cv::Mat> out;
+  std::vector<ImageView> dst, src;
+  for (const auto& v : s.views) out.emplace_back(v.roi.height, v.roi.width, CV_8UC4, cv::Scalar::all(7));
+  for (auto& m : out) dst.push_back(as_view(m));
+  src.push_back(as_view(const_cast<cv::Mat&>(s.frames[0])));
+  src.push_back(ImageView());
+  fine->warp(src, dst);
+  EXPECT_TRUE(fine->stats().empty());
+  const auto a = warp_views(s, *coarse);
+  EXPECT_EQ(cv::norm(out[0], a[0], cv::NORM_INF), 0.0);  // alone: homography only
+  EXPECT_EQ(cv::countNonZero(out[1].reshape(1) != 7), 0);  // untouched
+}
+
+TEST(FlowWarp, RejectsFramesOfTheWrongSize) {
+  Scene s = make_scene(2, 0.0);
+  auto fine = warper(s, true);
+  cv::resize(s.frames[1], s.frames[1], cv::Size(kW / 2, kH / 2));
+  EXPECT_THROW(warp_views(s, *fine), std::invalid_argument);
+}
