@@ -474,8 +474,9 @@ TEST_F(SyntheticRig, CalibratesFromImagesAlone) {
   const std::string mp4 = dir_ + "/pano_images.mp4", calib_file = dir_ + "/calib_images.json";
   std::filesystem::remove(mp4);
   std::filesystem::remove(calib_file);
-  const std::string desc = "stitchsync name=s ! stitchcalib save-file=\"" + calib_file + "\"" +
-                           encode_tail(mp4) + inputs_avi(dir_, kSynthCameras);
+  // The whole chain, color and flow warp included.
+  const std::string desc = "stitchsync name=s ! stitchcalib save-file=\"" + calib_file +
+                           "\" ! stitchcolor ! stitchflowwarp" + encode_tail(mp4) + inputs_avi(dir_, kSynthCameras);
   const PipelineRun run = run_to_eos(desc, kPipelineTimeoutS);
   ASSERT_RAN_TO_EOS(run);
   EXPECT_EQ(run.calib_source, "images");
@@ -525,7 +526,8 @@ TEST(RealClips, KarthikThreeCamHouse) {
   const std::string mp4 = dir + "/pano.mp4", calib_file = dir + "/calib.json";
   const std::vector<std::string> clips = {left, middle, right};
   // Every input stops after kFrames decoded frames, so stitchsync ends the stream itself.
-  std::string desc = "stitchsync name=s ! stitchcalib save-file=\"" + calib_file + "\"" + encode_tail(mp4);
+  std::string desc = "stitchsync name=s ! stitchcalib save-file=\"" + calib_file +
+                     "\" ! stitchcolor ! stitchflowwarp" + encode_tail(mp4);
   for (int i = 0; i < 3; ++i)
     desc += " filesrc location=\"" + clips[i] + "\" ! qtdemux ! h264parse ! avdec_h264 ! identity eos-after=" +
             std::to_string(kFrames) + " ! s.sink_" + std::to_string(i);
@@ -550,7 +552,7 @@ TEST(RealClips, KarthikThreeCamHouse) {
   std::printf("FIGURE: karthik_3cam_house (3x640x480, calibrated from the images on frame 0): "
               "alignment on frame 30 median %.3f px over %d matches (pairs: %s)\n",
               a.median_px, a.matches, pair_medians(a).c_str());
-  std::printf("FIGURE: karthik_3cam_house pipeline (decode + sync + calib + blend + x264, CPU, "
+  std::printf("FIGURE: karthik_3cam_house pipeline (decode + sync + calib + color + flowwarp + blend + x264, CPU, "
               "%u cores): %d frames, panorama %dx%d, %.2f s wall = %.1f ms/frame overall; steady "
               "state %.1f ms/frame; first panorama after %.2f s\n",
               std::max(1u, std::thread::hardware_concurrency()), run.output_frames, dec.width,
