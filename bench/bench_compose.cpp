@@ -13,6 +13,7 @@
 #include "stitch/blend/compositor.hpp"
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
+#include "stitch/warp/flow_warper.hpp"
 
 using namespace stitch;
 
@@ -64,8 +65,8 @@ int main(int argc, char** argv) {
   }
   cv::cvtColor(photo, photo, cv::COLOR_BGR2RGBA);
   const std::vector<Case> cases = {{3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {6, 1920, 1080}, {3, 3840, 2160}};
-  std::printf("%-16s %-12s %10s %10s %14s %12s %12s %8s\n", "cameras", "panorama", "ms/frame", "fps", "memcpy ms",
-              "color 3dm ms", "color gain", "threads");
+  std::printf("%-16s %-12s %10s %10s %14s %12s %12s %12s %12s %8s\n", "cameras", "panorama", "ms/frame", "fps",
+              "memcpy ms", "color 3dm ms", "color gain", "prewarp ms", "flowwarp ms", "threads");
   std::string json = "[";
   for (const Case& c : cases) {
     Rig rig = ring(c);
@@ -123,15 +124,50 @@ int main(int argc, char** argv) {
       return total / frames;
     };
     const double color_ms = time_color(ColorMethod::Matrix3D), gain_ms = time_color(ColorMethod::Gain);
+    // The stitchflowwarp stage on the canvas: homography pre-warp alone, and with the flow
+    // (both directions in every overlap, default settings). Successive frames differ (noise),
+    // as a camera's do.
+    auto time_flowwarp = [&](bool flow) {
+      const OutputGeometry canvas = canvas_geometry(rig);
+      const std::vector<ViewPlacement> places = place_views(rig, canvas);
+      auto fw = FlowWarper::create(Backend::Cpu);
+      FlowWarpSettings fs;
+      fs.flow = flow;
+      fw->set_settings(fs);
+      fw->prepare(places, canvas.width, canvas.height);
+      std::vector<cv::Mat> dst;
+      std::vector<ImageView> dv;
+      for (const auto& p : places) dst.emplace_back(std::max(1, p.roi.height), std::max(1, p.roi.width), CV_8UC4);
+      for (auto& d : dst) dv.push_back(as_view(d));
+      std::vector<cv::Mat> noisy[2];
+      for (int k = 0; k < 2; ++k)
+        for (const auto& v : views) {
+          cv::Mat n(v.size(), v.type());
+          cv::randn(n, cv::Scalar::all(0), cv::Scalar::all(2));
+          noisy[k].push_back(v + n);
+        }
+      const int runs = std::max(3, frames / 5);
+      double total = 0;
+      for (int k = 0; k <= runs; ++k) {
+        std::vector<ImageView> in;
+        for (auto& v : noisy[k % 2]) in.push_back(as_view(v));
+        const auto f0 = std::chrono::steady_clock::now();
+        fw->warp(in, dv);
+        if (k > 0) total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - f0).count();
+      }
+      return total / runs;
+    };
+    const double prewarp_ms = time_flowwarp(false), flowwarp_ms = time_flowwarp(true);
     char name[64], pano[64];
     std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
     std::snprintf(pano, sizeof pano, "%dx%d", out.cols, out.rows);
-    std::printf("%-16s %-12s %10.2f %10.1f %14.2f %12.2f %12.2f %8d\n", name, pano, ms, 1000.0 / ms, copy_ms, color_ms,
-                gain_ms, cv::getNumThreads());
+    std::printf("%-16s %-12s %10.2f %10.1f %14.2f %12.2f %12.2f %12.2f %12.2f %8d\n", name, pano, ms, 1000.0 / ms,
+                copy_ms, color_ms, gain_ms, prewarp_ms, flowwarp_ms, cv::getNumThreads());
     json += std::string(json.size() > 1 ? "," : "") + "{\"case\":\"" + name + "\",\"panorama\":\"" + pano +
             "\",\"backend\":\"cpu\",\"ms_per_frame\":" + std::to_string(ms) +
             ",\"memcpy_ms\":" + std::to_string(copy_ms) +
-            ",\"color_3dm_ms\":" + std::to_string(color_ms) + ",\"color_gain_ms\":" + std::to_string(gain_ms) + "}";
+            ",\"color_3dm_ms\":" + std::to_string(color_ms) + ",\"color_gain_ms\":" + std::to_string(gain_ms) +
+            ",\"prewarp_ms\":" + std::to_string(prewarp_ms) + ",\"flowwarp_ms\":" + std::to_string(flowwarp_ms) + "}";
   }
   json += "]\n";
   if (!json_path.empty()) std::ofstream(json_path) << json;
