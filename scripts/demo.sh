@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The main job on the embedded sample: two real phone clips (data/limlight_2cam_apartment,
-# Apache-2.0) -> stitchsync ! stitchcalib ! stitchcolor ! stitchblend -> out/panorama.mp4 + .png.
+# Apache-2.0) -> stitchsync ! stitchcalib ! stitchcolor ! stitchflowwarp ! stitchblend -> out/panorama.mp4 + .png.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
@@ -11,7 +11,7 @@ rm -f out/panorama.mp4 out/panorama.png out/calibration.json
 left=data/limlight_2cam_apartment/left.mp4
 right=data/limlight_2cam_apartment/right.mp4
 gst-launch-1.0 -q \
-  stitchsync name=s ! stitchcalib save-file=out/calibration.json recalibrate-interval=1 ! stitchcolor ! stitchblend crop=auto ! \
+  stitchsync name=s ! stitchcalib save-file=out/calibration.json recalibrate-interval=1 ! stitchcolor ! stitchflowwarp ! stitchblend crop=auto ! \
   tee name=t \
   t. ! queue ! videoconvert ! x264enc tune=zerolatency speed-preset=veryfast ! mp4mux ! \
        filesink location=out/panorama.mp4 \

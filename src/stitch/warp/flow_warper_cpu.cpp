@@ -133,6 +133,9 @@ class FlowWarperCpu final : public FlowWarper {
   };
 
   void build() {
+    // A recalibration moves the overlaps a little: the previous flow of a pair whose flow
+    // rectangle keeps its size stays a good start, so a stream's history survives it.
+    std::vector<Pair> old = std::move(pairs_);
     pairs_.clear();
     bands_.assign(views_.size(), {});
     flow_ = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
@@ -179,6 +182,14 @@ class FlowWarperCpu final : public FlowWarper {
           cv::divide(weight[v](to_cv(part)), cv::max(s, 1e-12), theta);
           p.side[k].theta = theta;
         }
+        for (Pair& o : old)
+          if (o.a == a && o.b == b && o.history && o.work == p.work) {
+            p.flow_ab = o.flow_ab;
+            p.flow_ba = o.flow_ba;
+            p.prev_gray[0] = o.prev_gray[0];
+            p.prev_gray[1] = o.prev_gray[1];
+            p.history = true;
+          }
         bands_[a].push_back(rect);
         bands_[b].push_back(rect);
         pairs_.push_back(std::move(p));
