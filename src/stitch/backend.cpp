@@ -21,12 +21,17 @@ bool cuda_device_available() {
 #endif
 }
 
-Backend resolve_backend(Backend requested) {
+Backend resolve_backend(Backend requested, bool stage_has_cuda) {
   if (requested == Backend::Cpu) return Backend::Cpu;
-  // No stage has a CUDA implementation in this build yet: Auto means CPU.
-  if (requested == Backend::Auto) return Backend::Cpu;
-  throw std::runtime_error(
-      "backend=cuda requested, but this build has no CUDA implementation of this stage");
+#ifndef STITCH_HAVE_CUDA
+  stage_has_cuda = false;
+#endif
+  if (requested == Backend::Auto) return stage_has_cuda && cuda_device_available() ? Backend::Cuda : Backend::Cpu;
+  if (!stage_has_cuda)
+    throw std::runtime_error("backend=cuda requested, but this build has no CUDA implementation of this stage");
+  if (!cuda_device_available())
+    throw std::runtime_error("backend=cuda requested, but no CUDA device could be opened");
+  return Backend::Cuda;
 }
 
 const char* backend_name(Backend b) {

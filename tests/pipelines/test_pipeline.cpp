@@ -101,7 +101,8 @@ struct PipelineRun {
   bool eos = false, timed_out = false, launched = false;
   std::vector<std::string> errors, warnings;
   std::vector<std::string> calib_messages;  // "stitchcalib" element messages, serialised
-  std::string calib_source;                 // of the last one: "rig", "images", "file"
+  std::string calib_source;                 // of the first one: "rig", "images", "file" (later
+                                            // ones, "pooled" or "recalibration", race with EOS)
   int refined_cameras = -1;                 // of the last one
   double wall_s = 0;
   int output_frames = 0;            // buffers out of the element named "blend"
@@ -162,7 +163,8 @@ PipelineRun run_to_eos(const std::string& description, double timeout_s) {
       case GST_MESSAGE_ELEMENT: {
         const GstStructure* s = gst_message_get_structure(m);
         if (s && gst_structure_has_name(s, "stitchcalib")) {
-          if (const gchar* src = gst_structure_get_string(s, "source")) run.calib_source = src;
+          const gchar* src = gst_structure_get_string(s, "source");
+          if (src && run.calib_source.empty()) run.calib_source = src;
           gst_structure_get_int(s, "refined-cameras", &run.refined_cameras);
           gchar* text = gst_structure_to_string(s);
           run.calib_messages.push_back(text);

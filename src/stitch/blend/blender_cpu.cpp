@@ -3,6 +3,10 @@
 #include <Eigen/Core>
 #include <stdexcept>
 
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/cuda/stages_cuda.hpp"
+#endif
+
 namespace stitch {
 
 cv::Mat position_weight_map(const ViewPlacement& v) {
@@ -128,7 +132,10 @@ void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out
 }
 
 std::unique_ptr<Blender> Blender::create(Backend backend) {
-  switch (resolve_backend(backend)) {
+  switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {
+#ifdef STITCH_HAVE_CUDA
+    case Backend::Cuda: return make_blender_cuda();
+#endif
     case Backend::Cpu: return std::make_unique<BlenderCpu>();
     default: break;
   }

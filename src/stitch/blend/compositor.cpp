@@ -5,8 +5,16 @@
 
 namespace stitch {
 
-Compositor::Compositor(Backend backend)
-    : warper_(Warper::create(backend)), blender_(Blender::create(backend)) {}
+Compositor::Compositor(Backend backend) : backend_(resolve_backend(backend, /*stage_has_cuda=*/true)) {
+#ifdef STITCH_HAVE_CUDA
+  if (backend_ == Backend::Cuda) {
+    cuda_ = {new CudaComposer(), [](CudaComposer* c) { delete c; }};
+    return;
+  }
+#endif
+  warper_ = Warper::create(Backend::Cpu);
+  blender_ = Blender::create(Backend::Cpu);
+}
 
 void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, CompositorInput input) {
   if (!rig.calibrated()) throw RigError("the rig carries no calibration (homographies and canvas)");
@@ -31,11 +39,14 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   } else {
     blend_geometry_ = geometry_;
     blend_views_ = views_;
-    warper_->prepare(views_);
-    for (std::size_t i = 0; i < views_.size(); ++i)
-      scratch_[i].resize(static_cast<std::size_t>(views_[i].roi.width) * views_[i].roi.height * 4);
+    if (warper_) {
+      warper_->prepare(views_);
+      for (std::size_t i = 0; i < views_.size(); ++i)
+        scratch_[i].resize(static_cast<std::size_t>(views_[i].roi.width) * views_[i].roi.height * 4);
+    }
   }
-  blender_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
+  if (cuda_) cuda_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
+  else blender_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
 }
 
 void Compositor::compose_prewarped(const std::vector<ImageView>& views, const ImageView& out) {
@@ -48,15 +59,18 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
                                   std::to_string(r.height));
   }
   if (canvas_.empty()) {
-    blender_->fuse(views, out);
+    if (cuda_) cuda_->fuse(views, out);
+    else blender_->fuse(views, out);
     return;
   }
+  if (out.on_device) throw std::invalid_argument("a cropped or scaled pre-warped panorama needs system memory");
   ImageView canvas;
   canvas.data = canvas_.data();
   canvas.width = blend_geometry_.width;
   canvas.height = blend_geometry_.height;
   canvas.pitch = static_cast<std::size_t>(canvas.width) * 4;
-  blender_->fuse(views, canvas);
+  if (cuda_) cuda_->fuse(views, canvas);
+  else blender_->fuse(views, canvas);
   const cv::Mat src(canvas.height, canvas.width, CV_8UC4, canvas.data, canvas.pitch);
   cv::Mat dst(out.height, out.width, CV_8UC4, out.data, out.pitch);
   const Eigen::Matrix3d& A = geometry_.canvas_to_output;
@@ -86,6 +100,13 @@ void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& 
   }
   std::vector<ImageView> warped(frames.size());
   for (std::size_t i = 0; i < frames.size(); ++i) {
+    if (cuda_ && !frames[i].empty() &&
+        (frames[i].width != views_[i].camera_width || frames[i].height != views_[i].camera_height))
+      throw std::invalid_argument("frame " + std::to_string(i) + " is " + std::to_string(frames[i].width) + "x" +
+                                  std::to_string(frames[i].height) + ", the rig expects " +
+                                  std::to_string(views_[i].camera_width) + "x" +
+                                  std::to_string(views_[i].camera_height));
+    if (cuda_) continue;
     const ViewPlacement& v = views_[i];
     if (frames[i].empty() || v.roi.empty()) continue;
     if (frames[i].width != v.camera_width || frames[i].height != v.camera_height)
@@ -102,7 +123,8 @@ void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& 
     warper_->warp(static_cast<int>(i), frames[i], dst);
     warped[i] = dst;
   }
-  blender_->fuse(warped, out);
+  if (cuda_) cuda_->compose(frames, out);
+  else blender_->fuse(warped, out);
 }
 
 }  // namespace stitch

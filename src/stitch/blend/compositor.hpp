@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "stitch/blend/blender.hpp"
+#include "stitch/blend/compositor_cuda.hpp"
 #include "stitch/rig/rig.hpp"
 #include "stitch/warp/geometry.hpp"
 #include "stitch/warp/warper.hpp"
@@ -25,7 +26,9 @@ struct CompositorSettings {
 
 class Compositor {
  public:
+  // Auto: CUDA when a device opens (frames may then be in system or device memory), else CPU.
   explicit Compositor(Backend backend = Backend::Auto);
+  Backend backend() const { return backend_; }
   // Throws RigError when the rig is not calibrated or its geometry is degenerate.
   void prepare(const Rig& rig, const CompositorSettings& settings,
                CompositorInput input = CompositorInput::CameraFrames);
@@ -44,8 +47,11 @@ class Compositor {
  private:
   void compose_prewarped(const std::vector<ImageView>& views, const ImageView& out);
 
-  std::unique_ptr<Warper> warper_;
-  std::unique_ptr<Blender> blender_;
+  Backend backend_ = Backend::Cpu;
+  std::unique_ptr<Warper> warper_;    // CPU path
+  std::unique_ptr<Blender> blender_;  // CPU path
+  // CUDA path; the deleter is set where it is created, so CPU-only builds need no CUDA code.
+  std::unique_ptr<CudaComposer, void (*)(CudaComposer*)> cuda_{nullptr, nullptr};
   OutputGeometry geometry_;
   std::vector<ViewPlacement> views_;
   CompositorInput input_ = CompositorInput::CameraFrames;

@@ -4,6 +4,10 @@
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
 
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/cuda/stages_cuda.hpp"
+#endif
+
 namespace stitch {
 namespace {
 
@@ -43,7 +47,10 @@ class ColorOpsCpu final : public ColorOps {
 }  // namespace
 
 std::unique_ptr<ColorOps> ColorOps::create(Backend backend) {
-  switch (resolve_backend(backend)) {
+  switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {
+#ifdef STITCH_HAVE_CUDA
+    case Backend::Cuda: return make_color_ops_cuda();
+#endif
     case Backend::Cpu: return std::make_unique<ColorOpsCpu>();
     default: break;
   }

@@ -89,7 +89,7 @@ class FarnebackFlowCpu final : public DenseFlow {
 }  // namespace
 
 std::unique_ptr<DenseFlow> DenseFlow::create(Backend backend, FlowAlgorithm algorithm, FlowQuality quality) {
-  switch (resolve_backend(backend)) {
+  switch (resolve_backend(backend, /*stage_has_cuda=*/false)) {
     case Backend::Cpu:
       if (algorithm == FlowAlgorithm::Dis) return std::make_unique<DisFlowCpu>(quality);
       return std::make_unique<FarnebackFlowCpu>(quality);

@@ -363,7 +363,7 @@ class FlowWarperCpu final : public FlowWarper {
 }  // namespace
 
 std::unique_ptr<FlowWarper> FlowWarper::create(Backend backend) {
-  switch (resolve_backend(backend)) {
+  switch (resolve_backend(backend, /*stage_has_cuda=*/false)) {
     case Backend::Cpu: return std::make_unique<FlowWarperCpu>();
     default: break;
   }

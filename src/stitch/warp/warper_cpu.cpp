@@ -5,6 +5,10 @@
 #include "stitch/warp/warper.hpp"
 #include "stitch/warp/warper_cpu.hpp"
 
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/cuda/stages_cuda.hpp"
+#endif
+
 namespace stitch {
 
 void camera_maps(const ViewPlacement& v, const Rect& part, const cv::Mat& displacement,
@@ -59,7 +63,10 @@ void WarperCpu::warp(int index, const ImageView& src, const ImageView& dst) {
 }
 
 std::unique_ptr<Warper> Warper::create(Backend backend) {
-  switch (resolve_backend(backend)) {
+  switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {
+#ifdef STITCH_HAVE_CUDA
+    case Backend::Cuda: return make_warper_cuda();
+#endif
     case Backend::Cpu: return std::make_unique<WarperCpu>();
     default: break;
   }

@@ -1,0 +1,131 @@
+#include <stdexcept>
+#include <string>
+
+#include "../common.cuh"
+#include "blend_kernels.hpp"
+
+namespace stitch_cuda {
+
+namespace {
+
+void check_launch(const char* what) {
+  const cudaError_t e = cudaGetLastError();
+  if (e != cudaSuccess) throw std::runtime_error(std::string(what) + ": " + cudaGetErrorString(e));
+}
+
+struct ComposeParams {
+  int n;
+  ViewGeometry views[kMaxViews];
+  DeviceImage src[kMaxViews];
+  float color[kMaxViews][9];
+  int has_color;
+  DeviceImage out;
+};
+
+Homography homography_of(const ViewGeometry& v) {
+  Homography h;
+  for (int k = 0; k < 9; ++k) h.m[k] = v.output_to_camera[k];
+  return h;
+}
+
+__global__ void warp_kernel(DeviceImage src, Homography H, int roi_x, int roi_y, DeviceImage dst) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= dst.width || y >= dst.height) return;
+  float u, v;
+  float4 c = make_float4(0.f, 0.f, 0.f, 0.f);
+  if (to_camera(H, float(roi_x + x), float(roi_y + y), u, v) && u > -1.f && v > -1.f && u < src.width &&
+      v < src.height)
+    c = sample_bilinear(src.data, src.pitch, src.width, src.height, u, v);
+  *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) =
+      make_uchar4(to_u8(c.x), to_u8(c.y), to_u8(c.z), to_u8(c.w));
+}
+
+// mode 0: views are warped rois (fuse); mode 1: views are camera frames (compose).
+template <int kMode>
+__global__ void blend_kernel(const ComposeParams p) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= p.out.width || y >= p.out.height) return;
+  float r = 0.f, g = 0.f, b = 0.f, wsum = 0.f;
+  for (int i = 0; i < p.n; ++i) {
+    const ViewGeometry& vg = p.views[i];
+    const DeviceImage& s = p.src[i];
+    if (!s.data || x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) continue;
+    Homography H;
+#pragma unroll
+    for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
+    float u, v;
+    if (!to_camera(H, float(x), float(y), u, v)) continue;
+    const float w = position_weight(u, v, vg.camera_w, vg.camera_h);
+    if (w <= 0.f) continue;
+    float4 c;
+    if (kMode == 0) {
+      const uchar4 q = *reinterpret_cast<const uchar4*>(s.data + size_t(y - vg.roi_y) * s.pitch + size_t(x - vg.roi_x) * 4);
+      c = make_float4(q.x, q.y, q.z, q.w);
+    } else {
+      c = sample_bilinear(s.data, s.pitch, s.width, s.height, u, v);
+      if (p.has_color) {
+        const float* M = p.color[i];
+        const float cr = c.x * M[0] + c.y * M[3] + c.z * M[6];
+        const float cg = c.x * M[1] + c.y * M[4] + c.z * M[7];
+        const float cb = c.x * M[2] + c.y * M[5] + c.z * M[8];
+        c.x = fminf(fmaxf(cr, 0.f), 255.f);
+        c.y = fminf(fmaxf(cg, 0.f), 255.f);
+        c.z = fminf(fmaxf(cb, 0.f), 255.f);
+      }
+    }
+    r += w * c.x;
+    g += w * c.y;
+    b += w * c.z;
+    wsum += w;
+  }
+  uchar4 o = make_uchar4(0, 0, 0, 255);
+  if (wsum > 0.f) {
+    const float inv = 1.f / wsum;
+    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
+  }
+  *reinterpret_cast<uchar4*>(p.out.data + size_t(y) * p.out.pitch + size_t(x) * 4) = o;
+}
+
+ComposeParams params_of(int n, const ViewGeometry* views, const DeviceImage* images, const DeviceImage& out) {
+  if (n < 0 || n > kMaxViews) throw std::invalid_argument("at most 16 views on the GPU");
+  ComposeParams p{};
+  p.n = n;
+  for (int i = 0; i < n; ++i) {
+    p.views[i] = views[i];
+    p.src[i] = images[i];
+  }
+  p.out = out;
+  return p;
+}
+
+}  // namespace
+
+void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream) {
+  if (dst.width <= 0 || dst.height <= 0) return;
+  const dim3 block(32, 8), grid((dst.width + 31) / 32, (dst.height + 7) / 8);
+  warp_kernel<<<grid, block, 0, stream>>>(src, homography_of(view), view.roi_x, view.roi_y, dst);
+  check_launch("warp kernel");
+}
+
+void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, const DeviceImage& out,
+                 cudaStream_t stream) {
+  const ComposeParams p = params_of(n, views, warped, out);
+  const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
+  blend_kernel<0><<<grid, block, 0, stream>>>(p);
+  check_launch("fuse kernel");
+}
+
+void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames, const float* color,
+                    const DeviceImage& out, cudaStream_t stream) {
+  ComposeParams p = params_of(n, views, frames, out);
+  if (color) {
+    p.has_color = 1;
+    for (int i = 0; i < n; ++i)
+      for (int k = 0; k < 9; ++k) p.color[i][k] = color[9 * i + k];
+  }
+  const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
+  blend_kernel<1><<<grid, block, 0, stream>>>(p);
+  check_launch("compose kernel");
+}
+
+}  // namespace stitch_cuda

@@ -1,0 +1,38 @@
+// Launchers of the warp and blend kernels (plain C++ declarations; definitions in *.cu).
+// Every launch is on the given stream and is checked; errors throw std::runtime_error.
+#pragma once
+#include <cuda_runtime_api.h>
+#include <stddef.h>
+#include <stdint.h>
+
+namespace stitch_cuda {
+
+constexpr int kMaxViews = 16;
+
+struct DeviceImage {
+  uint8_t* data = nullptr;  // RGBA8, device memory
+  size_t pitch = 0;
+  int width = 0, height = 0;
+};
+
+struct ViewGeometry {
+  float output_to_camera[9];
+  int roi_x, roi_y, roi_w, roi_h;  // in output pixels; roi_w = 0: not visible
+  int camera_w, camera_h;
+};
+
+// dst (roi-sized) = camera frame `src` sampled at output_to_camera(roi + (x, y)).
+void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream);
+
+// Position-weighted mean of views already warped into their rois; warped[i].data == nullptr
+// leaves view i out. Uncovered pixels are opaque black.
+void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, const DeviceImage& out,
+                 cudaStream_t stream);
+
+// Warp + optional 3x3 color matrix per view + blend in one pass: every input pixel is read
+// about once and the output written once. frames[i].data == nullptr leaves camera i out;
+// color == nullptr: no color matrix (out_c = sum_k in_k M[k][c], row-major 3x3 per view).
+void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames, const float* color,
+                    const DeviceImage& out, cudaStream_t stream);
+
+}  // namespace stitch_cuda

@@ -1,0 +1,50 @@
+// Device helpers shared by the kernels: bilinear RGBA sampling with transparent black outside
+// the image (OpenCV's remap with BORDER_CONSTANT 0), and the blend's position weight.
+#pragma once
+#include <cuda_runtime.h>
+#include <stdint.h>
+
+namespace stitch_cuda {
+
+struct Homography {
+  float m[9];  // row-major, output pixel -> camera pixel
+};
+
+__device__ __forceinline__ float4 load_rgba(const uint8_t* base, size_t pitch, int w, int h, int x, int y) {
+  if (x < 0 || y < 0 || x >= w || y >= h) return make_float4(0.f, 0.f, 0.f, 0.f);
+  const uchar4 p = *reinterpret_cast<const uchar4*>(base + size_t(y) * pitch + size_t(x) * 4);
+  return make_float4(p.x, p.y, p.z, p.w);
+}
+
+__device__ __forceinline__ float4 sample_bilinear(const uint8_t* base, size_t pitch, int w, int h, float u, float v) {
+  const float fx0 = floorf(u), fy0 = floorf(v);
+  const int x0 = int(fx0), y0 = int(fy0);
+  const float ax = u - fx0, ay = v - fy0;
+  const float4 a = load_rgba(base, pitch, w, h, x0, y0), b = load_rgba(base, pitch, w, h, x0 + 1, y0);
+  const float4 c = load_rgba(base, pitch, w, h, x0, y0 + 1), d = load_rgba(base, pitch, w, h, x0 + 1, y0 + 1);
+  const float w00 = (1 - ax) * (1 - ay), w10 = ax * (1 - ay), w01 = (1 - ax) * ay, w11 = ax * ay;
+  return make_float4(a.x * w00 + b.x * w10 + c.x * w01 + d.x * w11, a.y * w00 + b.y * w10 + c.y * w01 + d.y * w11,
+                     a.z * w00 + b.z * w10 + c.z * w01 + d.z * w11, a.w * w00 + b.w * w10 + c.w * w01 + d.w * w11);
+}
+
+// Camera coordinates of output pixel (x, y); false behind the camera.
+__device__ __forceinline__ bool to_camera(const Homography& H, float x, float y, float& u, float& v) {
+  const float Z = H.m[6] * x + H.m[7] * y + H.m[8];
+  if (!(Z > 1e-12f)) return false;
+  const float inv = 1.f / Z;
+  u = (H.m[0] * x + H.m[1] * y + H.m[2]) * inv;
+  v = (H.m[3] * x + H.m[4] * y + H.m[5]) * inv;
+  return true;
+}
+
+// stitch::position_weight: a tent, 1 at the centre and 0 half a pixel outside the border.
+__device__ __forceinline__ float position_weight(float u, float v, int w, int h) {
+  const float wx = fminf(u + 0.5f, w - 0.5f - u) / (w * 0.5f);
+  const float wy = fminf(v + 0.5f, h - 0.5f - v) / (h * 0.5f);
+  if (wx <= 0.f || wy <= 0.f) return 0.f;
+  return fminf(wx, 1.f) * fminf(wy, 1.f);
+}
+
+__device__ __forceinline__ uint8_t to_u8(float v) { return uint8_t(fminf(fmaxf(v + 0.5f, 0.f), 255.f)); }
+
+}  // namespace stitch_cuda

@@ -1,0 +1,82 @@
+#include "stitch/blend/compositor_cuda.hpp"
+
+#include <stdexcept>
+
+#include "stitch/cuda/cuda_util.hpp"
+#include "stitch/cuda/view_geometry.hpp"
+
+namespace stitch {
+
+struct CudaComposer::State {
+  CudaStream stream;
+  std::vector<stitch_cuda::ViewGeometry> views;
+  std::vector<DeviceBuffer> inputs;
+  DeviceBuffer output;
+  int out_w = 0, out_h = 0;
+
+  // The device image of `v`: itself when on the device, else a copy in buffer `slot`.
+  stitch_cuda::DeviceImage on_device(const ImageView& v, std::size_t slot) {
+    if (v.on_device) return to_device_image(v);
+    const std::size_t pitch = std::size_t(v.width) * 4;
+    inputs[slot].resize(pitch * v.height);
+    STITCH_CUDA(cudaMemcpy2DAsync(inputs[slot].data(), pitch, v.data, v.pitch, pitch, v.height,
+                                  cudaMemcpyHostToDevice, stream.get()));
+    stitch_cuda::DeviceImage d;
+    d.data = inputs[slot].data();
+    d.pitch = pitch;
+    d.width = v.width;
+    d.height = v.height;
+    return d;
+  }
+  stitch_cuda::DeviceImage target(const ImageView& out) {
+    if (out.width != out_w || out.height != out_h) throw std::invalid_argument("output size differs from prepare()");
+    if (out.on_device) return to_device_image(out);
+    output.resize(std::size_t(out_w) * out_h * 4);
+    stitch_cuda::DeviceImage d;
+    d.data = output.data();
+    d.pitch = std::size_t(out_w) * 4;
+    d.width = out_w;
+    d.height = out_h;
+    return d;
+  }
+  void finish(const ImageView& out, const stitch_cuda::DeviceImage& d) {
+    if (!out.on_device)
+      STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, d.data, d.pitch, std::size_t(out_w) * 4, out_h,
+                                    cudaMemcpyDeviceToHost, stream.get()));
+    stream.sync();
+  }
+};
+
+CudaComposer::CudaComposer() : s_(std::make_unique<State>()) {}
+CudaComposer::~CudaComposer() = default;
+
+void CudaComposer::prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) {
+  if (views.size() > std::size_t(stitch_cuda::kMaxViews)) throw std::invalid_argument("at most 16 views on the GPU");
+  s_->views.clear();
+  for (const auto& v : views) s_->views.push_back(to_device_geometry(v));
+  s_->inputs.resize(views.size());
+  s_->out_w = out_width;
+  s_->out_h = out_height;
+}
+
+void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView& out, const float* color) {
+  if (frames.size() != s_->views.size()) throw std::invalid_argument("view count differs from prepare()");
+  std::vector<stitch_cuda::DeviceImage> images(frames.size());
+  for (std::size_t i = 0; i < frames.size(); ++i)
+    if (!frames[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(frames[i], i);
+  const stitch_cuda::DeviceImage d = s_->target(out);
+  stitch_cuda::launch_compose(int(images.size()), s_->views.data(), images.data(), color, d, s_->stream.get());
+  s_->finish(out, d);
+}
+
+void CudaComposer::fuse(const std::vector<ImageView>& views, const ImageView& out) {
+  if (views.size() != s_->views.size()) throw std::invalid_argument("view count differs from prepare()");
+  std::vector<stitch_cuda::DeviceImage> images(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i)
+    if (!views[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(views[i], i);
+  const stitch_cuda::DeviceImage d = s_->target(out);
+  stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), d, s_->stream.get());
+  s_->finish(out, d);
+}
+
+}  // namespace stitch

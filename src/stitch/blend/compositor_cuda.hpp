@@ -1,0 +1,28 @@
+// The Compositor's CUDA path: one fused warp + blend kernel per panorama. Frames and output may
+// be in device memory (used in place) or in system memory (uploaded / downloaded through
+// buffers allocated once, not per frame).
+#pragma once
+#include <memory>
+#include <vector>
+
+#include "stitch/image.hpp"
+#include "stitch/warp/geometry.hpp"
+
+namespace stitch {
+
+class CudaComposer {
+ public:
+  CudaComposer();
+  ~CudaComposer();
+  void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height);
+  // frames: camera frames; color: 9 floats per view (row-major, out_c = sum_k in_k M[k][c]) or null.
+  void compose(const std::vector<ImageView>& frames, const ImageView& out, const float* color = nullptr);
+  // views: already warped into their rois (stitchflowwarp's output).
+  void fuse(const std::vector<ImageView>& views, const ImageView& out);
+
+ private:
+  struct State;
+  std::unique_ptr<State> s_;
+};
+
+}  // namespace stitch

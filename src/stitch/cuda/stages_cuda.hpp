@@ -1,0 +1,14 @@
+// Factories of the CUDA implementations (compiled only with STITCH_HAVE_CUDA); the stages'
+// create(Backend) call them.
+#pragma once
+#include <memory>
+
+#include "stitch/blend/blender.hpp"
+#include "stitch/color/color.hpp"
+#include "stitch/warp/warper.hpp"
+
+namespace stitch {
+std::unique_ptr<Warper> make_warper_cuda();
+std::unique_ptr<Blender> make_blender_cuda();
+std::unique_ptr<ColorOps> make_color_ops_cuda();
+}  // namespace stitch

@@ -1,0 +1,30 @@
+// ViewPlacement -> the kernels' plain ViewGeometry.
+#pragma once
+#include "../../../cuda/blend/blend_kernels.hpp"
+#include "stitch/warp/geometry.hpp"
+
+namespace stitch {
+
+inline stitch_cuda::ViewGeometry to_device_geometry(const ViewPlacement& v) {
+  stitch_cuda::ViewGeometry g{};
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) g.output_to_camera[3 * r + c] = float(v.output_to_camera(r, c));
+  g.roi_x = v.roi.x;
+  g.roi_y = v.roi.y;
+  g.roi_w = v.roi.empty() ? 0 : v.roi.width;
+  g.roi_h = v.roi.empty() ? 0 : v.roi.height;
+  g.camera_w = v.camera_width;
+  g.camera_h = v.camera_height;
+  return g;
+}
+
+inline stitch_cuda::DeviceImage to_device_image(const ImageView& v) {
+  stitch_cuda::DeviceImage d;
+  d.data = v.data;
+  d.pitch = v.pitch;
+  d.width = v.width;
+  d.height = v.height;
+  return d;
+}
+
+}  // namespace stitch

@@ -1,0 +1,220 @@
+// Each CUDA stage against its CPU version on real frames (PSNR >= 45 dB). Needs a CUDA device:
+// without one (or in a build without the toolkit) every test skips and says why.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/backend.hpp"
+#include "stitch/blend/compositor.hpp"
+#include "stitch/color/color.hpp"
+#include "stitch/cv_interop.hpp"
+#include "stitch/warp/warper.hpp"
+#include "test_data.hpp"
+
+#ifdef STITCH_HAVE_CUDA
+#include <cuda_runtime_api.h>
+#endif
+
+using namespace stitch;
+
+namespace {
+
+#define REQUIRE_CUDA()                                                                          \
+  do {                                                                                          \
+    if (!cuda_device_available())                                                               \
+      GTEST_SKIP() << "no CUDA device here (or a build without the CUDA toolkit): the CUDA "    \
+                      "stages are not checked";                                                 \
+  } while (0)
+
+#ifdef STITCH_HAVE_CUDA
+// An RGBA image in device memory, copied from / to a cv::Mat.
+struct DeviceMat {
+  uint8_t* ptr = nullptr;
+  std::size_t pitch = 0;
+  int width = 0, height = 0;
+  explicit DeviceMat(const cv::Mat& m) : width(m.cols), height(m.rows) {
+    void* p = nullptr;
+    EXPECT_EQ(cudaMallocPitch(&p, &pitch, std::size_t(width) * 4, std::size_t(height)), cudaSuccess);
+    ptr = static_cast<uint8_t*>(p);
+    EXPECT_EQ(cudaMemcpy2D(ptr, pitch, m.data, m.step, std::size_t(width) * 4, std::size_t(height),
+                           cudaMemcpyHostToDevice),
+              cudaSuccess);
+  }
+  DeviceMat(const DeviceMat&) = delete;
+  ~DeviceMat() { cudaFree(ptr); }
+  ImageView view() const {
+    ImageView v;
+    v.data = ptr;
+    v.pitch = pitch;
+    v.width = width;
+    v.height = height;
+    v.on_device = true;
+    return v;
+  }
+  cv::Mat download() const {
+    cv::Mat m(height, width, CV_8UC4);
+    EXPECT_EQ(cudaMemcpy2D(m.data, m.step, ptr, pitch, std::size_t(width) * 4, std::size_t(height),
+                           cudaMemcpyDeviceToHost),
+              cudaSuccess);
+    return m;
+  }
+};
+#endif
+
+// Three overlapping cameras of a real photo on a rotating rig (real homographies, not shifts).
+struct RigScene {
+  Rig rig;
+  std::vector<cv::Mat> frames;
+};
+
+RigScene rig_scene() {
+  RigScene s;
+  cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  const int w = 480, h = 360;
+  s.rig.reference = 1;
+  for (int i = 0; i < 3; ++i) {
+    Camera c = testdata::pinhole(w, h, 420.0);
+    c.yaw_deg = (i - 1) * 30.0;
+    c.roll_deg = (i - 1) * 2.0;
+    s.rig.cameras.push_back(c);
+    cv::Mat f;
+    cv::resize(photo(cv::Rect(i * 450, 100, 700, 525)), f, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+    s.frames.push_back(f);
+  }
+  rig_compute_rough_homographies(s.rig);
+  return s;
+}
+
+}  // namespace
+
+TEST(Cuda, WarpMatchesCpu) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  RigScene s = rig_scene();
+  const OutputGeometry g = canvas_geometry(s.rig);
+  const std::vector<ViewPlacement> views = place_views(s.rig, g);
+  auto cpu = Warper::create(Backend::Cpu), gpu = Warper::create(Backend::Cuda);
+  ASSERT_EQ(gpu->backend(), Backend::Cuda);
+  cpu->prepare(views);
+  gpu->prepare(views);
+  for (int i = 0; i < 3; ++i) {
+    const Rect& r = views[i].roi;
+    cv::Mat expected(r.height, r.width, CV_8UC4, cv::Scalar::all(0));
+    cpu->warp(i, as_view(s.frames[i]), as_view(expected));
+    DeviceMat src(s.frames[i]);
+    DeviceMat dst(cv::Mat(r.height, r.width, CV_8UC4, cv::Scalar::all(77)));  // poisoned
+    gpu->warp(i, src.view(), dst.view());
+    const double psnr = testdata::psnr_rgb(dst.download(), expected);
+    std::printf("warp view %d: CUDA vs CPU PSNR %.2f dB\n", i, psnr);
+    EXPECT_GE(psnr, 45.0);
+  }
+#endif
+}
+
+TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  RigScene s = rig_scene();
+  CompositorSettings settings;
+  settings.crop = CropMode::Auto;
+  Compositor cpu(Backend::Cpu), gpu(Backend::Cuda);
+  cpu.prepare(s.rig, settings);
+  gpu.prepare(s.rig, settings);
+  ASSERT_EQ(gpu.backend(), Backend::Cuda);
+  const OutputGeometry& g = cpu.geometry();
+  std::vector<ImageView> host;
+  for (auto& f : s.frames) host.push_back(as_view(f));
+  cv::Mat expected(g.height, g.width, CV_8UC4), from_host(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
+  cpu.compose(host, as_view(expected));
+  gpu.compose(host, as_view(from_host));
+  const double psnr_host = testdata::psnr_rgb(from_host, expected);
+  std::vector<std::unique_ptr<DeviceMat>> dev;
+  std::vector<ImageView> dv;
+  for (auto& f : s.frames) {
+    dev.push_back(std::make_unique<DeviceMat>(f));
+    dv.push_back(dev.back()->view());
+  }
+  DeviceMat out(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(77)));
+  gpu.compose(dv, out.view());
+  const double psnr_dev = testdata::psnr_rgb(out.download(), expected);
+  std::printf("compose %dx%d: CUDA vs CPU PSNR %.2f dB (system memory), %.2f dB (device memory)\n", g.width,
+              g.height, psnr_host, psnr_dev);
+  EXPECT_GE(psnr_host, 45.0);
+  EXPECT_GE(psnr_dev, 45.0);
+
+  // A missing camera is left out on both.
+  host[0] = ImageView();
+  cpu.compose(host, as_view(expected));
+  gpu.compose(host, as_view(from_host));
+  EXPECT_GE(testdata::psnr_rgb(from_host, expected), 45.0);
+#endif
+}
+
+TEST(Cuda, PrewarpedFuseMatchesCpu) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  RigScene s = rig_scene();
+  Compositor cpu(Backend::Cpu), gpu(Backend::Cuda);
+  cpu.prepare(s.rig, CompositorSettings{}, CompositorInput::Prewarped);
+  gpu.prepare(s.rig, CompositorSettings{}, CompositorInput::Prewarped);
+  auto warper = Warper::create(Backend::Cpu);
+  warper->prepare(cpu.prewarped_placements());
+  std::vector<cv::Mat> warped;
+  std::vector<ImageView> views;
+  for (int i = 0; i < 3; ++i) {
+    const Rect& r = cpu.prewarped_placements()[i].roi;
+    warped.emplace_back(r.height, r.width, CV_8UC4);
+    warper->warp(i, as_view(s.frames[i]), as_view(warped.back()));
+  }
+  for (auto& w : warped) views.push_back(as_view(w));
+  const OutputGeometry& g = cpu.geometry();
+  cv::Mat expected(g.height, g.width, CV_8UC4), got(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
+  cpu.compose(views, as_view(expected));
+  gpu.compose(views, as_view(got));
+  const double psnr = testdata::psnr_rgb(got, expected);
+  std::printf("pre-warped fuse: CUDA vs CPU PSNR %.2f dB\n", psnr);
+  EXPECT_GE(psnr, 45.0);
+#endif
+}
+
+TEST(Cuda, ColorApplyAndGatherMatchCpu) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  RigScene s = rig_scene();
+  auto cpu = ColorOps::create(Backend::Cpu), gpu = ColorOps::create(Backend::Cuda);
+  ASSERT_EQ(gpu->backend(), Backend::Cuda);
+  Eigen::Matrix3d M;
+  M << 1.1, 0.02, -0.01, 0.03, 0.92, 0.0, -0.02, 0.05, 1.05;
+  std::array<std::array<uint8_t, 256>, 3> lut;
+  for (int c = 0; c < 3; ++c) lut[c] = piecewise_balance_curve(20 + 5 * c, 230 - 4 * c, 0.05);
+  cv::Mat expected = s.frames[0].clone();
+  cpu->apply(as_view(expected), M, lut);
+  DeviceMat d(s.frames[0]);
+  gpu->apply(d.view(), M, lut);
+  const cv::Mat got = d.download();
+  const double psnr = testdata::psnr_rgb(got, expected);
+  std::printf("color apply: CUDA vs CPU PSNR %.2f dB\n", psnr);
+  EXPECT_GE(psnr, 45.0);
+  std::vector<int32_t> xy;
+  for (int k = 0; k < 500; ++k) xy.insert(xy.end(), {(k * 37) % got.cols, (k * 53) % got.rows});
+  std::vector<std::array<uint8_t, 3>> a, b;
+  cpu->gather(as_view(expected), xy, a);
+  gpu->gather(d.view(), xy, b);
+  ASSERT_EQ(a.size(), b.size());
+  int same = 0;
+  for (std::size_t k = 0; k < a.size(); ++k) same += a[k] == b[k] ? 1 : 0;
+  EXPECT_GE(same, int(a.size()) * 9 / 10);  // the same pixels up to rounding
+#endif
+}
+
+TEST(Cuda, AutoPicksCpuWithoutADevice) {
+  if (cuda_device_available()) {
+    EXPECT_EQ(resolve_backend(Backend::Auto, true), Backend::Cuda);
+  } else {
+    EXPECT_EQ(resolve_backend(Backend::Auto, true), Backend::Cpu);
+    EXPECT_THROW(resolve_backend(Backend::Cuda, true), std::runtime_error);
+  }
+  EXPECT_EQ(resolve_backend(Backend::Auto, false), Backend::Cpu);
+  EXPECT_THROW(resolve_backend(Backend::Cuda, false), std::runtime_error);
+}
