@@ -3,56 +3,38 @@
 #include <cstdio>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
 
 namespace stitch_bench {
 
-namespace {
-bool is_image(const std::string& p) {
-  auto ends = [&](const char* s) {
-    const std::string e(s);
-    return p.size() >= e.size() && std::equal(e.rbegin(), e.rend(), p.rbegin(),
-                                              [](char a, char b) { return a == std::tolower(b); });
-  };
-  return ends(".jpg") || ends(".jpeg") || ends(".png");
+stitch::Rig ring(const Case& c) {
+  stitch::Rig rig;
+  rig.reference = c.cameras / 2;
+  const double spacing = std::min(35.0, 100.0 / std::max(1, c.cameras - 1));
+  const double hfov = spacing * 1.4;
+  const double f = c.width / (2 * std::tan(hfov / 2 * 3.14159265358979 / 180));
+  for (int i = 0; i < c.cameras; ++i) {
+    stitch::Camera cam;
+    cam.width = c.width;
+    cam.height = c.height;
+    cam.fx = cam.fy = f;
+    cam.cx = (c.width - 1) * 0.5;
+    cam.cy = (c.height - 1) * 0.5;
+    cam.yaw_deg = (i - (c.cameras - 1) * 0.5) * spacing;
+    rig.cameras.push_back(cam);
+  }
+  stitch::rig_compute_rough_homographies(rig);
+  return rig;
 }
-}  // namespace
 
-std::vector<std::vector<cv::Mat>> read_sets(const std::vector<std::string>& paths, int frames, int step) {
-  std::vector<std::vector<cv::Mat>> seq;
-  if (!paths.empty() && is_image(paths[0])) {
-    std::vector<cv::Mat> set;
-    for (const auto& p : paths) {
-      cv::Mat f = cv::imread(p, cv::IMREAD_COLOR);
-      if (f.empty()) {
-        std::fprintf(stderr, "cannot read %s\n", p.c_str());
-        return {};
-      }
-      cv::cvtColor(f, f, cv::COLOR_BGR2RGBA);
-      set.push_back(f);
-    }
-    seq.push_back(set);
-    return seq;
+std::vector<cv::Mat> ring_views(const cv::Mat& photo, const Case& c) {
+  std::vector<cv::Mat> views;
+  for (int i = 0; i < c.cameras; ++i) {
+    cv::Mat v;
+    cv::resize(photo(cv::Rect(i * (photo.cols - photo.cols / 2) / std::max(1, c.cameras - 1), 0, photo.cols / 2, photo.rows)),
+               v, cv::Size(c.width, c.height));
+    views.push_back(v);
   }
-  std::vector<cv::VideoCapture> caps;
-  for (const auto& c : paths) {
-    caps.emplace_back(c);
-    if (!caps.back().isOpened()) {
-      std::fprintf(stderr, "cannot open %s\n", c.c_str());
-      return {};
-    }
-  }
-  for (int t = 0; t < frames * step; ++t) {
-    std::vector<cv::Mat> set;
-    for (auto& cap : caps) {
-      cv::Mat f;
-      if (!cap.read(f)) return seq;
-      cv::cvtColor(f, f, cv::COLOR_BGR2RGBA);
-      set.push_back(f);
-    }
-    if (t % step == 0) seq.push_back(set);
-  }
-  return seq;
+  return views;
 }
 
 Comparison compare(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {

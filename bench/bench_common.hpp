@@ -6,6 +6,8 @@
 #include <string>
 #include <vector>
 
+#include "stitch/rig/rig.hpp"
+
 namespace stitch_bench {
 
 // seq[t][camera] (RGBA): `frames` instants every `step` frames of synchronised clips, or one
@@ -38,5 +40,16 @@ struct Series {
     return v.size() > 1 ? std::sqrt(s / (v.size() - 1)) : 0;
   }
 };
+
+struct Case {
+  int cameras, width, height;
+};
+
+// A rotating rig of c.cameras cameras spanning at most 100 degrees (planar canvas), adjacent
+// views overlapping ~30%, rough homographies computed.
+stitch::Rig ring(const Case& c);
+
+// Views of a real photo for the ring: camera i sees a shifted part of it, resized to W x H (RGBA).
+std::vector<cv::Mat> ring_views(const cv::Mat& photo_rgba, const Case& c);
 
 }  // namespace stitch_bench

@@ -14,35 +14,13 @@
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/warp/flow_warper.hpp"
+#include "bench_common.hpp"
 
 using namespace stitch;
+using stitch_bench::Case;
+using stitch_bench::ring;
 
 namespace {
-
-struct Case {
-  int cameras, width, height;
-};
-
-// A rotating rig spanning at most 100 degrees (planar canvas), adjacent views overlapping ~30%.
-Rig ring(const Case& c) {
-  Rig rig;
-  rig.reference = c.cameras / 2;
-  const double spacing = std::min(35.0, 100.0 / std::max(1, c.cameras - 1));
-  const double hfov = spacing * 1.4;
-  const double f = c.width / (2 * std::tan(hfov / 2 * 3.14159265358979 / 180));
-  for (int i = 0; i < c.cameras; ++i) {
-    Camera cam;
-    cam.width = c.width;
-    cam.height = c.height;
-    cam.fx = cam.fy = f;
-    cam.cx = (c.width - 1) * 0.5;
-    cam.cy = (c.height - 1) * 0.5;
-    cam.yaw_deg = (i - (c.cameras - 1) * 0.5) * spacing;
-    rig.cameras.push_back(cam);
-  }
-  rig_compute_rough_homographies(rig);
-  return rig;
-}
 
 }  // namespace
 
@@ -70,14 +48,8 @@ int main(int argc, char** argv) {
   std::string json = "[";
   for (const Case& c : cases) {
     Rig rig = ring(c);
-    std::vector<cv::Mat> views;
+    std::vector<cv::Mat> views = stitch_bench::ring_views(photo, c);
     std::vector<ImageView> vv;
-    for (int i = 0; i < c.cameras; ++i) {
-      cv::Mat v;
-      cv::resize(photo(cv::Rect(i * (photo.cols - photo.cols / 2) / std::max(1, c.cameras - 1), 0, photo.cols / 2, photo.rows)), v,
-                 cv::Size(c.width, c.height));
-      views.push_back(v);
-    }
     for (auto& v : views) vv.push_back(as_view(v));
     Compositor comp(Backend::Cpu);
     CompositorSettings s;

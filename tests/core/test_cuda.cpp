@@ -10,7 +10,7 @@
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/warp/warper.hpp"
-#include "test_data.hpp"
+#include "ppm.hpp"
 
 #ifdef STITCH_HAVE_CUDA
 #include <cuda_runtime_api.h>
@@ -68,18 +68,39 @@ struct RigScene {
   std::vector<cv::Mat> frames;
 };
 
+// PSNR over the RGB channels of two RGBA images.
+double psnr_rgb(const cv::Mat& a, const cv::Mat& b) {
+  cv::Mat a3, b3;
+  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
+  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
+  return cv::PSNR(a3, b3);
+}
+
+// data/photos/boat1_1600.jpg, decoded at build time (STITCH_TEST_PPM).
+cv::Mat photo() {
+  const char* path = std::getenv("STITCH_TEST_PPM");
+  cv::Mat p = testdata::read_ppm_rgba(path ? path : "");
+  if (p.empty()) throw std::runtime_error(std::string("cannot read the test photo STITCH_TEST_PPM=") + (path ? path : ""));
+  return p;
+}
+
 RigScene rig_scene() {
   RigScene s;
-  cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  const cv::Mat photo_rgba = photo();
   const int w = 480, h = 360;
   s.rig.reference = 1;
   for (int i = 0; i < 3; ++i) {
-    Camera c = testdata::pinhole(w, h, 420.0);
+    Camera c;
+    c.width = w;
+    c.height = h;
+    c.fx = c.fy = 420.0;
+    c.cx = (w - 1) * 0.5;
+    c.cy = (h - 1) * 0.5;
     c.yaw_deg = (i - 1) * 30.0;
     c.roll_deg = (i - 1) * 2.0;
     s.rig.cameras.push_back(c);
     cv::Mat f;
-    cv::resize(photo(cv::Rect(i * 450, 100, 700, 525)), f, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+    cv::resize(photo_rgba(cv::Rect(i * 450, 100, 700, 525)), f, cv::Size(w, h), 0, 0, cv::INTER_AREA);
     s.frames.push_back(f);
   }
   rig_compute_rough_homographies(s.rig);
@@ -105,7 +126,7 @@ TEST(Cuda, WarpMatchesCpu) {
     DeviceMat src(s.frames[i]);
     DeviceMat dst(cv::Mat(r.height, r.width, CV_8UC4, cv::Scalar::all(77)));  // poisoned
     gpu->warp(i, src.view(), dst.view());
-    const double psnr = testdata::psnr_rgb(dst.download(), expected);
+    const double psnr = psnr_rgb(dst.download(), expected);
     std::printf("warp view %d: CUDA vs CPU PSNR %.2f dB\n", i, psnr);
     EXPECT_GE(psnr, 45.0);
   }
@@ -128,7 +149,7 @@ TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
   cv::Mat expected(g.height, g.width, CV_8UC4), from_host(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
   cpu.compose(host, as_view(expected));
   gpu.compose(host, as_view(from_host));
-  const double psnr_host = testdata::psnr_rgb(from_host, expected);
+  const double psnr_host = psnr_rgb(from_host, expected);
   std::vector<std::unique_ptr<DeviceMat>> dev;
   std::vector<ImageView> dv;
   for (auto& f : s.frames) {
@@ -137,7 +158,7 @@ TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
   }
   DeviceMat out(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(77)));
   gpu.compose(dv, out.view());
-  const double psnr_dev = testdata::psnr_rgb(out.download(), expected);
+  const double psnr_dev = psnr_rgb(out.download(), expected);
   std::printf("compose %dx%d: CUDA vs CPU PSNR %.2f dB (system memory), %.2f dB (device memory)\n", g.width,
               g.height, psnr_host, psnr_dev);
   EXPECT_GE(psnr_host, 45.0);
@@ -147,7 +168,7 @@ TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
   host[0] = ImageView();
   cpu.compose(host, as_view(expected));
   gpu.compose(host, as_view(from_host));
-  EXPECT_GE(testdata::psnr_rgb(from_host, expected), 45.0);
+  EXPECT_GE(psnr_rgb(from_host, expected), 45.0);
 #endif
 }
 
@@ -172,7 +193,7 @@ TEST(Cuda, PrewarpedFuseMatchesCpu) {
   cv::Mat expected(g.height, g.width, CV_8UC4), got(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
   cpu.compose(views, as_view(expected));
   gpu.compose(views, as_view(got));
-  const double psnr = testdata::psnr_rgb(got, expected);
+  const double psnr = psnr_rgb(got, expected);
   std::printf("pre-warped fuse: CUDA vs CPU PSNR %.2f dB\n", psnr);
   EXPECT_GE(psnr, 45.0);
 #endif
@@ -193,7 +214,7 @@ TEST(Cuda, ColorApplyAndGatherMatchCpu) {
   DeviceMat d(s.frames[0]);
   gpu->apply(d.view(), M, lut);
   const cv::Mat got = d.download();
-  const double psnr = testdata::psnr_rgb(got, expected);
+  const double psnr = psnr_rgb(got, expected);
   std::printf("color apply: CUDA vs CPU PSNR %.2f dB\n", psnr);
   EXPECT_GE(psnr, 45.0);
   std::vector<int32_t> xy;

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Runs on the GPU host: unpacks the bundle that `scripts/gpu_check.sh pack` made here, runs the
+# CUDA-vs-CPU tests, the CUDA benchmark and GPU pipelines; writes logs and JSON to $OUT
+# (default: out/gpu). The bundle must stay under the 64 MiB a device call carries, so it holds
+# only binaries that link no OpenCV imgcodecs/videoio (their codec and GDAL trees are large).
+set -uo pipefail
+if [ "${1:-}" = pack ]; then
+  rm -rf .gpubundle && mkdir -p .gpubundle
+  cp build/tests/boat1_1600.ppm .gpubundle/
+  GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions" \
+    ../shared/tools/gpu-bundle .gpubundle/b.tar.gz build/tests/test_cuda build/bench/stitch-bench-cuda \
+    build/gst/libgststitch.so
+  exit
+fi
+OUT=${OUT:-out/gpu}
+mkdir -p "$OUT"
+tar xzf .gpubundle/b.tar.gz && source gpubundle/env.sh
+B=gpubundle/build
+export STITCH_SOURCE_DIR=$PWD GST_PLUGIN_PATH=$PWD/$B GST_REGISTRY=$PWD/$OUT/registry.bin GST_DEBUG='*:1'
+export STITCH_TEST_PPM=$PWD/.gpubundle/boat1_1600.ppm
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$OUT/gpu.txt"
+echo "== test_cuda"; $B/test_cuda 2>&1 | tee "$OUT/test_cuda.txt" | grep -E "PSNR|OK|FAIL|SKIP" | head -30
+echo "== bench"; $B/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
+echo "== pipelines (2 x 720x404 H.264 decoded by nvh264dec)"
+L=data/limlight_2cam_apartment
+for chain in "stitchblend backend=cpu" "stitchblend backend=cuda" "stitchcolor ! stitchflowwarp ! stitchblend backend=cpu" \
+             "stitchcolor ! stitchflowwarp ! stitchblend backend=cuda"; do
+  t0=$(date +%s.%N)
+  gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
+    filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
+    filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | tail -3
+  echo "$chain: rc=${PIPESTATUS[0]} $(echo "$(date +%s.%N) - $t0" | bc) s"
+done | tee "$OUT/pipelines.txt"
