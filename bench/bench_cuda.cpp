@@ -92,8 +92,8 @@ int main(int argc, char** argv) {
 
     const std::vector<stitch_bench::Case> cases = {
         {3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {3, 3840, 2160}, {6, 1920, 1080}};
-    std::printf("%-12s %-11s %9s %9s %7s %9s %9s %9s %10s %10s %9s\n", "cameras", "panorama", "compose", "+color",
-                "%copy", "warp", "fuse", "colorapp", "sysmem ms", "CPU ms", "CPU/GPU");
+    std::printf("%-12s %-11s %9s %9s %7s %9s %7s %9s %9s %9s %10s %10s %9s\n", "cameras", "panorama", "compose",
+                "+color", "%copy", "tex", "%copy", "warp", "fuse", "colorapp", "sysmem ms", "CPU ms", "CPU/GPU");
     std::string json = "{\"device\":\"" + std::string(prop.name) + "\",\"copy_gbs\":" + std::to_string(copy_gbs) +
                        ",\"cases\":[";
     for (std::size_t ci = 0; ci < cases.size(); ++ci) {
@@ -141,6 +141,12 @@ int main(int argc, char** argv) {
       const double compose_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_compose(c.cameras, geo.data(), frames.data(), nullptr, out, stream.get());
       });
+      std::vector<unsigned long long> tex;
+      for (auto& f : frames) tex.push_back(stitch_cuda::create_rgba_texture(f));
+      const double tex_ms = time_ms(stream.get(), [&] {
+        stitch_cuda::launch_compose_tex(c.cameras, geo.data(), tex.data(), nullptr, out, stream.get());
+      });
+      for (auto t : tex) stitch_cuda::destroy_texture(t);
       const double color_compose_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_compose(c.cameras, geo.data(), frames.data(), color.data(), out, stream.get());
       });
@@ -196,19 +202,21 @@ int main(int argc, char** argv) {
       char name[64], pano_name[64];
       std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
       std::snprintf(pano_name, sizeof pano_name, "%dx%d", g.width, g.height);
-      std::printf("%-12s %-11s %9.4f %9.4f %6.0f%% %9.4f %9.4f %9.4f %10.3f %10.2f %8.0fx\n", name, pano_name,
-                  compose_ms, color_compose_ms, 100 * compose_frac, warp_ms, fuse_ms, apply_ms, sys_ms, cpu_ms,
-                  cpu_ms / compose_ms);
+      const double tex_frac = (in_bytes + out_bytes) / (tex_ms * 1e-3) / 1e9 / copy_gbs;
+      std::printf("%-12s %-11s %9.4f %9.4f %6.0f%% %9.4f %6.0f%% %9.4f %9.4f %9.4f %10.3f %10.2f %8.0fx\n", name,
+                  pano_name, compose_ms, color_compose_ms, 100 * compose_frac, tex_ms, 100 * tex_frac, warp_ms, fuse_ms,
+                  apply_ms, sys_ms, cpu_ms, cpu_ms / std::min(compose_ms, tex_ms));
       char buf[1024];
       std::snprintf(buf, sizeof buf,
                     "%s{\"case\":\"%s\",\"panorama\":\"%s\",\"compose_ms\":%.5f,\"compose_color_ms\":%.5f,"
                     "\"compose_bytes\":%zu,\"compose_copy_fraction\":%.3f,\"warp_ms\":%.5f,\"warp_bytes\":%zu,"
                     "\"warp_copy_fraction\":%.3f,\"fuse_ms\":%.5f,\"fuse_bytes\":%zu,\"fuse_copy_fraction\":%.3f,"
                     "\"color_apply_ms\":%.5f,\"color_apply_bytes\":%zu,\"color_apply_copy_fraction\":%.3f,"
+                    "\"compose_texture_ms\":%.5f,\"compose_texture_copy_fraction\":%.3f,"
                     "\"system_memory_compose_ms\":%.4f,\"cpu_compose_ms\":%.3f}",
                     ci ? "," : "", name, pano_name, compose_ms, color_compose_ms, in_bytes + out_bytes, compose_frac,
                     warp_ms, in_bytes + roi_bytes, warp_frac, fuse_ms, roi_bytes + out_bytes, fuse_frac, apply_ms,
-                    2 * in_bytes, apply_frac, sys_ms, cpu_ms);
+                    2 * in_bytes, apply_frac, tex_ms, tex_frac, sys_ms, cpu_ms);
       json += buf;
     }
     json += "]}\n";

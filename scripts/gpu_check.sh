@@ -25,9 +25,9 @@ echo "== pipelines (2 x 720x404 H.264 decoded by nvh264dec)"
 L=data/limlight_2cam_apartment
 for chain in "stitchblend backend=cpu" "stitchblend backend=cuda" "stitchcolor ! stitchflowwarp ! stitchblend backend=cpu" \
              "stitchcolor ! stitchflowwarp ! stitchblend backend=cuda"; do
-  t0=$(date +%s.%N)
-  gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
+  t0=$EPOCHREALTIME
+  XDG_RUNTIME_DIR=/tmp gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
-    filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | tail -3
-  echo "$chain: rc=${PIPESTATUS[0]} $(echo "$(date +%s.%N) - $t0" | bc) s"
+    filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v gldisplay | tail -3
+  echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"
 done | tee "$OUT/pipelines.txt"

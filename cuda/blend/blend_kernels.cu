@@ -86,6 +86,56 @@ __global__ void blend_kernel(const ComposeParams p) {
   *reinterpret_cast<uchar4*>(p.out.data + size_t(y) * p.out.pitch + size_t(x) * 4) = o;
 }
 
+struct TexComposeParams {
+  int n;
+  ViewGeometry views[kMaxViews];
+  cudaTextureObject_t tex[kMaxViews];
+  float color[kMaxViews][9];
+  int has_color;
+  DeviceImage out;
+};
+
+__global__ void compose_tex_kernel(const TexComposeParams p) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= p.out.width || y >= p.out.height) return;
+  float r = 0.f, g = 0.f, b = 0.f, wsum = 0.f;
+  for (int i = 0; i < p.n; ++i) {
+    const ViewGeometry& vg = p.views[i];
+    if (!p.tex[i] || x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) continue;
+    Homography H;
+#pragma unroll
+    for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
+    float u, v;
+    if (!to_camera(H, float(x), float(y), u, v)) continue;
+    const float w = position_weight(u, v, vg.camera_w, vg.camera_h);
+    if (w <= 0.f) continue;
+    // Texel centres sit at +0.5 in texture coordinates; normalised reads return [0, 1].
+    float4 c = tex2D<float4>(p.tex[i], u + 0.5f, v + 0.5f);
+    c.x *= 255.f;
+    c.y *= 255.f;
+    c.z *= 255.f;
+    if (p.has_color) {
+      const float* M = p.color[i];
+      const float cr = c.x * M[0] + c.y * M[3] + c.z * M[6];
+      const float cg = c.x * M[1] + c.y * M[4] + c.z * M[7];
+      const float cb = c.x * M[2] + c.y * M[5] + c.z * M[8];
+      c.x = fminf(fmaxf(cr, 0.f), 255.f);
+      c.y = fminf(fmaxf(cg, 0.f), 255.f);
+      c.z = fminf(fmaxf(cb, 0.f), 255.f);
+    }
+    r += w * c.x;
+    g += w * c.y;
+    b += w * c.z;
+    wsum += w;
+  }
+  uchar4 o = make_uchar4(0, 0, 0, 255);
+  if (wsum > 0.f) {
+    const float inv = 1.f / wsum;
+    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
+  }
+  *reinterpret_cast<uchar4*>(p.out.data + size_t(y) * p.out.pitch + size_t(x) * 4) = o;
+}
+
 ComposeParams params_of(int n, const ViewGeometry* views, const DeviceImage* images, const DeviceImage& out) {
   if (n < 0 || n > kMaxViews) throw std::invalid_argument("at most 16 views on the GPU");
   ComposeParams p{};
@@ -126,6 +176,56 @@ void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames,
   const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
   blend_kernel<1><<<grid, block, 0, stream>>>(p);
   check_launch("compose kernel");
+}
+
+void launch_compose_tex(int n, const ViewGeometry* views, const unsigned long long* textures, const float* color,
+                        const DeviceImage& out, cudaStream_t stream) {
+  if (n < 0 || n > kMaxViews) throw std::invalid_argument("at most 16 views on the GPU");
+  TexComposeParams p{};
+  p.n = n;
+  for (int i = 0; i < n; ++i) {
+    p.views[i] = views[i];
+    p.tex[i] = cudaTextureObject_t(textures[i]);
+    if (color)
+      for (int k = 0; k < 9; ++k) p.color[i][k] = color[9 * i + k];
+  }
+  p.has_color = color != nullptr;
+  p.out = out;
+  const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
+  compose_tex_kernel<<<grid, block, 0, stream>>>(p);
+  check_launch("compose (texture) kernel");
+}
+
+unsigned long long create_rgba_texture(const DeviceImage& image) {
+  int device = 0;
+  cudaDeviceProp prop{};
+  if (cudaGetDevice(&device) != cudaSuccess || cudaGetDeviceProperties(&prop, device) != cudaSuccess) return 0;
+  if (reinterpret_cast<uintptr_t>(image.data) % prop.textureAlignment != 0 ||
+      image.pitch % prop.texturePitchAlignment != 0)
+    return 0;
+  cudaResourceDesc res{};
+  res.resType = cudaResourceTypePitch2D;
+  res.res.pitch2D.devPtr = image.data;
+  res.res.pitch2D.desc = cudaCreateChannelDesc<uchar4>();
+  res.res.pitch2D.width = size_t(image.width);
+  res.res.pitch2D.height = size_t(image.height);
+  res.res.pitch2D.pitchInBytes = image.pitch;
+  cudaTextureDesc td{};
+  td.addressMode[0] = td.addressMode[1] = cudaAddressModeBorder;  // zero outside: transparent
+  td.filterMode = cudaFilterModeLinear;
+  td.readMode = cudaReadModeNormalizedFloat;
+  td.normalizedCoords = 0;
+  cudaTextureObject_t t = 0;
+  const cudaError_t e = cudaCreateTextureObject(&t, &res, &td, nullptr);
+  if (e != cudaSuccess) {
+    cudaGetLastError();
+    return 0;
+  }
+  return t;
+}
+
+void destroy_texture(unsigned long long texture) {
+  if (texture) cudaDestroyTextureObject(cudaTextureObject_t(texture));
 }
 
 }  // namespace stitch_cuda

@@ -35,4 +35,15 @@ void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, co
 void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames, const float* color,
                     const DeviceImage& out, cudaStream_t stream);
 
+// The same as launch_compose, sampling through texture objects (hardware bilinear filtering,
+// transparent border): one fetch per sample instead of four gathers. textures[i] == 0 leaves
+// camera i out.
+void launch_compose_tex(int n, const ViewGeometry* views, const unsigned long long* textures, const float* color,
+                        const DeviceImage& out, cudaStream_t stream);
+
+// A texture object over an RGBA pitched image (linear filtering, zero border, unnormalised
+// coordinates); 0 when the image's address or pitch does not meet the texture alignment.
+unsigned long long create_rgba_texture(const DeviceImage& image);
+void destroy_texture(unsigned long long texture);
+
 }  // namespace stitch_cuda

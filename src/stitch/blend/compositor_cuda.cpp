@@ -13,6 +13,32 @@ struct CudaComposer::State {
   std::vector<DeviceBuffer> inputs;
   DeviceBuffer output;
   int out_w = 0, out_h = 0;
+  // Texture objects over the input frames, kept while a frame's buffer stays the same.
+  std::vector<unsigned long long> textures;
+  std::vector<stitch_cuda::DeviceImage> textured;
+
+  ~State() {
+    for (auto t : textures) stitch_cuda::destroy_texture(t);
+  }
+  // Textures for every present frame, or false when one cannot have a texture (alignment).
+  bool texture_all(const std::vector<stitch_cuda::DeviceImage>& images, std::vector<unsigned long long>& out) {
+    textures.resize(images.size(), 0);
+    textured.resize(images.size());
+    out.assign(images.size(), 0);
+    for (std::size_t i = 0; i < images.size(); ++i) {
+      const stitch_cuda::DeviceImage& d = images[i];
+      if (!d.data) continue;
+      stitch_cuda::DeviceImage& k = textured[i];
+      if (!textures[i] || k.data != d.data || k.pitch != d.pitch || k.width != d.width || k.height != d.height) {
+        stitch_cuda::destroy_texture(textures[i]);
+        textures[i] = stitch_cuda::create_rgba_texture(d);
+        k = d;
+      }
+      if (!textures[i]) return false;
+      out[i] = textures[i];
+    }
+    return true;
+  }
 
   // The device image of `v`: itself when on the device, else a copy in buffer `slot`.
   stitch_cuda::DeviceImage on_device(const ImageView& v, std::size_t slot) {
@@ -65,7 +91,11 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
   for (std::size_t i = 0; i < frames.size(); ++i)
     if (!frames[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(frames[i], i);
   const stitch_cuda::DeviceImage d = s_->target(out);
-  stitch_cuda::launch_compose(int(images.size()), s_->views.data(), images.data(), color, d, s_->stream.get());
+  std::vector<unsigned long long> tex;
+  if (s_->texture_all(images, tex))
+    stitch_cuda::launch_compose_tex(int(images.size()), s_->views.data(), tex.data(), color, d, s_->stream.get());
+  else
+    stitch_cuda::launch_compose(int(images.size()), s_->views.data(), images.data(), color, d, s_->stream.get());
   s_->finish(out, d);
 }
 
