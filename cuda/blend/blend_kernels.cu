@@ -40,6 +40,26 @@ __global__ void warp_kernel(DeviceImage src, Homography H, int roi_x, int roi_y,
       make_uchar4(to_u8(c.x), to_u8(c.y), to_u8(c.z), to_u8(c.w));
 }
 
+// out_c = sum_k in_k M[k][c], clamped to [0, 255].
+__device__ __forceinline__ void apply_color(float4& c, const float* M) {
+  const float cr = c.x * M[0] + c.y * M[3] + c.z * M[6];
+  const float cg = c.x * M[1] + c.y * M[4] + c.z * M[7];
+  const float cb = c.x * M[2] + c.y * M[5] + c.z * M[8];
+  c.x = fminf(fmaxf(cr, 0.f), 255.f);
+  c.y = fminf(fmaxf(cg, 0.f), 255.f);
+  c.z = fminf(fmaxf(cb, 0.f), 255.f);
+}
+
+// The weighted mean into an opaque pixel; black where no view covers it.
+__device__ __forceinline__ void store_mean(const DeviceImage& out, int x, int y, float r, float g, float b, float wsum) {
+  uchar4 o = make_uchar4(0, 0, 0, 255);
+  if (wsum > 0.f) {
+    const float inv = 1.f / wsum;
+    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
+  }
+  *reinterpret_cast<uchar4*>(out.data + size_t(y) * out.pitch + size_t(x) * 4) = o;
+}
+
 // mode 0: views are warped rois (fuse); mode 1: views are camera frames (compose).
 template <int kMode>
 __global__ void blend_kernel(const ComposeParams p) {
@@ -63,27 +83,14 @@ __global__ void blend_kernel(const ComposeParams p) {
       c = make_float4(q.x, q.y, q.z, q.w);
     } else {
       c = sample_bilinear(s.data, s.pitch, s.width, s.height, u, v);
-      if (p.has_color) {
-        const float* M = p.color[i];
-        const float cr = c.x * M[0] + c.y * M[3] + c.z * M[6];
-        const float cg = c.x * M[1] + c.y * M[4] + c.z * M[7];
-        const float cb = c.x * M[2] + c.y * M[5] + c.z * M[8];
-        c.x = fminf(fmaxf(cr, 0.f), 255.f);
-        c.y = fminf(fmaxf(cg, 0.f), 255.f);
-        c.z = fminf(fmaxf(cb, 0.f), 255.f);
-      }
+      if (p.has_color) apply_color(c, p.color[i]);
     }
     r += w * c.x;
     g += w * c.y;
     b += w * c.z;
     wsum += w;
   }
-  uchar4 o = make_uchar4(0, 0, 0, 255);
-  if (wsum > 0.f) {
-    const float inv = 1.f / wsum;
-    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
-  }
-  *reinterpret_cast<uchar4*>(p.out.data + size_t(y) * p.out.pitch + size_t(x) * 4) = o;
+  store_mean(p.out, x, y, r, g, b, wsum);
 }
 
 struct TexComposeParams {
@@ -114,26 +121,13 @@ __global__ void compose_tex_kernel(const TexComposeParams p) {
     c.x *= 255.f;
     c.y *= 255.f;
     c.z *= 255.f;
-    if (p.has_color) {
-      const float* M = p.color[i];
-      const float cr = c.x * M[0] + c.y * M[3] + c.z * M[6];
-      const float cg = c.x * M[1] + c.y * M[4] + c.z * M[7];
-      const float cb = c.x * M[2] + c.y * M[5] + c.z * M[8];
-      c.x = fminf(fmaxf(cr, 0.f), 255.f);
-      c.y = fminf(fmaxf(cg, 0.f), 255.f);
-      c.z = fminf(fmaxf(cb, 0.f), 255.f);
-    }
+    if (p.has_color) apply_color(c, p.color[i]);
     r += w * c.x;
     g += w * c.y;
     b += w * c.z;
     wsum += w;
   }
-  uchar4 o = make_uchar4(0, 0, 0, 255);
-  if (wsum > 0.f) {
-    const float inv = 1.f / wsum;
-    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
-  }
-  *reinterpret_cast<uchar4*>(p.out.data + size_t(y) * p.out.pitch + size_t(x) * 4) = o;
+  store_mean(p.out, x, y, r, g, b, wsum);
 }
 
 ComposeParams params_of(int n, const ViewGeometry* views, const DeviceImage* images, const DeviceImage& out) {
