@@ -33,6 +33,19 @@
 #include "gststitchbundle.h"
 #include "stitch/blend/compositor.hpp"
 
+#ifdef STITCH_HAVE_GST_CUDA
+#include <gst/cuda/gstcudabufferpool.h>
+#include <gst/cuda/gstcudacontext.h>
+#include <gst/cuda/gstcudaloader.h>
+#include <gst/cuda/gstcudamemory.h>
+#include <gst/cuda/gstcudautils.h>
+#define SRC_CAPS                                                                     \
+  GST_VIDEO_CAPS_MAKE_WITH_FEATURES(GST_CAPS_FEATURE_MEMORY_CUDA_MEMORY, "RGBA") ";" \
+  GST_VIDEO_CAPS_MAKE("RGBA")
+#else
+#define SRC_CAPS GST_VIDEO_CAPS_MAKE("RGBA")
+#endif
+
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_blend_debug);
 #define GST_CAT_DEFAULT gst_stitch_blend_debug
 
@@ -49,7 +62,18 @@ struct BlendState {
   guint64 rig_version = G_MAXUINT64;
   GstVideoInfo out_info;
   GstBufferPool* pool = nullptr;
+  bool out_cuda = false;  /* negotiated video/x-raw(memory:CUDAMemory) */
+#ifdef STITCH_HAVE_GST_CUDA
+  GstCudaContext* cuda_ctx = nullptr;  /* shared with the other CUDA elements via GstContext */
+#endif
   void clear() {
+#ifdef STITCH_HAVE_GST_CUDA
+    /* the compositor's device buffers belong to the pushed context */
+    if (cuda_ctx && compositor && gst_cuda_context_push(cuda_ctx)) {
+      compositor.reset();
+      gst_cuda_context_pop(NULL);
+    }
+#endif
     compositor.reset();
     rig_version = G_MAXUINT64;
     if (pool) {
@@ -59,6 +83,38 @@ struct BlendState {
     }
   }
 };
+
+#ifdef STITCH_HAVE_GST_CUDA
+/* CUDA memory output is offered only when the driver loads and a device opens. */
+static gboolean cuda_output_possible(void) {
+  static gboolean possible = FALSE;
+  static gsize once = 0;
+  if (g_once_init_enter(&once)) {
+    possible = gst_cuda_load_library() && stitch::cuda_device_available();
+    g_once_init_leave(&once, 1);
+  }
+  return possible;
+}
+
+/* Runs `body` with the shared CUDA context current (when there is one). */
+template <typename F>
+static void with_cuda_context(BlendState* st, F&& body) {
+  if (!st->cuda_ctx) return body();
+  if (!gst_cuda_context_push(st->cuda_ctx)) throw std::runtime_error("cannot make the CUDA context current");
+  try {
+    body();
+  } catch (...) {
+    gst_cuda_context_pop(NULL);
+    throw;
+  }
+  gst_cuda_context_pop(NULL);
+}
+#else
+template <typename F>
+static void with_cuda_context(BlendState*, F&& body) {
+  body();
+}
+#endif
 
 struct _GstStitchBlend {
   GstBaseTransform parent;
@@ -83,8 +139,8 @@ static GType crop_get_type(void) {
 
 static GstStaticPadTemplate sink_template =
     GST_STATIC_PAD_TEMPLATE("sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
-static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
-    "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(GST_VIDEO_CAPS_MAKE("RGBA")));
+static GstStaticPadTemplate src_template =
+    GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(SRC_CAPS));
 
 static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadDirection direction,
                                                 GstCaps* caps, GstCaps* filter) {
@@ -96,6 +152,11 @@ static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadD
                       32767, NULL);
     if (direction == GST_PAD_SINK) {
       gst_structure_remove_fields(s, "multiview-mode", "views", "multiview-flags", NULL);
+#ifdef STITCH_HAVE_GST_CUDA
+      if (cuda_output_possible()) /* preferred: the panorama stays on the GPU */
+        gst_caps_append_structure_full(out, gst_structure_copy(s),
+                                       gst_caps_features_new(GST_CAPS_FEATURE_MEMORY_CUDA_MEMORY, NULL));
+#endif
     } else {
       gst_structure_set(s, "multiview-mode", G_TYPE_STRING, "separated", "views",
                         GST_TYPE_INT_RANGE, 2, STITCH_MAX_VIEWS, NULL);
@@ -143,9 +204,38 @@ static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDire
 
 static gboolean gst_stitch_blend_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps* outcaps) {
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  BlendState* st = self->state;
   if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
-  return gst_video_info_from_caps(&self->state->out_info, outcaps);
+  GstCapsFeatures* features = gst_caps_get_features(outcaps, 0);
+  const bool cuda = features && gst_caps_features_contains(features, "memory:CUDAMemory");
+  if (cuda != st->out_cuda) {
+    st->clear();  /* the compositor and the pool belong to one kind of memory */
+    st->out_cuda = cuda;
+  }
+#ifdef STITCH_HAVE_GST_CUDA
+  if (cuda && !gst_cuda_ensure_element_context(GST_ELEMENT(self), -1, &st->cuda_ctx)) {
+    GST_ELEMENT_ERROR(self, RESOURCE, NOT_FOUND, ("No CUDA context for the CUDA-memory panorama"), (NULL));
+    return FALSE;
+  }
+#endif
+  return gst_video_info_from_caps(&st->out_info, outcaps);
 }
+
+#ifdef STITCH_HAVE_GST_CUDA
+static void gst_stitch_blend_set_context(GstElement* element, GstContext* context) {
+  GstStitchBlend* self = GST_STITCH_BLEND(element);
+  gst_cuda_handle_set_context(element, context, -1, &self->state->cuda_ctx);
+  GST_ELEMENT_CLASS(gst_stitch_blend_parent_class)->set_context(element, context);
+}
+
+static gboolean gst_stitch_blend_query(GstBaseTransform* trans, GstPadDirection direction, GstQuery* query) {
+  GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  if (GST_QUERY_TYPE(query) == GST_QUERY_CONTEXT &&
+      gst_cuda_handle_context_query(GST_ELEMENT(self), query, self->state->cuda_ctx))
+    return TRUE;
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->query(trans, direction, query);
+}
+#endif
 
 /* Rebuilds the compositor when the rig or the settings changed; renegotiates the output. */
 static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, GstStitchWarpMeta* warped) {
@@ -168,8 +258,14 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     effective.output_width = st->compositor->geometry().width;
     effective.output_height = st->compositor->geometry().height;
   }
-  auto compositor = std::make_unique<stitch::Compositor>(settings.backend);
-  compositor->prepare(**meta->rig, effective, input);
+  if (st->out_cuda && settings.backend == stitch::Backend::Cpu)
+    throw std::runtime_error("backend=cpu cannot write CUDA memory: put cudadownload after stitchblend, or use backend=auto");
+  std::unique_ptr<stitch::Compositor> compositor;
+  with_cuda_context(st, [&]() {
+    st->compositor.reset();  /* its device buffers belong to the context */
+    compositor = std::make_unique<stitch::Compositor>(st->out_cuda ? stitch::Backend::Cuda : settings.backend);
+    compositor->prepare(**meta->rig, effective, input);
+  });
   if (warped) {
     /* stitchflowwarp lays the views out on the canvas; we must read them where it put them */
     const auto& views = compositor->prewarped_placements();
@@ -208,7 +304,11 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
       gst_buffer_pool_set_active(st->pool, FALSE);
       gst_object_unref(st->pool);
     }
+#ifdef STITCH_HAVE_GST_CUDA
+    st->pool = st->out_cuda ? gst_cuda_buffer_pool_new(st->cuda_ctx) : gst_video_buffer_pool_new();
+#else
     st->pool = gst_video_buffer_pool_new();
+#endif
     GstStructure* config = gst_buffer_pool_get_config(st->pool);
     GstCaps* caps = gst_video_info_to_caps(&st->out_info);
     gst_buffer_pool_config_set_params(config, caps, guint(GST_VIDEO_INFO_SIZE(&st->out_info)), 2, 0);
@@ -251,7 +351,11 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
     return GST_FLOW_ERROR;
   }
   GstVideoFrame out;
-  if (!gst_video_frame_map(&out, &st->out_info, outbuf, GST_MAP_WRITE)) {
+  GstMapFlags out_flags = GST_MAP_WRITE;
+#ifdef STITCH_HAVE_GST_CUDA
+  if (st->out_cuda) out_flags = GstMapFlags(GST_MAP_WRITE | GST_MAP_CUDA);
+#endif
+  if (!gst_video_frame_map(&out, &st->out_info, outbuf, out_flags)) {
     GST_ELEMENT_ERROR(self, STREAM, FAILED, ("Cannot map the output frame"), (NULL));
     return GST_FLOW_ERROR;
   }
@@ -260,8 +364,10 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
   view.pitch = std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(&out, 0));
   view.width = GST_VIDEO_FRAME_WIDTH(&out);
   view.height = GST_VIDEO_FRAME_HEIGHT(&out);
-  const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchblend",
-                                   [&]() { st->compositor->compose(mapping.views(), view); });
+  view.on_device = st->out_cuda;
+  const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchblend", [&]() {
+    with_cuda_context(st, [&]() { st->compositor->compose(mapping.views(), view); });
+  });
   gst_video_frame_unmap(&out);
   return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
 }
@@ -313,6 +419,9 @@ static void gst_stitch_blend_get_property(GObject* object, guint prop_id, GValue
 static void gst_stitch_blend_finalize(GObject* object) {
   GstStitchBlend* self = GST_STITCH_BLEND(object);
   self->state->clear();
+#ifdef STITCH_HAVE_GST_CUDA
+  gst_clear_object(&self->state->cuda_ctx);
+#endif
   delete self->state;
   G_OBJECT_CLASS(gst_stitch_blend_parent_class)->finalize(object);
 }
@@ -356,6 +465,10 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   trans_class->transform = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform);
   trans_class->transform_meta = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_meta);
   trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_blend_stop);
+#ifdef STITCH_HAVE_GST_CUDA
+  element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_context);
+  trans_class->query = GST_DEBUG_FUNCPTR(gst_stitch_blend_query);
+#endif
   trans_class->passthrough_on_same_caps = FALSE;
 
   gst_type_mark_as_plugin_api(crop_get_type(), GstPluginAPIFlags(0));

@@ -7,7 +7,7 @@ set -uo pipefail
 if [ "${1:-}" = pack ]; then
   rm -rf .gpubundle && mkdir -p .gpubundle
   cp build/tests/boat1_1600.ppm .gpubundle/
-  GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions" \
+  GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile" \
     ../shared/tools/gpu-bundle .gpubundle/b.tar.gz build/tests/test_cuda build/bench/stitch-bench-cuda \
     build/gst/libgststitch.so
   exit
@@ -31,3 +31,23 @@ for chain in "stitchblend backend=cpu" "stitchblend backend=cuda" "stitchcolor !
     filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v gldisplay | tail -3
   echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"
 done | tee "$OUT/pipelines.txt"
+echo "== CUDA memory out of stitchblend (stitchblend ! cudadownload) vs the CPU path"
+for b in cuda cpu; do
+  if [ $b = cuda ]; then tail="stitchblend ! cudadownload"; else tail="stitchblend backend=cpu"; fi
+  XDG_RUNTIME_DIR=/tmp gst-launch-1.0 -v stitchsync name=s ! stitchcalib ! $tail ! video/x-raw,format=RGBA ! \
+    multifilesink location=$OUT/pano_$b.raw max-files=1 \
+    filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
+    filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 > "$OUT/interop_$b.log" 2>&1
+  echo "$b: rc=$? $(grep -c 'memory:CUDAMemory' "$OUT/interop_$b.log") caps lines with memory:CUDAMemory"
+  grep -m2 "stitchblend0.GstPad:src: caps" "$OUT/interop_$b.log" | cut -c1-160
+done
+python3 - "$OUT" <<'PY'
+import sys, numpy as np, os
+out = sys.argv[1]
+a = np.fromfile(os.path.join(out, "pano_cuda.raw"), np.uint8).astype(np.float64)
+b = np.fromfile(os.path.join(out, "pano_cpu.raw"), np.uint8).astype(np.float64)
+print("last panorama bytes", a.size, b.size)
+if a.size == b.size and a.size:
+    mse = np.mean((a - b) ** 2)
+    print("CUDA-memory panorama vs CPU panorama: PSNR %.2f dB" % (10 * np.log10(255**2 / mse) if mse else float("inf")))
+PY
