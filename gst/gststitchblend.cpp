@@ -144,7 +144,14 @@ static GstStaticPadTemplate src_template =
 
 static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadDirection direction,
                                                 GstCaps* caps, GstCaps* filter) {
+#ifdef STITCH_HAVE_GST_CUDA
+  GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  GST_OBJECT_LOCK(self);
+  const bool offer_cuda = self->state->settings.backend != stitch::Backend::Cpu && cuda_output_possible();
+  GST_OBJECT_UNLOCK(self);
+#else
   (void)trans;
+#endif
   GstCaps* out = gst_caps_new_empty();
   for (guint i = 0; i < gst_caps_get_size(caps); ++i) {
     GstStructure* s = gst_structure_copy(gst_caps_get_structure(caps, i));
@@ -153,7 +160,7 @@ static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadD
     if (direction == GST_PAD_SINK) {
       gst_structure_remove_fields(s, "multiview-mode", "views", "multiview-flags", NULL);
 #ifdef STITCH_HAVE_GST_CUDA
-      if (cuda_output_possible()) /* preferred: the panorama stays on the GPU */
+      if (offer_cuda) /* preferred: the panorama stays on the GPU */
         gst_caps_append_structure_full(out, gst_structure_copy(s),
                                        gst_caps_features_new(GST_CAPS_FEATURE_MEMORY_CUDA_MEMORY, NULL));
 #endif
@@ -175,7 +182,18 @@ static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadD
 static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDirection direction,
                                              GstCaps* caps, GstCaps* othercaps) {
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
-  othercaps = gst_caps_truncate(gst_caps_make_writable(othercaps));
+  othercaps = gst_caps_make_writable(othercaps);
+  /* Prefer CUDA memory wherever downstream takes it, whatever order it lists it in. */
+  for (guint i = 0; i < gst_caps_get_size(othercaps); ++i) {
+    GstCapsFeatures* f = gst_caps_get_features(othercaps, i);
+    if (i > 0 && f && gst_caps_features_contains(f, "memory:CUDAMemory")) {
+      GstCaps* cuda = gst_caps_copy_nth(othercaps, i);
+      gst_caps_unref(othercaps);
+      othercaps = cuda;
+      break;
+    }
+  }
+  othercaps = gst_caps_truncate(othercaps);
   if (direction == GST_PAD_SINK) {
     GstStructure* out = gst_caps_get_structure(othercaps, 0);
     gint w = 0, h = 0;
@@ -287,7 +305,8 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     info.fps_n = st->out_info.fps_n;
     info.fps_d = st->out_info.fps_d;
     GstCaps* caps = gst_video_info_to_caps(&info);
-    GST_INFO_OBJECT(self, "panorama is %dx%d", g.width, g.height);
+    if (st->out_cuda) gst_caps_set_features(caps, 0, gst_caps_features_new("memory:CUDAMemory", NULL));
+    GST_INFO_OBJECT(self, "panorama is %dx%d%s", g.width, g.height, st->out_cuda ? " in CUDA memory" : "");
     const gboolean ok = gst_base_transform_update_src_caps(GST_BASE_TRANSFORM(self), caps);
     gst_caps_unref(caps);
     if (!ok) {

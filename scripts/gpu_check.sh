@@ -28,7 +28,7 @@ for chain in "stitchblend backend=cpu" "stitchblend backend=cuda" "stitchcolor !
   t0=$EPOCHREALTIME
   XDG_RUNTIME_DIR=/tmp gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
-    filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v gldisplay | tail -3
+    filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v "gldisplay\|nvrtc" | grep -A2 "^ERROR" | head -4
   echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"
 done | tee "$OUT/pipelines.txt"
 echo "== CUDA memory out of stitchblend (stitchblend ! cudadownload) vs the CPU path"

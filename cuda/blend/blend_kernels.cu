@@ -130,6 +130,22 @@ __global__ void compose_tex_kernel(const TexComposeParams p) {
   store_mean(p.out, x, y, r, g, b, wsum);
 }
 
+struct Affine {
+  float m[6];
+};
+
+__global__ void resample_kernel(DeviceImage src, Affine A, DeviceImage dst) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= dst.width || y >= dst.height) return;
+  const float u = A.m[0] * x + A.m[1] * y + A.m[2], v = A.m[3] * x + A.m[4] * y + A.m[5];
+  uchar4 o = make_uchar4(0, 0, 0, 255);
+  if (u > -1.f && v > -1.f && u < src.width && v < src.height) {
+    const float4 c = sample_bilinear(src.data, src.pitch, src.width, src.height, u, v);
+    o = make_uchar4(to_u8(c.x), to_u8(c.y), to_u8(c.z), 255);
+  }
+  *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) = o;
+}
+
 ComposeParams params_of(int n, const ViewGeometry* views, const DeviceImage* images, const DeviceImage& out) {
   if (n < 0 || n > kMaxViews) throw std::invalid_argument("at most 16 views on the GPU");
   ComposeParams p{};
@@ -149,6 +165,16 @@ void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceI
   const dim3 block(32, 8), grid((dst.width + 31) / 32, (dst.height + 7) / 8);
   warp_kernel<<<grid, block, 0, stream>>>(src, homography_of(view), view.roi_x, view.roi_y, dst);
   check_launch("warp kernel");
+}
+
+void launch_resample_affine(const DeviceImage& src, const float* inverse_affine, const DeviceImage& dst,
+                            cudaStream_t stream) {
+  if (dst.width <= 0 || dst.height <= 0) return;
+  Affine A;
+  for (int k = 0; k < 6; ++k) A.m[k] = inverse_affine[k];
+  const dim3 block(32, 8), grid((dst.width + 31) / 32, (dst.height + 7) / 8);
+  resample_kernel<<<grid, block, 0, stream>>>(src, A, dst);
+  check_launch("resample kernel");
 }
 
 void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, const DeviceImage& out,

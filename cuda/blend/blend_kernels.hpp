@@ -35,6 +35,11 @@ void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, co
 void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames, const float* color,
                     const DeviceImage& out, cudaStream_t stream);
 
+// dst(p) = src sampled (bilinear) at inverse_affine · p (row-major 2x3, dst pixel -> src
+// pixel); opaque black outside src. Crops and scales a fused canvas into the output.
+void launch_resample_affine(const DeviceImage& src, const float* inverse_affine, const DeviceImage& dst,
+                            cudaStream_t stream);
+
 // The same as launch_compose, sampling through texture objects (hardware bilinear filtering,
 // transparent border): one fetch per sample instead of four gathers. textures[i] == 0 leaves
 // camera i out.

@@ -196,6 +196,28 @@ TEST(Cuda, PrewarpedFuseMatchesCpu) {
   const double psnr = psnr_rgb(got, expected);
   std::printf("pre-warped fuse: CUDA vs CPU PSNR %.2f dB\n", psnr);
   EXPECT_GE(psnr, 45.0);
+
+  // Cropped (a translation) and scaled (bilinear on both sides above 0.75x) into system and
+  // into device memory.
+  for (int scaled = 0; scaled < 2; ++scaled) {
+    CompositorSettings settings;
+    settings.crop = CropMode::Auto;
+    if (scaled) settings.output_width = 1000;
+    Compositor c2(Backend::Cpu), g2(Backend::Cuda);
+    c2.prepare(s.rig, settings, CompositorInput::Prewarped);
+    g2.prepare(s.rig, settings, CompositorInput::Prewarped);
+    const OutputGeometry& og = c2.geometry();
+    cv::Mat want(og.height, og.width, CV_8UC4), host(og.height, og.width, CV_8UC4, cv::Scalar::all(77));
+    c2.compose(views, as_view(want));
+    g2.compose(views, as_view(host));
+    DeviceMat dev(cv::Mat(og.height, og.width, CV_8UC4, cv::Scalar::all(77)));
+    g2.compose(views, dev.view());
+    const double ph = psnr_rgb(host, want), pd = psnr_rgb(dev.download(), want);
+    std::printf("pre-warped fuse %s to %dx%d: CUDA vs CPU PSNR %.2f dB (system), %.2f dB (device)\n",
+                scaled ? "cropped + scaled" : "cropped", og.width, og.height, ph, pd);
+    EXPECT_GE(ph, scaled ? 40.0 : 45.0);
+    EXPECT_GE(pd, scaled ? 40.0 : 45.0);
+  }
 #endif
 }
 

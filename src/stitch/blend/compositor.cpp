@@ -63,14 +63,18 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
     else blender_->fuse(views, out);
     return;
   }
-  if (out.on_device) throw std::invalid_argument("a cropped or scaled pre-warped panorama needs system memory");
+  if (cuda_) {
+    const Eigen::Matrix3d& A = geometry_.canvas_to_output;
+    const double affine[6] = {A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2)};
+    cuda_->fuse_resampled(views, out, affine);
+    return;
+  }
   ImageView canvas;
   canvas.data = canvas_.data();
   canvas.width = blend_geometry_.width;
   canvas.height = blend_geometry_.height;
   canvas.pitch = static_cast<std::size_t>(canvas.width) * 4;
-  if (cuda_) cuda_->fuse(views, canvas);
-  else blender_->fuse(views, canvas);
+  blender_->fuse(views, canvas);
   const cv::Mat src(canvas.height, canvas.width, CV_8UC4, canvas.data, canvas.pitch);
   cv::Mat dst(out.height, out.width, CV_8UC4, out.data, out.pitch);
   const Eigen::Matrix3d& A = geometry_.canvas_to_output;

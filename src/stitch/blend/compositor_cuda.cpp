@@ -1,5 +1,6 @@
 #include "stitch/blend/compositor_cuda.hpp"
 
+#include <cmath>
 #include <stdexcept>
 
 #include "stitch/cuda/cuda_util.hpp"
@@ -11,7 +12,7 @@ struct CudaComposer::State {
   CudaStream stream;
   std::vector<stitch_cuda::ViewGeometry> views;
   std::vector<DeviceBuffer> inputs;
-  DeviceBuffer output;
+  DeviceBuffer output, canvas;
   int out_w = 0, out_h = 0;
   // Texture objects over the input frames, kept while a frame's buffer stays the same.
   std::vector<unsigned long long> textures;
@@ -97,6 +98,43 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
   else
     stitch_cuda::launch_compose(int(images.size()), s_->views.data(), images.data(), color, d, s_->stream.get());
   s_->finish(out, d);
+}
+
+void CudaComposer::fuse_resampled(const std::vector<ImageView>& views, const ImageView& out,
+                                  const double canvas_to_output[6]) {
+  if (views.size() != s_->views.size()) throw std::invalid_argument("view count differs from prepare()");
+  std::vector<stitch_cuda::DeviceImage> images(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i)
+    if (!views[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(views[i], i);
+  stitch_cuda::DeviceImage canvas;
+  canvas.width = s_->out_w;
+  canvas.height = s_->out_h;
+  canvas.pitch = std::size_t(canvas.width) * 4;
+  s_->canvas.resize(canvas.pitch * canvas.height);
+  canvas.data = s_->canvas.data();
+  stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), canvas, s_->stream.get());
+  // Invert the (scale + translation) affine: dst pixel -> canvas pixel.
+  const double a = canvas_to_output[0], b = canvas_to_output[1], c = canvas_to_output[2];
+  const double d = canvas_to_output[3], e = canvas_to_output[4], f = canvas_to_output[5];
+  const double det = a * e - b * d;
+  if (std::abs(det) < 1e-12) throw std::invalid_argument("degenerate canvas-to-output transform");
+  const float inv[6] = {float(e / det), float(-b / det), float((b * f - c * e) / det),
+                        float(-d / det), float(a / det), float((c * d - a * f) / det)};
+  stitch_cuda::DeviceImage d_out;
+  if (out.on_device) {
+    d_out = to_device_image(out);
+  } else {
+    s_->output.resize(std::size_t(out.width) * out.height * 4);
+    d_out.data = s_->output.data();
+    d_out.pitch = std::size_t(out.width) * 4;
+    d_out.width = out.width;
+    d_out.height = out.height;
+  }
+  stitch_cuda::launch_resample_affine(canvas, inv, d_out, s_->stream.get());
+  if (!out.on_device)
+    STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, d_out.data, d_out.pitch, std::size_t(out.width) * 4,
+                                  out.height, cudaMemcpyDeviceToHost, s_->stream.get()));
+  s_->stream.sync();
 }
 
 void CudaComposer::fuse(const std::vector<ImageView>& views, const ImageView& out) {

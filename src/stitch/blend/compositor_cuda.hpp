@@ -19,6 +19,9 @@ class CudaComposer {
   void compose(const std::vector<ImageView>& frames, const ImageView& out, const float* color = nullptr);
   // views: already warped into their rois (stitchflowwarp's output).
   void fuse(const std::vector<ImageView>& views, const ImageView& out);
+  // The same, fused on the device into the prepared size, then cropped/scaled into `out` (any
+  // size) by output = canvas_to_output · canvas (bilinear).
+  void fuse_resampled(const std::vector<ImageView>& views, const ImageView& out, const double canvas_to_output[6]);
 
  private:
   struct State;
