@@ -50,6 +50,15 @@ double time_ms(cudaStream_t stream, F&& body, int batch = 50, int repeats = 7) {
   return per_call[per_call.size() / 2];
 }
 
+stitch_cuda::DeviceImage device_image(uint8_t* data, int width, int height) {
+  stitch_cuda::DeviceImage d;
+  d.data = data;
+  d.pitch = std::size_t(width) * 4;
+  d.width = width;
+  d.height = height;
+  return d;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -115,21 +124,12 @@ int main(int argc, char** argv) {
         in.emplace_back(std::size_t(c.width) * c.height * 4);
         STITCH_CUDA(cudaMemcpy(in.back().data(), views[i].data, std::size_t(c.width) * c.height * 4,
                                cudaMemcpyHostToDevice));
-        stitch_cuda::DeviceImage d;
-        d.data = in.back().data();
-        d.pitch = std::size_t(c.width) * 4;
-        d.width = c.width;
-        d.height = c.height;
-        frames.push_back(d);
+        frames.push_back(device_image(in.back().data(), c.width, c.height));
         geo.push_back(to_device_geometry(places[i]));
         in_bytes += std::size_t(c.width) * c.height * 4;
       }
       DeviceBuffer out_buf(std::size_t(g.width) * g.height * 4);
-      stitch_cuda::DeviceImage out;
-      out.data = out_buf.data();
-      out.pitch = std::size_t(g.width) * 4;
-      out.width = g.width;
-      out.height = g.height;
+      const stitch_cuda::DeviceImage out = device_image(out_buf.data(), g.width, g.height);
       const std::size_t out_bytes = std::size_t(g.width) * g.height * 4;
       std::vector<float> color(9 * c.cameras, 0.f);
       for (int i = 0; i < c.cameras; ++i) {
@@ -157,12 +157,7 @@ int main(int argc, char** argv) {
       for (int i = 0; i < c.cameras; ++i) {
         const Rect& r = places[i].roi;
         rois.emplace_back(std::size_t(std::max(1, r.width)) * std::max(1, r.height) * 4);
-        stitch_cuda::DeviceImage d;
-        d.data = rois.back().data();
-        d.pitch = std::size_t(r.width) * 4;
-        d.width = r.width;
-        d.height = r.height;
-        warped.push_back(d);
+        warped.push_back(device_image(rois.back().data(), r.width, r.height));
         roi_bytes += std::size_t(r.width) * r.height * 4;
       }
       const double warp_ms = time_ms(stream.get(), [&] {

@@ -60,6 +60,17 @@ __device__ __forceinline__ void store_mean(const DeviceImage& out, int x, int y,
   *reinterpret_cast<uchar4*>(out.data + size_t(y) * out.pitch + size_t(x) * 4) = o;
 }
 
+// Position weight of view `vg` at output pixel (x, y), with its camera coordinates; 0 where the
+// view does not cover the pixel.
+__device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int y, float& u, float& v) {
+  if (x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) return 0.f;
+  Homography H;
+#pragma unroll
+  for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
+  if (!to_camera(H, float(x), float(y), u, v)) return 0.f;
+  return position_weight(u, v, vg.camera_w, vg.camera_h);
+}
+
 // mode 0: views are warped rois (fuse); mode 1: views are camera frames (compose).
 template <int kMode>
 __global__ void blend_kernel(const ComposeParams p) {
@@ -69,13 +80,8 @@ __global__ void blend_kernel(const ComposeParams p) {
   for (int i = 0; i < p.n; ++i) {
     const ViewGeometry& vg = p.views[i];
     const DeviceImage& s = p.src[i];
-    if (!s.data || x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) continue;
-    Homography H;
-#pragma unroll
-    for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
     float u, v;
-    if (!to_camera(H, float(x), float(y), u, v)) continue;
-    const float w = position_weight(u, v, vg.camera_w, vg.camera_h);
+    const float w = s.data ? view_weight(vg, x, y, u, v) : 0.f;
     if (w <= 0.f) continue;
     float4 c;
     if (kMode == 0) {
@@ -107,14 +113,8 @@ __global__ void compose_tex_kernel(const TexComposeParams p) {
   if (x >= p.out.width || y >= p.out.height) return;
   float r = 0.f, g = 0.f, b = 0.f, wsum = 0.f;
   for (int i = 0; i < p.n; ++i) {
-    const ViewGeometry& vg = p.views[i];
-    if (!p.tex[i] || x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) continue;
-    Homography H;
-#pragma unroll
-    for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
     float u, v;
-    if (!to_camera(H, float(x), float(y), u, v)) continue;
-    const float w = position_weight(u, v, vg.camera_w, vg.camera_h);
+    const float w = p.tex[i] ? view_weight(p.views[i], x, y, u, v) : 0.f;
     if (w <= 0.f) continue;
     // Texel centres sit at +0.5 in texture coordinates; normalised reads return [0, 1].
     float4 c = tex2D<float4>(p.tex[i], u + 0.5f, v + 0.5f);
@@ -217,11 +217,16 @@ void launch_compose_tex(int n, const ViewGeometry* views, const unsigned long lo
 }
 
 unsigned long long create_rgba_texture(const DeviceImage& image) {
-  int device = 0;
-  cudaDeviceProp prop{};
-  if (cudaGetDevice(&device) != cudaSuccess || cudaGetDeviceProperties(&prop, device) != cudaSuccess) return 0;
-  if (reinterpret_cast<uintptr_t>(image.data) % prop.textureAlignment != 0 ||
-      image.pitch % prop.texturePitchAlignment != 0)
+  // Attributes, not cudaGetDeviceProperties: that one is slow and this runs when a buffer changes.
+  int device = 0, pitch_alignment = 0;
+  if (cudaGetDevice(&device) != cudaSuccess ||
+      cudaDeviceGetAttribute(&pitch_alignment, cudaDevAttrTexturePitchAlignment, device) != cudaSuccess ||
+      pitch_alignment <= 0) {
+    cudaGetLastError();
+    return 0;
+  }
+  constexpr uintptr_t kBaseAlignment = 512;  // cudaDeviceProp::textureAlignment on every current GPU
+  if (reinterpret_cast<uintptr_t>(image.data) % kBaseAlignment != 0 || image.pitch % size_t(pitch_alignment) != 0)
     return 0;
   cudaResourceDesc res{};
   res.resType = cudaResourceTypePitch2D;

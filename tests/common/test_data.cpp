@@ -43,13 +43,6 @@ cv::Mat load_rgba(const std::string& path) {
   return rgba;
 }
 
-double psnr_rgb(const cv::Mat& a, const cv::Mat& b) {
-  cv::Mat a3, b3;
-  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
-  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
-  return cv::PSNR(a3, b3);
-}
-
 stitch::Camera pinhole(int width, int height, double f) {
   stitch::Camera c;
   c.width = width;

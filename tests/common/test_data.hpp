@@ -3,6 +3,7 @@
 #include <opencv2/core.hpp>
 #include <string>
 
+#include "image_compare.hpp"
 #include "stitch/rig/rig.hpp"
 
 namespace testdata {
@@ -15,8 +16,6 @@ std::string temp_dir();                    // a fresh folder for this process
 // RGBA image from a file (OpenCV reads BGR); throws when missing.
 cv::Mat load_rgba(const std::string& path);
 
-// PSNR over the RGB channels of two RGBA images.
-double psnr_rgb(const cv::Mat& a, const cv::Mat& b);
 // A centred pinhole camera of width x height with focal length f (no homography).
 stitch::Camera pinhole(int width, int height, double f);
 // n cameras side by side, `shift` pixels apart on the canvas (pure translations), laid out.

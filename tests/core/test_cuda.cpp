@@ -10,6 +10,7 @@
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/warp/warper.hpp"
+#include "image_compare.hpp"
 #include "ppm.hpp"
 
 #ifdef STITCH_HAVE_CUDA
@@ -68,14 +69,6 @@ struct RigScene {
   std::vector<cv::Mat> frames;
 };
 
-// PSNR over the RGB channels of two RGBA images.
-double psnr_rgb(const cv::Mat& a, const cv::Mat& b) {
-  cv::Mat a3, b3;
-  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
-  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
-  return cv::PSNR(a3, b3);
-}
-
 // data/photos/boat1_1600.jpg, decoded at build time (STITCH_TEST_PPM).
 cv::Mat photo() {
   const char* path = std::getenv("STITCH_TEST_PPM");
@@ -126,7 +119,7 @@ TEST(Cuda, WarpMatchesCpu) {
     DeviceMat src(s.frames[i]);
     DeviceMat dst(cv::Mat(r.height, r.width, CV_8UC4, cv::Scalar::all(77)));  // poisoned
     gpu->warp(i, src.view(), dst.view());
-    const double psnr = psnr_rgb(dst.download(), expected);
+    const double psnr = testdata::psnr_rgb(dst.download(), expected);
     std::printf("warp view %d: CUDA vs CPU PSNR %.2f dB\n", i, psnr);
     EXPECT_GE(psnr, 45.0);
   }
@@ -149,7 +142,7 @@ TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
   cv::Mat expected(g.height, g.width, CV_8UC4), from_host(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
   cpu.compose(host, as_view(expected));
   gpu.compose(host, as_view(from_host));
-  const double psnr_host = psnr_rgb(from_host, expected);
+  const double psnr_host = testdata::psnr_rgb(from_host, expected);
   std::vector<std::unique_ptr<DeviceMat>> dev;
   std::vector<ImageView> dv;
   for (auto& f : s.frames) {
@@ -158,7 +151,7 @@ TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
   }
   DeviceMat out(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(77)));
   gpu.compose(dv, out.view());
-  const double psnr_dev = psnr_rgb(out.download(), expected);
+  const double psnr_dev = testdata::psnr_rgb(out.download(), expected);
   std::printf("compose %dx%d: CUDA vs CPU PSNR %.2f dB (system memory), %.2f dB (device memory)\n", g.width,
               g.height, psnr_host, psnr_dev);
   EXPECT_GE(psnr_host, 45.0);
@@ -168,7 +161,7 @@ TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
   host[0] = ImageView();
   cpu.compose(host, as_view(expected));
   gpu.compose(host, as_view(from_host));
-  EXPECT_GE(psnr_rgb(from_host, expected), 45.0);
+  EXPECT_GE(testdata::psnr_rgb(from_host, expected), 45.0);
 #endif
 }
 
@@ -193,7 +186,7 @@ TEST(Cuda, PrewarpedFuseMatchesCpu) {
   cv::Mat expected(g.height, g.width, CV_8UC4), got(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
   cpu.compose(views, as_view(expected));
   gpu.compose(views, as_view(got));
-  const double psnr = psnr_rgb(got, expected);
+  const double psnr = testdata::psnr_rgb(got, expected);
   std::printf("pre-warped fuse: CUDA vs CPU PSNR %.2f dB\n", psnr);
   EXPECT_GE(psnr, 45.0);
 
@@ -212,7 +205,7 @@ TEST(Cuda, PrewarpedFuseMatchesCpu) {
     g2.compose(views, as_view(host));
     DeviceMat dev(cv::Mat(og.height, og.width, CV_8UC4, cv::Scalar::all(77)));
     g2.compose(views, dev.view());
-    const double ph = psnr_rgb(host, want), pd = psnr_rgb(dev.download(), want);
+    const double ph = testdata::psnr_rgb(host, want), pd = testdata::psnr_rgb(dev.download(), want);
     std::printf("pre-warped fuse %s to %dx%d: CUDA vs CPU PSNR %.2f dB (system), %.2f dB (device)\n",
                 scaled ? "cropped + scaled" : "cropped", og.width, og.height, ph, pd);
     EXPECT_GE(ph, scaled ? 40.0 : 45.0);
@@ -236,7 +229,7 @@ TEST(Cuda, ColorApplyAndGatherMatchCpu) {
   DeviceMat d(s.frames[0]);
   gpu->apply(d.view(), M, lut);
   const cv::Mat got = d.download();
-  const double psnr = psnr_rgb(got, expected);
+  const double psnr = testdata::psnr_rgb(got, expected);
   std::printf("color apply: CUDA vs CPU PSNR %.2f dB\n", psnr);
   EXPECT_GE(psnr, 45.0);
   std::vector<int32_t> xy;

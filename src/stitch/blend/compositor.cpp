@@ -29,12 +29,14 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   input_ = input;
   scratch_.assign(views_.size(), {});
   canvas_.clear();
+  resample_ = false;
   if (input == CompositorInput::Prewarped) {
     // Fuse on the canvas, where the views were warped, then crop/scale into the output.
     blend_geometry_ = canvas_geometry(rig);
     blend_views_ = place_views(rig, blend_geometry_);
-    if (!(blend_geometry_.canvas_to_output.isApprox(geometry_.canvas_to_output) &&
-          blend_geometry_.width == geometry_.width && blend_geometry_.height == geometry_.height))
+    resample_ = !(blend_geometry_.canvas_to_output.isApprox(geometry_.canvas_to_output) &&
+                  blend_geometry_.width == geometry_.width && blend_geometry_.height == geometry_.height);
+    if (resample_ && !cuda_)
       canvas_.resize(static_cast<std::size_t>(blend_geometry_.width) * blend_geometry_.height * 4);
   } else {
     blend_geometry_ = geometry_;
@@ -58,7 +60,7 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
                                   ", its canvas rectangle is " + std::to_string(r.width) + "x" +
                                   std::to_string(r.height));
   }
-  if (canvas_.empty()) {
+  if (!resample_) {
     if (cuda_) cuda_->fuse(views, out);
     else blender_->fuse(views, out);
     return;

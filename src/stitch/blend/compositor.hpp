@@ -58,7 +58,8 @@ class Compositor {
   std::vector<ViewPlacement> blend_views_;     // where the blender finds each view
   OutputGeometry blend_geometry_;              // what the blender fills: output, or canvas
   std::vector<std::vector<uint8_t>> scratch_;  // warped rectangles, reused every frame
-  std::vector<uint8_t> canvas_;                // pre-warped input fused before crop/scale
+  bool resample_ = false;                      // pre-warped input: the output crops/scales the canvas
+  std::vector<uint8_t> canvas_;                // CPU path: the canvas fused before crop/scale
 };
 
 }  // namespace stitch
