@@ -176,3 +176,17 @@ TEST(FlowWarp, RejectsFramesOfTheWrongSize) {
   cv::resize(s.frames[1], s.frames[1], cv::Size(kW / 2, kH / 2));
   EXPECT_THROW(warp_views(s, *fine), std::invalid_argument);
 }
+
+TEST(FlowWarp, HistorySurvivesARecalibrationThatKeepsTheOverlap) {
+  // Two warpers see the same frames; one is re-prepared (a recalibration with the same
+  // geometry) in between. The temporal state must carry over: identical outputs.
+  const Scene s = make_scene(2, 4.0);
+  auto steady = warper(s, true), recal = warper(s, true);
+  warp_views(s, *steady, 2);
+  warp_views(s, *recal, 2);
+  recal->prepare(s.views, s.geometry.width, s.geometry.height);
+  EXPECT_TRUE(all_equal(warp_views(s, *steady), warp_views(s, *recal)));
+  // Without the carry-over, the re-prepared warper would start from scratch like a fresh one.
+  auto fresh = warper(s, true);
+  EXPECT_FALSE(all_equal(warp_views(s, *fresh), warp_views(s, *steady)));
+}
