@@ -4,6 +4,8 @@
 #include <cuda_runtime.h>
 #include <stdint.h>
 
+#include "blend/blend_kernels.hpp"
+
 namespace stitch_cuda {
 
 struct Homography {
@@ -43,6 +45,17 @@ __device__ __forceinline__ float position_weight(float u, float v, int w, int h)
   const float wy = fminf(v + 0.5f, h - 0.5f - v) / (h * 0.5f);
   if (wx <= 0.f || wy <= 0.f) return 0.f;
   return fminf(wx, 1.f) * fminf(wy, 1.f);
+}
+
+// Position weight of view `vg` at output pixel (x, y), with its camera coordinates; 0 where the
+// view does not cover the pixel.
+__device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int y, float& u, float& v) {
+  if (x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) return 0.f;
+  Homography H;
+#pragma unroll
+  for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
+  if (!to_camera(H, float(x), float(y), u, v)) return 0.f;
+  return position_weight(u, v, vg.camera_w, vg.camera_h);
 }
 
 __device__ __forceinline__ uint8_t to_u8(float v) { return uint8_t(fminf(fmaxf(v + 0.5f, 0.f), 255.f)); }

@@ -5,7 +5,10 @@
  * Turns a calibrated bundle into one panorama frame: it warps each view onto the canvas by
  * its homography (or takes the views stitchflowwarp already warped) and fuses the views with the paper's position-weighted mean (eq. 15-16):
  * each view's weight falls linearly to zero at its own border, so seams fade across the
- * whole overlap. The output is plain `video/x-raw, format=RGBA` that any element accepts.
+ * whole overlap. The output is `video/x-raw, format=RGBA` in system memory, or in CUDA memory
+ * (`video/x-raw(memory:CUDAMemory)`, gst-cuda) wherever downstream takes it (cudadownload,
+ * nvh264enc); bundles are read in either memory, so with a GPU the frames stay on it from
+ * stitchsync to the panorama.
  * The output size follows the calibration's canvas; `output-width`/`output-height` scale it
  * and `crop=auto` keeps only the largest rectangle that every camera pixel covers (no black
  * corners). A view that stitchsync marks missing is left out and its neighbours fill in.
@@ -25,22 +28,25 @@
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
  * ]|
+ * With a GPU, from the decoders to the panorama in CUDA memory:
+ * |[
+ * gst-launch-1.0 -e stitchsync name=s ! stitchcalib ! stitchblend crop=auto ! cudadownload ! \
+ *   videoconvert ! x264enc ! mp4mux ! filesink location=pano.mp4 \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1
+ * ]|
  */
 #include "gststitchblend.h"
 
 #include <gst/video/video.h>
 
 #include "gststitchbundle.h"
+#include "gststitchcuda.h"
 #include "stitch/blend/compositor.hpp"
 
 #ifdef STITCH_HAVE_GST_CUDA
-#include <gst/cuda/gstcudabufferpool.h>
-#include <gst/cuda/gstcudacontext.h>
-#include <gst/cuda/gstcudaloader.h>
-#include <gst/cuda/gstcudamemory.h>
-#include <gst/cuda/gstcudautils.h>
-#define SRC_CAPS                                                                     \
-  GST_VIDEO_CAPS_MAKE_WITH_FEATURES(GST_CAPS_FEATURE_MEMORY_CUDA_MEMORY, "RGBA") ";" \
+#define SRC_CAPS                                                                    \
+  GST_VIDEO_CAPS_MAKE_WITH_FEATURES(STITCH_CAPS_FEATURE_CUDA_MEMORY, "RGBA") ";" \
   GST_VIDEO_CAPS_MAKE("RGBA")
 #else
 #define SRC_CAPS GST_VIDEO_CAPS_MAKE("RGBA")
@@ -58,64 +64,21 @@ struct BlendState {
   stitch::CompositorSettings settings;
   bool settings_changed = true;
   /* state (streaming thread) */
-  std::unique_ptr<stitch::Compositor> compositor;
+  StitchCudaOwned<stitch::Compositor> compositor;
   guint64 rig_version = G_MAXUINT64;
   GstVideoInfo out_info;
   GstBufferPool* pool = nullptr;
-  bool out_cuda = false;  /* negotiated video/x-raw(memory:CUDAMemory) */
-#ifdef STITCH_HAVE_GST_CUDA
-  GstCudaContext* cuda_ctx = nullptr;  /* shared with the other CUDA elements via GstContext */
-#endif
+  bool in_cuda = false;   /* negotiated bundles in CUDA memory */
+  bool out_cuda = false;  /* negotiated a panorama in CUDA memory */
+  StitchCudaContext cuda;
   void clear() {
-#ifdef STITCH_HAVE_GST_CUDA
-    /* the compositor's device buffers belong to the pushed context */
-    if (cuda_ctx && compositor && gst_cuda_context_push(cuda_ctx)) {
-      compositor.reset();
-      gst_cuda_context_pop(NULL);
-    }
-#endif
     compositor.reset();
     rig_version = G_MAXUINT64;
-    if (pool) {
-      gst_buffer_pool_set_active(pool, FALSE);
-      gst_object_unref(pool);
-      pool = nullptr;
-    }
+    stitch_bundle_pool_clear(&pool);
   }
 };
 
-#ifdef STITCH_HAVE_GST_CUDA
-/* CUDA memory output is offered only when the driver loads and a device opens. */
-static gboolean cuda_output_possible(void) {
-  static gboolean possible = FALSE;
-  static gsize once = 0;
-  if (g_once_init_enter(&once)) {
-    possible = gst_cuda_load_library() && stitch::cuda_device_available();
-    g_once_init_leave(&once, 1);
-  }
-  return possible;
-}
-
-/* Runs `body` with the shared CUDA context current (when there is one). */
-template <typename F>
-static void with_cuda_context(BlendState* st, F&& body) {
-  if (!st->cuda_ctx) return body();
-  if (!gst_cuda_context_push(st->cuda_ctx)) throw std::runtime_error("cannot make the CUDA context current");
-  try {
-    body();
-  } catch (...) {
-    gst_cuda_context_pop(NULL);
-    throw;
-  }
-  gst_cuda_context_pop(NULL);
-}
-#else
-template <typename F>
-static void with_cuda_context(BlendState*, F&& body) {
-  body();
-}
-#endif
-
+/* CUDA memory is offered on both sides when a device opens, and not with backend=cpu. */
 struct _GstStitchBlend {
   GstBaseTransform parent;
   BlendState* state;
@@ -137,21 +100,21 @@ static GType crop_get_type(void) {
   return type;
 }
 
-static GstStaticPadTemplate sink_template =
-    GST_STATIC_PAD_TEMPLATE("sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
+    "sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 static GstStaticPadTemplate src_template =
     GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(SRC_CAPS));
 
+static bool offer_cuda(GstStitchBlend* self) {
+  GST_OBJECT_LOCK(self);
+  const stitch::Backend backend = self->state->settings.backend;
+  GST_OBJECT_UNLOCK(self);
+  return stitch_cuda_memory_offered(backend);
+}
+
 static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadDirection direction,
                                                 GstCaps* caps, GstCaps* filter) {
-#ifdef STITCH_HAVE_GST_CUDA
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
-  GST_OBJECT_LOCK(self);
-  const bool offer_cuda = self->state->settings.backend != stitch::Backend::Cpu && cuda_output_possible();
-  GST_OBJECT_UNLOCK(self);
-#else
-  (void)trans;
-#endif
   GstCaps* out = gst_caps_new_empty();
   for (guint i = 0; i < gst_caps_get_size(caps); ++i) {
     GstStructure* s = gst_structure_copy(gst_caps_get_structure(caps, i));
@@ -159,18 +122,16 @@ static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadD
                       32767, NULL);
     if (direction == GST_PAD_SINK) {
       gst_structure_remove_fields(s, "multiview-mode", "views", "multiview-flags", NULL);
-#ifdef STITCH_HAVE_GST_CUDA
-      if (offer_cuda) /* preferred: the panorama stays on the GPU */
-        gst_caps_append_structure_full(out, gst_structure_copy(s),
-                                       gst_caps_features_new(GST_CAPS_FEATURE_MEMORY_CUDA_MEMORY, NULL));
-#endif
     } else {
       gst_structure_set(s, "multiview-mode", G_TYPE_STRING, "separated", "views",
                         GST_TYPE_INT_RANGE, 2, STITCH_MAX_VIEWS, NULL);
       gst_structure_remove_fields(s, "pixel-aspect-ratio", NULL);
     }
-    gst_caps_append_structure(out, s);
+    out = gst_caps_merge_structure(out, s);
   }
+  /* The CUDA compositor reads and writes either memory, so each side is offered both
+   * (CUDA first: the panorama stays on the GPU). */
+  out = stitch_caps_in_both_memories(out, offer_cuda(self));
   if (filter) {
     GstCaps* tmp = gst_caps_intersect_full(filter, out, GST_CAPS_INTERSECT_FIRST);
     gst_caps_unref(out);
@@ -182,18 +143,8 @@ static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadD
 static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDirection direction,
                                              GstCaps* caps, GstCaps* othercaps) {
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
-  othercaps = gst_caps_make_writable(othercaps);
   /* Prefer CUDA memory wherever downstream takes it, whatever order it lists it in. */
-  for (guint i = 0; i < gst_caps_get_size(othercaps); ++i) {
-    GstCapsFeatures* f = gst_caps_get_features(othercaps, i);
-    if (i > 0 && f && gst_caps_features_contains(f, "memory:CUDAMemory")) {
-      GstCaps* cuda = gst_caps_copy_nth(othercaps, i);
-      gst_caps_unref(othercaps);
-      othercaps = cuda;
-      break;
-    }
-  }
-  othercaps = gst_caps_truncate(othercaps);
+  othercaps = gst_caps_truncate(stitch_caps_prefer_cuda(othercaps, TRUE));
   if (direction == GST_PAD_SINK) {
     GstStructure* out = gst_caps_get_structure(othercaps, 0);
     gint w = 0, h = 0;
@@ -224,36 +175,25 @@ static gboolean gst_stitch_blend_set_caps(GstBaseTransform* trans, GstCaps* inca
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
   BlendState* st = self->state;
   if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
-  GstCapsFeatures* features = gst_caps_get_features(outcaps, 0);
-  const bool cuda = features && gst_caps_features_contains(features, "memory:CUDAMemory");
-  if (cuda != st->out_cuda) {
+  const bool in_cuda = stitch_caps_are_cuda_memory(incaps), out_cuda = stitch_caps_are_cuda_memory(outcaps);
+  if (in_cuda != st->in_cuda || out_cuda != st->out_cuda) {
     st->clear();  /* the compositor and the pool belong to one kind of memory */
-    st->out_cuda = cuda;
+    st->in_cuda = in_cuda;
+    st->out_cuda = out_cuda;
   }
-#ifdef STITCH_HAVE_GST_CUDA
-  if (cuda && !gst_cuda_ensure_element_context(GST_ELEMENT(self), -1, &st->cuda_ctx)) {
-    GST_ELEMENT_ERROR(self, RESOURCE, NOT_FOUND, ("No CUDA context for the CUDA-memory panorama"), (NULL));
-    return FALSE;
-  }
-#endif
+  if ((in_cuda || out_cuda) && !st->cuda.ensure(GST_ELEMENT(self))) return FALSE;
   return gst_video_info_from_caps(&st->out_info, outcaps);
 }
 
-#ifdef STITCH_HAVE_GST_CUDA
 static void gst_stitch_blend_set_context(GstElement* element, GstContext* context) {
-  GstStitchBlend* self = GST_STITCH_BLEND(element);
-  gst_cuda_handle_set_context(element, context, -1, &self->state->cuda_ctx);
+  GST_STITCH_BLEND(element)->state->cuda.set_context(element, context);
   GST_ELEMENT_CLASS(gst_stitch_blend_parent_class)->set_context(element, context);
 }
 
 static gboolean gst_stitch_blend_query(GstBaseTransform* trans, GstPadDirection direction, GstQuery* query) {
-  GstStitchBlend* self = GST_STITCH_BLEND(trans);
-  if (GST_QUERY_TYPE(query) == GST_QUERY_CONTEXT &&
-      gst_cuda_handle_context_query(GST_ELEMENT(self), query, self->state->cuda_ctx))
-    return TRUE;
+  if (GST_STITCH_BLEND(trans)->state->cuda.handle_query(GST_ELEMENT(trans), query)) return TRUE;
   return GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->query(trans, direction, query);
 }
-#endif
 
 /* Rebuilds the compositor when the rig or the settings changed; renegotiates the output. */
 static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, GstStitchWarpMeta* warped) {
@@ -276,17 +216,18 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     effective.output_width = st->compositor->geometry().width;
     effective.output_height = st->compositor->geometry().height;
   }
-  if (st->out_cuda && settings.backend == stitch::Backend::Cpu)
-    throw std::runtime_error("backend=cpu cannot write CUDA memory: put cudadownload after stitchblend, or use backend=auto");
-  std::unique_ptr<stitch::Compositor> compositor;
-  with_cuda_context(st, [&]() {
-    st->compositor.reset();  /* its device buffers belong to the context */
-    compositor = std::make_unique<stitch::Compositor>(st->out_cuda ? stitch::Backend::Cuda : settings.backend);
-    compositor->prepare(**meta->rig, effective, input);
+  const bool device_memory = st->in_cuda || st->out_cuda;
+  if (device_memory && settings.backend == stitch::Backend::Cpu)
+    throw std::runtime_error("backend=cpu cannot read or write CUDA memory: put cudadownload around stitchblend, or use backend=auto");
+  st->compositor.make(st->cuda, [&]() {
+    auto c = std::make_unique<stitch::Compositor>(device_memory ? stitch::Backend::Cuda : settings.backend);
+    c->prepare(**meta->rig, effective, input);
+    return c;
   });
+  const stitch::Compositor& compositor = *st->compositor;
   if (warped) {
     /* stitchflowwarp lays the views out on the canvas; we must read them where it put them */
-    const auto& views = compositor->prewarped_placements();
+    const auto& views = compositor.prewarped_placements();
     bool same = warped->rig_version == meta->version && warped->n_views == views.size();
     for (std::size_t i = 0; same && i < views.size(); ++i) {
       const stitch::Rect& r = views[i].roi;
@@ -296,8 +237,7 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     }
     if (!same) throw std::runtime_error("the pre-warped views do not match the calibration's canvas");
   }
-  const stitch::OutputGeometry& g = compositor->geometry();
-  st->compositor = std::move(compositor);
+  const stitch::OutputGeometry& g = compositor.geometry();
   st->rig_version = meta->version;
   if (g.width != GST_VIDEO_INFO_WIDTH(&st->out_info) || g.height != GST_VIDEO_INFO_HEIGHT(&st->out_info)) {
     GstVideoInfo info = st->out_info;
@@ -305,7 +245,7 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     info.fps_n = st->out_info.fps_n;
     info.fps_d = st->out_info.fps_d;
     GstCaps* caps = gst_video_info_to_caps(&info);
-    if (st->out_cuda) gst_caps_set_features(caps, 0, gst_caps_features_new("memory:CUDAMemory", NULL));
+    if (st->out_cuda) gst_caps_set_features(caps, 0, gst_caps_features_new(STITCH_CAPS_FEATURE_CUDA_MEMORY, NULL));
     GST_INFO_OBJECT(self, "panorama is %dx%d%s", g.width, g.height, st->out_cuda ? " in CUDA memory" : "");
     const gboolean ok = gst_base_transform_update_src_caps(GST_BASE_TRANSFORM(self), caps);
     gst_caps_unref(caps);
@@ -318,25 +258,17 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     }
     st->out_info = info;
   }
-  if (!st->pool || GST_VIDEO_INFO_SIZE(&st->out_info) != 0) {
-    if (st->pool) {
-      gst_buffer_pool_set_active(st->pool, FALSE);
-      gst_object_unref(st->pool);
-    }
-#ifdef STITCH_HAVE_GST_CUDA
-    st->pool = st->out_cuda ? gst_cuda_buffer_pool_new(st->cuda_ctx) : gst_video_buffer_pool_new();
-#else
-    st->pool = gst_video_buffer_pool_new();
-#endif
-    GstStructure* config = gst_buffer_pool_get_config(st->pool);
-    GstCaps* caps = gst_video_info_to_caps(&st->out_info);
-    gst_buffer_pool_config_set_params(config, caps, guint(GST_VIDEO_INFO_SIZE(&st->out_info)), 2, 0);
-    gst_buffer_pool_config_add_option(config, GST_BUFFER_POOL_OPTION_VIDEO_META);
-    gst_caps_unref(caps);
-    if (!gst_buffer_pool_set_config(st->pool, config) || !gst_buffer_pool_set_active(st->pool, TRUE)) {
-      GST_ELEMENT_ERROR(self, RESOURCE, NO_SPACE_LEFT, ("Cannot allocate panorama buffers"), (NULL));
-      return FALSE;
-    }
+  stitch_bundle_pool_clear(&st->pool);
+  GstCaps* caps = gst_video_info_to_caps(&st->out_info);
+  if (st->out_cuda) gst_caps_set_features(caps, 0, gst_caps_features_new(STITCH_CAPS_FEATURE_CUDA_MEMORY, NULL));
+  std::string error;
+  st->pool = stitch_bundle_pool_new(st->cuda, st->out_cuda,
+                                    {{GST_VIDEO_INFO_WIDTH(&st->out_info), GST_VIDEO_INFO_HEIGHT(&st->out_info)}}, caps,
+                                    error);
+  gst_caps_unref(caps);
+  if (!st->pool) {
+    GST_ELEMENT_ERROR(self, RESOURCE, NO_SPACE_LEFT, ("Cannot allocate panorama buffers: %s", error.c_str()), (NULL));
+    return FALSE;
   }
   return TRUE;
 }
@@ -351,7 +283,7 @@ static GstFlowReturn gst_stitch_blend_prepare_output_buffer(GstBaseTransform* tr
                     [&]() { ok = update_geometry(self, meta, gst_buffer_get_stitch_warp_meta(input)); }) ||
       !ok)
     return GST_FLOW_ERROR;
-  GstFlowReturn ret = gst_buffer_pool_acquire_buffer(self->state->pool, outbuf, NULL);
+  GstFlowReturn ret = stitch_bundle_pool_acquire(GST_ELEMENT(self), self->state->pool, outbuf);
   if (ret != GST_FLOW_OK) return ret;
   gst_buffer_copy_into(*outbuf, input, GstBufferCopyFlags(GST_BUFFER_COPY_FLAGS | GST_BUFFER_COPY_TIMESTAMPS), 0, -1);
   return GST_FLOW_OK;
@@ -365,15 +297,12 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
   const guint n_views = guint((*meta->rig)->cameras.size());
   StitchBundleMapping mapping;
   std::string error;
-  if (!mapping.map(inbuf, n_views, GST_MAP_READ, error)) {
+  if (!mapping.map(inbuf, n_views, GST_MAP_READ, error, st->in_cuda ? &st->cuda : nullptr)) {
     GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
     return GST_FLOW_ERROR;
   }
   GstVideoFrame out;
-  GstMapFlags out_flags = GST_MAP_WRITE;
-#ifdef STITCH_HAVE_GST_CUDA
-  if (st->out_cuda) out_flags = GstMapFlags(GST_MAP_WRITE | GST_MAP_CUDA);
-#endif
+  const GstMapFlags out_flags = st->out_cuda ? GstMapFlags(GST_MAP_WRITE | STITCH_MAP_CUDA) : GST_MAP_WRITE;
   if (!gst_video_frame_map(&out, &st->out_info, outbuf, out_flags)) {
     GST_ELEMENT_ERROR(self, STREAM, FAILED, ("Cannot map the output frame"), (NULL));
     return GST_FLOW_ERROR;
@@ -385,7 +314,7 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
   view.height = GST_VIDEO_FRAME_HEIGHT(&out);
   view.on_device = st->out_cuda;
   const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchblend", [&]() {
-    with_cuda_context(st, [&]() { st->compositor->compose(mapping.views(), view); });
+    st->compositor.run([&](stitch::Compositor& c) { c.compose(mapping.views(), view); });
   });
   gst_video_frame_unmap(&out);
   return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
@@ -438,9 +367,6 @@ static void gst_stitch_blend_get_property(GObject* object, guint prop_id, GValue
 static void gst_stitch_blend_finalize(GObject* object) {
   GstStitchBlend* self = GST_STITCH_BLEND(object);
   self->state->clear();
-#ifdef STITCH_HAVE_GST_CUDA
-  gst_clear_object(&self->state->cuda_ctx);
-#endif
   delete self->state;
   G_OBJECT_CLASS(gst_stitch_blend_parent_class)->finalize(object);
 }
@@ -484,10 +410,8 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   trans_class->transform = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform);
   trans_class->transform_meta = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_meta);
   trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_blend_stop);
-#ifdef STITCH_HAVE_GST_CUDA
   element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_context);
   trans_class->query = GST_DEBUG_FUNCPTR(gst_stitch_blend_query);
-#endif
   trans_class->passthrough_on_same_caps = FALSE;
 
   gst_type_mark_as_plugin_api(crop_get_type(), GstPluginAPIFlags(0));

@@ -2,6 +2,8 @@
 
 #include <cstring>
 
+#include "gststitchcuda.h"
+
 /* ---- bundle meta ---- */
 
 GType gst_stitch_bundle_meta_api_get_type(void) {
@@ -194,28 +196,50 @@ StitchBundleMapping::~StitchBundleMapping() {
   for (auto& m : mapped_) gst_video_meta_unmap(m.meta, 0, &m.info);
 }
 
-gboolean StitchBundleMapping::map(GstBuffer* buffer, guint n_views, GstMapFlags flags,
+/* The RGBA GstVideoMeta of view `i`, or NULL with `error` set. */
+static GstVideoMeta* view_meta(GstBuffer* buffer, guint i, std::string& error) {
+  GstVideoMeta* vm = gst_buffer_get_video_meta_id(buffer, gint(i));
+  if (!vm) {
+    error = "the bundle has no view " + std::to_string(i);
+    return NULL;
+  }
+  if (vm->format != GST_VIDEO_FORMAT_RGBA) {
+    error = "view " + std::to_string(i) + " is not RGBA";
+    return NULL;
+  }
+  return vm;
+}
+
+gboolean stitch_bundle_view_sizes(GstBuffer* buffer, guint n_views, std::vector<std::array<int, 2>>& sizes,
                                   std::string& error) {
+  sizes.assign(n_views, {0, 0});
+  for (guint i = 0; i < n_views; ++i) {
+    GstVideoMeta* vm = view_meta(buffer, i, error);
+    if (!vm) return FALSE;
+    sizes[i] = {int(vm->width), int(vm->height)};
+  }
+  return TRUE;
+}
+
+gboolean StitchBundleMapping::map(GstBuffer* buffer, guint n_views, GstMapFlags flags, std::string& error,
+                                  const StitchCudaContext* device) {
   GstStitchBundleMeta* bm = gst_buffer_get_stitch_bundle_meta(buffer);
   const guint64 missing = bm ? bm->missing_mask : 0;
   views_.assign(n_views, stitch::ImageView());
-  sizes_.assign(n_views, {0, 0});
+  if (!stitch_bundle_view_sizes(buffer, n_views, sizes_, error)) return FALSE;
   for (guint i = 0; i < n_views; ++i) {
-    GstVideoMeta* vm = gst_buffer_get_video_meta_id(buffer, gint(i));
-    if (!vm) {
-      error = "the bundle has no view " + std::to_string(i);
-      return FALSE;
-    }
-    if (vm->format != GST_VIDEO_FORMAT_RGBA) {
-      error = "view " + std::to_string(i) + " is not RGBA";
-      return FALSE;
-    }
-    sizes_[i] = {int(vm->width), int(vm->height)};
     if (missing >> i & 1) continue;
+    GstVideoMeta* vm = gst_buffer_get_video_meta_id(buffer, gint(i));
+    /* where the view lies decides how it is mapped */
+    guint idx = 0, length = 0;
+    gsize skip = 0;
+    const bool on_device = device && gst_buffer_find_memory(buffer, vm->offset[0], 1, &idx, &length, &skip) &&
+                           device->owns(gst_buffer_peek_memory(buffer, idx));
+    const GstMapFlags view_flags = on_device ? GstMapFlags(flags | STITCH_MAP_CUDA) : flags;
     Mapped m{vm, {}};
     gpointer data = NULL;
     gint stride = 0;
-    if (!gst_video_meta_map(vm, 0, &m.info, &data, &stride, flags)) {
+    if (!gst_video_meta_map(vm, 0, &m.info, &data, &stride, view_flags)) {
       error = "cannot map view " + std::to_string(i);
       return FALSE;
     }
@@ -225,6 +249,7 @@ gboolean StitchBundleMapping::map(GstBuffer* buffer, guint n_views, GstMapFlags 
     v.pitch = std::size_t(stride);
     v.width = int(vm->width);
     v.height = int(vm->height);
+    v.on_device = on_device;
   }
   return TRUE;
 }

@@ -6,6 +6,7 @@
 #include <gst/gst.h>
 #include <gst/video/video.h>
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -16,10 +17,19 @@
 
 G_BEGIN_DECLS
 
-#define STITCH_BUNDLE_CAPS                                                       \
-  "video/x-raw, format = (string) RGBA, width = (int) [ 1, 32767 ], "          \
+#define STITCH_BUNDLE_FIELDS                                                     \
+  "format = (string) RGBA, width = (int) [ 1, 32767 ], "                       \
   "height = (int) [ 1, 32767 ], framerate = (fraction) [ 0/1, 2147483647/1 ], " \
   "multiview-mode = (string) separated, views = (int) [ 2, 16 ]"
+#define STITCH_BUNDLE_CAPS "video/x-raw, " STITCH_BUNDLE_FIELDS
+
+/* Bundle pad templates: the views in CUDA memory first, in system memory second. CUDA memory is
+ * only offered where it can be had (stitch_caps_prefer_cuda in gststitchcuda.h). */
+#ifdef STITCH_HAVE_GST_CUDA
+#define STITCH_BUNDLE_TEMPLATE_CAPS "video/x-raw(memory:CUDAMemory), " STITCH_BUNDLE_FIELDS "; " STITCH_BUNDLE_CAPS
+#else
+#define STITCH_BUNDLE_TEMPLATE_CAPS STITCH_BUNDLE_CAPS
+#endif
 
 #define STITCH_MAX_VIEWS 16
 
@@ -73,6 +83,8 @@ GType gst_stitch_backend_get_type(void);
 
 G_END_DECLS
 
+class StitchCudaContext;
+
 /* Maps every view of a bundle; unmaps in the destructor. Views that the bundle meta marks
  * missing come back as empty ImageViews. */
 class StitchBundleMapping {
@@ -81,8 +93,12 @@ class StitchBundleMapping {
   StitchBundleMapping(const StitchBundleMapping&) = delete;
   StitchBundleMapping& operator=(const StitchBundleMapping&) = delete;
   ~StitchBundleMapping();
-  /* FALSE with `error` set when a view is absent or cannot be mapped. */
-  gboolean map(GstBuffer* buffer, guint n_views, GstMapFlags flags, std::string& error);
+  /* FALSE with `error` set when a view is absent or cannot be mapped. With `device`, views in
+   * CUDA memory of that context are mapped with GST_MAP_CUDA (device pointers, on_device);
+   * otherwise, and for views in system memory, views are host pointers (gst-cuda stages CUDA
+   * memory through host memory). */
+  gboolean map(GstBuffer* buffer, guint n_views, GstMapFlags flags, std::string& error,
+               const StitchCudaContext* device = nullptr);
   const std::vector<stitch::ImageView>& views() const { return views_; }
   /* View sizes, including those of missing views. */
   const std::vector<std::array<int, 2>>& sizes() const { return sizes_; }
@@ -96,6 +112,10 @@ class StitchBundleMapping {
   std::vector<stitch::ImageView> views_;
   std::vector<std::array<int, 2>> sizes_;
 };
+
+/* The views' sizes from their GstVideoMetas, without mapping them. */
+gboolean stitch_bundle_view_sizes(GstBuffer* buffer, guint n_views, std::vector<std::array<int, 2>>& sizes,
+                                  std::string& error);
 
 /* Number of views that bundle caps announce, 0 when the caps are no bundle. */
 guint stitch_bundle_caps_views(const GstCaps* caps);

@@ -20,6 +20,9 @@
  * message named `stitchcalib` and written to `save-file` when set. When matching fails the
  * last good calibration (or the rough one) is kept and a warning is posted.
  *
+ * Bundles in CUDA memory pass through untouched: only the frames a calibration reads (the
+ * first ones, the pooled ones, a recalibration's) are mapped through host memory.
+ *
  * ## Example launch lines
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib save-file=/tmp/calib.json ! stitchblend ! \
@@ -45,6 +48,7 @@
 #include <thread>
 
 #include "gststitchbundle.h"
+#include "gststitchcuda.h"
 #include "stitch/calib/calibrator.hpp"
 
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_calib_debug);
@@ -113,6 +117,8 @@ struct CalibState {
   std::optional<stitch::CalibrationResult> finished;
   std::string finished_label;  // what the running worker computes: "pooled" or "recalibration"
   std::string worker_error;
+  /* shared with the neighbours; calibration itself reads views through host memory */
+  StitchCudaContext cuda;
 
   void join() {
     if (worker.joinable()) worker.join();
@@ -169,10 +175,10 @@ static GType features_get_type(void) {
   return type;
 }
 
-static GstStaticPadTemplate sink_template =
-    GST_STATIC_PAD_TEMPLATE("sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
-static GstStaticPadTemplate src_template =
-    GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
+    "sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
+static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
+    "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 
 static void post_result(GstStitchCalib* self, const stitch::CalibrationResult& r, guint64 version,
                         const char* source) {
@@ -370,19 +376,30 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   const guint n_views = stitch_bundle_caps_views(caps);
   if (caps) gst_caps_unref(caps);
 
-  StitchBundleMapping mapping;
+  std::vector<std::array<int, 2>> sizes;
   std::string error;
-  if (!mapping.map(buf, n_views, GST_MAP_READ, error)) {
+  if (!stitch_bundle_view_sizes(buf, n_views, sizes, error)) {
     GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
     return GST_FLOW_ERROR;
   }
-  for (std::size_t i = 0; i < mapping.views().size(); ++i) {
-    if (mapping.views()[i].empty() && !st->current) {
+  const GstStitchBundleMeta* bundle = gst_buffer_get_stitch_bundle_meta(buf);
+  const guint64 missing = bundle ? bundle->missing_mask : 0;
+  for (guint i = 0; i < n_views; ++i) {
+    if ((missing >> i & 1) && !st->current) {
       /* a camera has not delivered yet: wait, calibrating on black would fail */
-      GST_DEBUG_OBJECT(self, "view %zu missing; waiting before calibrating", i);
+      GST_DEBUG_OBJECT(self, "view %u missing; waiting before calibrating", i);
       return GST_BASE_TRANSFORM_FLOW_DROPPED;
     }
   }
+  /* Pixels are read only on the frames that calibrate (rarely): CUDA-memory views then come
+   * to the host through gst-cuda for that frame only; every other bundle passes untouched. */
+  StitchBundleMapping mapping;
+  bool mapped = false;
+  auto frames = [&]() -> const std::vector<stitch::ImageView>& {
+    if (!mapped && !mapping.map(buf, n_views, GST_MAP_READ, error)) throw std::runtime_error("bad bundle: " + error);
+    mapped = true;
+    return mapping.views();
+  };
 
   std::unique_lock<std::mutex> guard(st->lock);
   gboolean ok = TRUE;
@@ -390,18 +407,19 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     if (!st->current) {
       if (st->failed_attempts > 0 && ++st->frames_since_attempt < FRAMES_BETWEEN_ATTEMPTS) return;
       st->frames_since_attempt = 0;
-      ok = calibrate_now(self, mapping.views(), mapping.sizes());
+      static const std::vector<stitch::ImageView> no_frames;  // a saved calibration needs no pixels
+      ok = calibrate_now(self, st->settings.load_file.empty() ? frames() : no_frames, sizes);
       st->last_calibration_pts = GST_BUFFER_PTS(buf);
       if (ok && st->current && st->settings.load_file.empty() && st->settings.calibration_frames > 1) {
         st->pooling = true;
         st->frames_seen = 0;
-        st->pool.push_back(clone_views(mapping.views()));
+        st->pool.push_back(clone_views(frames()));
       }
       return;
     }
     if (st->pooling && !st->worker_busy) {
       if (++st->frames_seen % POOL_SPACING_FRAMES == 0)
-        st->pool.push_back(clone_views(mapping.views()));
+        st->pool.push_back(clone_views(frames()));
       if (int(st->pool.size()) >= st->settings.calibration_frames) {
         auto sets = std::make_shared<std::vector<FrameSet>>(std::move(st->pool));
         st->pool.clear();
@@ -432,7 +450,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     if (due && !st->worker_busy && st->settings.load_file.empty()) {
       st->last_calibration_pts = pts;
       auto sets = std::make_shared<std::vector<FrameSet>>();
-      sets->push_back(clone_views(mapping.views()));
+      sets->push_back(clone_views(frames()));
       start_worker(self, sets);
     }
   });
@@ -459,7 +477,24 @@ static gboolean gst_stitch_calib_stop(GstBaseTransform* trans) {
 
 static gboolean gst_stitch_calib_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps*) {
   GstStitchCalib* self = GST_STITCH_CALIB(trans);
-  return stitch_bundle_accept_caps(GST_ELEMENT(self), incaps);
+  if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
+  return !stitch_caps_are_cuda_memory(incaps) || self->state->cuda.ensure(GST_ELEMENT(self));
+}
+
+static GstCaps* gst_stitch_calib_transform_caps(GstBaseTransform*, GstPadDirection, GstCaps* caps, GstCaps* filter) {
+  /* In place, both sides in the same memory. CUDA memory whatever the backend: the bundles
+   * pass untouched and feature matching runs on the CPU in every mode. */
+  return stitch_caps_same_memory(caps, filter, stitch_cuda_memory_possible());
+}
+
+static void gst_stitch_calib_set_context(GstElement* element, GstContext* context) {
+  GST_STITCH_CALIB(element)->state->cuda.set_context(element, context);
+  GST_ELEMENT_CLASS(gst_stitch_calib_parent_class)->set_context(element, context);
+}
+
+static gboolean gst_stitch_calib_query(GstBaseTransform* trans, GstPadDirection direction, GstQuery* query) {
+  if (GST_STITCH_CALIB(trans)->state->cuda.handle_query(GST_ELEMENT(trans), query)) return TRUE;
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_calib_parent_class)->query(trans, direction, query);
 }
 
 static void gst_stitch_calib_recalibrate(GstStitchCalib* self) {
@@ -583,6 +618,9 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
   trans_class->start = GST_DEBUG_FUNCPTR(gst_stitch_calib_start);
   trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_calib_stop);
   trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_calib_set_caps);
+  trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_calib_transform_caps);
+  trans_class->query = GST_DEBUG_FUNCPTR(gst_stitch_calib_query);
+  element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_calib_set_context);
   trans_class->passthrough_on_same_caps = FALSE;
 
   gst_type_mark_as_plugin_api(refine_get_type(), GstPluginAPIFlags(0));

@@ -26,6 +26,10 @@
  * overlaps with too few valid pixels keep the last correction. History resets on flush, seek
  * and caps change.
  *
+ * Bundles in CUDA memory (stitchsync with a GPU) are corrected in place on the GPU (sample
+ * gather and 3x3 + LUT kernels in the shared CUDA context; `backend=cpu` keeps the chain in
+ * system memory).
+ *
  * ## Example launch lines
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchcolor method=3dm ! stitchblend ! \
@@ -39,6 +43,13 @@
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
  * ]|
+ * With a GPU (the bundles stay in CUDA memory):
+ * |[
+ * gst-launch-1.0 -e stitchsync name=s ! stitchcalib ! stitchcolor ! stitchblend ! cudadownload ! \
+ *   videoconvert ! x264enc ! mp4mux ! filesink location=pano.mp4 \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1
+ * ]|
  */
 #include "gststitchcolor.h"
 
@@ -47,6 +58,7 @@
 #include <mutex>
 
 #include "gststitchbundle.h"
+#include "gststitchcuda.h"
 #include "stitch/color/color.hpp"
 
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_color_debug);
@@ -67,8 +79,10 @@ struct ColorElementState {
   stitch::Backend backend = stitch::Backend::Auto;
   bool reset_requested = false;
   /* streaming thread only */
-  std::unique_ptr<stitch::ColorCorrector> corrector;
+  StitchCudaOwned<stitch::ColorCorrector> corrector;
   stitch::Backend corrector_backend = stitch::Backend::Auto;
+  bool cuda_memory = false;  /* negotiated bundles in CUDA memory */
+  StitchCudaContext cuda;
 };
 
 struct _GstStitchColor {
@@ -107,10 +121,10 @@ static GType pairing_get_type(void) {
   return type;
 }
 
-static GstStaticPadTemplate sink_template =
-    GST_STATIC_PAD_TEMPLATE("sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
-static GstStaticPadTemplate src_template =
-    GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
+    "sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
+static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
+    "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 
 static void request_reset(GstStitchColor* self) {
   std::lock_guard<std::mutex> guard(self->state->lock);
@@ -133,22 +147,47 @@ static GstFlowReturn gst_stitch_color_transform_ip(GstBaseTransform* trans, GstB
     st->reset_requested = false;
   }
   const stitch::Rig& rig = **meta->rig;
+  /* CUDA-memory views are corrected where they lie, by the CUDA ColorOps. */
+  const stitch::Backend effective = backend != stitch::Backend::Cpu && st->cuda_memory ? stitch::Backend::Cuda : backend;
   StitchBundleMapping mapping;
   std::string error;
-  if (!mapping.map(buf, guint(rig.cameras.size()), GstMapFlags(GST_MAP_READ | GST_MAP_WRITE), error)) {
+  if (!mapping.map(buf, guint(rig.cameras.size()), GstMapFlags(GST_MAP_READ | GST_MAP_WRITE), error,
+                   effective == stitch::Backend::Cuda ? &st->cuda : nullptr)) {
     GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
     return GST_FLOW_ERROR;
   }
   const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchcolor", [&]() {
-    if (!st->corrector || st->corrector_backend != backend) {
-      st->corrector = std::make_unique<stitch::ColorCorrector>(backend);
-      st->corrector_backend = backend;
+    if (!st->corrector.made_with(st->cuda) || st->corrector_backend != effective) {
+      st->corrector.make(st->cuda, [&]() { return std::make_unique<stitch::ColorCorrector>(effective); });
+      st->corrector_backend = effective;
     }
-    st->corrector->set_options(options);
-    if (reset) st->corrector->reset();
-    st->corrector->process(rig, meta->version, mapping.views());
+    st->corrector.run([&](stitch::ColorCorrector& c) {
+      c.set_options(options);
+      if (reset) c.reset();
+      c.process(rig, meta->version, mapping.views());
+    });
   });
   return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
+}
+
+static bool offer_cuda(GstStitchColor* self) {
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  return stitch_cuda_memory_offered(self->state->backend);
+}
+
+static GstCaps* gst_stitch_color_transform_caps(GstBaseTransform* trans, GstPadDirection, GstCaps* caps, GstCaps* filter) {
+  /* in place: both sides in the same memory */
+  return stitch_caps_same_memory(caps, filter, offer_cuda(GST_STITCH_COLOR(trans)));
+}
+
+static void gst_stitch_color_set_context(GstElement* element, GstContext* context) {
+  GST_STITCH_COLOR(element)->state->cuda.set_context(element, context);
+  GST_ELEMENT_CLASS(gst_stitch_color_parent_class)->set_context(element, context);
+}
+
+static gboolean gst_stitch_color_query(GstBaseTransform* trans, GstPadDirection direction, GstQuery* query) {
+  if (GST_STITCH_COLOR(trans)->state->cuda.handle_query(GST_ELEMENT(trans), query)) return TRUE;
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_color_parent_class)->query(trans, direction, query);
 }
 
 static gboolean gst_stitch_color_sink_event(GstBaseTransform* trans, GstEvent* event) {
@@ -165,7 +204,10 @@ static gboolean gst_stitch_color_sink_event(GstBaseTransform* trans, GstEvent* e
 
 static gboolean gst_stitch_color_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps*) {
   GstStitchColor* self = GST_STITCH_COLOR(trans);
+  ColorElementState* st = self->state;
   if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
+  st->cuda_memory = stitch_caps_are_cuda_memory(incaps);
+  if (st->cuda_memory && !st->cuda.ensure(GST_ELEMENT(self))) return FALSE;
   request_reset(self);
   return TRUE;
 }
@@ -258,6 +300,9 @@ static void gst_stitch_color_class_init(GstStitchColorClass* klass) {
   trans_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_color_sink_event);
   trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_color_set_caps);
   trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_color_stop);
+  trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_color_transform_caps);
+  trans_class->query = GST_DEBUG_FUNCPTR(gst_stitch_color_query);
+  element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_color_set_context);
   trans_class->passthrough_on_same_caps = FALSE;
 
   gst_type_mark_as_plugin_api(method_get_type(), GstPluginAPIFlags(0));

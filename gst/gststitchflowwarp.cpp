@@ -18,6 +18,9 @@
  * (a GstStitchWarpMeta says where each lies); stitchblend detects it and only fuses.
  * `flow=false` keeps the homography alone.
  *
+ * Bundles in CUDA memory (stitchsync with a GPU) are warped on the GPU and the warped views
+ * go out in CUDA memory, from a pool of bundles allocated once per canvas layout.
+ *
  * ## Example launch lines
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchcolor ! stitchflowwarp ! \
@@ -32,6 +35,13 @@
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
  * ]|
+ * With a GPU, the whole chain in CUDA memory:
+ * |[
+ * gst-launch-1.0 -e stitchsync name=s ! stitchcalib ! stitchcolor ! stitchflowwarp ! \
+ *   stitchblend crop=auto ! cudadownload ! videoconvert ! x264enc ! mp4mux ! filesink location=pano.mp4 \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1
+ * ]|
  */
 #include "gststitchflowwarp.h"
 
@@ -40,6 +50,7 @@
 #include <mutex>
 
 #include "gststitchbundle.h"
+#include "gststitchcuda.h"
 #include "stitch/warp/flow_warper.hpp"
 
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_flow_warp_debug);
@@ -59,20 +70,17 @@ struct FlowWarpElementState {
   stitch::Backend backend = stitch::Backend::Auto;
   bool reset_requested = false;
   /* streaming thread only */
-  std::unique_ptr<stitch::FlowWarper> warper;
-  stitch::Backend warper_backend = stitch::Backend::Auto;
+  StitchCudaOwned<stitch::FlowWarper> warper;
+  stitch::Backend warper_backend = stitch::Backend::Auto;  /* as asked for */
   guint64 rig_version = G_MAXUINT64;
   GstStitchWarpMeta layout{};  /* where each view lands; also the meta we attach */
-  gsize view_offsets[STITCH_MAX_VIEWS] = {};
   GstBufferPool* pool = nullptr;
+  bool cuda_memory = false;  /* negotiated bundles in CUDA memory (both sides) */
+  StitchCudaContext cuda;
   void clear() {
     warper.reset();
     rig_version = G_MAXUINT64;
-    if (pool) {
-      gst_buffer_pool_set_active(pool, FALSE);
-      gst_object_unref(pool);
-      pool = nullptr;
-    }
+    stitch_bundle_pool_clear(&pool);
   }
 };
 
@@ -111,29 +119,43 @@ static GType algorithm_get_type(void) {
   return type;
 }
 
-static GstStaticPadTemplate sink_template =
-    GST_STATIC_PAD_TEMPLATE("sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
-static GstStaticPadTemplate src_template =
-    GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
+    "sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
+static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
+    "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 
 static void request_reset(GstStitchFlowWarp* self) {
   std::lock_guard<std::mutex> guard(self->state->lock);
   self->state->reset_requested = true;
 }
 
-/* Rebuilds the warper and the output pool when the rig or the backend changed. */
+/* The flow warper for `backend`. Bundles in CUDA memory ask for the CUDA one under
+ * backend=auto; a build without it warps on the CPU (the views then go through host memory). */
+static std::unique_ptr<stitch::FlowWarper> make_warper(GstStitchFlowWarp* self, stitch::Backend backend,
+                                                       bool cuda_memory) {
+  if (!cuda_memory || backend != stitch::Backend::Auto) return stitch::FlowWarper::create(backend);
+  try {
+    return stitch::FlowWarper::create(stitch::Backend::Cuda);
+  } catch (const std::exception& e) {
+    GST_WARNING_OBJECT(self, "no CUDA flow warper (%s): warping on the CPU through host memory", e.what());
+    return stitch::FlowWarper::create(stitch::Backend::Cpu);
+  }
+}
+
+/* Rebuilds the warper and the output pool when the rig, the backend or the memory changed. */
 static void update_layout(GstStitchFlowWarp* self, GstStitchRigMeta* meta, stitch::Backend backend) {
   FlowWarpElementState* st = self->state;
-  if (st->warper && st->warper_backend == backend && meta->version == st->rig_version) return;
+  const bool new_warper = !st->warper.made_with(st->cuda) || st->warper_backend != backend;
+  if (!new_warper && meta->version == st->rig_version && st->pool) return;
   const stitch::Rig& rig = **meta->rig;
   if (rig.cameras.size() > STITCH_MAX_VIEWS) throw std::invalid_argument("too many cameras");
   const stitch::OutputGeometry canvas = stitch::canvas_geometry(rig);
   const std::vector<stitch::ViewPlacement> views = stitch::place_views(rig, canvas);
-  if (!st->warper || st->warper_backend != backend) {
-    st->warper = stitch::FlowWarper::create(backend);
+  if (new_warper) {
+    st->warper.make(st->cuda, [&]() { return make_warper(self, backend, st->cuda_memory); });
     st->warper_backend = backend;
   }
-  st->warper->prepare(views, canvas.width, canvas.height);
+  st->warper.run([&](stitch::FlowWarper& w) { w.prepare(views, canvas.width, canvas.height); });
   st->rig_version = meta->version;
 
   GstStitchWarpMeta& layout = st->layout;
@@ -141,28 +163,24 @@ static void update_layout(GstStitchFlowWarp* self, GstStitchRigMeta* meta, stitc
   layout.canvas_width = canvas.width;
   layout.canvas_height = canvas.height;
   layout.n_views = guint(views.size());
-  gsize total = 0;
+  std::vector<std::array<int, 2>> sizes;
   for (std::size_t i = 0; i < views.size(); ++i) {
     const stitch::Rect& r = views[i].roi;
     layout.rois[i][0] = r.x;
     layout.rois[i][1] = r.y;
     layout.rois[i][2] = r.width;
     layout.rois[i][3] = r.height;
-    st->view_offsets[i] = total;
     /* an invisible view still gets a 1x1 placeholder, marked missing */
-    total += gsize(std::max(r.width, 1)) * std::max(r.height, 1) * 4;
+    sizes.push_back({std::max(r.width, 1), std::max(r.height, 1)});
   }
-  if (st->pool) {
-    gst_buffer_pool_set_active(st->pool, FALSE);
-    gst_object_unref(st->pool);
-  }
-  st->pool = gst_buffer_pool_new();
-  GstStructure* config = gst_buffer_pool_get_config(st->pool);
-  gst_buffer_pool_config_set_params(config, NULL, guint(total), 2, 0);
-  if (!gst_buffer_pool_set_config(st->pool, config) || !gst_buffer_pool_set_active(st->pool, TRUE))
-    throw std::runtime_error("cannot allocate the warped views (" + std::to_string(total) + " bytes)");
-  GST_INFO_OBJECT(self, "canvas %dx%d, %u views, %" G_GSIZE_FORMAT " bytes per bundle", canvas.width,
-                  canvas.height, layout.n_views, total);
+  stitch_bundle_pool_clear(&st->pool);
+  GstCaps* caps = gst_pad_get_current_caps(GST_BASE_TRANSFORM_SRC_PAD(self));
+  std::string error;
+  st->pool = stitch_bundle_pool_new(st->cuda, st->cuda_memory, sizes, caps, error);
+  if (caps) gst_caps_unref(caps);
+  if (!st->pool) throw std::runtime_error("cannot allocate the warped views: " + error);
+  GST_INFO_OBJECT(self, "canvas %dx%d, %u views in %s memory, %s warper", canvas.width, canvas.height,
+                  layout.n_views, st->cuda_memory ? "CUDA" : "system", stitch::backend_name(st->warper->backend()));
 }
 
 static GstFlowReturn gst_stitch_flow_warp_prepare_output_buffer(GstBaseTransform* trans,
@@ -179,21 +197,15 @@ static GstFlowReturn gst_stitch_flow_warp_prepare_output_buffer(GstBaseTransform
   if (!stitch_guard(GST_ELEMENT(self), "stitchflowwarp: cannot build the canvas layout",
                     [&]() { update_layout(self, meta, backend); }))
     return GST_FLOW_ERROR;
-  GstFlowReturn ret = gst_buffer_pool_acquire_buffer(st->pool, outbuf, NULL);
+  GstFlowReturn ret = stitch_bundle_pool_acquire(GST_ELEMENT(self), st->pool, outbuf);
   if (ret != GST_FLOW_OK) return ret;
   gst_buffer_copy_into(*outbuf, input, GstBufferCopyFlags(GST_BUFFER_COPY_FLAGS | GST_BUFFER_COPY_TIMESTAMPS), 0, -1);
 
+  /* the views' GstVideoMetas come with the pooled bundle */
   GstStitchBundleMeta* in_bundle = gst_buffer_get_stitch_bundle_meta(input);
   guint64 missing = in_bundle ? in_bundle->missing_mask : 0;
-  for (guint i = 0; i < st->layout.n_views; ++i) {
-    const gint w = st->layout.rois[i][2], h = st->layout.rois[i][3];
-    if (w <= 0 || h <= 0) missing |= guint64(1) << i;
-    gsize offset[GST_VIDEO_MAX_PLANES] = {st->view_offsets[i]};
-    gint stride[GST_VIDEO_MAX_PLANES] = {MAX(w, 1) * 4};
-    GstVideoMeta* vm = gst_buffer_add_video_meta_full(*outbuf, GST_VIDEO_FRAME_FLAG_NONE, GST_VIDEO_FORMAT_RGBA,
-                                                      guint(MAX(w, 1)), guint(MAX(h, 1)), 1, offset, stride);
-    vm->id = gint(i);
-  }
+  for (guint i = 0; i < st->layout.n_views; ++i)
+    if (st->layout.rois[i][2] <= 0 || st->layout.rois[i][3] <= 0) missing |= guint64(1) << i;
   gst_buffer_add_stitch_bundle_meta(*outbuf, st->layout.n_views, missing);
   gst_buffer_add_stitch_rig_meta(*outbuf, *meta->rig, meta->version);
   gst_buffer_add_stitch_warp_meta(*outbuf, &st->layout);
@@ -213,13 +225,16 @@ static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, Gst
     st->reset_requested = false;
   }
   const guint n_views = st->layout.n_views;
+  /* a CUDA warper reads and writes CUDA-memory views where they lie; a CPU one through host memory */
+  const StitchCudaContext* device =
+      st->cuda_memory && st->warper->backend() == stitch::Backend::Cuda ? &st->cuda : nullptr;
   StitchBundleMapping in, out;
   std::string error;
-  if (!in.map(inbuf, n_views, GST_MAP_READ, error)) {
+  if (!in.map(inbuf, n_views, GST_MAP_READ, error, device)) {
     GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
     return GST_FLOW_ERROR;
   }
-  if (!out.map(outbuf, n_views, GST_MAP_WRITE, error)) {
+  if (!out.map(outbuf, n_views, GST_MAP_WRITE, error, device)) {
     GST_ELEMENT_ERROR(self, STREAM, FAILED, ("Cannot map the warped views: %s", error.c_str()), (NULL));
     return GST_FLOW_ERROR;
   }
@@ -227,9 +242,11 @@ static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, Gst
   for (guint i = 0; i < n_views; ++i)
     if (out.views()[i].empty()) frames[i] = stitch::ImageView();  /* not visible: not warped */
   const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchflowwarp", [&]() {
-    st->warper->set_settings(settings);
-    if (reset) st->warper->reset();
-    st->warper->warp(frames, out.views());
+    st->warper.run([&](stitch::FlowWarper& w) {
+      w.set_settings(settings);
+      if (reset) w.reset();
+      w.warp(frames, out.views());
+    });
   });
   if (ok) {
     for (const auto& s : st->warper->stats())
@@ -259,9 +276,36 @@ static gboolean gst_stitch_flow_warp_sink_event(GstBaseTransform* trans, GstEven
 
 static gboolean gst_stitch_flow_warp_set_caps(GstBaseTransform* trans, GstCaps* incaps, GstCaps*) {
   GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(trans);
+  FlowWarpElementState* st = self->state;
   if (!stitch_bundle_accept_caps(GST_ELEMENT(self), incaps)) return FALSE;
+  const bool cuda_memory = stitch_caps_are_cuda_memory(incaps);
+  if (cuda_memory != st->cuda_memory) {
+    st->clear();  /* the warper and the pool belong to one kind of memory */
+    st->cuda_memory = cuda_memory;
+  }
+  if (cuda_memory && !st->cuda.ensure(GST_ELEMENT(self))) return FALSE;
   request_reset(self);
   return TRUE;
+}
+
+static bool offer_cuda(GstStitchFlowWarp* self) {
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  return stitch_cuda_memory_offered(self->state->backend);
+}
+
+static GstCaps* gst_stitch_flow_warp_transform_caps(GstBaseTransform* trans, GstPadDirection, GstCaps* caps, GstCaps* filter) {
+  /* the warped views go out in the memory the camera frames came in */
+  return stitch_caps_same_memory(caps, filter, offer_cuda(GST_STITCH_FLOW_WARP(trans)));
+}
+
+static void gst_stitch_flow_warp_set_context(GstElement* element, GstContext* context) {
+  GST_STITCH_FLOW_WARP(element)->state->cuda.set_context(element, context);
+  GST_ELEMENT_CLASS(gst_stitch_flow_warp_parent_class)->set_context(element, context);
+}
+
+static gboolean gst_stitch_flow_warp_query(GstBaseTransform* trans, GstPadDirection direction, GstQuery* query) {
+  if (GST_STITCH_FLOW_WARP(trans)->state->cuda.handle_query(GST_ELEMENT(trans), query)) return TRUE;
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_flow_warp_parent_class)->query(trans, direction, query);
 }
 
 static gboolean gst_stitch_flow_warp_stop(GstBaseTransform* trans) {
@@ -352,6 +396,9 @@ static void gst_stitch_flow_warp_class_init(GstStitchFlowWarpClass* klass) {
   trans_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_sink_event);
   trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_set_caps);
   trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_stop);
+  trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_transform_caps);
+  trans_class->query = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_query);
+  element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_flow_warp_set_context);
   trans_class->passthrough_on_same_caps = FALSE;
 
   gst_type_mark_as_plugin_api(quality_get_type(), GstPluginAPIFlags(0));

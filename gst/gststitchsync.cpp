@@ -10,6 +10,14 @@
  * variable rates and may be live (latency, timeouts). Inputs of any raw format are converted
  * to RGBA; interlaced inputs are refused with an error that names the pad.
  *
+ * With a GPU (and `backend` not `cpu`) the bundle goes out in CUDA memory
+ * (`video/x-raw(memory:CUDAMemory)`, gst-cuda) when downstream takes it, and the frames then
+ * stay on the GPU until stitchblend: each input is uploaded once, or copied on the device when
+ * it already is CUDA memory (`nvh264dec`, `cudaupload`), and NV12, I420 and 4-byte RGB are
+ * converted to RGBA by CUDA kernels (by the input's own colorimetry, as videoconvert does).
+ * Other formats are converted on the CPU before the upload. Without a GPU everything stays in
+ * system memory and is converted by GStreamer's video converter.
+ *
  * ## Example launch lines
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend ! videoconvert ! autovideosink \
@@ -21,38 +29,70 @@
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
  * ]|
+ * GPU decoding to a GPU panorama (the frames never return to the host in between):
+ * |[
+ * gst-launch-1.0 -e stitchsync name=s ! stitchcalib ! stitchcolor ! stitchblend ! cudadownload ! \
+ *   videoconvert ! x264enc ! mp4mux ! filesink location=pano.mp4 \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1
+ * ]|
  */
 #include "gststitchsync.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <map>
 #include <mutex>
 #include <vector>
 
 #include "gststitchbundle.h"
+#include "gststitchcuda.h"
+#include "stitch/convert/convert.hpp"
 
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_sync_debug);
 #define GST_CAT_DEFAULT gst_stitch_sync_debug
 
-enum { PROP_0, PROP_FRAMERATE, PROP_INPUT_EOS };
+enum { PROP_0, PROP_FRAMERATE, PROP_INPUT_EOS, PROP_BACKEND };
 
 #define DEFAULT_FRAMERATE_N 0
 #define DEFAULT_FRAMERATE_D 1
 #define DEFAULT_INPUT_EOS GST_STITCH_SYNC_INPUT_EOS_REPEAT_LAST
+#define DEFAULT_BACKEND stitch::Backend::Auto
 
 struct StitchSyncState {
   /* Last real frame of each pad, reused while a live camera is late. */
   struct Last {
-    GstBuffer* buffer = nullptr;  // holds the memory alive
+    /* system-memory bundles: the view's memory, held alive */
+    GstBuffer* buffer = nullptr;
     gint width = 0, height = 0, stride = 0;
     gsize offset = 0;
+    /* CUDA-memory bundles: the input frame, converted again when repeated */
+    GstBuffer* frame = nullptr;
+    GstVideoInfo frame_info;
   };
   std::mutex lock;  // guards `last` against pad release from the application thread
   std::map<GstPad*, Last> last;
-  void clear() {
-    for (auto& kv : last) gst_clear_buffer(&kv.second.buffer);
+  /* CUDA-memory bundles (aggregate thread; the pads read out_cuda) */
+  std::atomic<bool> out_cuda{false};
+  StitchCudaContext cuda;
+  StitchCudaOwned<stitch::FrameConverter> converter;
+  GstBufferPool* pool = nullptr;
+  std::vector<std::array<int, 2>> pool_sizes;
+
+  static void release(Last& l) {
+    gst_clear_buffer(&l.buffer);
+    gst_clear_buffer(&l.frame);
+  }
+  void clear_last() {
+    for (auto& kv : last) release(kv.second);
     last.clear();
+  }
+  void clear() {
+    clear_last();
+    converter.reset();
+    stitch_bundle_pool_clear(&pool);
+    pool_sizes.clear();
   }
 };
 
@@ -61,12 +101,64 @@ struct _GstStitchSync {
   /* settings */
   gint fps_n, fps_d;
   GstStitchSyncInputEos input_eos;
+  stitch::Backend backend;
   /* state */
   StitchSyncState* state;
 };
 
 G_DEFINE_TYPE(GstStitchSync, gst_stitch_sync, GST_TYPE_VIDEO_AGGREGATOR);
 GST_ELEMENT_REGISTER_DEFINE(stitchsync, "stitchsync", GST_RANK_NONE, GST_TYPE_STITCH_SYNC);
+
+/* Input pads: GstVideoAggregator's converting pad, except for CUDA-memory bundles, which our
+ * kernels convert: the frame is then handed over as it is, mapped where it lies (GST_MAP_CUDA
+ * for CUDA memory of our context). Formats the kernels do not take still go through the CPU
+ * converter and are uploaded as RGBA. */
+typedef struct {
+  GstVideoAggregatorConvertPad parent;
+} GstStitchSyncPad;
+typedef struct {
+  GstVideoAggregatorConvertPadClass parent_class;
+} GstStitchSyncPadClass;
+
+G_DEFINE_TYPE(GstStitchSyncPad, gst_stitch_sync_pad, GST_TYPE_VIDEO_AGGREGATOR_CONVERT_PAD);
+
+static gboolean converts_on_device(GstVideoFormat format) {
+  switch (format) {
+    case GST_VIDEO_FORMAT_RGBA:
+    case GST_VIDEO_FORMAT_RGBx:
+    case GST_VIDEO_FORMAT_BGRA:
+    case GST_VIDEO_FORMAT_BGRx:
+    case GST_VIDEO_FORMAT_NV12:
+    case GST_VIDEO_FORMAT_I420: return TRUE;
+    default: return FALSE;
+  }
+}
+
+/* Maps `buffer` as a frame of `info`: device pointers when it is CUDA memory of our context. */
+static gboolean map_input_frame(StitchSyncState* st, const GstVideoInfo* info, GstBuffer* buffer,
+                                GstVideoFrame* frame) {
+  GstMapFlags flags = GST_MAP_READ;
+  if (st->cuda.owns(gst_buffer_peek_memory(buffer, 0))) flags = GstMapFlags(flags | STITCH_MAP_CUDA);
+  return gst_video_frame_map(frame, info, buffer, flags);
+}
+
+static gboolean gst_stitch_sync_pad_prepare_frame(GstVideoAggregatorPad* pad, GstVideoAggregator* vagg,
+                                                  GstBuffer* buffer, GstVideoFrame* prepared) {
+  StitchSyncState* st = GST_STITCH_SYNC(vagg)->state;
+  if (!st->out_cuda || !converts_on_device(GST_VIDEO_INFO_FORMAT(&pad->info)))
+    return GST_VIDEO_AGGREGATOR_PAD_CLASS(gst_stitch_sync_pad_parent_class)->prepare_frame(pad, vagg, buffer, prepared);
+  if (!map_input_frame(st, &pad->info, buffer, prepared)) {
+    GST_WARNING_OBJECT(pad, "cannot map the input frame");
+    return FALSE;
+  }
+  return TRUE;
+}
+
+static void gst_stitch_sync_pad_class_init(GstStitchSyncPadClass* klass) {
+  GST_VIDEO_AGGREGATOR_PAD_CLASS(klass)->prepare_frame = GST_DEBUG_FUNCPTR(gst_stitch_sync_pad_prepare_frame);
+}
+
+static void gst_stitch_sync_pad_init(GstStitchSyncPad*) {}
 
 #define GST_TYPE_STITCH_SYNC_INPUT_EOS (gst_stitch_sync_input_eos_get_type())
 static GType gst_stitch_sync_input_eos_get_type(void) {
@@ -82,12 +174,30 @@ static GType gst_stitch_sync_input_eos_get_type(void) {
   return type;
 }
 
-static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
-    "sink_%u", GST_PAD_SINK, GST_PAD_REQUEST,
-    GST_STATIC_CAPS(GST_VIDEO_CAPS_MAKE(GST_VIDEO_FORMATS_ALL)));
+/* Decoders' CUDA memory (nvh264dec: NV12) in the formats our kernels convert, first; then any
+ * raw video in system memory. */
+#ifdef STITCH_HAVE_GST_CUDA
+#define SINK_CAPS                                                                 \
+  GST_VIDEO_CAPS_MAKE_WITH_FEATURES(STITCH_CAPS_FEATURE_CUDA_MEMORY,              \
+                                    "{ NV12, I420, RGBA, RGBx, BGRA, BGRx }") ";" \
+  GST_VIDEO_CAPS_MAKE(GST_VIDEO_FORMATS_ALL)
+#else
+#define SINK_CAPS GST_VIDEO_CAPS_MAKE(GST_VIDEO_FORMATS_ALL)
+#endif
 
-static GstStaticPadTemplate src_template =
-    GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_CAPS));
+static GstStaticPadTemplate sink_template =
+    GST_STATIC_PAD_TEMPLATE("sink_%u", GST_PAD_SINK, GST_PAD_REQUEST, GST_STATIC_CAPS(SINK_CAPS));
+
+static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
+    "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
+
+/* CUDA memory in and out where a device opens, unless backend=cpu. */
+static bool offer_cuda(GstStitchSync* self) {
+  GST_OBJECT_LOCK(self);
+  const stitch::Backend backend = self->backend;
+  GST_OBJECT_UNLOCK(self);
+  return stitch_cuda_memory_offered(backend);
+}
 
 /* Sink pads sorted by the number in their name: view i is the i-th. */
 static std::vector<GstVideoAggregatorPad*> sorted_pads(GstStitchSync* self) {
@@ -114,6 +224,23 @@ static gint count_negotiated(const std::vector<GstVideoAggregatorPad*>& pads) {
   return n;
 }
 
+/* Inputs are still being linked (decodebin pads appear late) until at least two are negotiated
+ * and the bundle's view count matches the pads. */
+static bool bundle_ready(GstVideoAggregator* vagg, const std::vector<GstVideoAggregatorPad*>& pads) {
+  return count_negotiated(pads) >= 2 && GST_VIDEO_INFO_VIEWS(&vagg->info) == gint(pads.size());
+}
+
+/* A pad's view size: its frames', or the bundle's while it has no caps. */
+static std::array<int, 2> view_size(GstVideoAggregator* vagg, GstVideoAggregatorPad* pad) {
+  gint w = pad->info.finfo ? GST_VIDEO_INFO_WIDTH(&pad->info) : 0;
+  gint h = pad->info.finfo ? GST_VIDEO_INFO_HEIGHT(&pad->info) : 0;
+  if (w <= 0 || h <= 0) {
+    w = GST_VIDEO_INFO_WIDTH(&vagg->info);
+    h = GST_VIDEO_INFO_HEIGHT(&vagg->info);
+  }
+  return {w, h};
+}
+
 static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTemplate* templ,
                                                const gchar* name, const GstCaps* caps) {
   GstStitchSync* self = GST_STITCH_SYNC(element);
@@ -134,7 +261,7 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
     std::lock_guard<std::mutex> guard(self->state->lock);
     auto it = self->state->last.find(pad);
     if (it != self->state->last.end()) {
-      gst_clear_buffer(&it->second.buffer);
+      StitchSyncState::release(it->second);
       self->state->last.erase(it);
     }
   }
@@ -177,13 +304,19 @@ static gboolean gst_stitch_sync_sink_event(GstAggregator* agg, GstAggregatorPad*
 }
 
 /* Inputs are independent cameras: any raw video is accepted whatever the bundle downstream
- * looks like (the base class would intersect with the downstream multiview caps). */
+ * looks like (the base class would intersect with the downstream multiview caps); CUDA memory
+ * only where the bundle can be in CUDA memory too. */
+static GstCaps* input_caps(GstStitchSync* self, GstPad* pad) {
+  return stitch_caps_prefer_cuda(gst_pad_get_pad_template_caps(pad), offer_cuda(self));
+}
+
 static gboolean gst_stitch_sync_sink_query(GstAggregator* agg, GstAggregatorPad* pad, GstQuery* query) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
   switch (GST_QUERY_TYPE(query)) {
     case GST_QUERY_CAPS: {
       GstCaps* filter = NULL;
       gst_query_parse_caps(query, &filter);
-      GstCaps* caps = gst_pad_get_pad_template_caps(GST_PAD(pad));
+      GstCaps* caps = input_caps(self, GST_PAD(pad));
       if (filter) {
         GstCaps* tmp = gst_caps_intersect_full(filter, caps, GST_CAPS_INTERSECT_FIRST);
         gst_caps_unref(caps);
@@ -196,21 +329,48 @@ static gboolean gst_stitch_sync_sink_query(GstAggregator* agg, GstAggregatorPad*
     case GST_QUERY_ACCEPT_CAPS: {
       GstCaps* caps = NULL;
       gst_query_parse_accept_caps(query, &caps);
-      GstCaps* tmpl = gst_pad_get_pad_template_caps(GST_PAD(pad));
-      gst_query_set_accept_caps_result(query, gst_caps_can_intersect(caps, tmpl));
-      gst_caps_unref(tmpl);
+      GstCaps* accepted = input_caps(self, GST_PAD(pad));
+      gst_query_set_accept_caps_result(query, gst_caps_can_intersect(caps, accepted));
+      gst_caps_unref(accepted);
       return TRUE;
     }
+    case GST_QUERY_CONTEXT:
+      if (self->state->cuda.handle_query(GST_ELEMENT(agg), query)) return TRUE;
+      return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->sink_query(agg, pad, query);
     default:
       return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->sink_query(agg, pad, query);
   }
 }
 
+static gboolean gst_stitch_sync_src_query(GstAggregator* agg, GstQuery* query) {
+  if (GST_STITCH_SYNC(agg)->state->cuda.handle_query(GST_ELEMENT(agg), query)) return TRUE;
+  return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->src_query(agg, query);
+}
+
+static void gst_stitch_sync_set_context(GstElement* element, GstContext* context) {
+  GST_STITCH_SYNC(element)->state->cuda.set_context(element, context);
+  GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->set_context(element, context);
+}
+
+/* Bundles in CUDA memory first when a device opens and downstream takes them. backend=cuda
+ * insists on it: anything else is a negotiation error that says why. */
 static GstCaps* gst_stitch_sync_update_caps(GstVideoAggregator* vagg, GstCaps* caps) {
-  (void)vagg;
+  GstStitchSync* self = GST_STITCH_SYNC(vagg);
   GstCaps* tmpl = gst_static_pad_template_get_caps(&src_template);
-  GstCaps* out = gst_caps_intersect(caps, tmpl);
+  GstCaps* out = stitch_caps_prefer_cuda(gst_caps_intersect(caps, tmpl), offer_cuda(self));
   gst_caps_unref(tmpl);
+  GST_OBJECT_LOCK(self);
+  const bool want_cuda = self->backend == stitch::Backend::Cuda;
+  GST_OBJECT_UNLOCK(self);
+  if (want_cuda && !stitch_caps_are_cuda_memory(out)) {
+    GST_ELEMENT_ERROR(self, CORE, NEGOTIATION,
+                      ("backend=cuda: %s", stitch_cuda_memory_possible()
+                                               ? "downstream does not take video/x-raw(memory:CUDAMemory) bundles"
+                                               : "no CUDA device opens (or this build has no gst-cuda)"),
+                      ("downstream caps %" GST_PTR_FORMAT, caps));
+    gst_caps_unref(out);
+    return gst_caps_new_empty();
+  }
   return out;
 }
 
@@ -263,18 +423,57 @@ static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* cap
   return gst_caps_fixate(caps);
 }
 
-static GstFlowReturn gst_stitch_sync_create_output_buffer(GstVideoAggregator*, GstBuffer** outbuf) {
-  *outbuf = gst_buffer_new();
-  return GST_FLOW_OK;
+static gboolean gst_stitch_sync_negotiated_src_caps(GstAggregator* agg, GstCaps* caps) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
+  StitchSyncState* st = self->state;
+  const bool cuda = stitch_caps_are_cuda_memory(caps);
+  if (cuda && !st->cuda.ensure(GST_ELEMENT(agg))) return FALSE;
+  if (cuda != st->out_cuda) {
+    /* the last frames, the converter and the pool belong to one kind of memory */
+    std::lock_guard<std::mutex> guard(st->lock);
+    st->clear();
+    st->out_cuda = cuda;
+  }
+  GST_INFO_OBJECT(self, "bundles in %s memory", cuda ? "CUDA" : "system");
+  return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->negotiated_src_caps(agg, caps);
 }
 
-/* Appends one view: shares the frame's memory when it is a single block, copies otherwise. */
+/* System-memory bundles are assembled from the inputs' memory (aggregate_frames); CUDA-memory
+ * ones come whole from a pool, one per layout of the inputs. */
+static GstFlowReturn gst_stitch_sync_create_output_buffer(GstVideoAggregator* vagg, GstBuffer** outbuf) {
+  GstStitchSync* self = GST_STITCH_SYNC(vagg);
+  StitchSyncState* st = self->state;
+  const auto pads = sorted_pads(self);
+  if (!st->out_cuda || !bundle_ready(vagg, pads)) {
+    *outbuf = gst_buffer_new();
+    return GST_FLOW_OK;
+  }
+  std::vector<std::array<int, 2>> sizes;
+  for (GstVideoAggregatorPad* pad : pads) sizes.push_back(view_size(vagg, pad));
+  if (!st->pool || sizes != st->pool_sizes) {
+    stitch_bundle_pool_clear(&st->pool);
+    GstCaps* caps = gst_pad_get_current_caps(GST_AGGREGATOR_SRC_PAD(vagg));
+    std::string error;
+    st->pool = stitch_bundle_pool_new(st->cuda, TRUE, sizes, caps, error);
+    if (caps) gst_caps_unref(caps);
+    if (!st->pool) {
+      GST_ELEMENT_ERROR(self, RESOURCE, NO_SPACE_LEFT, ("Cannot allocate CUDA-memory bundles: %s", error.c_str()),
+                        (NULL));
+      return GST_FLOW_ERROR;
+    }
+    st->pool_sizes = sizes;
+  }
+  return stitch_bundle_pool_acquire(GST_ELEMENT(self), st->pool, outbuf);
+}
+
+/* Appends one view: shares the frame's memory when it is a single block of system memory,
+ * copies otherwise (CUDA memory is read through host memory: this bundle is in system memory). */
 static void append_view(GstBuffer* bundle, guint id, GstBuffer* src, gsize src_offset, gint width,
                         gint height, gint stride) {
   const gsize bundle_offset = gst_buffer_get_size(bundle);
   gsize offset[GST_VIDEO_MAX_PLANES] = {0};
   gint strides[GST_VIDEO_MAX_PLANES] = {0};
-  if (gst_buffer_n_memory(src) == 1) {
+  if (gst_buffer_n_memory(src) == 1 && !stitch_memory_is_cuda(gst_buffer_peek_memory(src, 0))) {
     gst_buffer_append_memory(bundle, gst_buffer_get_memory(src, 0));
     offset[0] = bundle_offset + src_offset;
     strides[0] = stride;
@@ -311,18 +510,44 @@ static void append_black_view(GstBuffer* bundle, guint id, gint width, gint heig
   gst_buffer_unref(tmp);
 }
 
-static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, GstBuffer* outbuf) {
-  GstStitchSync* self = GST_STITCH_SYNC(vagg);
-  auto pads = sorted_pads(self);
-  if (count_negotiated(pads) < 2 || GST_VIDEO_INFO_VIEWS(&vagg->info) != gint(pads.size())) {
-    /* Inputs are still being linked (decodebin pads appear late): wait for them instead of
-     * sending bundles with a view count that is about to change. */
-    g_usleep(2000);
-    return GST_AGGREGATOR_FLOW_NEED_DATA;
+/* The core's description of a mapped input frame (a format converts_on_device takes). */
+static stitch::FrameView frame_view(const GstVideoFrame* frame) {
+  stitch::FrameView v;
+  switch (GST_VIDEO_FRAME_FORMAT(frame)) {
+    case GST_VIDEO_FORMAT_RGBx: v.format = stitch::FrameFormat::RGBx; break;
+    case GST_VIDEO_FORMAT_BGRA: v.format = stitch::FrameFormat::BGRA; break;
+    case GST_VIDEO_FORMAT_BGRx: v.format = stitch::FrameFormat::BGRx; break;
+    case GST_VIDEO_FORMAT_NV12: v.format = stitch::FrameFormat::NV12; break;
+    case GST_VIDEO_FORMAT_I420: v.format = stitch::FrameFormat::I420; break;
+    default: v.format = stitch::FrameFormat::RGBA; break;
   }
+  v.width = GST_VIDEO_FRAME_WIDTH(frame);
+  v.height = GST_VIDEO_FRAME_HEIGHT(frame);
+  for (guint p = 0; p < GST_VIDEO_FRAME_N_PLANES(frame) && p < 3; ++p) {
+    v.planes[p] = static_cast<const uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(frame, p));
+    v.pitches[p] = std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, p));
+  }
+  v.on_device = STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA) != 0;
+  /* Y'CbCr as GstVideoConverter reads it: the caps' matrix and range, else SD/HD defaults */
+  const GstVideoColorimetry& c = frame->info.colorimetry;
+  gdouble kr = 0, kb = 0;
+  if (!gst_video_color_matrix_get_Kr_Kb(c.matrix, &kr, &kb))
+    gst_video_color_matrix_get_Kr_Kb(v.height >= 720 ? GST_VIDEO_COLOR_MATRIX_BT709 : GST_VIDEO_COLOR_MATRIX_BT601,
+                                     &kr, &kb);
+  v.colorimetry.kr = kr;
+  v.colorimetry.kb = kb;
+  v.colorimetry.full_range = c.range == GST_VIDEO_COLOR_RANGE_0_255;
+  v.colorimetry.chroma_cosited_x = (frame->info.chroma_site & GST_VIDEO_CHROMA_SITE_H_COSITED) != 0;
+  v.colorimetry.chroma_cosited_y = (frame->info.chroma_site & GST_VIDEO_CHROMA_SITE_V_COSITED) != 0;
+  return v;
+}
+
+/* System memory: views reference the inputs' memory (zero-copy for single-block frames). */
+static guint64 bundle_in_system_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
+                                       GstBuffer* outbuf) {
+  GstVideoAggregator* vagg = GST_VIDEO_AGGREGATOR(self);
   guint64 missing = 0;
   guint id = 0;
-  std::lock_guard<std::mutex> guard(self->state->lock);
   for (GstVideoAggregatorPad* pad : pads) {
     GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
     StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
@@ -340,31 +565,98 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
       last.height = gint(vm->height);
       last.stride = vm->stride[0];
       last.offset = vm->offset[0] - (gst_buffer_get_size(outbuf) - gst_buffer_get_size(keep));
+    } else if (last.buffer) {
+      /* a live camera that is late or gone: freeze its last frame */
+      append_view(outbuf, id, last.buffer, last.offset, last.width, last.height, last.stride);
     } else {
-      const gboolean ended = gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
-      if (ended && self->input_eos == GST_STITCH_SYNC_INPUT_EOS_END_STREAM) {
-        GST_INFO_OBJECT(self, "%s ended; ending the stream (input-eos=end-stream)",
-                        GST_PAD_NAME(pad));
-        return GST_FLOW_EOS;
-      }
-      if (last.buffer) {
-        /* a live camera that is late or gone: freeze its last frame */
-        append_view(outbuf, id, last.buffer, last.offset, last.width, last.height, last.stride);
-      } else {
-        /* never had a frame: black, and marked missing so stitchblend leaves it out */
-        gint w = pad->info.finfo ? GST_VIDEO_INFO_WIDTH(&pad->info) : 0;
-        gint h = pad->info.finfo ? GST_VIDEO_INFO_HEIGHT(&pad->info) : 0;
-        if (w <= 0 || h <= 0) {
-          w = GST_VIDEO_INFO_WIDTH(&vagg->info);
-          h = GST_VIDEO_INFO_HEIGHT(&vagg->info);
-        }
-        append_black_view(outbuf, id, w, h);
-        missing |= guint64(1) << id;
-      }
+      /* never had a frame: black, and marked missing so stitchblend leaves it out */
+      const auto size = view_size(vagg, pad);
+      append_black_view(outbuf, id, size[0], size[1]);
+      missing |= guint64(1) << id;
     }
     ++id;
   }
-  gst_buffer_add_stitch_bundle_meta(outbuf, id, missing);
+  return missing;
+}
+
+/* CUDA memory: every view of the pooled bundle is written on the device from its input frame
+ * (uploaded once when it is in system memory). FALSE after an element error. */
+static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
+                                      GstBuffer* outbuf, guint64& missing) {
+  StitchSyncState* st = self->state;
+  const guint n = guint(pads.size());
+  StitchBundleMapping out;
+  std::string error;
+  if (!out.map(outbuf, n, GST_MAP_WRITE, error, &st->cuda)) {
+    GST_ELEMENT_ERROR(self, RESOURCE, FAILED, ("Cannot map the CUDA-memory bundle: %s", error.c_str()), (NULL));
+    return FALSE;
+  }
+  GstVideoFrame repeated[STITCH_MAX_VIEWS];  /* last frames, mapped until the device is done */
+  guint n_repeated = 0;
+  const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchsync", [&]() {
+    if (!st->converter.made_with(st->cuda))
+      st->converter.make(st->cuda, []() { return stitch::FrameConverter::create(stitch::Backend::Cuda); });
+    st->converter.run([&](stitch::FrameConverter& converter) {
+      for (guint id = 0; id < n; ++id) {
+        GstVideoAggregatorPad* pad = pads[id];
+        const stitch::ImageView& view = out.views()[id];
+        GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
+        StitchSyncState::Last& last = st->last[GST_PAD(pad)];
+        if (frame) {
+          converter.convert(frame_view(frame), view);
+          gst_buffer_replace(&last.frame, frame->buffer);
+          last.frame_info = frame->info;
+        } else if (last.frame) {
+          /* a live camera that is late or gone: its last frame again */
+          GstVideoFrame* f = &repeated[n_repeated];
+          if (!map_input_frame(st, &last.frame_info, last.frame, f))
+            throw std::runtime_error("cannot map the last frame of " + std::string(GST_PAD_NAME(pad)));
+          ++n_repeated;
+          converter.convert(frame_view(f), view);
+        } else {
+          converter.clear(view);
+          missing |= guint64(1) << id;
+        }
+      }
+      converter.finish();
+    });
+  });
+  if (!ok && st->converter) {
+    /* nothing the device still reads may be unmapped under it */
+    try {
+      st->converter.run([](stitch::FrameConverter& converter) { converter.finish(); });
+    } catch (...) {
+    }
+  }
+  for (guint i = 0; i < n_repeated; ++i) gst_video_frame_unmap(&repeated[i]);
+  return ok;
+}
+
+static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, GstBuffer* outbuf) {
+  GstStitchSync* self = GST_STITCH_SYNC(vagg);
+  auto pads = sorted_pads(self);
+  /* Wait for the inputs instead of sending bundles with a view count about to change. An input
+   * can get its caps between create_output_buffer and here: a CUDA bundle made for fewer views
+   * is not used either. */
+  if (!bundle_ready(vagg, pads) || (self->state->out_cuda && gst_buffer_n_memory(outbuf) != pads.size())) {
+    g_usleep(2000);
+    return GST_AGGREGATOR_FLOW_NEED_DATA;
+  }
+  for (GstVideoAggregatorPad* pad : pads) {
+    if (!gst_video_aggregator_pad_get_prepared_frame(pad) && gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad)) &&
+        self->input_eos == GST_STITCH_SYNC_INPUT_EOS_END_STREAM) {
+      GST_INFO_OBJECT(self, "%s ended; ending the stream (input-eos=end-stream)", GST_PAD_NAME(pad));
+      return GST_FLOW_EOS;
+    }
+  }
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  guint64 missing = 0;
+  if (self->state->out_cuda) {
+    if (!bundle_in_cuda_memory(self, pads, outbuf, missing)) return GST_FLOW_ERROR;
+  } else {
+    missing = bundle_in_system_memory(self, pads, outbuf);
+  }
+  gst_buffer_add_stitch_bundle_meta(outbuf, guint(pads.size()), missing);
   return GST_FLOW_OK;
 }
 
@@ -381,7 +673,7 @@ static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
   {
     std::lock_guard<std::mutex> guard(self->state->lock);
-    self->state->clear();
+    self->state->clear_last();
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);
 }
@@ -397,6 +689,12 @@ static void gst_stitch_sync_set_property(GObject* object, guint prop_id, const G
       GST_OBJECT_UNLOCK(self);
       break;
     case PROP_INPUT_EOS: self->input_eos = GstStitchSyncInputEos(g_value_get_enum(value)); break;
+    case PROP_BACKEND:
+      GST_OBJECT_LOCK(self);
+      self->backend = stitch::Backend(g_value_get_enum(value));
+      GST_OBJECT_UNLOCK(self);
+      gst_pad_mark_reconfigure(GST_AGGREGATOR_SRC_PAD(self));
+      break;
     default:
       G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
@@ -412,6 +710,11 @@ static void gst_stitch_sync_get_property(GObject* object, guint prop_id, GValue*
       GST_OBJECT_UNLOCK(self);
       break;
     case PROP_INPUT_EOS: g_value_set_enum(value, self->input_eos); break;
+    case PROP_BACKEND:
+      GST_OBJECT_LOCK(self);
+      g_value_set_enum(value, int(self->backend));
+      GST_OBJECT_UNLOCK(self);
+      break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -446,9 +749,16 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
                         "What happens when one input ends before the others",
                         GST_TYPE_STITCH_SYNC_INPUT_EOS, DEFAULT_INPUT_EOS,
                         GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS)));
+  g_object_class_install_property(
+      gobject_class, PROP_BACKEND,
+      g_param_spec_enum("backend", "Backend",
+                        "auto: bundles in CUDA memory (converted on the GPU) when a device opens and "
+                        "downstream takes them; cpu: system memory; cuda: CUDA memory or an error",
+                        GST_TYPE_STITCH_BACKEND, int(DEFAULT_BACKEND),
+                        GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS)));
 
   gst_element_class_add_static_pad_template_with_gtype(element_class, &sink_template,
-                                                       GST_TYPE_VIDEO_AGGREGATOR_CONVERT_PAD);
+                                                       gst_stitch_sync_pad_get_type());
   gst_element_class_add_static_pad_template_with_gtype(element_class, &src_template,
                                                        GST_TYPE_AGGREGATOR_PAD);
   gst_element_class_set_static_metadata(
@@ -458,9 +768,12 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
 
   element_class->request_new_pad = GST_DEBUG_FUNCPTR(gst_stitch_sync_request_new_pad);
   element_class->release_pad = GST_DEBUG_FUNCPTR(gst_stitch_sync_release_pad);
+  element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_sync_set_context);
   agg_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_event);
   agg_class->sink_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_query);
+  agg_class->src_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_src_query);
   agg_class->fixate_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_fixate_src_caps);
+  agg_class->negotiated_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_negotiated_src_caps);
   agg_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_sync_stop);
   agg_class->flush = GST_DEBUG_FUNCPTR(gst_stitch_sync_flush);
   vagg_class->update_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_update_caps);
@@ -468,6 +781,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   vagg_class->aggregate_frames = GST_DEBUG_FUNCPTR(gst_stitch_sync_aggregate_frames);
 
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_SYNC_INPUT_EOS, GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(gst_stitch_sync_pad_get_type(), GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_sync_debug, "stitchsync", 0, "stitch synchronizer");
 }
 
@@ -475,5 +789,6 @@ static void gst_stitch_sync_init(GstStitchSync* self) {
   self->fps_n = DEFAULT_FRAMERATE_N;
   self->fps_d = DEFAULT_FRAMERATE_D;
   self->input_eos = DEFAULT_INPUT_EOS;
+  self->backend = DEFAULT_BACKEND;
   self->state = new StitchSyncState();
 }

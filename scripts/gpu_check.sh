@@ -1,47 +1,74 @@
 #!/usr/bin/env bash
 # Runs on the GPU host: unpacks the bundle that `scripts/gpu_check.sh pack` made here, runs the
-# CUDA-vs-CPU tests, the CUDA benchmark and GPU pipelines; writes logs and JSON to $OUT
-# (default: out/gpu). The bundle must stay under the 64 MiB a device call carries, so it holds
-# only binaries that link no OpenCV imgcodecs/videoio (their codec and GDAL trees are large).
+# CUDA-vs-CPU tests, the CUDA benchmarks (kernels, core chain, GStreamer pipelines) and GPU
+# pipelines; writes logs and JSON to $OUT (default: out/gpu). The bundle must stay under the
+# 64 MiB a device call carries, so it holds only binaries that link no OpenCV
+# imgcodecs/videoio (their codec and GDAL trees are large).
+# usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
+#        OUT=... scripts/gpu_check.sh [quick]     (on the GPU host; quick: tests only)
 set -uo pipefail
+GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory"
 if [ "${1:-}" = pack ]; then
+  BUILD=${2:-build}
   rm -rf .gpubundle && mkdir -p .gpubundle
-  cp build/tests/boat1_1600.ppm .gpubundle/
+  cp "$BUILD/tests/boat1_1600.ppm" .gpubundle/
+  bins=""
+  for t in $GPU_TESTS; do [ -x "$BUILD/tests/$t" ] && bins="$bins $BUILD/tests/$t"; done
+  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline; do
+    [ -x "$BUILD/bench/$b" ] && bins="$bins $BUILD/bench/$b"
+  done
   GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile" \
-    ../shared/tools/gpu-bundle .gpubundle/b.tar.gz build/tests/test_cuda build/bench/stitch-bench-cuda \
-    build/gst/libgststitch.so
+    ../shared/tools/gpu-bundle .gpubundle/b.tar.gz $bins "$BUILD/gst/libgststitch.so"
+  du -sh .gpubundle
   exit
 fi
 OUT=${OUT:-out/gpu}
 mkdir -p "$OUT"
 tar xzf .gpubundle/b.tar.gz && source gpubundle/env.sh
-B=gpubundle/build
-export STITCH_SOURCE_DIR=$PWD GST_PLUGIN_PATH=$PWD/$B GST_REGISTRY=$PWD/$OUT/registry.bin GST_DEBUG='*:1'
-export STITCH_TEST_PPM=$PWD/.gpubundle/boat1_1600.ppm
+B=$(dirname "$(find gpubundle/build -name libgststitch.so | head -1)")/..
+export STITCH_SOURCE_DIR=$PWD GST_PLUGIN_PATH=$PWD/$B/gst GST_REGISTRY=$PWD/$OUT/registry.bin GST_DEBUG='*:1'
+export STITCH_TEST_PPM=$PWD/.gpubundle/boat1_1600.ppm XDG_RUNTIME_DIR=/tmp
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$OUT/gpu.txt"
-echo "== test_cuda"; $B/test_cuda 2>&1 | tee "$OUT/test_cuda.txt" | grep -E "PSNR|OK|FAIL|SKIP" | head -30
-echo "== bench"; $B/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
-echo "== pipelines (2 x 720x404 H.264 decoded by nvh264dec)"
+for t in $GPU_TESTS; do
+  [ -x "$B/tests/$t" ] || continue
+  echo "== $t"
+  timeout 300 "$B/tests/$t" > "$OUT/$t.log" 2>&1
+  echo "rc=$?"
+  grep -E "PSNR|FLOW|COLOR|CONVERT|FLOWWARP|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
+done 2>&1 | tee "$OUT/tests.txt"
+if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
+echo "== kernels"; timeout 300 $B/bench/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
+echo "== core chain"; timeout 300 $B/bench/stitch-bench-chain --photo "$STITCH_TEST_PPM" --frames 300 --cpu-frames 5 \
+  --json "$OUT/chain.json" 2>&1 | tee "$OUT/bench_chain.txt"
+echo "== GStreamer pipelines" | tee "$OUT/bench_pipeline.txt"
+for mode in "--cuda-input" "" "--system-output"; do
+  timeout 280 $B/bench/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 600 $mode \
+    --json "$OUT/pipeline${mode//-/_}.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee -a "$OUT/bench_pipeline.txt"
+done
+echo "== decoded by nvh264dec (2 x 720x404 H.264)"
 L=data/limlight_2cam_apartment
-for chain in "stitchblend backend=cpu" "stitchblend backend=cuda" "stitchcolor ! stitchflowwarp ! stitchblend backend=cpu" \
-             "stitchcolor ! stitchflowwarp ! stitchblend backend=cuda"; do
+for chain in "stitchblend backend=cpu" "stitchblend" "stitchcolor ! stitchflowwarp ! stitchblend backend=cpu" \
+             "stitchcolor ! stitchflowwarp ! stitchblend"; do
   t0=$EPOCHREALTIME
-  XDG_RUNTIME_DIR=/tmp gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
+  gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
     filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v "gldisplay\|nvrtc" | grep -A2 "^ERROR" | head -4
   echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"
-done | tee "$OUT/pipelines.txt"
-echo "== CUDA memory out of stitchblend (stitchblend ! cudadownload) vs the CPU path"
+done 2>&1 | tee "$OUT/pipelines.txt"
+echo "== the whole chain in CUDA memory (nvh264dec ! stitchsync ... stitchblend ! cudadownload) vs the CPU chain"
 for b in cuda cpu; do
-  if [ $b = cuda ]; then tail="stitchblend ! cudadownload"; else tail="stitchblend backend=cpu"; fi
-  XDG_RUNTIME_DIR=/tmp gst-launch-1.0 -v stitchsync name=s ! stitchcalib ! $tail ! video/x-raw,format=RGBA ! \
-    multifilesink location=$OUT/pano_$b.raw max-files=1 \
+  if [ $b = cuda ]; then
+    chain="stitchsync name=s ! stitchcalib ! stitchcolor ! stitchflowwarp ! stitchblend ! cudadownload"
+  else
+    chain="stitchsync name=s backend=cpu ! stitchcalib ! stitchcolor backend=cpu ! stitchflowwarp backend=cpu ! stitchblend backend=cpu"
+  fi
+  gst-launch-1.0 -v $chain ! video/x-raw,format=RGBA ! multifilesink location=$OUT/pano_$b.raw max-files=1 \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
     filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 > "$OUT/interop_$b.log" 2>&1
-  echo "$b: rc=$? $(grep -c 'memory:CUDAMemory' "$OUT/interop_$b.log") caps lines with memory:CUDAMemory"
-  grep -m2 "stitchblend0.GstPad:src: caps" "$OUT/interop_$b.log" | cut -c1-160
-done
-python3 - "$OUT" <<'PY'
+  echo "$b: rc=$?"
+  grep -E "stitch(sync|calib|color|flowwarp|blend)0.GstPad:src: caps" "$OUT/interop_$b.log" | sed 's/, multiview.*//' | cut -c1-150 | sort -u
+done 2>&1 | tee "$OUT/interop.txt"
+python3 - "$OUT" <<'PY' 2>&1 | tee -a "$OUT/interop.txt"
 import sys, numpy as np, os
 out = sys.argv[1]
 a = np.fromfile(os.path.join(out, "pano_cuda.raw"), np.uint8).astype(np.float64)
@@ -49,5 +76,8 @@ b = np.fromfile(os.path.join(out, "pano_cpu.raw"), np.uint8).astype(np.float64)
 print("last panorama bytes", a.size, b.size)
 if a.size == b.size and a.size:
     mse = np.mean((a - b) ** 2)
-    print("CUDA-memory panorama vs CPU panorama: PSNR %.2f dB" % (10 * np.log10(255**2 / mse) if mse else float("inf")))
+    print("CUDA-memory chain vs CPU chain, last panorama: PSNR %.2f dB" % (10 * np.log10(255**2 / mse) if mse else float("inf")))
 PY
+rm -f "$OUT"/pano_*.raw "$OUT/registry.bin"
+# A device call brings back at most 8 files: everything goes home in one archive.
+(cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .)

@@ -60,17 +60,6 @@ __device__ __forceinline__ void store_mean(const DeviceImage& out, int x, int y,
   *reinterpret_cast<uchar4*>(out.data + size_t(y) * out.pitch + size_t(x) * 4) = o;
 }
 
-// Position weight of view `vg` at output pixel (x, y), with its camera coordinates; 0 where the
-// view does not cover the pixel.
-__device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int y, float& u, float& v) {
-  if (x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) return 0.f;
-  Homography H;
-#pragma unroll
-  for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
-  if (!to_camera(H, float(x), float(y), u, v)) return 0.f;
-  return position_weight(u, v, vg.camera_w, vg.camera_h);
-}
-
 // mode 0: views are warped rois (fuse); mode 1: views are camera frames (compose).
 template <int kMode>
 __global__ void blend_kernel(const ComposeParams p) {

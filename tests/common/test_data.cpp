@@ -43,27 +43,4 @@ cv::Mat load_rgba(const std::string& path) {
   return rgba;
 }
 
-stitch::Camera pinhole(int width, int height, double f) {
-  stitch::Camera c;
-  c.width = width;
-  c.height = height;
-  c.fx = c.fy = f;
-  c.cx = (width - 1) * 0.5;
-  c.cy = (height - 1) * 0.5;
-  return c;
-}
-
-stitch::Rig shifted_rig(int n, int width, int height, double shift) {
-  stitch::Rig rig;
-  for (int i = 0; i < n; ++i) {
-    stitch::Camera c = pinhole(width, height, width);
-    Eigen::Matrix3d H = Eigen::Matrix3d::Identity();
-    H(0, 2) = shift * i;
-    c.homography = H;
-    rig.cameras.push_back(c);
-  }
-  stitch::rig_layout_canvas(rig);
-  return rig;
-}
-
 }  // namespace testdata

@@ -4,6 +4,7 @@
 #include <string>
 
 #include "image_compare.hpp"
+#include "synthetic_rig.hpp"
 #include "stitch/rig/rig.hpp"
 
 namespace testdata {
@@ -16,9 +17,5 @@ std::string temp_dir();                    // a fresh folder for this process
 // RGBA image from a file (OpenCV reads BGR); throws when missing.
 cv::Mat load_rgba(const std::string& path);
 
-// A centred pinhole camera of width x height with focal length f (no homography).
-stitch::Camera pinhole(int width, int height, double f);
-// n cameras side by side, `shift` pixels apart on the canvas (pure translations), laid out.
-stitch::Rig shifted_rig(int n, int width, int height, double shift);
 
 }  // namespace testdata

@@ -1,32 +1,25 @@
 // Coarse-to-fine warping: parallax inside an overlap is aligned by the flow; identical views,
-// uniform frames and views without overlap give exactly the homography-only result.
+// uniform frames and views without overlap give exactly the homography-only result. Every
+// case runs on the CPU and on the GPU (skipped, and said so, without a CUDA device), and the
+// CUDA warper is compared with the CPU one. Links no imgcodecs: it runs on the GPU host too.
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <opencv2/imgproc.hpp>
 
+#include "image_compare.hpp"
+#include "ppm.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/warp/flow_warper.hpp"
-#include "test_data.hpp"
+#include "synthetic_rig.hpp"
 
 using namespace stitch;
 
 namespace {
 
 constexpr int kW = 320, kH = 240, kShift = 200;  // 120 px of overlap
-
-// Shifts the content of `img` by a smooth field (up to `amplitude` px): local parallax.
-cv::Mat with_parallax(const cv::Mat& img, double amplitude) {
-  cv::Mat mx(img.size(), CV_32F), my(img.size(), CV_32F);
-  for (int y = 0; y < img.rows; ++y)
-    for (int x = 0; x < img.cols; ++x) {
-      mx.at<float>(y, x) = float(x - amplitude * std::sin(CV_PI * y / img.rows) * std::cos(0.01 * x));
-      my.at<float>(y, x) = float(y - 0.5 * amplitude * std::cos(CV_PI * x / img.cols));
-    }
-  cv::Mat out;
-  cv::remap(img, out, mx, my, cv::INTER_CUBIC, cv::BORDER_REFLECT);
-  return out;
-}
+using testdata::with_parallax;
 
 struct Scene {
   std::vector<cv::Mat> frames;
@@ -36,7 +29,9 @@ struct Scene {
 
 // Camera i sees the photo from x = i * kShift; camera 1 sees it with parallax.
 Scene make_scene(int cameras, double parallax, bool uniform = false) {
-  cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  const char* path = std::getenv("STITCH_TEST_PPM");  // data/photos/boat1_1600.jpg, as PPM
+  cv::Mat photo = testdata::read_ppm_rgba(path ? path : "");
+  if (photo.empty()) throw std::runtime_error("cannot read the test photo: set STITCH_TEST_PPM");
   cv::resize(photo, photo, cv::Size(kW + (cameras - 1) * kShift, kH), 0, 0, cv::INTER_AREA);
   if (uniform) photo.setTo(cv::Scalar(90, 90, 90, 255));
   Scene s;
@@ -60,8 +55,8 @@ std::vector<cv::Mat> warp_views(const Scene& s, FlowWarper& w, int repeat = 1) {
   return out;
 }
 
-std::unique_ptr<FlowWarper> warper(const Scene& s, bool flow) {
-  auto w = FlowWarper::create(Backend::Cpu);
+std::unique_ptr<FlowWarper> warper(const Scene& s, bool flow, Backend backend) {
+  auto w = FlowWarper::create(backend);
   FlowWarpSettings settings;
   settings.flow = flow;
   w->set_settings(settings);
@@ -91,7 +86,16 @@ bool all_equal(const std::vector<cv::Mat>& a, const std::vector<cv::Mat>& b) {
 
 }  // namespace
 
-TEST(FlowWarp, ParallaxInTheOverlapIsAligned) {
+class FlowWarp : public ::testing::TestWithParam<Backend> {
+ protected:
+  void SetUp() override {
+    if (GetParam() == Backend::Cuda && !cuda_device_available())
+      GTEST_SKIP() << "no CUDA device here (or a build without the CUDA toolkit): the CUDA flow warper is not checked";
+  }
+  std::unique_ptr<FlowWarper> warper(const Scene& s, bool flow) const { return ::warper(s, flow, GetParam()); }
+};
+
+TEST_P(FlowWarp, ParallaxInTheOverlapIsAligned) {
   const Scene s = make_scene(2, 4.0);
   auto coarse = warper(s, false);
   auto fine = warper(s, true);
@@ -105,7 +109,7 @@ TEST(FlowWarp, ParallaxInTheOverlapIsAligned) {
   EXPECT_GT(fine->stats()[0].confident_fraction, 0.5);
 }
 
-TEST(FlowWarp, IdenticalViewsGiveTheHomographyOnlyOutput) {
+TEST_P(FlowWarp, IdenticalViewsGiveTheHomographyOnlyOutput) {
   const Scene s = make_scene(2, 0.0);
   auto coarse = warper(s, false);
   auto fine = warper(s, true);
@@ -115,7 +119,7 @@ TEST(FlowWarp, IdenticalViewsGiveTheHomographyOnlyOutput) {
   EXPECT_TRUE(all_equal(a, b));
 }
 
-TEST(FlowWarp, UniformFramesGiveZeroFlowAndNoNaN) {
+TEST_P(FlowWarp, UniformFramesGiveZeroFlowAndNoNaN) {
   const Scene s = make_scene(2, 0.0, true);
   auto coarse = warper(s, false);
   auto fine = warper(s, true);
@@ -126,7 +130,7 @@ TEST(FlowWarp, UniformFramesGiveZeroFlowAndNoNaN) {
   EXPECT_TRUE(all_equal(a, b));
 }
 
-TEST(FlowWarp, ViewWithoutOverlapPassesThroughWithTheHomography) {
+TEST_P(FlowWarp, ViewWithoutOverlapPassesThroughWithTheHomography) {
   Scene s = make_scene(2, 4.0);
   // A third camera far to the right of the others: no overlap with anyone.
   Rig rig = testdata::shifted_rig(3, kW, kH, kShift);
@@ -143,7 +147,7 @@ TEST(FlowWarp, ViewWithoutOverlapPassesThroughWithTheHomography) {
   EXPECT_GT(cv::norm(a[1], b[1], cv::NORM_INF), 0.0);  // the overlapping ones did move
 }
 
-TEST(FlowWarp, ResetForgetsTheHistory) {
+TEST_P(FlowWarp, ResetForgetsTheHistory) {
   const Scene moved = make_scene(2, 4.0), still = make_scene(2, 0.0);
   auto fresh = warper(moved, true);
   const auto expected = warp_views(moved, *fresh);
@@ -153,7 +157,7 @@ TEST(FlowWarp, ResetForgetsTheHistory) {
   EXPECT_TRUE(all_equal(warp_views(moved, *used), expected));
 }
 
-TEST(FlowWarp, MissingViewIsLeftOutAndOthersStillWarp) {
+TEST_P(FlowWarp, MissingViewIsLeftOutAndOthersStillWarp) {
   const Scene s = make_scene(2, 4.0);
   auto coarse = warper(s, false);
   auto fine = warper(s, true);
@@ -170,14 +174,14 @@ TEST(FlowWarp, MissingViewIsLeftOutAndOthersStillWarp) {
   EXPECT_EQ(cv::countNonZero(out[1].reshape(1) != 7), 0);  // untouched
 }
 
-TEST(FlowWarp, RejectsFramesOfTheWrongSize) {
+TEST_P(FlowWarp, RejectsFramesOfTheWrongSize) {
   Scene s = make_scene(2, 0.0);
   auto fine = warper(s, true);
   cv::resize(s.frames[1], s.frames[1], cv::Size(kW / 2, kH / 2));
   EXPECT_THROW(warp_views(s, *fine), std::invalid_argument);
 }
 
-TEST(FlowWarp, HistorySurvivesARecalibrationThatKeepsTheOverlap) {
+TEST_P(FlowWarp, HistorySurvivesARecalibrationThatKeepsTheOverlap) {
   // Two warpers see the same frames; one is re-prepared (a recalibration with the same
   // geometry) in between. The temporal state must carry over: identical outputs.
   const Scene s = make_scene(2, 4.0);
@@ -189,4 +193,27 @@ TEST(FlowWarp, HistorySurvivesARecalibrationThatKeepsTheOverlap) {
   // Without the carry-over, the re-prepared warper would start from scratch like a fresh one.
   auto fresh = warper(s, true);
   EXPECT_FALSE(all_equal(warp_views(s, *fresh), warp_views(s, *steady)));
+}
+
+INSTANTIATE_TEST_SUITE_P(Backends, FlowWarp, ::testing::Values(Backend::Cpu, Backend::Cuda),
+                         [](const ::testing::TestParamInfo<Backend>& i) { return std::string(backend_name(i.param)); });
+
+// The CUDA warper against the CPU one: the homography-only warp equal within PSNR >= 45 dB; with
+// the flow (a different dense-flow implementation) the same alignment within 0.3 grey levels.
+TEST(FlowWarpBackends, CudaMatchesCpu) {
+  if (!cuda_device_available()) GTEST_SKIP() << "no CUDA device here: CUDA vs CPU flow warp not compared";
+  const Scene s = make_scene(3, 4.0);
+  for (bool flow : {false, true}) {
+    auto cpu = warper(s, flow, Backend::Cpu), gpu = warper(s, flow, Backend::Cuda);
+    ASSERT_EQ(gpu->backend(), Backend::Cuda);
+    const auto a = warp_views(s, *cpu, 2), b = warp_views(s, *gpu, 2);
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      const double psnr = testdata::psnr_rgb(a[i], b[i]);
+      std::printf("FLOWWARP flow=%d view %zu: CUDA vs CPU PSNR %.2f dB\n", int(flow), i, psnr);
+      EXPECT_GE(psnr, flow ? 30.0 : 45.0);
+    }
+    const double mad_cpu = overlap_mad(s, a, 0, 1), mad_gpu = overlap_mad(s, b, 0, 1);
+    std::printf("FLOWWARP flow=%d overlap MAD 0-1: CPU %.3f, CUDA %.3f\n", int(flow), mad_cpu, mad_gpu);
+    EXPECT_LE(mad_gpu, mad_cpu + (flow ? 0.3 : 0.05));
+  }
 }

@@ -7,6 +7,7 @@
 #include <gst/video/video.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdlib>
@@ -17,6 +18,8 @@
 // Only the struct layout and the STITCH_* constants are used from here; the functions live
 // in the plugin, which the test does not link.
 #include "../../gst/gststitchbundle.h"
+#include "stitch/backend.hpp"
+#include "stitch/convert/convert.hpp"
 
 namespace {
 
@@ -50,6 +53,8 @@ struct Input {
   bool send_eos = true;
   // Raw per-plane fill values for non-RGBA inputs (e.g. Y, U, V); empty = RGBA code pixels.
   std::vector<guint8> plane_values;
+  // A whole frame's bytes in the caps' default layout, used for every frame when not empty.
+  std::vector<guint8> frame_bytes;
 };
 
 std::string rgba_caps(int fps_n, int fps_d = 1) {
@@ -103,6 +108,12 @@ GstBuffer* make_buffer(const Input& in, int input_index, const Frame& fr) {
   gst_caps_unref(caps);
   if (!ok) return nullptr;
   GstBuffer* buf = gst_buffer_new_allocate(nullptr, GST_VIDEO_INFO_SIZE(&info), nullptr);
+  if (!in.frame_bytes.empty()) {
+    gst_buffer_fill(buf, 0, in.frame_bytes.data(), std::min(in.frame_bytes.size(), gsize(GST_VIDEO_INFO_SIZE(&info))));
+    GST_BUFFER_PTS(buf) = fr.pts;
+    GST_BUFFER_DURATION(buf) = fr.duration;
+    return buf;
+  }
   GstVideoFrame vf;
   if (!gst_video_frame_map(&vf, &info, buf, GST_MAP_WRITE)) {
     gst_buffer_unref(buf);
@@ -560,6 +571,9 @@ std::array<guint8, 4> reference_rgba(const Input& in) {
 //    the BT.601 limited-range matrix (loosely: GStreamer's 8-bit fast path is off by up to 4)
 //    and to what GstVideoConverter makes of the same frame (tightly).
 TEST_F(StitchSyncTest, I420InputConvertedToRgba) {
+  // The system-memory path, which is GStreamer's converter (on a GPU the harness would get CUDA
+  // memory, converted by the exact matrix: StitchSyncFormats checks that one).
+  gst_util_set_object_arg(G_OBJECT(element), "backend", "cpu");
   attach(2);
   const guint8 Y = 128, U = 100, V = 160;
   std::vector<Input> in(2);
@@ -662,6 +676,219 @@ TEST_F(StitchSyncTest, PropertyDefaults) {
   ASSERT_NE(ev, nullptr);
   EXPECT_STREQ(ev->value_nick, "repeat-last");
   EXPECT_NE(g_enum_get_value_by_nick(G_PARAM_SPEC_ENUM(ps)->enum_class, "end-stream"), nullptr);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Decoder formats and memory.
+
+// A smooth RGBA card: gentle ramps in every channel, so that 4:2:0 chroma interpolated one way or
+// another moves a pixel by about a level.
+std::vector<guint8> rgba_card(int w, int h) {
+  std::vector<guint8> px(gsize(w) * gsize(h) * 4);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      guint8* p = &px[(gsize(y) * gsize(w) + gsize(x)) * 4];
+      p[0] = guint8(40 + x);
+      p[1] = guint8(60 + 2 * y);
+      p[2] = guint8(200 - x / 2 - y / 2);
+      p[3] = 255;
+    }
+  return px;
+}
+
+// `src` (a frame of `from`) converted by GStreamer's video converter to a frame of `to`, both in
+// their default layouts.
+std::vector<guint8> video_convert(const std::vector<guint8>& src, const GstVideoInfo& from, const GstVideoInfo& to) {
+  std::vector<guint8> out(GST_VIDEO_INFO_SIZE(&to));
+  GstBuffer* sb = gst_buffer_new_allocate(nullptr, GST_VIDEO_INFO_SIZE(&from), nullptr);
+  gst_buffer_fill(sb, 0, src.data(), std::min(src.size(), gsize(GST_VIDEO_INFO_SIZE(&from))));
+  GstBuffer* db = gst_buffer_new_allocate(nullptr, GST_VIDEO_INFO_SIZE(&to), nullptr);
+  GstVideoFrame sf, df;
+  if (gst_video_frame_map(&sf, &from, sb, GST_MAP_READ)) {
+    if (gst_video_frame_map(&df, &to, db, GST_MAP_WRITE)) {
+      if (GstVideoConverter* conv = gst_video_converter_new(&from, &to, nullptr)) {
+        gst_video_converter_frame(conv, &sf, &df);
+        gst_video_converter_free(conv);
+      }
+      gst_video_frame_unmap(&df);
+    }
+    gst_video_frame_unmap(&sf);
+  }
+  gst_buffer_extract(db, 0, out.data(), out.size());
+  gst_buffer_unref(sb);
+  gst_buffer_unref(db);
+  return out;
+}
+
+GstVideoInfo info_from(const std::string& caps_str) {
+  GstVideoInfo info;
+  gst_video_info_init(&info);
+  GstCaps* caps = gst_caps_from_string(caps_str.c_str());
+  EXPECT_TRUE(gst_video_info_from_caps(&info, caps)) << caps_str;
+  gst_caps_unref(caps);
+  return info;
+}
+
+// A view's pixels, rows packed.
+std::vector<guint8> view_pixels(GstBuffer* buf, int id) {
+  std::vector<guint8> px;
+  GstVideoMeta* vm = gst_buffer_get_video_meta_id(buf, id);
+  if (!vm) return px;
+  GstMapInfo map;
+  gpointer data = nullptr;
+  gint stride = 0;
+  if (!gst_video_meta_map(vm, 0, &map, &data, &stride, GST_MAP_READ)) return px;
+  const gsize row = gsize(vm->width) * 4;
+  px.resize(row * vm->height);
+  for (guint y = 0; y < vm->height; ++y)
+    memcpy(&px[y * row], static_cast<const guint8*>(data) + gsize(y) * gsize(stride), row);
+  gst_video_meta_unmap(vm, 0, &map);
+  return px;
+}
+
+bool caps_in_cuda_memory(const GstCaps* caps) {
+  if (!caps || gst_caps_is_empty(caps) || gst_caps_is_any(caps)) return false;
+  const GstCapsFeatures* f = gst_caps_get_features(caps, 0);
+  return f && gst_caps_features_contains(f, "memory:CUDAMemory");
+}
+
+// Largest and mean absolute difference of two RGBA images, alpha left out.
+std::pair<int, double> difference(const std::vector<guint8>& a, const std::vector<guint8>& b) {
+  int worst = 0;
+  double sum = 0;
+  for (std::size_t i = 0; i < a.size() && i < b.size(); ++i) {
+    if (i % 4 == 3) continue;
+    const int d = std::abs(int(a[i]) - int(b[i]));
+    worst = std::max(worst, d);
+    sum += d;
+  }
+  return {worst, sum / (double(a.size()) * 0.75)};
+}
+
+// "Within a few levels" of videoconvert: it dithers its 16-bit intermediate (about 2 levels of
+// noise) and takes 4:2:0 chroma differently; on the smooth card that stays below these bounds.
+constexpr int kMaxLevels = 8;
+constexpr double kMeanLevels = 3.0;
+
+class StitchSyncFormats : public StitchSyncTest {
+ protected:
+  // Input 0 is the card in `format` (system memory); the view must be what videoconvert makes
+  // of it within a few levels (the system-memory path is GStreamer's converter itself; on a GPU
+  // the bundle is converted by our kernels, which use the exact matrix and bilinear chroma).
+  void check_matches_videoconvert(const char* format, const char* colorimetry) {
+    attach(2);
+    const std::string caps = std::string("video/x-raw,format=") + format + ",width=" + std::to_string(kWidth) +
+                             ",height=" + std::to_string(kHeight) + ",framerate=30/1,colorimetry=" + colorimetry;
+    const GstVideoInfo yuv = info_from(caps), rgba = info_from(rgba_caps(30));
+    std::vector<Input> in(2);
+    in[0].caps = caps;
+    in[0].frames = frames_at(30, 3);
+    in[0].frame_bytes = video_convert(rgba_card(kWidth, kHeight), rgba, yuv);
+    in[1] = rgba_input(rgba_caps(30), frames_at(30, 3));
+    run(in);
+    EXPECT_TRUE(got_eos);
+    ASSERT_EQ(outputs.size(), 3u);
+    const std::vector<guint8> want = video_convert(in[0].frame_bytes, yuv, rgba);
+    for (std::size_t k = 0; k < outputs.size(); ++k) {
+      const std::vector<guint8> got = view_pixels(outputs[k], 0);
+      ASSERT_EQ(got.size(), want.size()) << "output " << k;
+      const auto [worst, mean] = difference(got, want);
+      EXPECT_LE(worst, kMaxLevels) << format << " " << colorimetry << " output " << k;
+      EXPECT_LE(mean, kMeanLevels) << format << " " << colorimetry << " output " << k;
+      for (std::size_t i = 3; i < got.size(); i += 4) ASSERT_EQ(got[i], 255) << "alpha at byte " << i;
+      EXPECT_EQ(decode_frame(read_view(outputs[k], 1), 1), int(k));
+    }
+  }
+};
+
+// What decoders deliver: NV12 (BT.709, H.264's chroma siting) and I420 (BT.601), system memory.
+TEST_F(StitchSyncFormats, Nv12MatchesVideoconvert) { check_matches_videoconvert("NV12", "bt709"); }
+TEST_F(StitchSyncFormats, I420MatchesVideoconvert) { check_matches_videoconvert("I420", "bt601"); }
+
+// The conversion our CUDA kernels run (stitch/convert; its CPU implementation computes the same
+// bytes, tests/core/test_cuda_convert.cpp) against videoconvert, for every matrix, range and
+// layout decoders deliver: checked here, where no GPU is needed.
+TEST(StitchSyncConversion, CoreConverterMatchesVideoconvert) {
+  for (const char* format : {"NV12", "I420"})
+    for (const char* colorimetry : {"bt601", "bt709", "1:4:0:0"}) {  // the last: BT.601 full range
+      SCOPED_TRACE(std::string(format) + " " + colorimetry);
+      const GstVideoInfo yuv = info_from(std::string("video/x-raw,format=") + format + ",width=" + std::to_string(kWidth) +
+                                         ",height=" + std::to_string(kHeight) + ",framerate=30/1,colorimetry=" + colorimetry);
+      const GstVideoInfo rgba = info_from(rgba_caps(30));
+      const std::vector<guint8> card = rgba_card(kWidth, kHeight);
+      const std::vector<guint8> frame = video_convert(card, rgba, yuv);
+      stitch::FrameView v;
+      v.format = GST_VIDEO_INFO_FORMAT(&yuv) == GST_VIDEO_FORMAT_NV12 ? stitch::FrameFormat::NV12 : stitch::FrameFormat::I420;
+      v.width = kWidth;
+      v.height = kHeight;
+      for (guint p = 0; p < GST_VIDEO_INFO_N_PLANES(&yuv); ++p) {
+        v.planes[p] = frame.data() + GST_VIDEO_INFO_PLANE_OFFSET(&yuv, p);
+        v.pitches[p] = std::size_t(GST_VIDEO_INFO_PLANE_STRIDE(&yuv, p));
+      }
+      gdouble kr = 0, kb = 0;
+      ASSERT_TRUE(gst_video_color_matrix_get_Kr_Kb(yuv.colorimetry.matrix, &kr, &kb));
+      v.colorimetry.kr = kr;
+      v.colorimetry.kb = kb;
+      v.colorimetry.full_range = yuv.colorimetry.range == GST_VIDEO_COLOR_RANGE_0_255;
+      v.colorimetry.chroma_cosited_x = (yuv.chroma_site & GST_VIDEO_CHROMA_SITE_H_COSITED) != 0;
+      v.colorimetry.chroma_cosited_y = (yuv.chroma_site & GST_VIDEO_CHROMA_SITE_V_COSITED) != 0;
+      std::vector<guint8> ours(gsize(kWidth) * kHeight * 4);
+      stitch::ImageView out;
+      out.data = ours.data();
+      out.pitch = gsize(kWidth) * 4;
+      out.width = kWidth;
+      out.height = kHeight;
+      auto converter = stitch::FrameConverter::create(stitch::Backend::Cpu);
+      converter->convert(v, out);
+      converter->finish();
+      const auto [worst, mean] = difference(ours, video_convert(frame, yuv, rgba));
+      EXPECT_LE(worst, kMaxLevels);
+      EXPECT_LE(mean, kMeanLevels);
+      // and it is at least as faithful to the card the frame was made from
+      const auto [worst_card, mean_card] = difference(ours, card);
+      EXPECT_LE(mean_card, difference(video_convert(frame, yuv, rgba), card).second + 0.25);
+      (void)worst_card;
+    }
+}
+
+// backend=auto|cpu|cuda, auto by default.
+TEST_F(StitchSyncTest, BackendProperty) {
+  GParamSpec* ps = g_object_class_find_property(G_OBJECT_GET_CLASS(element), "backend");
+  ASSERT_NE(ps, nullptr) << "stitchsync has no backend property";
+  ASSERT_TRUE(G_IS_PARAM_SPEC_ENUM(ps));
+  gint value = -1;
+  g_object_get(element, "backend", &value, NULL);
+  GEnumValue* ev = g_enum_get_value(G_PARAM_SPEC_ENUM(ps)->enum_class, value);
+  ASSERT_NE(ev, nullptr);
+  EXPECT_STREQ(ev->value_nick, "auto");
+  for (const char* nick : {"cpu", "cuda"})
+    EXPECT_NE(g_enum_get_value_by_nick(G_PARAM_SPEC_ENUM(ps)->enum_class, nick), nullptr) << nick;
+}
+
+// backend=cpu: bundles in system memory whatever the machine has (the harness takes anything).
+TEST_F(StitchSyncTest, BackendCpuKeepsSystemMemory) {
+  gst_util_set_object_arg(G_OBJECT(element), "backend", "cpu");
+  attach(2);
+  std::vector<Input> in(2);
+  for (auto& i : in) i = rgba_input(rgba_caps(30), frames_at(30, 3));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  check_bundles(in, 30, 1, 3);
+  EXPECT_FALSE(caps_in_cuda_memory(out_caps)) << caps_string(out_caps);
+}
+
+// backend=cuda where no device opens is a negotiation error that says why.
+TEST_F(StitchSyncTest, BackendCudaWithoutDeviceIsAClearError) {
+  if (stitch::cuda_device_available())
+    GTEST_SKIP() << "a CUDA device opens here: backend=cuda is checked by test_cuda_memory";
+  gst_util_set_object_arg(G_OBJECT(element), "backend", "cuda");
+  attach(2);
+  std::vector<Input> in(2);
+  for (auto& i : in) i = rgba_input(rgba_caps(30), frames_at(30, 3));
+  run(in, {}, 3.0);
+  EXPECT_TRUE(outputs.empty());
+  const auto [message, debug] = pop_error(5.0);
+  EXPECT_NE(message.find("backend=cuda"), std::string::npos) << message << " | " << debug;
 }
 
 }  // namespace

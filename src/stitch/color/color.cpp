@@ -16,10 +16,22 @@ bool in_image(const Eigen::Vector3d& q, int w, int h, double& x, double& y) {
   return x >= 1 && y >= 1 && x <= w - 2 && y <= h - 2;
 }
 
-bool usable(const std::array<uint8_t, 3>& p, const ColorOptions& o) {
-  const bool dark = p[0] <= o.dark_level && p[1] <= o.dark_level && p[2] <= o.dark_level;
-  const bool bright = p[0] >= o.bright_level || p[1] >= o.bright_level || p[2] >= o.bright_level;
-  return !dark && !bright;
+Eigen::Matrix3d to_matrix(const Moments3& m) {
+  Eigen::Matrix3d M;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) M(r, c) = double(m[3 * r + c]);
+  return M;
+}
+
+// Mean level per channel of a histogram's samples.
+Eigen::Vector3d channel_means(const ChannelHistograms& h, uint64_t count) {
+  Eigen::Vector3d mean;
+  for (int ch = 0; ch < 3; ++ch) {
+    uint64_t sum = 0;
+    for (int v = 0; v < 256; ++v) sum += uint64_t(v) * h[ch][v];
+    mean[ch] = double(sum) / double(count);
+  }
+  return mean;
 }
 
 Eigen::Matrix3d clamp_matrix(const Eigen::Matrix3d& M) {
@@ -118,20 +130,20 @@ void ColorCorrector::reset() {
     for (int v = 0; v < 256; ++v) lut_[c][v] = uint8_t(v);
 }
 
-void ColorCorrector::prepare_geometry(const Rig& rig) {
+ColorSampling make_color_sampling(const Rig& rig, int max_samples_per_pair) {
   const int n = int(rig.cameras.size());
-  reference_ = rig.reference;
-  pairs_.clear();
-  std::vector<OverlapEdge> edges;  // weighted by valid sample count
+  ColorSampling s;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
       float area = 0;
       const std::vector<cv::Point2f> inter = canvas_overlap(rig.cameras[a], rig.cameras[b], &area);
       if (area < 64.0f || inter.empty()) continue;
       const cv::Rect box = cv::boundingRect(inter);
-      const double step = std::max(1.0, std::sqrt(double(area) / options_.max_samples_per_pair));
+      const double step = std::max(1.0, std::sqrt(double(area) / std::max(1, max_samples_per_pair)));
       const Eigen::Matrix3d Ha = rig.cameras[a].homography->inverse(), Hb = rig.cameras[b].homography->inverse();
-      PairGeometry g{a, b, {}, {}};
+      ColorSampling::Pair g;
+      g.a = a;
+      g.b = b;
       for (double y = box.y + step * 0.5; y < box.y + box.height; y += step)
         for (double x = box.x + step * 0.5; x < box.x + box.width; x += step) {
           if (cv::pointPolygonTest(inter, cv::Point2f(float(x), float(y)), false) < 0) continue;
@@ -144,23 +156,38 @@ void ColorCorrector::prepare_geometry(const Rig& rig) {
           g.xy_b.push_back(int32_t(std::lround(xb)));
           g.xy_b.push_back(int32_t(std::lround(yb)));
         }
-      if (g.xy_a.size() / 2 < 16) continue;
-      edges.push_back({a, b, double(g.xy_a.size())});
-      pairs_.push_back(std::move(g));
+      if (g.count() < 16) continue;
+      s.pairs.push_back(std::move(g));
     }
-  // Chain outward from the reference along the largest overlaps.
-  tree_ = max_spanning_order(n, reference_, edges);
-  balance_xy_.assign(n, {});
+  s.balance_xy.assign(n, {});
   for (int i = 0; i < n; ++i) {
     const Camera& c = rig.cameras[i];
     const int step = std::max(2, int(std::sqrt(double(c.width) * c.height / 4096.0)));
     for (int y = step / 2; y < c.height; y += step)
       for (int x = step / 2; x < c.width; x += step) {
-        balance_xy_[i].push_back(x);
-        balance_xy_[i].push_back(y);
+        s.balance_xy[i].push_back(x);
+        s.balance_xy[i].push_back(y);
       }
   }
-  history_.assign(tree_.size(), PairHistory{});
+  return s;
+}
+
+void ColorCorrector::prepare_geometry(const Rig& rig) {
+  const int n = int(rig.cameras.size());
+  reference_ = rig.reference;
+  sampling_ = make_color_sampling(rig, options_.max_samples_per_pair);
+  ops_->set_sampling(sampling_);
+  // Chain outward from the reference along the largest overlaps (weighted by sample count).
+  std::vector<OverlapEdge> edges;
+  for (const auto& g : sampling_.pairs) edges.push_back({g.a, g.b, double(g.count())});
+  chain_.clear();
+  for (const auto& [view, parent] : max_spanning_order(n, reference_, edges))
+    for (std::size_t k = 0; k < sampling_.pairs.size(); ++k) {
+      const ColorSampling::Pair& g = sampling_.pairs[k];
+      if ((g.a == view && g.b == parent) || (g.a == parent && g.b == view))
+        chain_.push_back({view, parent, int(k), g.a == view});
+    }
+  history_.assign(chain_.size(), PairHistory{});
   if (int(current_.size()) != n) {
     current_.assign(n, Eigen::Matrix3d::Identity());
     has_current_.assign(n, false);
@@ -183,55 +210,25 @@ Eigen::Matrix3d ColorCorrector::limited_update(const Eigen::Matrix3d& previous, 
 }
 
 void ColorCorrector::estimate_matrices(const std::vector<ImageView>& views) {
-  std::vector<std::array<uint8_t, 3>> sc, sp;
-  for (std::size_t e = 0; e < tree_.size(); ++e) {
-    const auto [c, p] = tree_[e];
+  const double unit = 1.0 / (255.0 * 255.0);  // moments are in 8-bit units, the fit in [0, 1]
+  for (std::size_t e = 0; e < chain_.size(); ++e) {
+    const ChainEdge& edge = chain_[e];
+    const int c = edge.view, p = edge.parent;
     if (views[c].empty() || views[p].empty()) continue;
-    const PairGeometry* g = nullptr;
-    bool c_is_a = true;
-    for (const auto& pg : pairs_)
-      if ((pg.a == c && pg.b == p) || (pg.a == p && pg.b == c)) {
-        g = &pg;
-        c_is_a = pg.a == c;
-      }
-    if (!g) continue;
-    ops_->gather(views[c], c_is_a ? g->xy_a : g->xy_b, sc);
-    ops_->gather(views[p], c_is_a ? g->xy_b : g->xy_a, sp);
-    // Target: the parent's pixels as the parent will look after its own correction.
-    const Eigen::Matrix3d& Mp = current_[p];
-    std::vector<Eigen::Vector3d> x, y;
-    x.reserve(sc.size());
-    y.reserve(sc.size());
-    std::array<uint32_t, 256> hist_c[3] = {}, hist_p[3] = {};
-    for (std::size_t k = 0; k < sc.size(); ++k) {
-      if (!usable(sc[k], options_) || !usable(sp[k], options_)) continue;
-      const Eigen::RowVector3d in_p(sp[k][0], sp[k][1], sp[k][2]);
-      Eigen::RowVector3d t = in_p * Mp;
-      for (int ch = 0; ch < 3; ++ch) t[ch] = std::clamp(t[ch], 0.0, 255.0);
-      x.emplace_back(sc[k][0], sc[k][1], sc[k][2]);
-      y.emplace_back(t.transpose());
-      for (int ch = 0; ch < 3; ++ch) {
-        hist_c[ch][sc[k][ch]]++;
-        hist_p[ch][int(std::lround(t[ch]))]++;
-      }
-    }
-    if (int(x.size()) < options_.min_samples) continue;  // keep the last correction
-    if (options_.pairing == ColorPairing::Histogram) {
-      // Step 3: view c's overlap revised to the parent's histogram, pixel by pixel.
-      std::array<uint8_t, 256> spec[3];
-      for (int ch = 0; ch < 3; ++ch) spec[ch] = histogram_specification(hist_c[ch], hist_p[ch]);
-      for (std::size_t k = 0; k < x.size(); ++k)
-        for (int ch = 0; ch < 3; ++ch) y[k][ch] = spec[ch][int(x[k][ch])];
-    }
-    Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero(), AtB = Eigen::Matrix3d::Zero();
-    for (std::size_t k = 0; k < x.size(); ++k) {
-      const Eigen::Vector3d xi = x[k] / 255.0, yi = y[k] / 255.0;
-      AtA += xi * xi.transpose();
-      AtB += xi * yi.transpose();
-    }
-    // Normalise per sample so frames weigh the same whatever their overlap's valid count.
-    AtA /= double(x.size());
-    AtB /= double(x.size());
+    const PairStats& s = stats_.pairs[std::size_t(edge.pair)];
+    if (s.count < uint64_t(std::max(0, options_.min_samples)) || s.count == 0) continue;  // keep the last correction
+    // x: view c's samples; y: the target, i.e. the parent's pixels (pairing=pixels) or c's
+    // histogram-specified to the parent's (pairing=histogram), in the parent's raw colours.
+    const Eigen::Matrix3d XtX = to_matrix(edge.view_is_a ? s.aa : s.bb);
+    Eigen::Matrix3d XtY;
+    if (options_.pairing == ColorPairing::Histogram) XtY = to_matrix(s.matched);
+    else XtY = edge.view_is_a ? to_matrix(s.ab) : Eigen::Matrix3d(to_matrix(s.ab).transpose());
+    // The target is the parent as it will look after its own correction Mp (already updated
+    // this frame: the chain runs outward): sum x (y Mp) = (sum x y^T) Mp, so the reductions
+    // need no Mp and all of them run in one pass before any fit. Normalised per sample so
+    // frames weigh the same whatever their overlap's valid count.
+    const double norm = unit / double(s.count);
+    const Eigen::Matrix3d AtA = XtX * norm, AtB = XtY * current_[p] * norm;
     PairHistory& h = history_[e];
     h.AtA.push_back(AtA);
     h.AtB.push_back(AtB);
@@ -268,24 +265,14 @@ void ColorCorrector::estimate_gains(const std::vector<ImageView>& views) {
     A[ch] = Eigen::MatrixXd::Zero(n, n);
     b[ch] = Eigen::VectorXd::Zero(n);
   }
-  std::vector<std::array<uint8_t, 3>> sa, sb;
   std::vector<int> overlaps(n, 0);
-  for (const auto& g : pairs_) {
+  for (std::size_t k = 0; k < sampling_.pairs.size(); ++k) {
+    const ColorSampling::Pair& g = sampling_.pairs[k];
     if (views[g.a].empty() || views[g.b].empty()) continue;
-    ops_->gather(views[g.a], g.xy_a, sa);
-    ops_->gather(views[g.b], g.xy_b, sb);
-    Eigen::Vector3d ma = Eigen::Vector3d::Zero(), mb = Eigen::Vector3d::Zero();
-    int count = 0;
-    for (std::size_t k = 0; k < sa.size(); ++k) {
-      if (!usable(sa[k], options_) || !usable(sb[k], options_)) continue;
-      ma += Eigen::Vector3d(sa[k][0], sa[k][1], sa[k][2]);
-      mb += Eigen::Vector3d(sb[k][0], sb[k][1], sb[k][2]);
-      ++count;
-    }
-    if (count < options_.min_samples) continue;
-    ma /= count;
-    mb /= count;
-    const double N = count;
+    const PairStats& s = stats_.pairs[k];
+    if (s.count < uint64_t(std::max(0, options_.min_samples)) || s.count == 0) continue;
+    const Eigen::Vector3d ma = channel_means(s.hist_a, s.count), mb = channel_means(s.hist_b, s.count);
+    const double N = double(s.count);
     ++overlaps[g.a];
     ++overlaps[g.b];
     for (int ch = 0; ch < 3; ++ch) {
@@ -323,19 +310,14 @@ void ColorCorrector::estimate_gains(const std::vector<ImageView>& views) {
 }
 
 void ColorCorrector::update_balance(const std::vector<ImageView>& views) {
-  std::array<uint32_t, 256> hist[3] = {};
-  std::vector<std::array<uint8_t, 3>> s;
-  uint64_t total = 0;
+  std::array<uint64_t, 256> hist[3] = {};
   for (std::size_t i = 0; i < views.size(); ++i) {
     if (views[i].empty()) continue;
-    ops_->gather(views[i], balance_xy_[i], s);
-    const Eigen::Matrix3d& M = current_[i];
-    for (const auto& px : s) {
-      const Eigen::RowVector3d v = Eigen::RowVector3d(px[0], px[1], px[2]) * M;
-      for (int ch = 0; ch < 3; ++ch) hist[ch][std::clamp(int(std::lround(v[ch])), 0, 255)]++;
-    }
-    total += s.size();
+    for (int ch = 0; ch < 3; ++ch)
+      for (int v = 0; v < 256; ++v) hist[ch][v] += stats_.balance[i][ch][v];
   }
+  uint64_t total = 0;  // every grid sample lands in one bin per channel
+  for (int v = 0; v < 256; ++v) total += hist[0][v];
   if (total == 0) return;
   std::array<double, 6> t;
   for (int ch = 0; ch < 3; ++ch) {
@@ -370,22 +352,64 @@ void ColorCorrector::update_balance(const std::vector<ImageView>& views) {
   }
 }
 
+// One frame, one code path for every backend:
+//   1. ops_->reduce: every statistic of the frame in one pass over the fixed sample positions
+//      (CUDA: a few small kernels, a few KB back, ONE stream synchronisation);
+//   2. the fits on the host (3x3 solves, ridge, limits, temporal window, gains, balance curve:
+//      O(1) per frame);
+//   3. ops_->apply_all: every view corrected (CUDA: one launch, one synchronisation at the end
+//      so that the next stage sees finished pixels).
+// Doing all the reductions before any fit needs them independent of this frame's fits:
+// - the chain's targets are in the parent's raw colours and the parent's correction Mp is
+//   applied to the sums afterwards (estimate_matrices). Where the parent is the reference
+//   (Mp = I: every view of a 2- or 3-camera rig around its reference) this is exactly the fit
+//   against the corrected parent; further out, pairing=pixels differs only where the
+//   corrected parent would clip, and pairing=histogram specifies onto the parent's raw
+//   histogram and then applies Mp, instead of specifying onto the corrected parent's;
+// - the balance histogram is of the views under the corrections the frame starts with (the
+//   previous frame's). The thresholds are averaged over three frames and a correction moves
+//   by at most max_step per frame, so this shifts them by a level or two; the frame on which
+//   a correction is first set takes the histogram again under the new corrections.
 void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::vector<ImageView>& views) {
   if (views.size() != rig.cameras.size()) throw RigError("view count differs from the rig");
   if (rig_version != rig_version_ || current_.size() != views.size()) {
     prepare_geometry(rig);
     rig_version_ = rig_version;
   }
+  const bool fit = options_.method != ColorMethod::None;
+  if (!fit && !options_.balance) return;
+  request_.pairs = fit;
+  request_.match.assign(sampling_.pairs.size(), HistogramMatch::None);
+  const bool matrices = options_.method == ColorMethod::Matrix2D || options_.method == ColorMethod::Matrix3D;
+  if (matrices && options_.pairing == ColorPairing::Histogram)
+    for (const ChainEdge& edge : chain_)
+      request_.match[std::size_t(edge.pair)] = edge.view_is_a ? HistogramMatch::AOntoB : HistogramMatch::BOntoA;
+  request_.balance = options_.balance;
+  request_.balance_matrices = current_;
+  request_.dark_level = options_.dark_level;
+  request_.bright_level = options_.bright_level;
+  ops_->reduce(views, request_, stats_);
+  const auto established = [this] { return std::count(has_current_.begin(), has_current_.end(), true); };
+  const auto established_before = established();
   switch (options_.method) {
     case ColorMethod::None: break;
     case ColorMethod::Matrix2D:
     case ColorMethod::Matrix3D: estimate_matrices(views); break;
     case ColorMethod::Gain: estimate_gains(views); break;
   }
-  if (options_.balance) update_balance(views);
-  if (options_.method == ColorMethod::None && !options_.balance) return;
-  for (std::size_t i = 0; i < views.size(); ++i)
-    if (!views[i].empty()) ops_->apply(views[i], current_[i], lut_);
+  if (options_.balance) {
+    if (established() > established_before) {
+      // A correction was set outright (its first fit, after a start or reset): the views under
+      // the previous corrections are far from what this frame shows, so the balance histogram
+      // is taken again under the new ones (a second synchronisation, on such frames only).
+      // Afterwards a correction moves by at most max_step per frame.
+      request_.pairs = false;
+      request_.balance_matrices = current_;
+      ops_->reduce(views, request_, stats_);
+    }
+    update_balance(views);
+  }
+  ops_->apply_all(views, current_, lut_);
 }
 
 }  // namespace stitch

@@ -4,7 +4,9 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -47,22 +49,85 @@ struct ColorOptions {
   int max_samples_per_pair = 16384;
 };
 
-// Paired overlap samples of one view pair: RGB rows of view a and of view b.
-struct OverlapSamples {
-  int a = -1, b = -1;
-  std::vector<std::array<uint8_t, 3>> va, vb;
+// Where the color statistics are read, fixed per rig geometry (a backend uploads it once).
+struct ColorSampling {
+  // One overlapping view pair: sample k is pixel (xy_a[2k], xy_a[2k+1]) of view a and
+  // (xy_b[2k], xy_b[2k+1]) of view b, the same canvas point.
+  struct Pair {
+    int a = -1, b = -1;
+    std::vector<int32_t> xy_a, xy_b;
+    int count() const { return int(xy_a.size() / 2); }
+  };
+  std::vector<Pair> pairs;
+  std::vector<std::vector<int32_t>> balance_xy;  // per view: (x, y) of the sparse balance grid
 };
+
+// Every overlapping pair of a calibrated rig with up to ~max_samples_per_pair canvas points
+// inside both views, and a ~4096-point grid per view for the balance histogram.
+ColorSampling make_color_sampling(const Rig& rig, int max_samples_per_pair);
+
+using ChannelHistograms = std::array<std::array<uint32_t, 256>, 3>;
+// Sum over samples of x_r * y_c in 8-bit RGB units, row-major (r, c): integers, so every
+// backend and every summation order gives the same value.
+using Moments3 = std::array<uint64_t, 9>;
+
+// Which side of a pair is histogram-specified onto the other (pairing=histogram).
+enum class HistogramMatch : uint8_t { None, AOntoB, BOntoA };
+
+// What one frame's reductions are asked for.
+struct ColorReductionRequest {
+  bool pairs = false;                  // per pair: count, histograms, moments
+  std::vector<HistogramMatch> match;   // per pair (missing entries: None); needs `pairs`
+  bool balance = false;                // per view: histograms of the balance grid ...
+  std::vector<Eigen::Matrix3d> balance_matrices;  // ... of pixel * M, rounded and clamped
+  int dark_level = 8, bright_level = 250;  // a sample is usable unless dark or bright on either side
+};
+
+// One pair's statistics over its usable samples (both pixels inside their views, neither
+// all-dark nor with a saturated channel). All zero when a view of the pair is empty.
+struct PairStats {
+  uint64_t count = 0;
+  ChannelHistograms hist_a{}, hist_b{};
+  Moments3 aa{}, bb{}, ab{};  // sum a a^T, sum b b^T, sum a b^T
+  // Sum s lut(s)^T for the matched side s, lut = histogram_specification of s's histogram
+  // onto the other side's, per channel. Zero when not asked for.
+  Moments3 matched{};
+};
+
+struct ColorStats {
+  std::vector<PairStats> pairs;             // per sampling pair (zero unless asked for)
+  std::vector<ChannelHistograms> balance;   // per view (zero for empty views, unless asked for)
+};
+
+// The level of channel c of pixel rgb after the 3x3 M: clamp(round(sum_k rgb_k M(k, c))), the
+// bin of the balance histogram. The CUDA kernel evaluates the same expression in the same
+// order, without fused multiply-adds.
+inline int corrected_level(const uint8_t* rgb, const Eigen::Matrix3d& M, int c) {
+  const double v = (double(rgb[0]) * M(0, c) + double(rgb[1]) * M(1, c)) + double(rgb[2]) * M(2, c);
+  return int(std::clamp(std::lround(v), 0L, 255L));
+}
 
 // The per-frame pixel work, one implementation per backend.
 class ColorOps {
  public:
   virtual ~ColorOps() = default;
-  // Reads the pixels at the given integer coordinates (x, y pairs) of a view.
+  // Takes the sample positions of a new geometry (the CUDA backend keeps them on the device).
+  virtual void set_sampling(const ColorSampling& sampling) = 0;
+  // This frame's statistics at the sampling's positions (see ColorReductionRequest). The CUDA
+  // backend returns them with one stream synchronisation.
+  virtual void reduce(const std::vector<ImageView>& views, const ColorReductionRequest& request,
+                      ColorStats& out) = 0;
+  // Every non-empty view in place: out = clamp(lut[c](round(sum_k in_k * M_i(k, c)))), alpha
+  // untouched. The CUDA backend runs one launch for all views and returns once they are done.
+  virtual void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
+                         const std::array<std::array<uint8_t, 256>, 3>& lut) = 0;
+  // One view: apply_all of a single view.
+  void apply(const ImageView& view, const Eigen::Matrix3d& M, const std::array<std::array<uint8_t, 256>, 3>& lut) {
+    apply_all({view}, {M}, lut);
+  }
+  // Reads the pixels at the given integer coordinates (x, y pairs) of a view (tests, tools).
   virtual void gather(const ImageView& view, const std::vector<int32_t>& xy,
                       std::vector<std::array<uint8_t, 3>>& out) = 0;
-  // out = clamp(lut[c](round(sum_k in_k * M(k, c)))) per pixel, alpha untouched. In place.
-  virtual void apply(const ImageView& view, const Eigen::Matrix3d& M,
-                     const std::array<std::array<uint8_t, 256>, 3>& lut) = 0;
   virtual Backend backend() const = 0;
   static std::unique_ptr<ColorOps> create(Backend backend);
 };
@@ -96,6 +161,11 @@ class ColorCorrector {
   struct PairHistory {
     std::deque<Eigen::Matrix3d> AtA, AtB;  // normal equations per frame, newest last
   };
+  // A view fitted to its parent in the chain, and the sampling pair they share.
+  struct ChainEdge {
+    int view, parent, pair;
+    bool view_is_a;
+  };
   void prepare_geometry(const Rig& rig);
   void estimate_matrices(const std::vector<ImageView>& views);
   void estimate_gains(const std::vector<ImageView>& views);
@@ -107,14 +177,11 @@ class ColorCorrector {
   ColorOptions options_;
   uint64_t rig_version_ = ~uint64_t(0);
   int reference_ = 0;
-  std::vector<std::pair<int, int>> tree_;  // (view, parent) outward from the reference
-  struct PairGeometry {
-    int a, b;
-    std::vector<int32_t> xy_a, xy_b;
-  };
-  std::vector<PairGeometry> pairs_;        // every overlapping pair
-  std::vector<std::vector<int32_t>> balance_xy_;  // per view: sparse grid for the histogram
-  std::vector<PairHistory> history_;       // per tree edge
+  ColorSampling sampling_;
+  std::vector<ChainEdge> chain_;           // outward from the reference
+  std::vector<PairHistory> history_;       // per chain edge
+  ColorReductionRequest request_;          // reused every frame
+  ColorStats stats_;                       // this frame's reductions
   std::vector<Eigen::Matrix3d> current_;
   std::vector<bool> has_current_;
   std::vector<Eigen::Vector3d> gains_;

@@ -11,8 +11,110 @@
 namespace stitch {
 namespace {
 
+bool usable(const uint8_t* p, const ColorReductionRequest& r) {
+  const bool dark = p[0] <= r.dark_level && p[1] <= r.dark_level && p[2] <= r.dark_level;
+  const bool bright = p[0] >= r.bright_level || p[1] >= r.bright_level || p[2] >= r.bright_level;
+  return !dark && !bright;
+}
+
+// The pixel at (x, y), or nullptr outside the view.
+const uint8_t* pixel(const ImageView& view, int32_t x, int32_t y) {
+  if (x < 0 || y < 0 || x >= view.width || y >= view.height) return nullptr;
+  return view.row(y) + 4 * std::size_t(x);
+}
+
+void add_moments(Moments3& m, const uint8_t* x, const uint8_t* y) {
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m[3 * r + c] += uint64_t(x[r]) * y[c];
+}
+
 class ColorOpsCpu final : public ColorOps {
  public:
+  void set_sampling(const ColorSampling& sampling) override { sampling_ = sampling; }
+
+  // Plain loops over the samples; the CUDA kernels compute exactly these integers.
+  void reduce(const std::vector<ImageView>& views, const ColorReductionRequest& request,
+              ColorStats& out) override {
+    if (views.size() != sampling_.balance_xy.size()) throw std::invalid_argument("color: views do not match the sampling");
+    if (request.balance && request.balance_matrices.size() < views.size())
+      throw std::invalid_argument("color: a balance matrix per view is needed");
+    out.pairs.resize(sampling_.pairs.size());
+    for (std::size_t k = 0; k < sampling_.pairs.size(); ++k) {
+      PairStats& s = out.pairs[k];
+      s = PairStats{};
+      const ColorSampling::Pair& g = sampling_.pairs[k];
+      if (!request.pairs || views[g.a].empty() || views[g.b].empty()) continue;
+      usable_.clear();
+      for (int i = 0; i < g.count(); ++i) {
+        const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
+        const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
+        if (!a || !b || !usable(a, request) || !usable(b, request)) continue;
+        usable_.push_back(i);
+        ++s.count;
+        for (int ch = 0; ch < 3; ++ch) {
+          s.hist_a[ch][a[ch]]++;
+          s.hist_b[ch][b[ch]]++;
+        }
+        add_moments(s.aa, a, a);
+        add_moments(s.bb, b, b);
+        add_moments(s.ab, a, b);
+      }
+      const HistogramMatch match = k < request.match.size() ? request.match[k] : HistogramMatch::None;
+      if (match == HistogramMatch::None) continue;
+      const bool a_onto_b = match == HistogramMatch::AOntoB;
+      std::array<uint8_t, 256> lut[3];
+      for (int ch = 0; ch < 3; ++ch)
+        lut[ch] = a_onto_b ? histogram_specification(s.hist_a[ch], s.hist_b[ch])
+                           : histogram_specification(s.hist_b[ch], s.hist_a[ch]);
+      const ImageView& side = a_onto_b ? views[g.a] : views[g.b];
+      const std::vector<int32_t>& xy = a_onto_b ? g.xy_a : g.xy_b;
+      for (int i : usable_) {
+        const uint8_t* x = pixel(side, xy[2 * i], xy[2 * i + 1]);
+        const uint8_t y[3] = {lut[0][x[0]], lut[1][x[1]], lut[2][x[2]]};
+        add_moments(s.matched, x, y);
+      }
+    }
+    out.balance.resize(views.size());
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      ChannelHistograms& h = out.balance[i];
+      for (auto& channel : h) channel.fill(0);
+      if (!request.balance || views[i].empty()) continue;
+      const Eigen::Matrix3d& M = request.balance_matrices[i];
+      const std::vector<int32_t>& xy = sampling_.balance_xy[i];
+      for (std::size_t k = 0; k + 1 < xy.size(); k += 2) {
+        const uint8_t* p = pixel(views[i], xy[k], xy[k + 1]);
+        if (!p) continue;
+        for (int ch = 0; ch < 3; ++ch) h[ch][corrected_level(p, M, ch)]++;
+      }
+    }
+  }
+
+  void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
+                 const std::array<std::array<uint8_t, 256>, 3>& lut) override {
+    if (matrices.size() < views.size()) throw std::invalid_argument("color: a matrix per view is needed");
+    bool identity_lut = true;
+    for (int c = 0; c < 3 && identity_lut; ++c)
+      for (int v = 0; v < 256 && identity_lut; ++v) identity_lut = lut[c][v] == v;
+    cv::Mat table;
+    if (!identity_lut) {
+      table.create(1, 256, CV_8UC4);
+      for (int v = 0; v < 256; ++v) table.at<cv::Vec4b>(0, v) = {lut[0][v], lut[1][v], lut[2][v], uint8_t(v)};
+    }
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      if (views[i].empty()) continue;
+      cv::Mat img = as_mat(views[i]);
+      const Eigen::Matrix3d& M = matrices[i];
+      if (!M.isIdentity(1e-9)) {
+        // out_c = sum_k in_k M(k, c): cv::transform's matrix is M transposed; alpha passes.
+        cv::Matx44f T = cv::Matx44f::eye();
+        for (int c = 0; c < 3; ++c)
+          for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
+        cv::transform(img, img, T);
+      }
+      if (!identity_lut) cv::LUT(img, table, img);
+    }
+  }
+
   void gather(const ImageView& view, const std::vector<int32_t>& xy,
               std::vector<std::array<uint8_t, 3>>& out) override {
     out.resize(xy.size() / 2);
@@ -22,26 +124,11 @@ class ColorOpsCpu final : public ColorOps {
     }
   }
 
-  void apply(const ImageView& view, const Eigen::Matrix3d& M,
-             const std::array<std::array<uint8_t, 256>, 3>& lut) override {
-    cv::Mat img = as_mat(view);
-    if (!M.isIdentity(1e-9)) {
-      // out_c = sum_k in_k M(k, c): cv::transform's matrix is M transposed; alpha passes.
-      cv::Matx44f T = cv::Matx44f::eye();
-      for (int c = 0; c < 3; ++c)
-        for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
-      cv::transform(img, img, T);
-    }
-    bool identity = true;
-    for (int c = 0; c < 3 && identity; ++c)
-      for (int v = 0; v < 256 && identity; ++v) identity = lut[c][v] == v;
-    if (identity) return;
-    cv::Mat table(1, 256, CV_8UC4);
-    for (int v = 0; v < 256; ++v) table.at<cv::Vec4b>(0, v) = {lut[0][v], lut[1][v], lut[2][v], uint8_t(v)};
-    cv::LUT(img, table, img);
-  }
-
   Backend backend() const override { return Backend::Cpu; }
+
+ private:
+  ColorSampling sampling_;
+  std::vector<int> usable_;  // this pair's usable sample indices (reused)
 };
 
 }  // namespace

@@ -1,4 +1,7 @@
+#include <algorithm>
+#include <cstring>
 #include <stdexcept>
+#include <vector>
 
 #include "../../../cuda/color/color_kernels.hpp"
 #include "stitch/cuda/cuda_util.hpp"
@@ -7,12 +10,228 @@
 namespace stitch {
 namespace {
 
-// Per-pixel color work on views in device memory. Views still in system memory (a chain that
-// negotiated no CUDA memory) go to the CPU implementation: a round trip to the GPU for a
-// 3x3 per pixel would cost more than it saves.
+// Page-locked host memory that only grows: the per-frame uploads and the download of the
+// results are then true asynchronous copies. Rewritten only after the stream synchronised.
+class PinnedBuffer {
+ public:
+  PinnedBuffer() = default;
+  PinnedBuffer(const PinnedBuffer&) = delete;
+  PinnedBuffer& operator=(const PinnedBuffer&) = delete;
+  ~PinnedBuffer() {
+    if (ptr_) cudaFreeHost(ptr_);
+  }
+  void resize(std::size_t bytes) {
+    if (bytes <= bytes_) return;
+    if (ptr_) cudaFreeHost(ptr_);
+    ptr_ = nullptr;
+    bytes_ = 0;
+    STITCH_CUDA(cudaMallocHost(&ptr_, bytes));
+    bytes_ = bytes;
+  }
+  uint8_t* data() const { return static_cast<uint8_t*>(ptr_); }
+
+ private:
+  void* ptr_ = nullptr;
+  std::size_t bytes_ = 0;
+};
+
+template <typename T>
+void upload(DeviceBuffer& dst, const std::vector<T>& src, cudaStream_t stream) {
+  dst.resize(src.size() * sizeof(T));
+  if (!src.empty())
+    STITCH_CUDA(cudaMemcpyAsync(dst.data(), src.data(), src.size() * sizeof(T), cudaMemcpyHostToDevice, stream));
+}
+
+bool is_identity(const std::array<std::array<uint8_t, 256>, 3>& lut) {
+  for (int c = 0; c < 3; ++c)
+    for (int v = 0; v < 256; ++v)
+      if (lut[c][v] != v) return false;
+  return true;
+}
+
+// The color stage's per-frame work on views in device memory: the sample positions stay on
+// the device (uploaded per geometry), the reductions run as a few small kernels whose
+// results (a few KB) come back with one stream synchronisation, and every view is corrected
+// by one launch. Views still in system memory (a chain that negotiated no CUDA memory) go to
+// the CPU implementation: a round trip to the GPU for a 3x3 per pixel would cost more than
+// it saves.
 class ColorOpsCuda final : public ColorOps {
  public:
   ColorOpsCuda() : cpu_(ColorOps::create(Backend::Cpu)) {}
+
+  void set_sampling(const ColorSampling& sampling) override {
+    cpu_->set_sampling(sampling);
+    std::vector<stitch_cuda::ColorSamplePair> pairs;
+    std::vector<int4> pair_samples;
+    max_pair_samples_ = 0;
+    for (const ColorSampling::Pair& g : sampling.pairs) {
+      pairs.push_back({g.a, g.b, int32_t(pair_samples.size()), g.count()});
+      for (int k = 0; k < g.count(); ++k)
+        pair_samples.push_back(int4{g.xy_a[2 * k], g.xy_a[2 * k + 1], g.xy_b[2 * k], g.xy_b[2 * k + 1]});
+      max_pair_samples_ = std::max(max_pair_samples_, g.count());
+    }
+    std::vector<stitch_cuda::ColorSampleGrid> grids;
+    std::vector<int2> grid_samples;
+    max_grid_samples_ = 0;
+    for (const std::vector<int32_t>& xy : sampling.balance_xy) {
+      const int count = int(xy.size() / 2);
+      grids.push_back({int32_t(grid_samples.size()), count});
+      for (int k = 0; k < count; ++k) grid_samples.push_back(int2{xy[2 * k], xy[2 * k + 1]});
+      max_grid_samples_ = std::max(max_grid_samples_, count);
+    }
+    // Pageable sources: each copy returns once the data is staged, so the vectors may go.
+    upload(pairs_, pairs, stream_.get());
+    upload(pair_samples_, pair_samples, stream_.get());
+    upload(grids_, grids, stream_.get());
+    upload(grid_samples_, grid_samples, stream_.get());
+    pair_count_ = int(pairs.size());
+    view_count_ = int(grids.size());
+  }
+
+  void reduce(const std::vector<ImageView>& views, const ColorReductionRequest& request,
+              ColorStats& out) override {
+    if (int(views.size()) != view_count_) throw std::invalid_argument("color: views do not match the sampling");
+    bool any_device = false, any_host = false;
+    for (const ImageView& v : views)
+      if (!v.empty()) (v.on_device ? any_device : any_host) = true;
+    if (!any_device) return cpu_->reduce(views, request, out);
+    if (any_host) throw std::runtime_error("color: views in both system and device memory");
+    if (request.balance && request.balance_matrices.size() < views.size())
+      throw std::invalid_argument("color: a balance matrix per view is needed");
+
+    // This frame's inputs (where the views are, the balance matrices, which pairs are
+    // matched): one upload.
+    const std::size_t views_bytes = std::size_t(view_count_) * sizeof(stitch_cuda::ColorFrameView);
+    const std::size_t input_bytes = views_bytes + std::size_t(pair_count_) * sizeof(int32_t);
+    inputs_host_.resize(input_bytes);
+    inputs_.resize(input_bytes);
+    auto* frame_views = reinterpret_cast<stitch_cuda::ColorFrameView*>(inputs_host_.data());
+    auto* match = reinterpret_cast<int32_t*>(inputs_host_.data() + views_bytes);
+    for (int i = 0; i < view_count_; ++i) {
+      const ImageView& v = views[std::size_t(i)];
+      stitch_cuda::ColorFrameView& f = frame_views[i];
+      f.data = v.empty() ? nullptr : v.data;
+      f.pitch = v.pitch;
+      f.width = v.width;
+      f.height = v.height;
+      const Eigen::Matrix3d M = request.balance ? request.balance_matrices[std::size_t(i)] : Eigen::Matrix3d::Identity();
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) f.balance_matrix[3 * r + c] = M(r, c);
+    }
+    bool any_match = false;
+    for (int k = 0; k < pair_count_; ++k) {
+      const HistogramMatch m = std::size_t(k) < request.match.size() ? request.match[std::size_t(k)] : HistogramMatch::None;
+      match[k] = m == HistogramMatch::AOntoB   ? stitch_cuda::kColorMatchAOntoB
+                 : m == HistogramMatch::BOntoA ? stitch_cuda::kColorMatchBOntoA
+                                               : stitch_cuda::kColorMatchNone;
+      any_match = any_match || m != HistogramMatch::None;
+    }
+    if (input_bytes)
+      STITCH_CUDA(cudaMemcpyAsync(inputs_.data(), inputs_host_.data(), input_bytes, cudaMemcpyHostToDevice, stream_.get()));
+
+    const std::size_t pair_bytes = std::size_t(pair_count_) * sizeof(stitch_cuda::ColorPairResult);
+    const std::size_t result_bytes = pair_bytes + std::size_t(view_count_) * 3 * 256 * sizeof(unsigned int);
+    results_.resize(result_bytes);
+    results_host_.resize(result_bytes);
+    match_luts_.resize(std::size_t(pair_count_) * 3 * 256);
+    if (result_bytes) STITCH_CUDA(cudaMemsetAsync(results_.data(), 0, result_bytes, stream_.get()));
+
+    stitch_cuda::ColorReduceArgs args{};
+    args.views = reinterpret_cast<const stitch_cuda::ColorFrameView*>(inputs_.data());
+    args.view_count = view_count_;
+    args.pairs = reinterpret_cast<const stitch_cuda::ColorSamplePair*>(pairs_.data());
+    args.pair_samples = reinterpret_cast<const int4*>(pair_samples_.data());
+    args.pair_count = pair_count_;
+    args.max_pair_samples = max_pair_samples_;
+    args.pair_match = reinterpret_cast<const int32_t*>(inputs_.data() + views_bytes);
+    args.grids = reinterpret_cast<const stitch_cuda::ColorSampleGrid*>(grids_.data());
+    args.grid_samples = reinterpret_cast<const int2*>(grid_samples_.data());
+    args.max_grid_samples = max_grid_samples_;
+    args.dark_level = request.dark_level;
+    args.bright_level = request.bright_level;
+    args.want_pairs = request.pairs;
+    args.want_match = request.pairs && any_match;
+    args.want_balance = request.balance;
+    args.pair_results = reinterpret_cast<stitch_cuda::ColorPairResult*>(results_.data());
+    args.balance_results = reinterpret_cast<unsigned int*>(results_.data() + pair_bytes);
+    args.match_luts = match_luts_.data();
+    stitch_cuda::launch_color_reduce(args, stream_.get());
+    if (result_bytes)
+      STITCH_CUDA(cudaMemcpyAsync(results_host_.data(), results_.data(), result_bytes, cudaMemcpyDeviceToHost, stream_.get()));
+    stream_.sync();  // the frame's one synchronisation of the reductions
+
+    const auto* pair_results = reinterpret_cast<const stitch_cuda::ColorPairResult*>(results_host_.data());
+    out.pairs.resize(std::size_t(pair_count_));
+    for (int k = 0; k < pair_count_; ++k) {
+      const stitch_cuda::ColorPairResult& r = pair_results[k];
+      PairStats& s = out.pairs[std::size_t(k)];
+      s.count = r.count;
+      std::copy(r.aa, r.aa + 9, s.aa.begin());
+      std::copy(r.bb, r.bb + 9, s.bb.begin());
+      std::copy(r.ab, r.ab + 9, s.ab.begin());
+      std::copy(r.matched, r.matched + 9, s.matched.begin());
+      for (int ch = 0; ch < 3; ++ch) {
+        std::copy(r.hist_a + 256 * ch, r.hist_a + 256 * (ch + 1), s.hist_a[ch].begin());
+        std::copy(r.hist_b + 256 * ch, r.hist_b + 256 * (ch + 1), s.hist_b[ch].begin());
+      }
+    }
+    const auto* balance = reinterpret_cast<const unsigned int*>(results_host_.data() + pair_bytes);
+    out.balance.resize(std::size_t(view_count_));
+    for (int i = 0; i < view_count_; ++i)
+      for (int ch = 0; ch < 3; ++ch)
+        std::copy(balance + 256 * (3 * i + ch), balance + 256 * (3 * i + ch + 1), out.balance[std::size_t(i)][ch].begin());
+  }
+
+  void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
+                 const std::array<std::array<uint8_t, 256>, 3>& lut) override {
+    if (matrices.size() < views.size()) throw std::invalid_argument("color: a matrix per view is needed");
+    bool any_device = false, any_host = false;
+    for (const ImageView& v : views)
+      if (!v.empty()) (v.on_device ? any_device : any_host) = true;
+    if (any_host) {
+      std::vector<ImageView> host_views(views.size());
+      for (std::size_t i = 0; i < views.size(); ++i)
+        if (!views[i].on_device) host_views[i] = views[i];
+      cpu_->apply_all(host_views, matrices, lut);
+    }
+    if (!any_device) return;
+    const uint8_t* device_lut = nullptr;
+    if (!is_identity(lut)) {
+      if (!lut_uploaded_ || lut != uploaded_lut_) {
+        lut_host_.resize(768);
+        lut_.resize(768);
+        for (int c = 0; c < 3; ++c) std::memcpy(lut_host_.data() + 256 * c, lut[c].data(), 256);
+        STITCH_CUDA(cudaMemcpyAsync(lut_.data(), lut_host_.data(), 768, cudaMemcpyHostToDevice, stream_.get()));
+        uploaded_lut_ = lut;
+        lut_uploaded_ = true;
+      }
+      device_lut = lut_.data();
+    }
+    stitch_cuda::ColorApplyBatch batch{};
+    bool launched = false;
+    auto flush = [&] {
+      if (batch.count == 0) return;
+      stitch_cuda::launch_color_apply_batch(batch, device_lut, stream_.get());
+      launched = true;
+      batch.count = 0;
+    };
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      const ImageView& v = views[i];
+      const bool has_matrix = !matrices[i].isIdentity(1e-9);
+      if (v.empty() || !v.on_device || (!has_matrix && !device_lut)) continue;
+      stitch_cuda::ColorApplyView& a = batch.views[batch.count++];
+      a.data = v.data;
+      a.pitch = v.pitch;
+      a.width = v.width;
+      a.height = v.height;
+      a.has_matrix = has_matrix;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) a.M[3 * r + c] = float(matrices[i](r, c));
+      if (batch.count == stitch_cuda::kColorApplyMaxViews) flush();  // more views than a chain carries
+    }
+    flush();
+    if (launched) stream_.sync();  // the next stage reads finished pixels
+  }
 
   void gather(const ImageView& view, const std::vector<int32_t>& xy,
               std::vector<std::array<uint8_t, 3>>& out) override {
@@ -20,32 +239,14 @@ class ColorOpsCuda final : public ColorOps {
     const int count = int(xy.size() / 2);
     out.resize(std::size_t(count));
     if (count == 0) return;
-    xy_.resize(xy.size() * sizeof(int32_t));
-    samples_.resize(std::size_t(count) * 3);
-    STITCH_CUDA(cudaMemcpyAsync(xy_.data(), xy.data(), xy.size() * sizeof(int32_t), cudaMemcpyHostToDevice, stream_.get()));
-    stitch_cuda::launch_gather(view.data, view.pitch, reinterpret_cast<const int32_t*>(xy_.data()), count,
-                               samples_.data(), stream_.get());
-    STITCH_CUDA(cudaMemcpyAsync(out.data(), samples_.data(), std::size_t(count) * 3, cudaMemcpyDeviceToHost, stream_.get()));
-    stream_.sync();
-  }
-
-  void apply(const ImageView& view, const Eigen::Matrix3d& M,
-             const std::array<std::array<uint8_t, 256>, 3>& lut) override {
-    if (!view.on_device) return cpu_->apply(view, M, lut);
-    float m[9];
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) m[3 * r + c] = float(M(r, c));
-    bool identity_lut = true;
-    for (int c = 0; c < 3 && identity_lut; ++c)
-      for (int v = 0; v < 256 && identity_lut; ++v) identity_lut = lut[c][v] == v;
-    const uint8_t* dlut = nullptr;
-    if (!identity_lut) {
-      lut_.resize(768);
-      STITCH_CUDA(cudaMemcpyAsync(lut_.data(), lut.data(), 768, cudaMemcpyHostToDevice, stream_.get()));
-      dlut = lut_.data();
-    }
-    stitch_cuda::launch_color_apply(view.data, view.pitch, view.width, view.height,
-                                    M.isIdentity(1e-9) ? nullptr : m, dlut, stream_.get());
+    gather_xy_.resize(xy.size() * sizeof(int32_t));
+    gather_out_.resize(std::size_t(count) * 3);
+    STITCH_CUDA(cudaMemcpyAsync(gather_xy_.data(), xy.data(), xy.size() * sizeof(int32_t), cudaMemcpyHostToDevice,
+                                stream_.get()));
+    stitch_cuda::launch_gather(view.data, view.pitch, reinterpret_cast<const int32_t*>(gather_xy_.data()), count,
+                               gather_out_.data(), stream_.get());
+    STITCH_CUDA(cudaMemcpyAsync(out.data(), gather_out_.data(), std::size_t(count) * 3, cudaMemcpyDeviceToHost,
+                                stream_.get()));
     stream_.sync();
   }
 
@@ -54,7 +255,15 @@ class ColorOpsCuda final : public ColorOps {
  private:
   std::unique_ptr<ColorOps> cpu_;
   CudaStream stream_;
-  DeviceBuffer xy_, samples_, lut_;
+  // Per geometry.
+  DeviceBuffer pairs_, pair_samples_, grids_, grid_samples_;
+  int pair_count_ = 0, view_count_ = 0, max_pair_samples_ = 0, max_grid_samples_ = 0;
+  // Per frame, reused.
+  PinnedBuffer inputs_host_, results_host_, lut_host_;
+  DeviceBuffer inputs_, results_, match_luts_, lut_;
+  std::array<std::array<uint8_t, 256>, 3> uploaded_lut_{};
+  bool lut_uploaded_ = false;
+  DeviceBuffer gather_xy_, gather_out_;
 };
 
 }  // namespace

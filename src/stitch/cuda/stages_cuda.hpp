@@ -5,10 +5,12 @@
 
 #include "stitch/blend/blender.hpp"
 #include "stitch/color/color.hpp"
+#include "stitch/warp/flow_warper.hpp"
 #include "stitch/warp/warper.hpp"
 
 namespace stitch {
 std::unique_ptr<Warper> make_warper_cuda();
 std::unique_ptr<Blender> make_blender_cuda();
 std::unique_ptr<ColorOps> make_color_ops_cuda();
+std::unique_ptr<FlowWarper> make_flow_warper_cuda();
 }  // namespace stitch

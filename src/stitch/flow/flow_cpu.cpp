@@ -6,6 +6,10 @@
 
 #include "stitch/flow/flow.hpp"
 
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/flow/flow_cuda.hpp"
+#endif
+
 namespace stitch {
 namespace {
 
@@ -89,7 +93,17 @@ class FarnebackFlowCpu final : public DenseFlow {
 }  // namespace
 
 std::unique_ptr<DenseFlow> DenseFlow::create(Backend backend, FlowAlgorithm algorithm, FlowQuality quality) {
-  switch (resolve_backend(backend, /*stage_has_cuda=*/false)) {
+#ifdef STITCH_HAVE_CUDA
+  constexpr bool kHaveCudaFlow = true;
+#else
+  constexpr bool kHaveCudaFlow = false;
+#endif
+  switch (resolve_backend(backend, /*stage_has_cuda=*/kHaveCudaFlow)) {
+#ifdef STITCH_HAVE_CUDA
+    // The GPU has one flow, pyramidal dense Lucas-Kanade (flow_cuda.cpp), for both algorithm
+    // names: `algorithm` picks between the CPU implementations only.
+    case Backend::Cuda: return make_dense_flow_cuda(quality);
+#endif
     case Backend::Cpu:
       if (algorithm == FlowAlgorithm::Dis) return std::make_unique<DisFlowCpu>(quality);
       return std::make_unique<FarnebackFlowCpu>(quality);

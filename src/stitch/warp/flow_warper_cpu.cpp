@@ -4,26 +4,20 @@
 #include <stdexcept>
 
 #include "stitch/blend/blender_cpu.hpp"
+#include "stitch/warp/flow_pairs.hpp"
 #include "stitch/warp/flow_warper.hpp"
 #include "stitch/warp/warper_cpu.hpp"
+
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/cuda/stages_cuda.hpp"
+#endif
 
 namespace stitch {
 namespace {
 
-// Resolution of the flow relative to the output: half is ample for seams (the flow is
-// smooth) and four times cheaper.
-double flow_scale(FlowQuality q) { return q == FlowQuality::Fine ? 1.0 : 0.5; }
-
 constexpr float kNegligiblePx = 1.f / 32.f;  // below remap's sub-pixel resolution
 
 cv::Rect to_cv(const Rect& r) { return {r.x, r.y, r.width, r.height}; }
-
-Rect intersect(const Rect& a, const Rect& b) {
-  const int x0 = std::max(a.x, b.x), y0 = std::max(a.y, b.y);
-  const int x1 = std::min(a.x + a.width, b.x + b.width), y1 = std::min(a.y + a.height, b.y + b.height);
-  if (x1 <= x0 || y1 <= y0) return {};
-  return {x0, y0, x1 - x0, y1 - y0};
-}
 
 Rect bounding(const Rect& a, const Rect& b) {
   const int x0 = std::min(a.x, b.x), y0 = std::min(a.y, b.y);
@@ -139,61 +133,47 @@ class FlowWarperCpu final : public FlowWarper {
     pairs_.clear();
     bands_.assign(views_.size(), {});
     flow_ = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
-    const double scale = flow_scale(settings_.quality);
     std::vector<cv::Mat> weight(views_.size());
     cv::Mat sum(out_h_, out_w_, CV_32F, cv::Scalar(0));
     for (std::size_t i = 0; i < views_.size(); ++i) {
       weight[i] = position_weight_map(views_[i]);
       if (!weight[i].empty()) sum(to_cv(views_[i].roi)) += weight[i];
     }
-    for (int a = 0; a < int(views_.size()); ++a) {
-      for (int b = a + 1; b < int(views_.size()); ++b) {
-        const Rect common = intersect(views_[a].roi, views_[b].roi);
-        if (common.empty()) continue;
-        const Rect& ra = views_[a].roi;
-        const Rect& rb = views_[b].roi;
-        cv::Mat both = (weight[a](to_cv(shifted(common, -ra.x, -ra.y))) > 0) &
-                       (weight[b](to_cv(shifted(common, -rb.x, -rb.y))) > 0);
-        const cv::Rect box = cv::boundingRect(both);
-        if (box.empty()) continue;
-        const int m = std::max(0, settings_.margin);
-        Rect rect = intersect({common.x + box.x - m, common.y + box.y - m, box.width + 2 * m,
-                               box.height + 2 * m}, common);
-        Pair p;
-        p.a = a;
-        p.b = b;
-        p.rect = rect;
-        p.work = cv::Size(std::max(1, int(std::lround(rect.width * scale))),
-                          std::max(1, int(std::lround(rect.height * scale))));
-        if (p.work.width < 8 || p.work.height < 8) continue;  // a sliver: nothing to align
-        const cv::Mat s = sum(to_cv(rect));
-        for (int k = 0; k < 2; ++k) {
-          const int v = k == 0 ? a : b;
-          const ViewPlacement& view = views_[v];
-          const Rect part = shifted(rect, -view.roi.x, -view.roi.y);
-          cv::Mat fx, fy;
-          camera_maps(view, part, cv::Mat(), fx, fy);
-          cv::resize(fx, fx, p.work, 0, 0, cv::INTER_LINEAR);
-          cv::resize(fy, fy, p.work, 0, 0, cv::INTER_LINEAR);
-          p.side[k].valid = (fx >= 0) & (fx <= view.camera_width - 1) & (fy >= 0) &
-                            (fy <= view.camera_height - 1);
-          cv::convertMaps(fx, fy, p.side[k].map_xy, p.side[k].map_frac, CV_16SC2);
-          cv::Mat theta;
-          cv::divide(weight[v](to_cv(part)), cv::max(s, 1e-12), theta);
-          p.side[k].theta = theta;
-        }
-        for (Pair& o : old)
-          if (o.a == a && o.b == b && o.history && o.work == p.work) {
-            p.flow_ab = o.flow_ab;
-            p.flow_ba = o.flow_ba;
-            p.prev_gray[0] = o.prev_gray[0];
-            p.prev_gray[1] = o.prev_gray[1];
-            p.history = true;
-          }
-        bands_[a].push_back(rect);
-        bands_[b].push_back(rect);
-        pairs_.push_back(std::move(p));
+    for (const FlowPairPlan& plan : plan_flow_pairs(views_, weight, settings_.margin, settings_.quality)) {
+      const int a = plan.a, b = plan.b;
+      const Rect rect = plan.rect;
+      Pair p;
+      p.a = a;
+      p.b = b;
+      p.rect = rect;
+      p.work = cv::Size(plan.work_width, plan.work_height);
+      const cv::Mat s = sum(to_cv(rect));
+      for (int k = 0; k < 2; ++k) {
+        const int v = k == 0 ? a : b;
+        const ViewPlacement& view = views_[v];
+        const Rect part = shifted(rect, -view.roi.x, -view.roi.y);
+        cv::Mat fx, fy;
+        camera_maps(view, part, cv::Mat(), fx, fy);
+        cv::resize(fx, fx, p.work, 0, 0, cv::INTER_LINEAR);
+        cv::resize(fy, fy, p.work, 0, 0, cv::INTER_LINEAR);
+        p.side[k].valid = (fx >= 0) & (fx <= view.camera_width - 1) & (fy >= 0) &
+                          (fy <= view.camera_height - 1);
+        cv::convertMaps(fx, fy, p.side[k].map_xy, p.side[k].map_frac, CV_16SC2);
+        cv::Mat theta;
+        cv::divide(weight[v](to_cv(part)), cv::max(s, 1e-12), theta);
+        p.side[k].theta = theta;
       }
+      for (Pair& o : old)
+        if (o.a == a && o.b == b && o.history && o.work == p.work) {
+          p.flow_ab = o.flow_ab;
+          p.flow_ba = o.flow_ba;
+          p.prev_gray[0] = o.prev_gray[0];
+          p.prev_gray[1] = o.prev_gray[1];
+          p.history = true;
+        }
+      bands_[a].push_back(rect);
+      bands_[b].push_back(rect);
+      pairs_.push_back(std::move(p));
     }
     // A view's rects that overlap (3 views meeting) are merged: displacements there add up.
     for (auto& list : bands_) {
@@ -363,8 +343,11 @@ class FlowWarperCpu final : public FlowWarper {
 }  // namespace
 
 std::unique_ptr<FlowWarper> FlowWarper::create(Backend backend) {
-  switch (resolve_backend(backend, /*stage_has_cuda=*/false)) {
+  switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {
     case Backend::Cpu: return std::make_unique<FlowWarperCpu>();
+#ifdef STITCH_HAVE_CUDA
+    case Backend::Cuda: return make_flow_warper_cuda();
+#endif
     default: break;
   }
   throw std::runtime_error("no flow warper for this backend");

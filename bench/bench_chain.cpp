@@ -1,0 +1,218 @@
+// The whole per-frame core chain, as the elements run it, on the GPU and on the CPU:
+//   bundle copy (stitchsync) -> color (stitchcolor: 3D-M on the overlaps + piecewise balance)
+//   -> flow warp (stitchflowwarp: pre-warp + bidirectional dense flow + local warp)
+//   -> blend (stitchblend: fuse on the canvas, crop and scale into the panorama).
+// usage: stitch-bench-chain [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N]
+// GPU: frames already in device memory. Each stage ends with its stream synchronised (as in
+// the elements), so stage and chain times are wall-clock medians over --frames frames.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "bench_common.hpp"
+#include "ppm.hpp"
+#include "stitch/blend/compositor.hpp"
+#include "stitch/color/color.hpp"
+#include "stitch/cv_interop.hpp"
+#include "stitch/warp/flow_warper.hpp"
+
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/cuda/cuda_util.hpp"
+#endif
+
+using namespace stitch;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+struct StageTimes {
+  std::vector<double> copy, color, flow, blend, total;
+};
+
+// The chain's state for one backend: what the elements hold between frames.
+struct Chain {
+  Backend backend;
+  Rig rig;
+  ColorCorrector color;
+  std::unique_ptr<FlowWarper> flow;
+  Compositor compositor;
+  Chain(Backend b, const Rig& r, const CompositorSettings& settings)
+      : backend(b), rig(r), color(b), flow(FlowWarper::create(b)), compositor(b) {
+    ColorOptions co;
+    co.method = ColorMethod::Matrix3D;
+    co.balance = true;
+    color.set_options(co);
+    compositor.prepare(rig, settings, CompositorInput::Prewarped);
+    const OutputGeometry canvas = canvas_geometry(rig);
+    flow->set_settings(FlowWarpSettings{});
+    flow->prepare(compositor.prewarped_placements(), canvas.width, canvas.height);
+  }
+  // One frame: bundle <- pristine (copy), color in place, flow warp into rois, blend.
+  void run(const std::function<void()>& copy, const std::vector<ImageView>& bundle, const std::vector<ImageView>& rois,
+           const ImageView& out, StageTimes& t) {
+    const auto t0 = Clock::now();
+    copy();
+    const auto t1 = Clock::now();
+    color.process(rig, 1, bundle);
+    const auto t2 = Clock::now();
+    flow->warp(bundle, rois);
+    const auto t3 = Clock::now();
+    compositor.compose(rois, out);
+    const auto t4 = Clock::now();
+    auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+    t.copy.push_back(ms(t0, t1));
+    t.color.push_back(ms(t1, t2));
+    t.flow.push_back(ms(t2, t3));
+    t.blend.push_back(ms(t3, t4));
+    t.total.push_back(ms(t0, t4));
+  }
+};
+
+void print_row(const char* name, const char* pano, const char* backend, const StageTimes& t) {
+  const double total = median(t.total);
+  std::printf("%-12s %-11s %-5s %8.3f %8.3f %8.3f %8.3f %9.3f %9.0f\n", name, pano, backend, median(t.copy),
+              median(t.color), median(t.flow), median(t.blend), total, 1000.0 / total);
+}
+
+std::string json_row(const StageTimes& t) {
+  char buf[256];
+  std::snprintf(buf, sizeof buf, "{\"copy_ms\":%.4f,\"color_ms\":%.4f,\"flowwarp_ms\":%.4f,\"blend_ms\":%.4f,"
+                "\"chain_ms\":%.4f,\"panoramas_per_s\":%.1f}", median(t.copy), median(t.color), median(t.flow),
+                median(t.blend), median(t.total), 1000.0 / median(t.total));
+  return buf;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string json_path, photo_path = "build/tests/boat1_1600.ppm";
+  int frames = 200, cpu_frames = 10;
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--json") && i + 1 < argc) json_path = argv[++i];
+    else if (!std::strcmp(argv[i], "--photo") && i + 1 < argc) photo_path = argv[++i];
+    else if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::max(1, std::atoi(argv[++i]));
+    else if (!std::strcmp(argv[i], "--cpu-frames") && i + 1 < argc) cpu_frames = std::atoi(argv[++i]);
+    else {
+      std::fprintf(stderr, "usage: %s [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N]\n", argv[0]);
+      return 2;
+    }
+  }
+  const cv::Mat photo = testdata::read_ppm_rgba(photo_path);
+  if (photo.empty()) {
+    std::fprintf(stderr, "cannot read %s (a P6 PPM; run from the repository root or pass --photo)\n", photo_path.c_str());
+    return 2;
+  }
+  const bool gpu = cuda_device_available();
+  if (!gpu) std::printf("no CUDA device: CPU chain only\n");
+  try {
+    const std::vector<stitch_bench::Case> cases = {
+        {3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {3, 3840, 2160}, {6, 1920, 1080}};
+    std::printf("%-12s %-11s %-5s %8s %8s %8s %8s %9s %9s\n", "cameras", "panorama", "path", "copy", "color",
+                "flowwarp", "blend", "chain ms", "pano/s");
+    std::string json = "{\"cases\":[";
+    for (std::size_t ci = 0; ci < cases.size(); ++ci) {
+      const stitch_bench::Case& c = cases[ci];
+      const Rig rig = stitch_bench::ring(c);
+      std::vector<cv::Mat> pristine = stitch_bench::ring_views(photo, c);
+      CompositorSettings settings;
+      settings.crop = CropMode::Auto;
+      settings.output_width = int(0.85 * c.cameras * c.width) / 2 * 2;  // the paper's 3x1080p -> 4880x1080
+      settings.output_height = c.height;
+      char name[64], pano[64];
+      std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
+      json += std::string(ci ? "," : "") + "{\"case\":\"" + name + "\"";
+      // Output and pre-warped views (host for the CPU chain; device for the GPU chain).
+      std::vector<cv::Mat> bundle(pristine.size());
+      std::vector<ImageView> host_bundle, host_rois;
+      for (std::size_t i = 0; i < pristine.size(); ++i) {
+        bundle[i] = pristine[i].clone();
+        host_bundle.push_back(as_view(bundle[i]));
+      }
+      {
+        Chain cpu(Backend::Cpu, rig, settings);
+        const OutputGeometry& g = cpu.compositor.geometry();
+        std::snprintf(pano, sizeof pano, "%dx%d", g.width, g.height);
+        std::vector<cv::Mat> rois;
+        for (const auto& p : cpu.compositor.prewarped_placements())
+          rois.emplace_back(std::max(1, p.roi.height), std::max(1, p.roi.width), CV_8UC4, cv::Scalar::all(0));
+        for (auto& r : rois) host_rois.push_back(as_view(r));
+        cv::Mat out(g.height, g.width, CV_8UC4);
+        auto copy = [&] {
+          for (std::size_t i = 0; i < pristine.size(); ++i) pristine[i].copyTo(bundle[i]);
+        };
+        StageTimes t, warm;
+        cpu.run(copy, host_bundle, host_rois, as_view(out), warm);
+        for (int k = 0; k < cpu_frames; ++k) cpu.run(copy, host_bundle, host_rois, as_view(out), t);
+        if (cpu_frames > 0) {
+          print_row(name, pano, "CPU", t);
+          json += ",\"panorama\":\"" + std::string(pano) + "\",\"cpu\":" + json_row(t);
+        }
+      }
+#ifdef STITCH_HAVE_CUDA
+      if (gpu) {
+        Chain cuda(Backend::Cuda, rig, settings);
+        const OutputGeometry& g = cuda.compositor.geometry();
+        std::vector<DeviceBuffer> src, dst, rois;
+        std::vector<ImageView> dev_bundle, dev_rois;
+        auto device_view = [](DeviceBuffer& b, int w, int h) {
+          b.resize(std::size_t(std::max(1, w)) * std::max(1, h) * 4);
+          ImageView v;
+          v.data = b.data();
+          v.pitch = std::size_t(w) * 4;
+          v.width = w;
+          v.height = h;
+          v.on_device = true;
+          return v;
+        };
+        src.resize(pristine.size());
+        dst.resize(pristine.size());
+        for (std::size_t i = 0; i < pristine.size(); ++i) {
+          const ImageView s = device_view(src[i], c.width, c.height);
+          STITCH_CUDA(cudaMemcpy(s.data, pristine[i].data, pristine[i].total() * 4, cudaMemcpyHostToDevice));
+          dev_bundle.push_back(device_view(dst[i], c.width, c.height));
+        }
+        rois.resize(pristine.size());
+        for (std::size_t i = 0; i < pristine.size(); ++i) {
+          const Rect& r = cuda.compositor.prewarped_placements()[i].roi;
+          dev_rois.push_back(device_view(rois[i], r.width, r.height));
+        }
+        DeviceBuffer out_buf;
+        const ImageView out = device_view(out_buf, g.width, g.height);
+        CudaStream stream;
+        auto copy = [&] {  // stitchsync's device-to-device copy of each camera into the bundle
+          for (std::size_t i = 0; i < pristine.size(); ++i)
+            STITCH_CUDA(cudaMemcpy2DAsync(dev_bundle[i].data, dev_bundle[i].pitch, src[i].data(), std::size_t(c.width) * 4,
+                                          std::size_t(c.width) * 4, c.height, cudaMemcpyDeviceToDevice, stream.get()));
+          stream.sync();
+        };
+        StageTimes t, warm;
+        for (int k = 0; k < 10; ++k) cuda.run(copy, dev_bundle, dev_rois, out, warm);
+        for (int k = 0; k < frames; ++k) cuda.run(copy, dev_bundle, dev_rois, out, t);
+        print_row(name, pano, "CUDA", t);
+        json += ",\"cuda\":" + json_row(t);
+      }
+#endif
+      json += "}";
+    }
+    json += "]}\n";
+    std::printf("ms per panorama (median wall clock; every stage synchronised as in the elements). copy: the\n"
+                "bundle copy stitchsync does; color: 3D-M + balance; flowwarp: medium quality; blend: fuse + crop/scale.\n");
+    if (!json_path.empty()) std::ofstream(json_path) << json;
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "error: %s\n", e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,240 @@
+// Panoramas per second through the whole GStreamer pipeline, sources pre-filled so that they
+// cost nothing:
+//   appsrc x N ! stitchsync ! stitchcalib ! stitchcolor ! stitchflowwarp ! stitchblend ! fakesink
+// Each appsrc holds every buffer before the pipeline starts; the buffers share one frame's
+// memory (system memory, or CUDA memory with --cuda-input). Output: the panorama stays where
+// stitchblend puts it (CUDA memory when a device opens), or, with --system-output, is
+// downloaded to system memory.
+// usage: stitch-bench-pipeline [--photo PPM] [--frames N] [--cases a,b] [--cuda-input] [--system-output]
+//                              [--chain "stitchcolor ! stitchflowwarp ! stitchblend"] [--json FILE]
+#include <gst/app/gstappsrc.h>
+#include <gst/gst.h>
+#include <gst/video/video.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "bench_common.hpp"
+#include "ppm.hpp"
+#include "stitch/backend.hpp"
+#include "stitch/rig/rig.hpp"
+
+#ifdef STITCH_HAVE_GST_CUDA
+#include <cuda_runtime_api.h>
+#include <gst/cuda/gstcudabufferpool.h>
+#include <gst/cuda/gstcudacontext.h>
+#include <gst/cuda/gstcudaloader.h>
+#include <gst/cuda/gstcudamemory.h>
+#include <gst/cuda/gstcudautils.h>
+#endif
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+struct Counter {
+  int seen = 0, warmup = 0;
+  Clock::time_point start, end;
+};
+
+GstPadProbeReturn count_buffers(GstPad*, GstPadProbeInfo*, gpointer data) {
+  Counter* c = static_cast<Counter*>(data);
+  if (++c->seen == c->warmup) c->start = Clock::now();
+  c->end = Clock::now();
+  return GST_PAD_PROBE_OK;
+}
+
+// One camera's frame as a GstBuffer in system memory or, with `cuda`, in CUDA memory.
+GstBuffer* make_frame(const cv::Mat& rgba, GstCaps* caps, void* cuda_ctx) {
+  GstVideoInfo info;
+  gst_video_info_from_caps(&info, caps);
+#ifdef STITCH_HAVE_GST_CUDA
+  if (cuda_ctx) {
+    GstBufferPool* pool = gst_cuda_buffer_pool_new(GST_CUDA_CONTEXT(cuda_ctx));
+    GstStructure* config = gst_buffer_pool_get_config(pool);
+    gst_buffer_pool_config_set_params(config, caps, guint(GST_VIDEO_INFO_SIZE(&info)), 1, 0);
+    gst_buffer_pool_set_config(pool, config);
+    gst_buffer_pool_set_active(pool, TRUE);
+    GstBuffer* buf = nullptr;
+    gst_buffer_pool_acquire_buffer(pool, &buf, nullptr);
+    GstMapInfo map;
+    GstVideoMeta* meta = gst_buffer_get_video_meta(buf);
+    gst_cuda_context_push(GST_CUDA_CONTEXT(cuda_ctx));
+    gst_buffer_map(buf, &map, GstMapFlags(GST_MAP_WRITE | GST_MAP_CUDA));
+    const size_t stride = meta ? meta->stride[0] : size_t(GST_VIDEO_INFO_PLANE_STRIDE(&info, 0));
+    cudaMemcpy2D(map.data, stride, rgba.data, rgba.step, size_t(rgba.cols) * 4, size_t(rgba.rows), cudaMemcpyHostToDevice);
+    gst_buffer_unmap(buf, &map);
+    gst_cuda_context_pop(nullptr);
+    // Detach from the pool: the buffer lives as long as the benchmark.
+    GstBuffer* copy = gst_buffer_copy(buf);
+    gst_buffer_unref(buf);
+    gst_buffer_pool_set_active(pool, FALSE);
+    gst_object_unref(pool);
+    return copy;
+  }
+#else
+  (void)cuda_ctx;
+#endif
+  GstBuffer* buf = gst_buffer_new_allocate(nullptr, GST_VIDEO_INFO_SIZE(&info), nullptr);
+  GstVideoFrame f;
+  gst_video_frame_map(&f, &info, buf, GST_MAP_WRITE);
+  for (int y = 0; y < rgba.rows; ++y)
+    std::memcpy(static_cast<uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(&f, 0)) + size_t(y) * GST_VIDEO_FRAME_PLANE_STRIDE(&f, 0),
+                rgba.ptr(y), size_t(rgba.cols) * 4);
+  gst_video_frame_unmap(&f);
+  return buf;
+}
+
+struct Result {
+  double fps = 0;
+  int frames = 0;
+  std::string error;
+};
+
+Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, bool cuda_input, bool system_output,
+                const std::string& chain, void* cuda_ctx) {
+  Result r;
+  const stitch::Rig rig = stitch_bench::ring(c);
+  const std::string rig_path = std::string(g_get_tmp_dir()) + "/stitch-bench-pipeline-rig.json";
+  stitch::rig_save(rig, rig_path);
+  const std::vector<cv::Mat> views = stitch_bench::ring_views(photo, c);
+  const int out_w = int(0.85 * c.cameras * c.width) / 2 * 2;
+  std::string desc = "stitchsync name=s ! stitchcalib rig-file=\"" + rig_path + "\" refine=none ! " + chain +
+                     " crop=auto output-width=" + std::to_string(out_w) + " output-height=" + std::to_string(c.height) +
+                     (system_output ? " ! video/x-raw" : "") + " ! fakesink name=sink sync=false";
+  for (int i = 0; i < c.cameras; ++i)
+    desc += " appsrc name=src" + std::to_string(i) + " format=time max-bytes=0 ! s.sink_" + std::to_string(i);
+  GError* err = nullptr;
+  GstElement* pipe = gst_parse_launch(desc.c_str(), &err);
+  if (!pipe) {
+    r.error = err ? err->message : "parse error";
+    g_clear_error(&err);
+    return r;
+  }
+#ifdef STITCH_HAVE_GST_CUDA
+  if (cuda_ctx) {
+    GstContext* context = gst_context_new_cuda_context(GST_CUDA_CONTEXT(cuda_ctx));
+    gst_element_set_context(pipe, context);
+    gst_context_unref(context);
+  }
+#endif
+  const std::string caps_str = std::string(cuda_input ? "video/x-raw(memory:CUDAMemory)" : "video/x-raw") +
+                               ",format=RGBA,width=" + std::to_string(c.width) + ",height=" +
+                               std::to_string(c.height) + ",framerate=30/1";
+  GstCaps* caps = gst_caps_from_string(caps_str.c_str());
+  const GstClockTime duration = GST_SECOND / 30;
+  for (int i = 0; i < c.cameras; ++i) {
+    GstElement* src = gst_bin_get_by_name(GST_BIN(pipe), ("src" + std::to_string(i)).c_str());
+    gst_app_src_set_caps(GST_APP_SRC(src), caps);
+    GstBuffer* frame = make_frame(views[size_t(i)], caps, cuda_input ? cuda_ctx : nullptr);
+    for (int k = 0; k < frames; ++k) {
+      GstBuffer* b = gst_buffer_copy(frame);  // shares the memory: the source costs nothing
+      GST_BUFFER_PTS(b) = GstClockTime(k) * duration;
+      GST_BUFFER_DURATION(b) = duration;
+      gst_app_src_push_buffer(GST_APP_SRC(src), b);
+    }
+    gst_app_src_end_of_stream(GST_APP_SRC(src));
+    gst_buffer_unref(frame);
+    gst_object_unref(src);
+  }
+  gst_caps_unref(caps);
+  Counter counter;
+  counter.warmup = std::min(30, frames / 4);
+  GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "sink");
+  GstPad* pad = gst_element_get_static_pad(sink, "sink");
+  gst_pad_add_probe(pad, GST_PAD_PROBE_TYPE_BUFFER, count_buffers, &counter, nullptr);
+  gst_object_unref(pad);
+  gst_object_unref(sink);
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  GstBus* bus = gst_element_get_bus(pipe);
+  GstMessage* msg = gst_bus_timed_pop_filtered(bus, 300 * GST_SECOND, GstMessageType(GST_MESSAGE_EOS | GST_MESSAGE_ERROR));
+  if (!msg) {
+    r.error = "timed out";
+  } else if (GST_MESSAGE_TYPE(msg) == GST_MESSAGE_ERROR) {
+    GError* e = nullptr;
+    gst_message_parse_error(msg, &e, nullptr);
+    r.error = e ? e->message : "error";
+    g_clear_error(&e);
+  }
+  if (msg) gst_message_unref(msg);
+  gst_object_unref(bus);
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_object_unref(pipe);
+  r.frames = counter.seen;
+  const double s = std::chrono::duration<double>(counter.end - counter.start).count();
+  if (counter.seen > counter.warmup && s > 0) r.fps = (counter.seen - counter.warmup) / s;
+  if (r.error.empty() && counter.seen < frames) r.error = "only " + std::to_string(counter.seen) + " panoramas";
+  return r;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  gst_init(&argc, &argv);
+  std::string photo_path = "build/tests/boat1_1600.ppm", json_path, chain = "stitchcolor ! stitchflowwarp ! stitchblend";
+  int frames = 600;
+  bool cuda_input = false, system_output = false;
+  std::vector<stitch_bench::Case> cases = {{2, 1920, 1080}, {3, 1920, 1080}, {3, 3840, 2160}, {6, 1920, 1080}};
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--photo") && i + 1 < argc) photo_path = argv[++i];
+    else if (!std::strcmp(argv[i], "--json") && i + 1 < argc) json_path = argv[++i];
+    else if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::max(8, std::atoi(argv[++i]));
+    else if (!std::strcmp(argv[i], "--chain") && i + 1 < argc) chain = argv[++i];
+    else if (!std::strcmp(argv[i], "--cuda-input")) cuda_input = true;
+    else if (!std::strcmp(argv[i], "--system-output")) system_output = true;
+    else if (!std::strcmp(argv[i], "--small")) cases = {{3, 640, 480}};
+    else {
+      std::fprintf(stderr, "usage: %s [--photo PPM] [--frames N] [--cuda-input] [--system-output] [--small] "
+                           "[--chain DESC] [--json FILE]\n", argv[0]);
+      return 2;
+    }
+  }
+  const cv::Mat photo = testdata::read_ppm_rgba(photo_path);
+  if (photo.empty()) {
+    std::fprintf(stderr, "cannot read %s\n", photo_path.c_str());
+    return 2;
+  }
+  void* cuda_ctx = nullptr;
+  if (cuda_input) {
+#ifdef STITCH_HAVE_GST_CUDA
+    if (!gst_cuda_load_library() || !stitch::cuda_device_available()) {
+      std::fprintf(stderr, "--cuda-input: no CUDA device\n");
+      return 77;
+    }
+    cuda_ctx = gst_cuda_context_new(0);
+#else
+    std::fprintf(stderr, "--cuda-input: built without gst-cuda\n");
+    return 77;
+#endif
+  }
+  const char* input = cuda_input ? "CUDA memory" : "system memory";
+  const char* output = system_output ? "system memory" : "stitchblend's choice";
+  std::printf("input %s, output %s, %d frames; chain: %s\n", input, output, frames, chain.c_str());
+  std::string json = "{\"input\":\"" + std::string(input) + "\",\"output\":\"" + output + "\",\"frames\":" +
+                     std::to_string(frames) + ",\"cases\":[";
+  int failures = 0;
+  for (std::size_t i = 0; i < cases.size(); ++i) {
+    const auto& c = cases[i];
+    const Result r = run_case(c, photo, frames, cuda_input, system_output, chain, cuda_ctx);
+    char name[64];
+    std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
+    if (!r.error.empty()) {
+      ++failures;
+      std::printf("%-12s error: %s\n", name, r.error.c_str());
+    } else {
+      std::printf("%-12s %8.1f panoramas/s (%d panoramas)\n", name, r.fps, r.frames);
+    }
+    json += std::string(i ? "," : "") + "{\"case\":\"" + name + "\",\"panoramas_per_s\":" + std::to_string(r.fps) +
+            ",\"error\":\"" + r.error + "\"}";
+  }
+  json += "]}\n";
+  if (!json_path.empty()) std::ofstream(json_path) << json;
+#ifdef STITCH_HAVE_GST_CUDA
+  if (cuda_ctx) gst_object_unref(cuda_ctx);
+#endif
+  return failures ? 1 : 0;
+}

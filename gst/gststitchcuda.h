@@ -1,0 +1,188 @@
+/* The CUDA-memory plumbing every stitch element shares (gst-plugins-bad's gst-cuda library):
+ * whether video/x-raw(memory:CUDAMemory) can be offered, the GstCudaContext shared with the
+ * other elements through GstContext, running core code with that context current, bundle caps
+ * with and without the CUDAMemory feature, and pools of bundles in CUDA or system memory.
+ * Built without gst-cuda (no STITCH_HAVE_GST_CUDA), it is system memory only: nothing offers
+ * CUDA memory and the context parts do nothing. */
+#pragma once
+
+#include <gst/gst.h>
+#include <gst/video/video.h>
+
+#include <array>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "stitch/backend.hpp"
+
+#ifdef STITCH_HAVE_GST_CUDA
+#include <gst/cuda/gstcudacontext.h>
+#include <gst/cuda/gstcudamemory.h>
+/* Mapping CUDA memory with this flag gives device pointers. */
+#define STITCH_MAP_CUDA GST_MAP_CUDA
+#else
+#define STITCH_MAP_CUDA GstMapFlags(0)
+#endif
+
+#define STITCH_CAPS_FEATURE_CUDA_MEMORY "memory:CUDAMemory"
+
+/* TRUE when CUDA memory can be offered: gst-cuda is built in, the driver loads and a device
+ * opens (checked once). */
+gboolean stitch_cuda_memory_possible(void);
+
+/* TRUE when an element with `backend` offers CUDA memory: possible, and not backend=cpu. */
+gboolean stitch_cuda_memory_offered(stitch::Backend backend);
+
+/* TRUE when `memory` is gst-cuda memory (of any context). */
+gboolean stitch_memory_is_cuda(GstMemory* memory);
+
+/* TRUE when the first structure of `caps` carries the memory:CUDAMemory feature. */
+gboolean stitch_caps_are_cuda_memory(const GstCaps* caps);
+
+/* `caps` (transfer full) for negotiation: with their CUDA-memory structures first when
+ * `offer_cuda`, without any otherwise. */
+GstCaps* stitch_caps_prefer_cuda(GstCaps* caps, gboolean offer_cuda);
+
+/* transform_caps of the elements whose two sides share one memory: `caps` (transfer none) as
+ * they are, CUDA memory first or left out (stitch_caps_prefer_cuda), intersected with `filter`. */
+GstCaps* stitch_caps_same_memory(GstCaps* caps, GstCaps* filter, gboolean offer_cuda);
+
+/* Every structure of `caps` (transfer full) offered in CUDA memory (first, when `offer_cuda`)
+ * and in system memory: for elements whose two sides may lie in different memories. */
+GstCaps* stitch_caps_in_both_memories(GstCaps* caps, gboolean offer_cuda);
+
+/* The element's share of the GstCudaContext. Every element answers context queries and takes
+ * set_context with it, and ensures one when it negotiates CUDA memory, so a whole chain
+ * (nvh264dec ! ... stitchsync ! ... stitchblend ! cudadownload) runs in one context. */
+class StitchCudaContext {
+ public:
+  StitchCudaContext() = default;
+  StitchCudaContext(const StitchCudaContext&) = delete;
+  StitchCudaContext& operator=(const StitchCudaContext&) = delete;
+  ~StitchCudaContext();
+
+  /* GstElement::set_context: takes a context from the application or a neighbour. */
+  void set_context(GstElement* element, GstContext* context);
+  /* A GST_QUERY_CONTEXT on any pad: TRUE when answered with our context. */
+  gboolean handle_query(GstElement* element, GstQuery* query);
+  /* Finds the shared context (neighbours, application) or makes one; FALSE after an element
+   * error when no context can be had. */
+  gboolean ensure(GstElement* element);
+  gboolean valid() const;
+  /* TRUE when `memory` is CUDA memory of this context (its device pointers are valid here). */
+  gboolean owns(GstMemory* memory) const;
+#ifdef STITCH_HAVE_GST_CUDA
+  GstCudaContext* get() const { return ctx_; }
+
+ private:
+  GstCudaContext* ctx_ = nullptr;
+#endif
+};
+
+#ifdef STITCH_HAVE_GST_CUDA
+/* Makes `ctx` current for the calling thread until destroyed (nothing without a context). */
+class StitchCudaPush {
+ public:
+  explicit StitchCudaPush(GstCudaContext* ctx);
+  StitchCudaPush(const StitchCudaPush&) = delete;
+  StitchCudaPush& operator=(const StitchCudaPush&) = delete;
+  ~StitchCudaPush();
+
+ private:
+  bool pushed_ = false;
+};
+#endif
+
+/* Runs `body` with the element's context current (as is without one); throws
+ * std::runtime_error when the context cannot be made current. */
+template <typename F>
+void with_cuda_context(const StitchCudaContext& cuda, F&& body) {
+#ifdef STITCH_HAVE_GST_CUDA
+  StitchCudaPush push(cuda.get());
+#else
+  (void)cuda;
+#endif
+  body();
+}
+
+/* A core object that owns CUDA resources (streams, device buffers, kernels' textures). They
+ * belong to the context that was current when it was made, so it is made, used and destroyed
+ * with that context current, whatever the element's context becomes later. */
+template <typename T>
+class StitchCudaOwned {
+ public:
+  StitchCudaOwned() = default;
+  StitchCudaOwned(const StitchCudaOwned&) = delete;
+  StitchCudaOwned& operator=(const StitchCudaOwned&) = delete;
+  ~StitchCudaOwned() { reset(); }
+
+  /* Replaces the object by factory() (a std::unique_ptr<T>), run with `cuda` current. */
+  template <typename Make>
+  void make(const StitchCudaContext& cuda, Make&& factory) {
+    reset();
+    with_cuda_context(cuda, [&]() { obj_ = factory(); });
+#ifdef STITCH_HAVE_GST_CUDA
+    ctx_ = cuda.get() ? static_cast<GstCudaContext*>(gst_object_ref(cuda.get())) : nullptr;
+#endif
+  }
+  /* body(T&) with the object's context current. */
+  template <typename F>
+  void run(F&& body) {
+    if (!obj_) throw std::logic_error("stitch: core object used before it was made");
+#ifdef STITCH_HAVE_GST_CUDA
+    StitchCudaPush push(ctx_);
+#endif
+    body(*obj_);
+  }
+  /* Destroys the object with its context current; never throws. */
+  void reset() noexcept {
+#ifdef STITCH_HAVE_GST_CUDA
+    if (obj_ && ctx_) {
+      try {
+        StitchCudaPush push(ctx_);
+        obj_.reset();
+      } catch (...) {
+      }
+    }
+    obj_.reset();
+    if (ctx_) gst_object_unref(ctx_);
+    ctx_ = nullptr;
+#else
+    obj_.reset();
+#endif
+  }
+  /* TRUE when the object exists and was made with `cuda`'s context. */
+  bool made_with(const StitchCudaContext& cuda) const {
+#ifdef STITCH_HAVE_GST_CUDA
+    return obj_ && ctx_ == cuda.get();
+#else
+    (void)cuda;
+    return bool(obj_);
+#endif
+  }
+  T* get() const { return obj_.get(); }
+  T* operator->() const { return obj_.get(); }
+  T& operator*() const { return *obj_; }
+  explicit operator bool() const { return bool(obj_); }
+
+ private:
+  std::unique_ptr<T> obj_;
+#ifdef STITCH_HAVE_GST_CUDA
+  GstCudaContext* ctx_ = nullptr;
+#endif
+};
+
+/* An active pool of bundles: each buffer holds one GstMemory and one GstVideoMeta (id = view)
+ * per entry of `sizes` (RGBA, width x height), in CUDA memory of `cuda`'s context when
+ * `cuda_memory`, else in system memory. NULL with `error` set when it cannot be made. */
+GstBufferPool* stitch_bundle_pool_new(const StitchCudaContext& cuda, gboolean cuda_memory,
+                                      const std::vector<std::array<int, 2>>& sizes, GstCaps* caps,
+                                      std::string& error);
+
+/* A bundle from `pool`; an allocation failure (out of device memory) is an element error. */
+GstFlowReturn stitch_bundle_pool_acquire(GstElement* element, GstBufferPool* pool, GstBuffer** buffer);
+
+/* Deactivates and releases a pool made by stitch_bundle_pool_new (NULL is fine). */
+void stitch_bundle_pool_clear(GstBufferPool** pool);
