@@ -48,7 +48,7 @@ struct Chain {
   ColorCorrector color;
   std::unique_ptr<FlowWarper> flow;
   Compositor compositor;
-  Chain(Backend b, const Rig& r, const CompositorSettings& settings)
+  Chain(Backend b, const Rig& r, const CompositorSettings& settings, FlowQuality quality)
       : backend(b), rig(r), color(b), flow(FlowWarper::create(b)), compositor(b) {
     ColorOptions co;
     co.method = ColorMethod::Matrix3D;
@@ -56,7 +56,9 @@ struct Chain {
     color.set_options(co);
     compositor.prepare(rig, settings, CompositorInput::Prewarped);
     const OutputGeometry canvas = canvas_geometry(rig);
-    flow->set_settings(FlowWarpSettings{});
+    FlowWarpSettings fs;
+    fs.quality = quality;
+    flow->set_settings(fs);
     flow->prepare(compositor.prewarped_placements(), canvas.width, canvas.height);
   }
   // One frame: bundle <- pristine (copy), color in place, flow warp into rois, blend.
@@ -99,13 +101,20 @@ std::string json_row(const StageTimes& t) {
 int main(int argc, char** argv) {
   std::string json_path, photo_path = "build/tests/boat1_1600.ppm";
   int frames = 200, cpu_frames = 10;
+  std::string only_case;
+  FlowQuality quality = FlowQuality::Medium;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--json") && i + 1 < argc) json_path = argv[++i];
     else if (!std::strcmp(argv[i], "--photo") && i + 1 < argc) photo_path = argv[++i];
     else if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::max(1, std::atoi(argv[++i]));
     else if (!std::strcmp(argv[i], "--cpu-frames") && i + 1 < argc) cpu_frames = std::atoi(argv[++i]);
-    else {
-      std::fprintf(stderr, "usage: %s [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N]\n", argv[0]);
+    else if (!std::strcmp(argv[i], "--case") && i + 1 < argc) only_case = argv[++i];
+    else if (!std::strcmp(argv[i], "--quality") && i + 1 < argc) {
+      const std::string q = argv[++i];
+      quality = q == "fast" ? FlowQuality::Fast : q == "fine" ? FlowQuality::Fine : FlowQuality::Medium;
+    } else {
+      std::fprintf(stderr, "usage: %s [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--case CxWxH] "
+                           "[--quality fast|medium|fine]\n", argv[0]);
       return 2;
     }
   }
@@ -121,7 +130,9 @@ int main(int argc, char** argv) {
         {3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {3, 3840, 2160}, {6, 1920, 1080}};
     std::printf("%-12s %-11s %-5s %8s %8s %8s %8s %9s %9s\n", "cameras", "panorama", "path", "copy", "color",
                 "flowwarp", "blend", "chain ms", "pano/s");
-    std::string json = "{\"cases\":[";
+    const char* qname = quality == FlowQuality::Fast ? "fast" : quality == FlowQuality::Fine ? "fine" : "medium";
+    std::printf("flow quality %s\n", qname);
+    std::string json = std::string("{\"flow_quality\":\"") + qname + "\",\"cases\":[";
     for (std::size_t ci = 0; ci < cases.size(); ++ci) {
       const stitch_bench::Case& c = cases[ci];
       const Rig rig = stitch_bench::ring(c);
@@ -132,7 +143,8 @@ int main(int argc, char** argv) {
       settings.output_height = c.height;
       char name[64], pano[64];
       std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
-      json += std::string(ci ? "," : "") + "{\"case\":\"" + name + "\"";
+      if (!only_case.empty() && only_case != name) continue;
+      json += std::string(json.back() == '[' ? "" : ",") + "{\"case\":\"" + name + "\"";
       // Output and pre-warped views (host for the CPU chain; device for the GPU chain).
       std::vector<cv::Mat> bundle(pristine.size());
       std::vector<ImageView> host_bundle, host_rois;
@@ -141,7 +153,7 @@ int main(int argc, char** argv) {
         host_bundle.push_back(as_view(bundle[i]));
       }
       {
-        Chain cpu(Backend::Cpu, rig, settings);
+        Chain cpu(Backend::Cpu, rig, settings, quality);
         const OutputGeometry& g = cpu.compositor.geometry();
         std::snprintf(pano, sizeof pano, "%dx%d", g.width, g.height);
         std::vector<cv::Mat> rois;
@@ -162,7 +174,7 @@ int main(int argc, char** argv) {
       }
 #ifdef STITCH_HAVE_CUDA
       if (gpu) {
-        Chain cuda(Backend::Cuda, rig, settings);
+        Chain cuda(Backend::Cuda, rig, settings, quality);
         const OutputGeometry& g = cuda.compositor.geometry();
         std::vector<DeviceBuffer> src, dst, rois;
         std::vector<ImageView> dev_bundle, dev_rois;

@@ -25,7 +25,6 @@
 
 #ifdef STITCH_HAVE_GST_CUDA
 #include <cuda_runtime_api.h>
-#include <gst/cuda/gstcudabufferpool.h>
 #include <gst/cuda/gstcudacontext.h>
 #include <gst/cuda/gstcudaloader.h>
 #include <gst/cuda/gstcudamemory.h>
@@ -54,27 +53,25 @@ GstBuffer* make_frame(const cv::Mat& rgba, GstCaps* caps, void* cuda_ctx) {
   gst_video_info_from_caps(&info, caps);
 #ifdef STITCH_HAVE_GST_CUDA
   if (cuda_ctx) {
-    GstBufferPool* pool = gst_cuda_buffer_pool_new(GST_CUDA_CONTEXT(cuda_ctx));
-    GstStructure* config = gst_buffer_pool_get_config(pool);
-    gst_buffer_pool_config_set_params(config, caps, guint(GST_VIDEO_INFO_SIZE(&info)), 1, 0);
-    gst_buffer_pool_set_config(pool, config);
-    gst_buffer_pool_set_active(pool, TRUE);
-    GstBuffer* buf = nullptr;
-    gst_buffer_pool_acquire_buffer(pool, &buf, nullptr);
+    // Debian's 1.22 gst-cuda wants the registered allocator, not NULL.
+    gst_cuda_memory_init_once();
+    GstAllocator* allocator = gst_allocator_find(GST_CUDA_MEMORY_TYPE_NAME);
+    GstMemory* mem = gst_cuda_allocator_alloc(GST_CUDA_ALLOCATOR(allocator), GST_CUDA_CONTEXT(cuda_ctx), &info);
+    gst_object_unref(allocator);
+    if (!mem) return nullptr;
+    GstVideoInfo layout = GST_CUDA_MEMORY_CAST(mem)->info;
+    GstBuffer* buf = gst_buffer_new();
+    gst_buffer_append_memory(buf, mem);
+    gst_buffer_add_video_meta_full(buf, GST_VIDEO_FRAME_FLAG_NONE, GST_VIDEO_FORMAT_RGBA, guint(rgba.cols),
+                                   guint(rgba.rows), 1, layout.offset, layout.stride);
     GstMapInfo map;
-    GstVideoMeta* meta = gst_buffer_get_video_meta(buf);
     gst_cuda_context_push(GST_CUDA_CONTEXT(cuda_ctx));
     gst_buffer_map(buf, &map, GstMapFlags(GST_MAP_WRITE | GST_MAP_CUDA));
-    const size_t stride = meta ? meta->stride[0] : size_t(GST_VIDEO_INFO_PLANE_STRIDE(&info, 0));
-    cudaMemcpy2D(map.data, stride, rgba.data, rgba.step, size_t(rgba.cols) * 4, size_t(rgba.rows), cudaMemcpyHostToDevice);
+    cudaMemcpy2D(map.data, size_t(layout.stride[0]), rgba.data, rgba.step, size_t(rgba.cols) * 4, size_t(rgba.rows),
+                 cudaMemcpyHostToDevice);
     gst_buffer_unmap(buf, &map);
     gst_cuda_context_pop(nullptr);
-    // Detach from the pool: the buffer lives as long as the benchmark.
-    GstBuffer* copy = gst_buffer_copy(buf);
-    gst_buffer_unref(buf);
-    gst_buffer_pool_set_active(pool, FALSE);
-    gst_object_unref(pool);
-    return copy;
+    return buf;
   }
 #else
   (void)cuda_ctx;
@@ -131,6 +128,11 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
     GstElement* src = gst_bin_get_by_name(GST_BIN(pipe), ("src" + std::to_string(i)).c_str());
     gst_app_src_set_caps(GST_APP_SRC(src), caps);
     GstBuffer* frame = make_frame(views[size_t(i)], caps, cuda_input ? cuda_ctx : nullptr);
+    if (!frame) {
+      r.error = "cannot allocate the source frames";
+      gst_object_unref(src);
+      break;
+    }
     for (int k = 0; k < frames; ++k) {
       GstBuffer* b = gst_buffer_copy(frame);  // shares the memory: the source costs nothing
       GST_BUFFER_PTS(b) = GstClockTime(k) * duration;
@@ -142,6 +144,10 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
     gst_object_unref(src);
   }
   gst_caps_unref(caps);
+  if (!r.error.empty()) {
+    gst_object_unref(pipe);
+    return r;
+  }
   Counter counter;
   counter.warmup = std::min(30, frames / 4);
   GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "sink");

@@ -162,7 +162,11 @@ static GstMemory* alloc_view(GstStitchBundlePool* self, int width, int height, g
   if (self->cuda_memory) {
     GstVideoInfo info;
     gst_video_info_set_format(&info, GST_VIDEO_FORMAT_RGBA, guint(width), guint(height));
-    GstMemory* mem = gst_cuda_allocator_alloc(NULL, self->context, &info);
+    /* Debian's 1.22 gst-cuda takes no NULL allocator (later releases do): the registered one. */
+    GstAllocator* allocator = gst_allocator_find(GST_CUDA_MEMORY_TYPE_NAME);
+    if (!allocator) return NULL;
+    GstMemory* mem = gst_cuda_allocator_alloc(GST_CUDA_ALLOCATOR(allocator), self->context, &info);
+    gst_object_unref(allocator);
     if (mem) *stride = GST_CUDA_MEMORY_CAST(mem)->info.stride[0];
     return mem;
   }

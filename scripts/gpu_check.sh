@@ -25,24 +25,24 @@ fi
 OUT=${OUT:-out/gpu}
 mkdir -p "$OUT"
 tar xzf .gpubundle/b.tar.gz && source gpubundle/env.sh
-B=$(dirname "$(find gpubundle/build -name libgststitch.so | head -1)")/..
-export STITCH_SOURCE_DIR=$PWD GST_PLUGIN_PATH=$PWD/$B/gst GST_REGISTRY=$PWD/$OUT/registry.bin GST_DEBUG='*:1'
+B=gpubundle/build  # the bundle keeps the binaries flat
+export STITCH_SOURCE_DIR=$PWD GST_PLUGIN_PATH=$PWD/$B GST_REGISTRY=$PWD/$OUT/registry.bin GST_DEBUG='*:1'
 export STITCH_TEST_PPM=$PWD/.gpubundle/boat1_1600.ppm XDG_RUNTIME_DIR=/tmp
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$OUT/gpu.txt"
 for t in $GPU_TESTS; do
-  [ -x "$B/tests/$t" ] || continue
+  [ -x "$B/$t" ] || continue
   echo "== $t"
-  timeout 300 "$B/tests/$t" > "$OUT/$t.log" 2>&1
+  timeout 300 "$B/$t" > "$OUT/$t.log" 2>&1
   echo "rc=$?"
   grep -E "PSNR|FLOW|COLOR|CONVERT|FLOWWARP|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
 done 2>&1 | tee "$OUT/tests.txt"
 if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
-echo "== kernels"; timeout 300 $B/bench/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
-echo "== core chain"; timeout 300 $B/bench/stitch-bench-chain --photo "$STITCH_TEST_PPM" --frames 300 --cpu-frames 5 \
+echo "== kernels"; timeout 300 $B/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
+echo "== core chain"; timeout 300 $B/stitch-bench-chain --photo "$STITCH_TEST_PPM" --frames 300 --cpu-frames 5 \
   --json "$OUT/chain.json" 2>&1 | tee "$OUT/bench_chain.txt"
 echo "== GStreamer pipelines" | tee "$OUT/bench_pipeline.txt"
 for mode in "--cuda-input" "" "--system-output"; do
-  timeout 280 $B/bench/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 600 $mode \
+  timeout 280 $B/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 600 $mode \
     --json "$OUT/pipeline${mode//-/_}.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee -a "$OUT/bench_pipeline.txt"
 done
 echo "== decoded by nvh264dec (2 x 720x404 H.264)"
