@@ -56,11 +56,12 @@ for chain in "stitchblend backend=cpu" "stitchblend" "stitchcolor ! stitchflowwa
   echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"
 done 2>&1 | tee "$OUT/pipelines.txt"
 echo "== the whole chain in CUDA memory (nvh264dec ! stitchsync ... stitchblend ! cudadownload) vs the CPU chain"
-for b in cuda cpu; do
+# The CPU run calibrates and saves; the CUDA run loads that calibration, so both warp alike.
+for b in cpu cuda; do
   if [ $b = cuda ]; then
-    chain="stitchsync name=s ! stitchcalib ! stitchcolor ! stitchflowwarp ! stitchblend ! cudadownload"
+    chain="stitchsync name=s ! stitchcalib load-file=$OUT/calib.json ! stitchcolor ! stitchflowwarp ! stitchblend ! cudadownload"
   else
-    chain="stitchsync name=s backend=cpu ! stitchcalib ! stitchcolor backend=cpu ! stitchflowwarp backend=cpu ! stitchblend backend=cpu"
+    chain="stitchsync name=s backend=cpu ! stitchcalib save-file=$OUT/calib.json ! stitchcolor backend=cpu ! stitchflowwarp backend=cpu ! stitchblend backend=cpu"
   fi
   gst-launch-1.0 -v $chain ! video/x-raw,format=RGBA ! multifilesink location=$OUT/pano_$b.raw max-files=1 \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \

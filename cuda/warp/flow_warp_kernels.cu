@@ -114,7 +114,9 @@ __device__ __forceinline__ int reflect101(int i, int n) {
 }
 
 // One pass of the separable Gaussian over C-channel float images; kVertical picks the axis.
-template <int C, bool kVertical>
+// The radius is a template parameter so the tap loop unrolls; only pixels within a radius of
+// the border pay for the reflection.
+template <int C, bool kVertical, int kRadius>
 __global__ void blur_kernel(const FlowPairDevice* pairs, FlowPairMask active, int target, const Taps taps) {
   const int pair = blockIdx.z >> 1, k = blockIdx.z & 1;
   if (!active.test(pair)) return;
@@ -123,15 +125,19 @@ __global__ void blur_kernel(const FlowPairDevice* pairs, FlowPairMask active, in
   if (x >= P.work_w || y >= P.work_h) return;
   const float* src = target == 0 ? (kVertical ? P.work2[k] : P.work[k]) : (kVertical ? P.change2[k] : P.change[k]);
   float* dst = target == 0 ? (kVertical ? P.work[k] : P.work2[k]) : (kVertical ? P.change[k] : P.change2[k]);
+  const int n = kVertical ? P.work_h : P.work_w, i = kVertical ? y : x;
+  const int step = kVertical ? P.work_w * C : C;
+  const float* base = src + (y * P.work_w + x) * C - i * step;  // start of this row / column
+  const bool interior = i >= kRadius && i + kRadius < n;
   float acc[C];
 #pragma unroll
   for (int c = 0; c < C; ++c) acc[c] = 0.f;
-  for (int t = -taps.radius; t <= taps.radius; ++t) {
-    const int sx = kVertical ? x : reflect101(x + t, P.work_w);
-    const int sy = kVertical ? reflect101(y + t, P.work_h) : y;
-    const float wt = taps.w[t + taps.radius];
 #pragma unroll
-    for (int c = 0; c < C; ++c) acc[c] += wt * src[(sy * P.work_w + sx) * C + c];
+  for (int t = -kRadius; t <= kRadius; ++t) {
+    const int j = interior ? i + t : reflect101(i + t, n);
+    const float wt = taps.w[t + kRadius];
+#pragma unroll
+    for (int c = 0; c < C; ++c) acc[c] += wt * base[j * step + c];
   }
 #pragma unroll
   for (int c = 0; c < C; ++c) dst[(y * P.work_w + x) * C + c] = acc[c];
@@ -184,14 +190,25 @@ __global__ void temporal_kernel(const FlowPairDevice* pairs, FlowPairMask active
       confident = P.confidence[0][i] > 0.5f ? 1.f : 0.f;
     }
   }
-  if (d != 0) return;
+  if (d != 0) return;  // uniform per block
+  // Warp sums, then one atomic per block: per-warp atomics on three addresses serialise.
+  __shared__ float partial[3][8];
   mag = warp_sum(mag);
   both = warp_sum(both);
   confident = warp_sum(confident);
-  if ((threadIdx.x & 31) == 0 && both > 0.f) {
-    atomicAdd(stats + 3 * pair, mag);
-    atomicAdd(stats + 3 * pair + 1, both);
-    atomicAdd(stats + 3 * pair + 2, confident);
+  const int lane = threadIdx.x & 31, warp = (threadIdx.y * blockDim.x + threadIdx.x) >> 5;
+  if (lane == 0) {
+    partial[0][warp] = mag;
+    partial[1][warp] = both;
+    partial[2][warp] = confident;
+  }
+  __syncthreads();
+  if (threadIdx.x == 0 && threadIdx.y == 0) {
+    float sum[3] = {0.f, 0.f, 0.f};
+    for (int w = 0; w < (blockDim.x * blockDim.y) >> 5; ++w)
+      for (int q = 0; q < 3; ++q) sum[q] += partial[q][w];
+    if (sum[1] > 0.f)
+      for (int q = 0; q < 3; ++q) atomicAdd(stats + 3 * pair + q, sum[q]);
   }
 }
 
@@ -272,12 +289,15 @@ void launch_pair_blur(const FlowPairDevice* pairs, int n_pairs, int max_w, int m
   t.radius = radius;
   for (int k = 0; k < 2 * radius + 1; ++k) t.w[k] = taps[k];
   const dim3 grid = grid_for(max_w, max_h, 2 * n_pairs), block(32, 8);
-  if (target == 0) {
-    blur_kernel<2, false><<<grid, block, 0, stream>>>(pairs, active, target, t);
-    blur_kernel<2, true><<<grid, block, 0, stream>>>(pairs, active, target, t);
+  // The two blurs the flow warper uses: sigma 1.5 (radius 6) on the flow, 2 (radius 8) on the change.
+  if (target == 0 && radius == 6) {
+    blur_kernel<2, false, 6><<<grid, block, 0, stream>>>(pairs, active, target, t);
+    blur_kernel<2, true, 6><<<grid, block, 0, stream>>>(pairs, active, target, t);
+  } else if (target == 1 && radius == 8) {
+    blur_kernel<1, false, 8><<<grid, block, 0, stream>>>(pairs, active, target, t);
+    blur_kernel<1, true, 8><<<grid, block, 0, stream>>>(pairs, active, target, t);
   } else {
-    blur_kernel<1, false><<<grid, block, 0, stream>>>(pairs, active, target, t);
-    blur_kernel<1, true><<<grid, block, 0, stream>>>(pairs, active, target, t);
+    throw std::invalid_argument("pair blur: radius 6 on the flow or 8 on the change");
   }
   check_launch("pair blur kernel");
 }
