@@ -11,6 +11,7 @@
 #include "stitch/cv_interop.hpp"
 #include "stitch/warp/warper.hpp"
 #include "image_compare.hpp"
+#include "cuda_test.hpp"
 #include "ppm.hpp"
 
 #ifdef STITCH_HAVE_CUDA
@@ -21,46 +22,10 @@ using namespace stitch;
 
 namespace {
 
-#define REQUIRE_CUDA()                                                                          \
-  do {                                                                                          \
-    if (!cuda_device_available())                                                               \
-      GTEST_SKIP() << "no CUDA device here (or a build without the CUDA toolkit): the CUDA "    \
-                      "stages are not checked";                                                 \
-  } while (0)
+#define REQUIRE_CUDA() REQUIRE_CUDA_FOR("the CUDA stages")
 
 #ifdef STITCH_HAVE_CUDA
-// An RGBA image in device memory, copied from / to a cv::Mat.
-struct DeviceMat {
-  uint8_t* ptr = nullptr;
-  std::size_t pitch = 0;
-  int width = 0, height = 0;
-  explicit DeviceMat(const cv::Mat& m) : width(m.cols), height(m.rows) {
-    void* p = nullptr;
-    EXPECT_EQ(cudaMallocPitch(&p, &pitch, std::size_t(width) * 4, std::size_t(height)), cudaSuccess);
-    ptr = static_cast<uint8_t*>(p);
-    EXPECT_EQ(cudaMemcpy2D(ptr, pitch, m.data, m.step, std::size_t(width) * 4, std::size_t(height),
-                           cudaMemcpyHostToDevice),
-              cudaSuccess);
-  }
-  DeviceMat(const DeviceMat&) = delete;
-  ~DeviceMat() { cudaFree(ptr); }
-  ImageView view() const {
-    ImageView v;
-    v.data = ptr;
-    v.pitch = pitch;
-    v.width = width;
-    v.height = height;
-    v.on_device = true;
-    return v;
-  }
-  cv::Mat download() const {
-    cv::Mat m(height, width, CV_8UC4);
-    EXPECT_EQ(cudaMemcpy2D(m.data, m.step, ptr, pitch, std::size_t(width) * 4, std::size_t(height),
-                           cudaMemcpyDeviceToHost),
-              cudaSuccess);
-    return m;
-  }
-};
+using testdata::DeviceMat;
 #endif
 
 // Three overlapping cameras of a real photo on a rotating rig (real homographies, not shifts).

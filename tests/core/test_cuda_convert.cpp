@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "image_compare.hpp"
+#include "cuda_test.hpp"
 #include "ppm.hpp"
 #include "stitch/backend.hpp"
 #include "stitch/convert/convert.hpp"
@@ -21,12 +22,7 @@ using namespace stitch;
 
 namespace {
 
-#define REQUIRE_CUDA()                                                                          \
-  do {                                                                                          \
-    if (!cuda_device_available())                                                               \
-      GTEST_SKIP() << "no CUDA device here (or a build without the CUDA toolkit): the CUDA "    \
-                      "frame converter is not checked";                                         \
-  } while (0)
+#define REQUIRE_CUDA() REQUIRE_CUDA_FOR("the CUDA frame converter")
 
 const YuvColorimetry kBt601{0.299, 0.114, false, false, false};
 const YuvColorimetry kBt709{0.2126, 0.0722, false, true, false};  // H.264's chroma siting

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "cuda_test.hpp"
 #include "ppm.hpp"
 #include "stitch/backend.hpp"
 #include "stitch/flow/flow.hpp"
@@ -25,16 +26,13 @@
 #include "stitch/flow/flow_cuda.hpp"
 #endif
 
+#include "flow_fields.hpp"
+
 using namespace stitch;
 
 namespace {
 
-#define REQUIRE_CUDA()                                                                          \
-  do {                                                                                          \
-    if (!cuda_device_available())                                                               \
-      GTEST_SKIP() << "no CUDA device here (or a build without the CUDA toolkit): the CUDA "    \
-                      "dense flow is not checked";                                              \
-  } while (0)
+#define REQUIRE_CUDA() REQUIRE_CUDA_FOR("the CUDA dense flow")
 
 const FlowQuality kQualities[] = {FlowQuality::Fast, FlowQuality::Medium, FlowQuality::Fine};
 
@@ -55,32 +53,8 @@ cv::Mat gray_photo(cv::Size size) {
 }
 
 // A smooth field (a few pixels, varying over the image) like parallax in an overlap; the same
-// as test_flow.cpp's.
-cv::Mat smooth_field(cv::Size size, double amplitude) {
-  cv::Mat f(size, CV_32FC2);
-  for (int y = 0; y < size.height; ++y)
-    for (int x = 0; x < size.width; ++x) {
-      const double u = amplitude * std::sin(2 * CV_PI * x / size.width) * std::cos(CV_PI * y / size.height);
-      const double v = 0.5 * amplitude * std::cos(2 * CV_PI * y / size.height + x * 0.004);
-      f.at<cv::Vec2f>(y, x) = {float(u), float(v)};
-    }
-  return f;
-}
-
-// `to` = `from` displaced by `field`: to(x + f(x)) = from(x) (backward mapping with the field
-// sampled at the target; smooth, so the difference is second order).
-cv::Mat displace(const cv::Mat& from, const cv::Mat& field) {
-  cv::Mat mx(from.size(), CV_32F), my(from.size(), CV_32F);
-  for (int y = 0; y < from.rows; ++y)
-    for (int x = 0; x < from.cols; ++x) {
-      const cv::Vec2f d = field.at<cv::Vec2f>(y, x);
-      mx.at<float>(y, x) = float(x - d[0]);
-      my.at<float>(y, x) = float(y - d[1]);
-    }
-  cv::Mat to;
-  cv::remap(from, to, mx, my, cv::INTER_CUBIC, cv::BORDER_REFLECT);
-  return to;
-}
+using testdata::displace;
+using testdata::smooth_field;
 
 // Borders have no match: errors are measured 16 px inside.
 cv::Mat inner_mask(cv::Size size) {

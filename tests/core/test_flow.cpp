@@ -9,36 +9,14 @@
 #include "stitch/flow/flow.hpp"
 #include "test_data.hpp"
 
+#include "flow_fields.hpp"
+
 using namespace stitch;
 
 namespace {
 
-// A smooth field (a few pixels, varying over the image) like parallax in an overlap.
-cv::Mat smooth_field(cv::Size size, double amplitude) {
-  cv::Mat f(size, CV_32FC2);
-  for (int y = 0; y < size.height; ++y)
-    for (int x = 0; x < size.width; ++x) {
-      const double u = amplitude * std::sin(2 * CV_PI * x / size.width) * std::cos(CV_PI * y / size.height);
-      const double v = 0.5 * amplitude * std::cos(2 * CV_PI * y / size.height + x * 0.004);
-      f.at<cv::Vec2f>(y, x) = {float(u), float(v)};
-    }
-  return f;
-}
-
-// `to` = `from` displaced by `field`: to(x + f(x)) = from(x), built by backward mapping
-// with the field sampled at the target (smooth, so the difference is second order).
-cv::Mat displace(const cv::Mat& from, const cv::Mat& field) {
-  cv::Mat mx(from.size(), CV_32F), my(from.size(), CV_32F);
-  for (int y = 0; y < from.rows; ++y)
-    for (int x = 0; x < from.cols; ++x) {
-      const cv::Vec2f d = field.at<cv::Vec2f>(y, x);
-      mx.at<float>(y, x) = float(x - d[0]);
-      my.at<float>(y, x) = float(y - d[1]);
-    }
-  cv::Mat to;
-  cv::remap(from, to, mx, my, cv::INTER_CUBIC, cv::BORDER_REFLECT);
-  return to;
-}
+using testdata::displace;
+using testdata::smooth_field;
 
 cv::Mat gray_photo(const std::string& path, cv::Size size) {
   cv::Mat rgba = testdata::load_rgba(path), g;
