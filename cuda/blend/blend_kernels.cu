@@ -1,17 +1,13 @@
 #include <stdexcept>
 #include <string>
 
+#include "../launch_check.hpp"
 #include "../common.cuh"
 #include "blend_kernels.hpp"
 
 namespace stitch_cuda {
 
 namespace {
-
-void check_launch(const char* what) {
-  const cudaError_t e = cudaGetLastError();
-  if (e != cudaSuccess) throw std::runtime_error(std::string(what) + ": " + cudaGetErrorString(e));
-}
 
 struct ComposeParams {
   int n;

@@ -1,6 +1,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "../launch_check.hpp"
 #include "convert_kernels.hpp"
 
 namespace stitch_cuda {
@@ -25,11 +26,6 @@ __global__ void rgb4_kernel(const uint8_t* in, size_t in_pitch, int width, int h
   uint8_t px[4];
   stitch::rgb4_pixel(src, swap_rb, opaque, px);
   *reinterpret_cast<uchar4*>(out + size_t(y) * out_pitch + size_t(x) * 4) = make_uchar4(px[0], px[1], px[2], px[3]);
-}
-
-void check_launch(const char* what) {
-  const cudaError_t e = cudaGetLastError();
-  if (e != cudaSuccess) throw std::runtime_error(std::string(what) + ": " + cudaGetErrorString(e));
 }
 
 }  // namespace

@@ -1,17 +1,13 @@
 #include <stdexcept>
 #include <string>
 
+#include "../launch_check.hpp"
 #include "flow_kernels.hpp"
 #include "flow_math.cuh"
 
 namespace stitch_cuda {
 
 namespace {
-
-void check_launch(const char* what) {
-  const cudaError_t e = cudaGetLastError();
-  if (e != cudaSuccess) throw std::runtime_error(std::string(what) + ": " + cudaGetErrorString(e));
-}
 
 void check_pairs(int n_pairs) {
   if (n_pairs < 0 || n_pairs > kMaxFlowTasks) throw std::invalid_argument("at most 32 flow pairs per batch");

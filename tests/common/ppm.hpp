@@ -2,6 +2,8 @@
 // codec dependencies would not fit the bundle carried to the GPU host).
 #pragma once
 #include <cstdio>
+#include <cstdlib>
+#include <stdexcept>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <string>
@@ -25,6 +27,15 @@ inline cv::Mat read_ppm_rgba(const std::string& path) {
   cv::Mat rgba;
   cv::cvtColor(rgb, rgba, cv::COLOR_RGB2RGBA);
   return rgba;
+}
+
+// The repository photo (data/photos/boat1_1600.jpg), decoded to PPM at build time and named by
+// STITCH_TEST_PPM; throws when it cannot be read.
+inline cv::Mat test_photo() {
+  const char* path = std::getenv("STITCH_TEST_PPM");
+  cv::Mat p = read_ppm_rgba(path ? path : "");
+  if (p.empty()) throw std::runtime_error(std::string("cannot read the test photo STITCH_TEST_PPM=") + (path ? path : ""));
+  return p;
 }
 
 }  // namespace testdata

@@ -10,6 +10,8 @@
 #include "stitch/cv_interop.hpp"
 #include "test_data.hpp"
 
+#include "color_cast.hpp"
+
 using namespace stitch;
 
 namespace {
@@ -32,15 +34,7 @@ TwoViews two_views(const std::string& photo_path) {
   return t;
 }
 
-// out = in * M per pixel (row vector convention of eq. 4), rounded and clamped.
-void distort(cv::Mat& img, const Eigen::Matrix3d& M) {
-  for (int y = 0; y < img.rows; ++y)
-    for (int x = 0; x < img.cols; ++x) {
-      cv::Vec4b& p = img.at<cv::Vec4b>(y, x);
-      const Eigen::RowVector3d v = Eigen::RowVector3d(p[0], p[1], p[2]) * M;
-      for (int c = 0; c < 3; ++c) p[c] = cv::saturate_cast<uint8_t>(v[c]);
-    }
-}
+using testdata::distort;
 
 std::vector<std::string> photos() {
   std::vector<std::string> p = {testdata::repo_path("data/photos/boat1_1600.jpg")};

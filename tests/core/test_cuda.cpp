@@ -34,17 +34,11 @@ struct RigScene {
   std::vector<cv::Mat> frames;
 };
 
-// data/photos/boat1_1600.jpg, decoded at build time (STITCH_TEST_PPM).
-cv::Mat photo() {
-  const char* path = std::getenv("STITCH_TEST_PPM");
-  cv::Mat p = testdata::read_ppm_rgba(path ? path : "");
-  if (p.empty()) throw std::runtime_error(std::string("cannot read the test photo STITCH_TEST_PPM=") + (path ? path : ""));
-  return p;
-}
+using testdata::test_photo;
 
 RigScene rig_scene() {
   RigScene s;
-  const cv::Mat photo_rgba = photo();
+  const cv::Mat photo_rgba = test_photo();
   const int w = 480, h = 360;
   s.rig.reference = 1;
   for (int i = 0; i < 3; ++i) {

@@ -25,6 +25,8 @@
 #include <cuda_runtime_api.h>
 #endif
 
+#include "color_cast.hpp"
+
 using namespace stitch;
 
 namespace {
@@ -34,23 +36,9 @@ namespace {
 #ifdef STITCH_HAVE_CUDA
 using testdata::DeviceMat;
 
-// data/photos/boat1_1600.jpg, decoded at build time (STITCH_TEST_PPM).
-cv::Mat photo() {
-  const char* path = std::getenv("STITCH_TEST_PPM");
-  cv::Mat p = testdata::read_ppm_rgba(path ? path : "");
-  if (p.empty()) throw std::runtime_error(std::string("cannot read the test photo STITCH_TEST_PPM=") + (path ? path : ""));
-  return p;
-}
+using testdata::test_photo;
 
-// out = in * M per pixel (row vector convention of eq. 4), rounded and clamped.
-void distort(cv::Mat& img, const Eigen::Matrix3d& M) {
-  for (int y = 0; y < img.rows; ++y)
-    for (int x = 0; x < img.cols; ++x) {
-      cv::Vec4b& p = img.at<cv::Vec4b>(y, x);
-      const Eigen::RowVector3d v = Eigen::RowVector3d(p[0], p[1], p[2]) * M;
-      for (int c = 0; c < 3; ++c) p[c] = cv::saturate_cast<uint8_t>(v[c]);
-    }
-}
+using testdata::distort;
 
 // Three cameras of a rotating rig (real homographies) over a real photo.
 struct ColorScene {
@@ -60,7 +48,7 @@ struct ColorScene {
 
 ColorScene color_scene(int reference) {
   ColorScene s;
-  const cv::Mat photo_rgba = photo();
+  const cv::Mat photo_rgba = test_photo();
   const int w = 480, h = 360;
   s.rig.reference = reference;
   for (int i = 0; i < 3; ++i) {
@@ -303,7 +291,7 @@ TEST(CudaColorCorrectorTiming, ThreeFullHdViews) {
   REQUIRE_CUDA();
 #ifdef STITCH_HAVE_CUDA
   cv::Mat big;
-  cv::resize(photo(), big, cv::Size(3840, 2560), 0, 0, cv::INTER_LINEAR);
+  cv::resize(test_photo(), big, cv::Size(3840, 2560), 0, 0, cv::INTER_LINEAR);
   Rig rig;
   rig.reference = 1;
   std::vector<std::unique_ptr<DeviceMat>> device;

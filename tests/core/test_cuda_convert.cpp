@@ -210,13 +210,7 @@ TEST(Convert, RgbFormats) {
 #ifdef STITCH_HAVE_CUDA
 namespace {
 
-// data/photos/boat1_1600.jpg, decoded at build time (STITCH_TEST_PPM).
-cv::Mat photo() {
-  const char* path = std::getenv("STITCH_TEST_PPM");
-  cv::Mat p = testdata::read_ppm_rgba(path ? path : "");
-  if (p.empty()) throw std::runtime_error(std::string("cannot read the test photo STITCH_TEST_PPM=") + (path ? path : ""));
-  return p;
-}
+using testdata::test_photo;
 
 // Device copies of a frame's planes / an RGBA image.
 struct DevicePlanes {
@@ -272,7 +266,7 @@ TEST(CudaConvert, MatchesCpu) {
   REQUIRE_CUDA();
 #ifdef STITCH_HAVE_CUDA
   cv::Mat rgba;
-  cv::resize(photo()(cv::Rect(100, 100, 1280, 720)), rgba, cv::Size(641, 359), 0, 0, cv::INTER_AREA);
+  cv::resize(test_photo()(cv::Rect(100, 100, 1280, 720)), rgba, cv::Size(641, 359), 0, 0, cv::INTER_AREA);
   auto gpu = FrameConverter::create(Backend::Cuda);
   ASSERT_EQ(gpu->backend(), Backend::Cuda);
   for (FrameFormat format : {FrameFormat::NV12, FrameFormat::I420, FrameFormat::RGBA, FrameFormat::BGRx}) {

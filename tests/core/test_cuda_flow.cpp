@@ -42,10 +42,7 @@ const char* quality_name(FlowQuality q) {
 
 // data/photos/boat1_1600.jpg, decoded at build time (STITCH_TEST_PPM), as gray of `size`.
 cv::Mat gray_photo(cv::Size size) {
-  const char* path = std::getenv("STITCH_TEST_PPM");
-  const cv::Mat rgba = testdata::read_ppm_rgba(path ? path : "");
-  if (rgba.empty())
-    throw std::runtime_error(std::string("cannot read the test photo STITCH_TEST_PPM=") + (path ? path : ""));
+  const cv::Mat rgba = testdata::test_photo();
   cv::Mat g;
   cv::cvtColor(rgba, g, cv::COLOR_RGBA2GRAY);
   cv::resize(g, g, size, 0, 0, cv::INTER_AREA);

@@ -29,9 +29,7 @@ struct Scene {
 
 // Camera i sees the photo from x = i * kShift; camera 1 sees it with parallax.
 Scene make_scene(int cameras, double parallax, bool uniform = false) {
-  const char* path = std::getenv("STITCH_TEST_PPM");  // data/photos/boat1_1600.jpg, as PPM
-  cv::Mat photo = testdata::read_ppm_rgba(path ? path : "");
-  if (photo.empty()) throw std::runtime_error("cannot read the test photo: set STITCH_TEST_PPM");
+  cv::Mat photo = testdata::test_photo();
   cv::resize(photo, photo, cv::Size(kW + (cameras - 1) * kShift, kH), 0, 0, cv::INTER_AREA);
   if (uniform) photo.setTo(cv::Scalar(90, 90, 90, 255));
   Scene s;

@@ -41,19 +41,8 @@ struct CudaComposer::State {
     return true;
   }
 
-  // The device image of `v`: itself when on the device, else a copy in buffer `slot`.
   stitch_cuda::DeviceImage on_device(const ImageView& v, std::size_t slot) {
-    if (v.on_device) return to_device_image(v);
-    const std::size_t pitch = std::size_t(v.width) * 4;
-    inputs[slot].resize(pitch * v.height);
-    STITCH_CUDA(cudaMemcpy2DAsync(inputs[slot].data(), pitch, v.data, v.pitch, pitch, v.height,
-                                  cudaMemcpyHostToDevice, stream.get()));
-    stitch_cuda::DeviceImage d;
-    d.data = inputs[slot].data();
-    d.pitch = pitch;
-    d.width = v.width;
-    d.height = v.height;
-    return d;
+    return device_image_of(v, inputs[slot], stream.get());
   }
   stitch_cuda::DeviceImage target(const ImageView& out) {
     if (out.width != out_w || out.height != out_h) throw std::invalid_argument("output size differs from prepare()");

@@ -1,6 +1,8 @@
 // ViewPlacement -> the kernels' plain ViewGeometry.
 #pragma once
 #include "../../../cuda/blend/blend_kernels.hpp"
+#include "stitch/cuda/cuda_util.hpp"
+#include "stitch/image.hpp"
 #include "stitch/warp/geometry.hpp"
 
 namespace stitch {
@@ -22,6 +24,21 @@ inline stitch_cuda::DeviceImage to_device_image(const ImageView& v) {
   stitch_cuda::DeviceImage d;
   d.data = v.data;
   d.pitch = v.pitch;
+  d.width = v.width;
+  d.height = v.height;
+  return d;
+}
+
+// The device image of `v`: `v` itself when it is in device memory, else a copy uploaded into
+// `staging` (grown once, reused every frame) on `stream`.
+inline stitch_cuda::DeviceImage device_image_of(const ImageView& v, DeviceBuffer& staging, cudaStream_t stream) {
+  if (v.on_device) return to_device_image(v);
+  const std::size_t pitch = std::size_t(v.width) * 4;
+  staging.resize(pitch * v.height);
+  STITCH_CUDA(cudaMemcpy2DAsync(staging.data(), pitch, v.data, v.pitch, pitch, v.height, cudaMemcpyHostToDevice, stream));
+  stitch_cuda::DeviceImage d;
+  d.data = staging.data();
+  d.pitch = pitch;
   d.width = v.width;
   d.height = v.height;
   return d;

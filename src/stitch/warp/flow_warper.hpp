@@ -30,6 +30,18 @@ struct FlowWarpSettings {
   double consistency_px = 4.0;           // forward-backward error (px) at which confidence is 1/e
 };
 
+// True when going from `a` to `b` changes the flow images (size, implementation): the warper
+// rebuilds its pairs and drops their history.
+inline bool flow_layout_changed(const FlowWarpSettings& a, const FlowWarpSettings& b) {
+  return a.margin != b.margin || a.quality != b.quality || a.algorithm != b.algorithm;
+}
+
+// `s` with temporal_smoothing kept below 1, so the flow always follows a changing scene.
+inline FlowWarpSettings sanitized(FlowWarpSettings s) {
+  s.temporal_smoothing = s.temporal_smoothing < 0.0 ? 0.0 : s.temporal_smoothing > 0.99 ? 0.99 : s.temporal_smoothing;
+  return s;
+}
+
 // One overlapping pair and what the last frame's flow did there.
 struct FlowPairStats {
   int view_a = 0, view_b = 0;

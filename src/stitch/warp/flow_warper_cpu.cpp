@@ -66,10 +66,8 @@ class FlowWarperCpu final : public FlowWarper {
   }
 
   void set_settings(const FlowWarpSettings& s) override {
-    const bool rebuild = s.margin != settings_.margin || s.quality != settings_.quality ||
-                         s.algorithm != settings_.algorithm;
-    settings_ = s;
-    settings_.temporal_smoothing = std::clamp(s.temporal_smoothing, 0.0, 0.99);
+    const bool rebuild = flow_layout_changed(settings_, s);
+    settings_ = sanitized(s);
     if (rebuild && !views_.empty()) build();
   }
 

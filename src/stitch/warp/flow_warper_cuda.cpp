@@ -30,11 +30,10 @@ std::vector<float> gaussian_taps(double sigma) {
 
 class FlowWarperCuda final : public FlowWarper {
  public:
-  void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) override {
+  // The canvas size is not needed: every view's rectangle and homography says where it lands.
+  void prepare(const std::vector<ViewPlacement>& views, int, int) override {
     if (views.size() > std::size_t(stitch_cuda::kMaxViews)) throw std::invalid_argument("at most 16 views on the GPU");
     views_ = views;
-    out_w_ = out_width;
-    out_h_ = out_height;
     geometry_.clear();
     for (const auto& v : views_) geometry_.push_back(to_device_geometry(v));
     inputs_.resize(views_.size());
@@ -43,10 +42,8 @@ class FlowWarperCuda final : public FlowWarper {
   }
 
   void set_settings(const FlowWarpSettings& s) override {
-    const bool rebuild = s.margin != settings_.margin || s.quality != settings_.quality ||
-                         s.algorithm != settings_.algorithm;
-    settings_ = s;
-    settings_.temporal_smoothing = std::clamp(s.temporal_smoothing, 0.0, 0.99);
+    const bool rebuild = flow_layout_changed(settings_, s);
+    settings_ = sanitized(s);
     if (rebuild && !views_.empty()) build();
   }
 
@@ -66,7 +63,7 @@ class FlowWarperCuda final : public FlowWarper {
                                     std::to_string(views_[i].camera_height));
       if (warped[i].width != views_[i].roi.width || warped[i].height != views_[i].roi.height)
         throw std::invalid_argument("flow warp: destination " + std::to_string(i) + " is not roi-sized");
-      src[i] = device_input(frames[i], i);
+      src[i] = device_image_of(frames[i], inputs_[i], stream_.get());
       dst[i] = device_output(warped[i], i);
     }
 
@@ -90,7 +87,8 @@ class FlowWarperCuda final : public FlowWarper {
     if (any_active) {
       stitch_cuda::launch_overlap_gray(pairs_dev_.get(), np, max_w_, max_h_, active, geometry_.data(), src.data(),
                                        int(n), s);
-      std::vector<DeviceFlowTask> tasks;
+      std::vector<DeviceFlowTask>& tasks = tasks_;
+      tasks.clear();
       for (int p = 0; p < np; ++p) {
         if (!active.test(p)) continue;
         const FlowPairDevice& d = pairs_[std::size_t(p)];
@@ -141,7 +139,8 @@ class FlowWarperCuda final : public FlowWarper {
       if (dst[i].data && !warped[i].on_device)
         STITCH_CUDA(cudaMemcpy2DAsync(warped[i].data, warped[i].pitch, dst[i].data, dst[i].pitch,
                                       std::size_t(warped[i].width) * 4, warped[i].height, cudaMemcpyDeviceToHost, s));
-    std::vector<float> sums(plans_.size() * 3, 0.f);
+    std::vector<float>& sums = sums_;
+    sums.assign(plans_.size() * 3, 0.f);
     if (any_active)
       STITCH_CUDA(cudaMemcpyAsync(sums.data(), stats_dev_.data(), sums.size() * sizeof(float), cudaMemcpyDeviceToHost, s));
     stream_.sync();
@@ -170,14 +169,6 @@ class FlowWarperCuda final : public FlowWarper {
     const FlowPairDevice* get() const { return reinterpret_cast<const FlowPairDevice*>(buffer.data()); }
   };
 
-  stitch_cuda::DeviceImage device_input(const ImageView& v, std::size_t slot) {
-    if (v.on_device) return to_device_image(v);
-    const std::size_t pitch = std::size_t(v.width) * 4;
-    inputs_[slot].resize(pitch * v.height);
-    STITCH_CUDA(cudaMemcpy2DAsync(inputs_[slot].data(), pitch, v.data, v.pitch, pitch, v.height,
-                                  cudaMemcpyHostToDevice, stream_.get()));
-    return {inputs_[slot].data(), pitch, v.width, v.height};
-  }
   stitch_cuda::DeviceImage device_output(const ImageView& v, std::size_t slot) {
     if (v.on_device) return to_device_image(v);
     const std::size_t pitch = std::size_t(v.width) * 4;
@@ -268,7 +259,6 @@ class FlowWarperCuda final : public FlowWarper {
   FlowWarpSettings settings_;
   std::vector<ViewPlacement> views_;
   std::vector<stitch_cuda::ViewGeometry> geometry_;
-  int out_w_ = 0, out_h_ = 0;
   std::vector<FlowPairPlan> plans_;
   std::vector<FlowPairDevice> pairs_;  // host copy of the descriptors
   std::vector<bool> history_;
@@ -278,6 +268,8 @@ class FlowWarperCuda final : public FlowWarper {
   std::vector<float> flow_taps_, change_taps_;
   std::vector<DeviceBuffer> inputs_, outputs_;  // staging for views in system memory
   std::vector<FlowPairStats> stats_;
+  std::vector<DeviceFlowTask> tasks_;  // reused every frame
+  std::vector<float> sums_;            // per pair: sum |flow|, covered pixels, confident pixels
 };
 
 }  // namespace
