@@ -14,7 +14,10 @@
 // Output in DIR: cam0.avi .. cam{N-1}.avi (MJPEG/AVI, OpenCV's built-in encoder),
 // rig_true.json (exact rig with homographies and canvas), rig_rough.json (perturbed camera
 // parameters, no homographies), gt_frame0.png (ground-truth panorama of frame 0 on the
-// rig_true canvas, before the photometric changes; alpha 0 where no camera sees).
+// rig_true canvas as the reference camera sees the scene: its exposure, white balance and
+// gamma, no noise; alpha 0 where no camera sees) and, with --ground-truth all, gt_NNNN.png
+// for every frame. --illumination-step F dims the whole scene from frame F on (a light
+// switched off), so the suite can see how color correction follows a sudden change.
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -44,6 +47,9 @@ struct Options {
   double fps = 30, hfov = 55, overlap = 0.35;
   unsigned seed = 1;
   bool moving_object = true;
+  bool ground_truth_every_frame = false;
+  int illumination_step = 0;           // first frame of the dimmed scene; 0 = never
+  double illumination_factor = 0.7;
 };
 
 void usage(std::FILE* f) {
@@ -52,6 +58,7 @@ void usage(std::FILE* f) {
                "[--height 360]\n"
                "         [--frames 60] [--fps 30] [--hfov 55] [--overlap 0.35] [--seed 1] "
                "[--moving-object 1]\n"
+               "         [--ground-truth first|all] [--illumination-step FRAME] [--illumination-factor 0.7]\n"
                "Renders N overlapping camera clips (camK.avi) from one photo with exact geometry,\n"
                "plus rig_true.json, rig_rough.json and gt_frame0.png.\n");
 }
@@ -99,6 +106,11 @@ Options parse_args(int argc, char** argv) {
     else if (key == "--overlap") o.overlap = parse_number(key, v);
     else if (key == "--seed") o.seed = unsigned(parse_int(key, v));
     else if (key == "--moving-object") o.moving_object = parse_int(key, v) != 0;
+    else if (key == "--ground-truth") {
+      if (v != "first" && v != "all") die(2, "--ground-truth must be first or all");
+      o.ground_truth_every_frame = v == "all";
+    } else if (key == "--illumination-step") o.illumination_step = parse_int(key, v);
+    else if (key == "--illumination-factor") o.illumination_factor = parse_number(key, v);
     else die(2, "unknown option " + key);
   }
   if (o.photo.empty()) die(2, "--photo is required");
@@ -110,6 +122,9 @@ Options parse_args(int argc, char** argv) {
   if (!(o.fps > 0 && o.fps <= 1000)) die(2, "--fps must be in (0, 1000]");
   if (!(o.hfov >= 5 && o.hfov <= 150)) die(2, "--hfov must be between 5 and 150 degrees");
   if (!(o.overlap >= 0.05 && o.overlap <= 0.9)) die(2, "--overlap must be between 0.05 and 0.9");
+  if (o.illumination_step < 0) die(2, "--illumination-step must be a frame index (0: none)");
+  if (!(o.illumination_factor > 0 && o.illumination_factor <= 4))
+    die(2, "--illumination-factor must be in (0, 4]");
   return o;
 }
 
@@ -375,6 +390,27 @@ int main(int argc, char** argv) {
       0.5 / kSupersample - 0.5, 0, 0, 1;
   const cv::Size big(o.width * kSupersample, o.height * kSupersample);
 
+  // Ground truth: canvas -> reference pixel -> photo, and where any camera sees.
+  const int ref = truth.reference;
+  const Eigen::Matrix3d canvas2photo = cam2photo[ref] * truth.cameras[ref].homography->inverse();
+  cv::Mat coverage(truth.canvas_height, truth.canvas_width, CV_8U, cv::Scalar(0));
+  for (const auto& cam : truth.cameras) {
+    std::vector<cv::Point> quad;
+    for (const auto& p : stitch::camera_canvas_corners(cam))
+      quad.emplace_back(int(std::lround(p.x())), int(std::lround(p.y())));
+    cv::fillConvexPoly(coverage, quad, cv::Scalar(255));
+  }
+  auto write_ground_truth = [&](const cv::Mat& scene, const std::string& name) {
+    cv::Mat gt, bgra;
+    cv::warpPerspective(scene, gt, cv::Mat(to_cv(canvas2photo)), cv::Size(truth.canvas_width, truth.canvas_height),
+                        cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+    cv::LUT(gt, photometric[std::size_t(ref)].lut, gt);
+    cv::cvtColor(gt, bgra, cv::COLOR_BGR2BGRA);
+    bgra.setTo(cv::Scalar(0, 0, 0, 0), coverage == 0);
+    if (!cv::imwrite((std::filesystem::path(o.out) / name).string(), bgra, {cv::IMWRITE_PNG_COMPRESSION, 1}))
+      die(1, "cannot write " + name);
+  };
+
   cv::Mat plane;
   cv::RNG noise_rng(o.seed * 7919u + 17u);
   for (int f = 0; f < o.frames; ++f) {
@@ -383,25 +419,12 @@ int main(int argc, char** argv) {
       const double t = o.frames > 1 ? double(f) / (o.frames - 1) : 0.5;
       draw_disc(plane, disc, path_x0 + t * (path_x1 - path_x0), path_y);
     }
-    if (f == 0) {
-      // Ground truth panorama on the true canvas: canvas -> reference pixel -> photo.
-      const int ref = truth.reference;
-      const Eigen::Matrix3d canvas2photo = cam2photo[ref] * truth.cameras[ref].homography->inverse();
-      cv::Mat gt, coverage(truth.canvas_height, truth.canvas_width, CV_8U, cv::Scalar(0));
-      cv::warpPerspective(plane, gt, cv::Mat(to_cv(canvas2photo)),
-                          cv::Size(truth.canvas_width, truth.canvas_height),
-                          cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
-      for (const auto& cam : truth.cameras) {
-        std::vector<cv::Point> quad;
-        for (const auto& p : stitch::camera_canvas_corners(cam))
-          quad.emplace_back(int(std::lround(p.x())), int(std::lround(p.y())));
-        cv::fillConvexPoly(coverage, quad, cv::Scalar(255));
-      }
-      cv::Mat bgra;
-      cv::cvtColor(gt, bgra, cv::COLOR_BGR2BGRA);
-      bgra.setTo(cv::Scalar(0, 0, 0, 0), coverage == 0);
-      if (!cv::imwrite((std::filesystem::path(o.out) / "gt_frame0.png").string(), bgra))
-        die(1, "cannot write gt_frame0.png");
+    if (o.illumination_step > 0 && f >= o.illumination_step) plane.convertTo(plane, -1, o.illumination_factor);
+    if (f == 0) write_ground_truth(plane, "gt_frame0.png");
+    if (o.ground_truth_every_frame) {
+      char name[32];
+      std::snprintf(name, sizeof name, "gt_%04d.png", f);
+      write_ground_truth(plane, name);
     }
     for (int c = 0; c < n; ++c) {
       cv::Mat hi, lo;
