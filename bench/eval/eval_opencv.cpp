@@ -171,7 +171,9 @@ int main(int argc, char** argv) {
         int(stitcher->component().size()) != int(sets[k].size())) {
       // A failed frame (or one that left cameras out) is counted; the viewer would see the
       // previous panorama or nothing, so no image is written for it.
-      ++failures;
+      if (failures++ == 0)
+        std::fprintf(stderr, "stitch-eval-opencv: frame %zu failed: status %d, %zu of %zu cameras stitched\n", k,
+                     int(status), stitcher->component().size(), sets[k].size());
       homographies.push_back("null");
       std::filesystem::remove(path);
       continue;

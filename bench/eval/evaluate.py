@@ -20,6 +20,7 @@ AutoStitch baseline) and estimated once then composing every frame.
 Output (default out/eval): report.md (tables), results.json, per-frame PSNR and flicker plots
 (PNG) and side-by-side seam crops.
 usage: scripts/evaluate.sh [--out DIR] [--frames N] [--only NAME[,NAME]] [--no-shared]
+                           [--variant NAME=CHAIN[|BLEND]]...
 """
 import argparse
 import json
@@ -66,8 +67,8 @@ def rigs(shared):
     ]
     if shared:
         out += [
-            dict(name="harbour-6cam", photo=os.path.join(SHARED, "images/eadcat_apap_demo/demo2/boat03.jpg"),
-                 args=["--cameras", "6", "--width", "400", "--height", "300", "--hfov", "32", "--overlap", "0.3"]),
+            dict(name="harbour-5cam", photo=os.path.join(SHARED, "images/eadcat_apap_demo/demo2/boat03.jpg"),
+                 args=["--cameras", "5", "--width", "400", "--height", "300", "--hfov", "30", "--overlap", "0.35"]),
             dict(name="newspaper-4cam", photo=os.path.join(SHARED, "images/eadcat_apap_demo/demo1/newspaper01.jpg"),
                  args=["--cameras", "4", "--width", "320", "--height", "400", "--hfov", "30", "--overlap", "0.35"]),
         ]
@@ -523,7 +524,17 @@ def main():
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--only", default="", help="comma-separated dataset names")
     ap.add_argument("--no-shared", action="store_true", help="only the repository's own data")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME=CHAIN[|BLEND]",
+                    help="another configuration of our chain, e.g. 'smooth=stitchcolor smoothing=0.95 ! "
+                         "stitchflowwarp' (CHAIN: elements between stitchcalib and stitchblend; BLEND: "
+                         "stitchblend properties)")
     args = ap.parse_args()
+    for v in args.variant:
+        name, _, spec = v.partition("=")
+        chain, _, blend = spec.partition("|")
+        if not name or not spec:
+            ap.error("--variant needs NAME=CHAIN[|BLEND]")
+        OURS.append((name.strip(), chain.strip(), blend.strip()))
     if args.frames < SETTLE + 3:
         ap.error("--frames must be at least %d" % (SETTLE + 3))
     os.environ["GST_PLUGIN_PATH"] = os.path.join(args.build, "gst")
