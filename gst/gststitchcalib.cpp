@@ -20,6 +20,9 @@
  * message named `stitchcalib` and written to `save-file` when set. When matching fails the
  * last good calibration (or the rough one) is kept and a warning is posted.
  *
+ * Bundles that come before the first calibration (a camera not delivering yet, calibration
+ * attempts that failed) are dropped, each with a QoS message.
+ *
  * An input that changes resolution mid-stream is calibrated again from that frame on, with a
  * warning naming the camera and both sizes (`on-resize=recalibrate`), or stops the stream with
  * an error (`on-resize=error`). Flushes (seeks) keep the calibration: the rig has not moved.
@@ -111,6 +114,8 @@ struct CalibState {
   std::shared_ptr<const stitch::Rig> current;
   std::optional<stitch::Rig> rough;  // from rig-file, loaded once per start
   std::vector<std::array<int, 2>> sizes;  // the view sizes `current` was made for
+  /* bundles passed and dropped (no calibration yet), for the QoS messages */
+  std::atomic<guint64> passed{0}, dropped{0};
   guint64 version = 0;
   int failed_attempts = 0;
   guint64 frames_since_attempt = 0;
@@ -146,6 +151,8 @@ struct CalibState {
     pooling = false;
     last_calibration_pts = GST_CLOCK_TIME_NONE;
     sizes.clear();
+    passed = 0;
+    dropped = 0;
   }
 };
 
@@ -210,9 +217,11 @@ static gboolean handle_resize(GstStitchCalib* self, const std::vector<std::array
   guard.unlock();
   st->join();
   guard.lock();
-  const guint64 version = st->version;
+  const guint64 version = st->version, passed = st->passed, dropped = st->dropped;
   st->reset();
   st->version = version;
+  st->passed = passed;
+  st->dropped = dropped;
   return TRUE;
 }
 
@@ -423,6 +432,22 @@ static void start_worker(GstStitchCalib* self, std::shared_ptr<std::vector<Frame
   });
 }
 
+/* A bundle dropped because there is no calibration yet: announced with a QoS message. */
+static GstFlowReturn drop_with_qos(GstStitchCalib* self, GstBuffer* buf) {
+  GstBaseTransform* trans = GST_BASE_TRANSFORM(self);
+  const GstClockTime pts = GST_BUFFER_PTS(buf);
+  GstClockTime running_time = GST_CLOCK_TIME_NONE, stream_time = GST_CLOCK_TIME_NONE;
+  if (trans->segment.format == GST_FORMAT_TIME && GST_CLOCK_TIME_IS_VALID(pts)) {
+    running_time = gst_segment_to_running_time(&trans->segment, GST_FORMAT_TIME, pts);
+    stream_time = gst_segment_to_stream_time(&trans->segment, GST_FORMAT_TIME, pts);
+  }
+  GstMessage* qos = gst_message_new_qos(GST_OBJECT(self), FALSE, running_time, stream_time, pts,
+                                        GST_BUFFER_DURATION(buf));
+  gst_message_set_qos_stats(qos, GST_FORMAT_BUFFERS, self->state->passed, ++self->state->dropped);
+  gst_element_post_message(GST_ELEMENT(self), qos);
+  return GST_BASE_TRANSFORM_FLOW_DROPPED;
+}
+
 static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstBuffer* buf) {
   GstStitchCalib* self = GST_STITCH_CALIB(trans);
   CalibState* st = self->state;
@@ -443,7 +468,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     if ((missing >> i & 1) && !st->current) {
       /* a camera has not delivered yet: wait, calibrating on black would fail */
       GST_DEBUG_OBJECT(self, "view %u missing; waiting before calibrating", i);
-      return GST_BASE_TRANSFORM_FLOW_DROPPED;
+      return drop_with_qos(self, buf);
     }
   }
   /* Pixels are read only on the frames that calibrate (rarely): CUDA-memory views then come
@@ -511,8 +536,12 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     }
   });
   if (!guarded || !ok) return GST_FLOW_ERROR;
-  if (!st->current) return GST_BASE_TRANSFORM_FLOW_DROPPED;
+  if (!st->current) {
+    guard.unlock();  // posting may call back into the element
+    return drop_with_qos(self, buf);
+  }
   gst_buffer_add_stitch_rig_meta(buf, st->current, st->version);
+  st->passed++;
   return GST_FLOW_OK;
 }
 

@@ -306,6 +306,22 @@ TEST(LateFrames, FrameFromThePastDroppedWithQos) {
   EXPECT_TRUE(run.dropouts.empty());
 }
 
+// A camera that starts late: stitchcalib drops the bundles it cannot calibrate on yet, each
+// with a QoS message, then stitches every later one.
+TEST(LateFrames, BundlesBeforeTheFirstCalibrationDroppedWithQos) {
+  const std::string calib = testdata::temp_dir() + "/late_start.json";
+  stitch::rig_save(testdata::shifted_rig(2, 32, 24, 16), calib);
+  Collected run;
+  run_pipeline("stitchsync name=s ! stitchcalib load-file=" + calib + " ! stitchblend ! appsink name=out" +
+                   gsttest::appsrc_inputs(2),
+               {coded_frames(0, 0, 11), coded_frames(1, 3, 11)}, run);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  EXPECT_EQ(run.outputs.size(), 9u);
+  ASSERT_EQ(run.qos.size(), 3u) << "dropped bundles not announced";
+  EXPECT_EQ(run.qos[2].second, 3u);
+  EXPECT_EQ(run.outputs.front().pts, frame_time(3));
+}
+
 // Live cameras: one stalls for 0.6 s (a valve drops its frames). The aggregator's latency
 // timeout keeps the panorama going; the camera is left out meanwhile and rejoins.
 TEST(LiveDropout, StalledLiveCameraIsLeftOutAndRejoins) {
