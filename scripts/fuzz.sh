@@ -7,7 +7,7 @@
 set -euo pipefail
 here="$(cd "$(dirname "$0")/.." && pwd)"
 seconds="${1:-600}"
-fuzzer="${2:-$here/build/tests/fuzz_rig}"
+fuzzer="$(realpath "${2:-$here/build/tests/fuzz_rig}")"
 work="${3:-}"
 own_work=0
 if [ -z "$work" ]; then work="$(mktemp -d)"; own_work=1; fi

@@ -603,3 +603,101 @@ TEST(Seek, FlushingSeekGivesTheFreshStartOutput) {
     EXPECT_LE(max_diff, 1.0) << "the seek kept history from before it";
   }
 }
+
+// A camera that ends (EOS) and reconnects (a flush, a new stream and segment on its pad, as a
+// source that restarts sends them) rejoins without a restart of the pipeline.
+TEST(Reconnect, EndedCameraRejoinsAfterANewStream) {
+  gsttest::init();
+  GstElement* pipe = gst_parse_launch(
+      "stitchsync name=s dropout=fill ! appsink name=out sync=false appsrc name=a0 format=time block=true ! s.sink_0",
+      nullptr);
+  ASSERT_NE(pipe, nullptr);
+  GstElement* sync = gst_bin_get_by_name(GST_BIN(pipe), "s");
+  GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
+  GstElement* a0 = gst_bin_get_by_name(GST_BIN(pipe), "a0");
+  GstPad* sink1 = gst_element_request_pad_simple(sync, "sink_%u");
+  GstPad* cam1 = gst_pad_new("cam1", GST_PAD_SRC);
+  gst_pad_set_active(cam1, TRUE);
+  ASSERT_EQ(gst_pad_link(cam1, sink1), GST_PAD_LINK_OK);
+  GstCaps* caps = gst_caps_from_string("video/x-raw,format=RGBA,width=32,height=24,framerate=30/1");
+  g_object_set(a0, "caps", caps, NULL);
+  GstBus* bus = gst_element_get_bus(pipe);
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+
+  auto buffer = [](int input, int f) {
+    const cv::Mat m = coded(input, f);
+    GstBuffer* b = gst_buffer_new_allocate(nullptr, m.total() * 4, nullptr);
+    gst_buffer_fill(b, 0, m.data, m.total() * 4);
+    GST_BUFFER_PTS(b) = frame_time(f);
+    GST_BUFFER_DURATION(b) = frame_time(f + 1) - frame_time(f);
+    return b;
+  };
+  auto start_stream = [&](const char* id) {
+    gst_pad_push_event(cam1, gst_event_new_stream_start(id));
+    gst_pad_push_event(cam1, gst_event_new_caps(caps));
+    GstSegment seg;
+    gst_segment_init(&seg, GST_FORMAT_TIME);
+    gst_pad_push_event(cam1, gst_event_new_segment(&seg));
+  };
+  std::thread camera0([&]() {
+    for (int f = 0; f < 20; ++f) gst_app_src_push_buffer(GST_APP_SRC(a0), buffer(0, f));
+  });
+  std::thread camera1([&]() {
+    start_stream("cam1-first");
+    for (int f = 0; f < 10; ++f) gst_pad_push(cam1, buffer(1, f));
+    gst_pad_push_event(cam1, gst_event_new_eos());
+  });
+  camera0.join();
+  camera1.join();
+  // the camera comes back: flush its pad, a new stream from frame 20 on
+  gst_pad_push_event(cam1, gst_event_new_flush_start());
+  gst_pad_push_event(cam1, gst_event_new_flush_stop(TRUE));
+  start_stream("cam1-second");
+  std::thread camera0b([&]() {
+    for (int f = 20; f < 30; ++f) gst_app_src_push_buffer(GST_APP_SRC(a0), buffer(0, f));
+    gst_app_src_end_of_stream(GST_APP_SRC(a0));
+  });
+  for (int f = 20; f < 30; ++f) gst_pad_push(cam1, buffer(1, f));
+  gst_pad_push_event(cam1, gst_event_new_eos());
+  camera0b.join();
+
+  Collected run;
+  const gint64 deadline = g_get_monotonic_time() + 20 * G_TIME_SPAN_SECOND;
+  while (g_get_monotonic_time() < deadline) {
+    if (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 20 * GST_MSECOND)) {
+      read_sample(s, run);
+      gst_sample_unref(s);
+    } else if (gst_app_sink_is_eos(GST_APP_SINK(sink))) {
+      break;
+    }
+  }
+  while (GstMessage* m = gst_bus_pop(bus)) {
+    read_message(m, run);
+    gst_message_unref(m);
+  }
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_caps_unref(caps);
+  gst_object_unref(cam1);
+  gst_element_release_request_pad(sync, sink1);
+  gst_object_unref(sink1);
+  for (GstElement* e : {sync, sink, a0}) gst_object_unref(e);
+  gst_object_unref(bus);
+  gst_object_unref(pipe);
+
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  ASSERT_FALSE(run.outputs.empty());
+  const Output& last = run.outputs.back();
+  EXPECT_EQ(frame_of(last.view_pixel[0], 0), 29);
+  EXPECT_EQ(frame_of(last.view_pixel[1], 1), 29) << "camera 1 did not rejoin";
+  EXPECT_FALSE(last.missing & 2);
+  bool left_out_between = false;
+  for (const Output& o : run.outputs)
+    if (o.pts >= frame_time(11) && o.pts < frame_time(19)) left_out_between = left_out_between || (o.missing & 2);
+  EXPECT_TRUE(left_out_between) << "the ended camera was not left out";
+  // "it ended", or "it stopped sending frames" when the flush came first
+  EXPECT_TRUE(run.warned("sink_1", "dropped out"));
+  ASSERT_GE(run.dropouts.size(), 2u);
+  gboolean dropped = TRUE;
+  gst_structure_get_boolean(run.dropouts.back(), "dropped", &dropped);
+  EXPECT_FALSE(dropped);
+}
