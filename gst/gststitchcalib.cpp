@@ -20,6 +20,13 @@
  * message named `stitchcalib` and written to `save-file` when set. When matching fails the
  * last good calibration (or the rough one) is kept and a warning is posted.
  *
+ * Bundles that come before the first calibration (a camera not delivering yet, calibration
+ * attempts that failed) are dropped, each with a QoS message.
+ *
+ * An input that changes resolution mid-stream is calibrated again from that frame on, with a
+ * warning naming the camera and both sizes (`on-resize=recalibrate`), or stops the stream with
+ * an error (`on-resize=error`). Flushes (seeks) keep the calibration: the rig has not moved.
+ *
  * Bundles in CUDA memory pass through untouched: only the frames a calibration reads (the
  * first ones, the pooled ones, a recalibration's) are mapped through host memory.
  *
@@ -67,7 +74,10 @@ enum {
   PROP_REFERENCE,
   PROP_CALIBRATION_FRAMES,
   PROP_BACKEND,
+  PROP_ON_RESIZE,
 };
+
+typedef enum { ON_RESIZE_RECALIBRATE = 0, ON_RESIZE_ERROR = 1 } OnResize;
 enum { SIGNAL_RECALIBRATE, LAST_SIGNAL };
 static guint signals[LAST_SIGNAL];
 
@@ -95,6 +105,7 @@ struct CalibSettings {
   int reference = DEFAULT_REFERENCE;
   int calibration_frames = DEFAULT_CALIBRATION_FRAMES;
   stitch::Backend backend = stitch::Backend::Auto;
+  OnResize on_resize = ON_RESIZE_RECALIBRATE;
 };
 
 struct CalibState {
@@ -102,6 +113,9 @@ struct CalibState {
   CalibSettings settings;
   std::shared_ptr<const stitch::Rig> current;
   std::optional<stitch::Rig> rough;  // from rig-file, loaded once per start
+  std::vector<std::array<int, 2>> sizes;  // the view sizes `current` was made for
+  /* bundles passed and dropped (no calibration yet), for the QoS messages */
+  std::atomic<guint64> passed{0}, dropped{0};
   guint64 version = 0;
   int failed_attempts = 0;
   guint64 frames_since_attempt = 0;
@@ -136,6 +150,9 @@ struct CalibState {
     frames_seen = 0;
     pooling = false;
     last_calibration_pts = GST_CLOCK_TIME_NONE;
+    sizes.clear();
+    passed = 0;
+    dropped = 0;
   }
 };
 
@@ -160,6 +177,52 @@ static GType refine_get_type(void) {
     g_once_init_leave(&type, t);
   }
   return type;
+}
+
+static GType on_resize_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {ON_RESIZE_RECALIBRATE, "Calibrate again for the new sizes", "recalibrate"},
+      {ON_RESIZE_ERROR, "Stop with an error", "error"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchCalibOnResize", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+/* A camera whose frames changed size since the calibration: recalibrate (dropping every
+ * calibration in flight) or stop, by on-resize. FALSE after the error. */
+static gboolean handle_resize(GstStitchCalib* self, const std::vector<std::array<int, 2>>& sizes) {
+  CalibState* st = self->state;
+  std::unique_lock<std::mutex> guard(st->lock);
+  if (!st->current || st->sizes.empty() || st->sizes == sizes) return TRUE;
+  std::string what;
+  for (std::size_t i = 0; i < sizes.size() && i < st->sizes.size(); ++i)
+    if (sizes[i] != st->sizes[i])
+      what += (what.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " " +
+              std::to_string(st->sizes[i][0]) + "x" + std::to_string(st->sizes[i][1]) + " -> " +
+              std::to_string(sizes[i][0]) + "x" + std::to_string(sizes[i][1]);
+  if (sizes.size() != st->sizes.size())
+    what = std::to_string(st->sizes.size()) + " -> " + std::to_string(sizes.size()) + " cameras";
+  if (st->settings.on_resize == ON_RESIZE_ERROR) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
+                      ("Input resolution changed mid-stream (%s) and on-resize=error", what.c_str()), (NULL));
+    return FALSE;
+  }
+  GST_ELEMENT_WARNING(self, STREAM, FORMAT, ("Input resolution changed mid-stream (%s); recalibrating", what.c_str()),
+                      (NULL));
+  /* the worker takes the lock when it finishes: join it without */
+  guard.unlock();
+  st->join();
+  guard.lock();
+  const guint64 version = st->version, passed = st->passed, dropped = st->dropped;
+  st->reset();
+  st->version = version;
+  st->passed = passed;
+  st->dropped = dropped;
+  return TRUE;
 }
 
 static GType features_get_type(void) {
@@ -369,6 +432,22 @@ static void start_worker(GstStitchCalib* self, std::shared_ptr<std::vector<Frame
   });
 }
 
+/* A bundle dropped because there is no calibration yet: announced with a QoS message. */
+static GstFlowReturn drop_with_qos(GstStitchCalib* self, GstBuffer* buf) {
+  GstBaseTransform* trans = GST_BASE_TRANSFORM(self);
+  const GstClockTime pts = GST_BUFFER_PTS(buf);
+  GstClockTime running_time = GST_CLOCK_TIME_NONE, stream_time = GST_CLOCK_TIME_NONE;
+  if (trans->segment.format == GST_FORMAT_TIME && GST_CLOCK_TIME_IS_VALID(pts)) {
+    running_time = gst_segment_to_running_time(&trans->segment, GST_FORMAT_TIME, pts);
+    stream_time = gst_segment_to_stream_time(&trans->segment, GST_FORMAT_TIME, pts);
+  }
+  GstMessage* qos = gst_message_new_qos(GST_OBJECT(self), FALSE, running_time, stream_time, pts,
+                                        GST_BUFFER_DURATION(buf));
+  gst_message_set_qos_stats(qos, GST_FORMAT_BUFFERS, self->state->passed, ++self->state->dropped);
+  gst_element_post_message(GST_ELEMENT(self), qos);
+  return GST_BASE_TRANSFORM_FLOW_DROPPED;
+}
+
 static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstBuffer* buf) {
   GstStitchCalib* self = GST_STITCH_CALIB(trans);
   CalibState* st = self->state;
@@ -382,13 +461,14 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
     return GST_FLOW_ERROR;
   }
+  if (!handle_resize(self, sizes)) return GST_FLOW_ERROR;
   const GstStitchBundleMeta* bundle = gst_buffer_get_stitch_bundle_meta(buf);
   const guint64 missing = bundle ? bundle->missing_mask : 0;
   for (guint i = 0; i < n_views; ++i) {
     if ((missing >> i & 1) && !st->current) {
       /* a camera has not delivered yet: wait, calibrating on black would fail */
       GST_DEBUG_OBJECT(self, "view %u missing; waiting before calibrating", i);
-      return GST_BASE_TRANSFORM_FLOW_DROPPED;
+      return drop_with_qos(self, buf);
     }
   }
   /* Pixels are read only on the frames that calibrate (rarely): CUDA-memory views then come
@@ -410,6 +490,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
       static const std::vector<stitch::ImageView> no_frames;  // a saved calibration needs no pixels
       ok = calibrate_now(self, st->settings.load_file.empty() ? frames() : no_frames, sizes);
       st->last_calibration_pts = GST_BUFFER_PTS(buf);
+      if (ok && st->current) st->sizes = sizes;
       if (ok && st->current && st->settings.load_file.empty() && st->settings.calibration_frames > 1) {
         st->pooling = true;
         st->frames_seen = 0;
@@ -455,8 +536,12 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     }
   });
   if (!guarded || !ok) return GST_FLOW_ERROR;
-  if (!st->current) return GST_BASE_TRANSFORM_FLOW_DROPPED;
+  if (!st->current) {
+    guard.unlock();  // posting may call back into the element
+    return drop_with_qos(self, buf);
+  }
   gst_buffer_add_stitch_rig_meta(buf, st->current, st->version);
+  st->passed++;
   return GST_FLOW_OK;
 }
 
@@ -523,6 +608,7 @@ static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const 
     case PROP_REFERENCE: s.reference = g_value_get_int(value); break;
     case PROP_CALIBRATION_FRAMES: s.calibration_frames = g_value_get_int(value); break;
     case PROP_BACKEND: s.backend = stitch::Backend(g_value_get_enum(value)); break;
+    case PROP_ON_RESIZE: s.on_resize = OnResize(g_value_get_enum(value)); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -544,6 +630,7 @@ static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue
     case PROP_REFERENCE: g_value_set_int(value, s.reference); break;
     case PROP_CALIBRATION_FRAMES: g_value_set_int(value, s.calibration_frames); break;
     case PROP_BACKEND: g_value_set_enum(value, int(s.backend)); break;
+    case PROP_ON_RESIZE: g_value_set_enum(value, int(s.on_resize)); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -602,6 +689,11 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
       g_param_spec_enum("backend", "Backend",
                         "Feature matching runs on the CPU in every mode (it runs rarely)",
                         GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+  g_object_class_install_property(gobject_class, PROP_ON_RESIZE,
+      g_param_spec_enum("on-resize", "On resize",
+                        "An input that changes resolution mid-stream: calibrate again for the new "
+                        "sizes (with a warning), or stop with an error",
+                        on_resize_get_type(), ON_RESIZE_RECALIBRATE, rw));
 
   signals[SIGNAL_RECALIBRATE] = g_signal_new_class_handler(
       "recalibrate", G_TYPE_FROM_CLASS(klass), GSignalFlags(G_SIGNAL_RUN_LAST | G_SIGNAL_ACTION),
@@ -625,6 +717,7 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
 
   gst_type_mark_as_plugin_api(refine_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(features_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(on_resize_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_BACKEND, GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_calib_debug, "stitchcalib", 0, "stitch calibration");
 }

@@ -18,6 +18,17 @@
  * Other formats are converted on the CPU before the upload. Without a GPU everything stays in
  * system memory and is converted by GStreamer's video converter.
  *
+ * Cameras fail. One that ends (EOS) or stalls (its newest frame ended more than
+ * `dropout-timeout` before the output time) drops out without stopping the panorama: a warning
+ * names it, an element message `stitchsync-dropout` (pad, view, dropped, reason) is posted, and
+ * `dropout=freeze` keeps its region on its last frame while `dropout=fill` marks the view
+ * missing so that stitchblend fills the region from its neighbours. With its next fresh frame
+ * (a stalled camera that resumes, a new segment after a reconnect) it rejoins, with an info
+ * message and a `stitchsync-dropout` message with dropped=false. Live inputs are aggregated on
+ * the `latency` timeout, so a stalled live camera is seen; file inputs that may stall need
+ * `force-live=true`. A frame that ends before one its input already delivered comes from the
+ * past and is dropped with a QoS message.
+ *
  * ## Example launch lines
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend ! videoconvert ! autovideosink \
@@ -28,6 +39,13 @@
  * gst-launch-1.0 stitchsync name=s framerate=30/1 input-eos=end-stream ! fakesink \
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * Live cameras, one of which may fail: its region is filled by its neighbours meanwhile.
+ * |[
+ * gst-launch-1.0 stitchsync name=s latency=100000000 dropout=fill dropout-timeout=300000000 ! \
+ *   stitchcalib ! stitchblend ! videoconvert ! autovideosink \
+ *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_0 \
+ *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_1
  * ]|
  * GPU decoding to a GPU panorama (the frames never return to the host in between):
  * |[
@@ -53,12 +71,14 @@
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_sync_debug);
 #define GST_CAT_DEFAULT gst_stitch_sync_debug
 
-enum { PROP_0, PROP_FRAMERATE, PROP_INPUT_EOS, PROP_BACKEND };
+enum { PROP_0, PROP_FRAMERATE, PROP_INPUT_EOS, PROP_BACKEND, PROP_DROPOUT, PROP_DROPOUT_TIMEOUT };
 
 #define DEFAULT_FRAMERATE_N 0
 #define DEFAULT_FRAMERATE_D 1
 #define DEFAULT_INPUT_EOS GST_STITCH_SYNC_INPUT_EOS_REPEAT_LAST
 #define DEFAULT_BACKEND stitch::Backend::Auto
+#define DEFAULT_DROPOUT GST_STITCH_SYNC_DROPOUT_FREEZE
+#define DEFAULT_DROPOUT_TIMEOUT (500 * GST_MSECOND)
 
 struct StitchSyncState {
   /* Last real frame of each pad, reused while a live camera is late. */
@@ -70,6 +90,11 @@ struct StitchSyncState {
     /* CUDA-memory bundles: the input frame, converted again when repeated */
     GstBuffer* frame = nullptr;
     GstVideoInfo frame_info;
+    /* dropout bookkeeping: announced once when the camera goes, once when it is back */
+    bool dropped = false;
+    /* end (running time) of the newest frame taken in, to drop frames from the past (QoS) */
+    GstClockTime newest_end = GST_CLOCK_TIME_NONE;
+    guint64 processed = 0, late = 0;
   };
   std::mutex lock;  // guards `last` against pad release from the application thread
   std::map<GstPad*, Last> last;
@@ -79,6 +104,9 @@ struct StitchSyncState {
   StitchCudaOwned<stitch::FrameConverter> converter;
   GstBufferPool* pool = nullptr;
   std::vector<std::array<int, 2>> pool_sizes;
+  /* QoS messages for frames dropped in clip, posted from aggregate_frames (clip runs under the
+   * element's object lock, which posting takes) */
+  std::vector<GstMessage*> pending_qos;
 
   static void release(Last& l) {
     gst_clear_buffer(&l.buffer);
@@ -90,6 +118,8 @@ struct StitchSyncState {
   }
   void clear() {
     clear_last();
+    for (GstMessage* m : pending_qos) gst_message_unref(m);
+    pending_qos.clear();
     converter.reset();
     stitch_bundle_pool_clear(&pool);
     pool_sizes.clear();
@@ -102,6 +132,8 @@ struct _GstStitchSync {
   gint fps_n, fps_d;
   GstStitchSyncInputEos input_eos;
   stitch::Backend backend;
+  GstStitchSyncDropout dropout;
+  GstClockTime dropout_timeout;
   /* state */
   StitchSyncState* state;
 };
@@ -169,6 +201,20 @@ static GType gst_stitch_sync_input_eos_get_type(void) {
       {0, NULL, NULL}};
   if (g_once_init_enter(&type)) {
     GType t = g_enum_register_static("GstStitchSyncInputEos", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+#define GST_TYPE_STITCH_SYNC_DROPOUT (gst_stitch_sync_dropout_get_type())
+static GType gst_stitch_sync_dropout_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {GST_STITCH_SYNC_DROPOUT_FREEZE, "Show the camera's last frame until it is back", "freeze"},
+      {GST_STITCH_SYNC_DROPOUT_FILL, "Leave the camera out (marked missing): its neighbours fill in", "fill"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchSyncDropout", values);
     g_once_init_leave(&type, t);
   }
   return type;
@@ -268,8 +314,43 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
   GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->release_pad(element, pad);
 }
 
+/* A frame that ends before the newest one this pad already took in comes from the past: the
+ * base class would drop it silently, so it is dropped here, with a QoS message. */
+static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad, GstBuffer* buf) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
+  if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
+  GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
+  if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
+  GST_OBJECT_LOCK(pad);
+  const GstClockTime end_rt = gst_segment_to_running_time(&pad->segment, GST_FORMAT_TIME, end);
+  const GstClockTime start_rt = gst_segment_to_running_time(&pad->segment, GST_FORMAT_TIME, pts);
+  const GstClockTime stream_time = gst_segment_to_stream_time(&pad->segment, GST_FORMAT_TIME, pts);
+  GST_OBJECT_UNLOCK(pad);
+  if (!GST_CLOCK_TIME_IS_VALID(end_rt)) return buf;
+  std::lock_guard<std::mutex> guard(self->state->lock);
+  StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
+  if (!GST_CLOCK_TIME_IS_VALID(last.newest_end) || end_rt >= last.newest_end) {
+    last.newest_end = end_rt;
+    last.processed++;
+    return buf;
+  }
+  GST_DEBUG_OBJECT(pad, "frame ending at %" GST_TIME_FORMAT " is from the past; dropped", GST_TIME_ARGS(end_rt));
+  GstMessage* qos = gst_message_new_qos(GST_OBJECT(pad), FALSE, start_rt, stream_time, pts,
+                                        GST_BUFFER_DURATION(buf));
+  gst_message_set_qos_stats(qos, GST_FORMAT_BUFFERS, last.processed, ++last.late);
+  self->state->pending_qos.push_back(qos);
+  gst_buffer_unref(buf);
+  return NULL;
+}
+
 static gboolean gst_stitch_sync_sink_event(GstAggregator* agg, GstAggregatorPad* pad,
                                            GstEvent* event) {
+  if (GST_EVENT_TYPE(event) == GST_EVENT_SEGMENT || GST_EVENT_TYPE(event) == GST_EVENT_STREAM_START) {
+    /* a new segment or a restarted camera: its running times start afresh */
+    std::lock_guard<std::mutex> guard(GST_STITCH_SYNC(agg)->state->lock);
+    auto it = GST_STITCH_SYNC(agg)->state->last.find(GST_PAD(pad));
+    if (it != GST_STITCH_SYNC(agg)->state->last.end()) it->second.newest_end = GST_CLOCK_TIME_NONE;
+  }
   if (GST_EVENT_TYPE(event) == GST_EVENT_CAPS) {
     GstCaps* caps = NULL;
     gst_event_parse_caps(event, &caps);
@@ -544,14 +625,19 @@ static stitch::FrameView frame_view(const GstVideoFrame* frame) {
 
 /* System memory: views reference the inputs' memory (zero-copy for single-block frames). */
 static guint64 bundle_in_system_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                                       GstBuffer* outbuf) {
+                                       GstBuffer* outbuf, guint64 left_out) {
   GstVideoAggregator* vagg = GST_VIDEO_AGGREGATOR(self);
   guint64 missing = 0;
   guint id = 0;
   for (GstVideoAggregatorPad* pad : pads) {
     GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
     StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
-    if (frame) {
+    if (left_out >> id & 1) {
+      /* dropped out with dropout=fill: black, marked missing, the last frame kept */
+      const auto size = view_size(vagg, pad);
+      append_black_view(outbuf, id, size[0], size[1]);
+      missing |= guint64(1) << id;
+    } else if (frame) {
       append_view(outbuf, id, frame->buffer, GST_VIDEO_FRAME_PLANE_OFFSET(frame, 0),
                   GST_VIDEO_FRAME_WIDTH(frame), GST_VIDEO_FRAME_HEIGHT(frame),
                   GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
@@ -582,7 +668,7 @@ static guint64 bundle_in_system_memory(GstStitchSync* self, const std::vector<Gs
 /* CUDA memory: every view of the pooled bundle is written on the device from its input frame
  * (uploaded once when it is in system memory). FALSE after an element error. */
 static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                                      GstBuffer* outbuf, guint64& missing) {
+                                      GstBuffer* outbuf, guint64 left_out, guint64& missing) {
   StitchSyncState* st = self->state;
   const guint n = guint(pads.size());
   StitchBundleMapping out;
@@ -602,7 +688,10 @@ static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<Gst
         const stitch::ImageView& view = out.views()[id];
         GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
         StitchSyncState::Last& last = st->last[GST_PAD(pad)];
-        if (frame) {
+        if (left_out >> id & 1) {
+          converter.clear(view);
+          missing |= guint64(1) << id;
+        } else if (frame) {
           converter.convert(frame_view(frame), view);
           gst_buffer_replace(&last.frame, frame->buffer);
           last.frame_info = frame->info;
@@ -632,6 +721,80 @@ static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<Gst
   return ok;
 }
 
+/* Dropouts. A camera has dropped out when it ended (EOS) or when its newest frame ended more
+ * than dropout-timeout before the output time: a stalled camera (live inputs: the aggregator's
+ * latency timeout brings the output here without it; a timestamp jump looks the same until the
+ * frames catch up). It rejoins with its next fresh frame. */
+struct DropoutChange {
+  std::string pad;
+  guint view;
+  bool dropped;        // false: rejoined
+  std::string reason;  // why it dropped out
+  GstStitchSyncDropout mode;
+};
+
+/* Running time at which the pad's current input frame ends (its start without a duration). */
+static GstClockTime current_frame_end(GstVideoAggregatorPad* pad) {
+  GstBuffer* buf = gst_video_aggregator_pad_get_current_buffer(pad);
+  if (!buf || !GST_BUFFER_PTS_IS_VALID(buf)) return GST_CLOCK_TIME_NONE;
+  GstClockTime end = GST_BUFFER_PTS(buf);
+  if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
+  GST_OBJECT_LOCK(pad);
+  GstSegment* seg = &GST_AGGREGATOR_PAD(pad)->segment;
+  if (seg->format == GST_FORMAT_TIME && GST_CLOCK_TIME_IS_VALID(seg->stop)) end = MIN(end, GstClockTime(seg->stop));
+  const GstClockTime rt = gst_segment_to_running_time(seg, GST_FORMAT_TIME, end);
+  GST_OBJECT_UNLOCK(pad);
+  return rt;
+}
+
+/* Updates every pad's dropout state (state lock held); returns the views to leave out. */
+static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
+                              GstBuffer* outbuf, GstStitchSyncDropout mode, GstClockTime timeout,
+                              std::vector<DropoutChange>& changes) {
+  GstAggregator* agg = GST_AGGREGATOR(self);
+  GST_OBJECT_LOCK(agg->srcpad);
+  const GstClockTime now =
+      gst_segment_to_running_time(&GST_AGGREGATOR_PAD(agg->srcpad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(outbuf));
+  GST_OBJECT_UNLOCK(agg->srcpad);
+  guint64 left_out = 0;
+  for (guint id = 0; id < pads.size(); ++id) {
+    GstVideoAggregatorPad* pad = pads[id];
+    StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
+    const bool had_frame = last.buffer || last.frame || last.dropped;
+    std::string reason;
+    if (!gst_video_aggregator_pad_get_prepared_frame(pad)) {
+      if (had_frame) reason = gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad)) ? "it ended" : "it stopped sending frames";
+    } else if (GST_CLOCK_TIME_IS_VALID(now)) {
+      const GstClockTime end = current_frame_end(pad);
+      if (GST_CLOCK_TIME_IS_VALID(end) && now > end + timeout)
+        reason = "no frame for " + std::to_string((now - end) / GST_MSECOND) + " ms";
+    }
+    const bool out = !reason.empty();
+    if (out != last.dropped) {
+      last.dropped = out;
+      changes.push_back({GST_PAD_NAME(pad), id, out, reason, mode});
+    }
+    if (out && mode == GST_STITCH_SYNC_DROPOUT_FILL) left_out |= guint64(1) << id;
+  }
+  return left_out;
+}
+
+static void post_dropout_change(GstStitchSync* self, const DropoutChange& c) {
+  if (c.dropped) {
+    GST_ELEMENT_WARNING(self, STREAM, FAILED,
+                        ("Camera %s (view %u) dropped out (%s); its region is %s until it is back", c.pad.c_str(),
+                         c.view, c.reason.c_str(),
+                         c.mode == GST_STITCH_SYNC_DROPOUT_FILL ? "filled by its neighbours" : "frozen"),
+                        (NULL));
+  } else {
+    GST_ELEMENT_INFO(self, STREAM, FAILED, ("Camera %s (view %u) is back", c.pad.c_str(), c.view), (NULL));
+  }
+  GstStructure* s = gst_structure_new("stitchsync-dropout", "pad", G_TYPE_STRING, c.pad.c_str(), "view", G_TYPE_UINT,
+                                      c.view, "dropped", G_TYPE_BOOLEAN, c.dropped, "reason", G_TYPE_STRING,
+                                      c.reason.c_str(), NULL);
+  gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
+}
+
 static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, GstBuffer* outbuf) {
   GstStitchSync* self = GST_STITCH_SYNC(vagg);
   auto pads = sorted_pads(self);
@@ -649,13 +812,29 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
       return GST_FLOW_EOS;
     }
   }
-  std::lock_guard<std::mutex> guard(self->state->lock);
+  std::vector<DropoutChange> changes;
+  std::vector<GstMessage*> qos;
   guint64 missing = 0;
-  if (self->state->out_cuda) {
-    if (!bundle_in_cuda_memory(self, pads, outbuf, missing)) return GST_FLOW_ERROR;
-  } else {
-    missing = bundle_in_system_memory(self, pads, outbuf);
+  GST_OBJECT_LOCK(self);
+  const GstStitchSyncDropout mode = self->dropout;
+  const GstClockTime timeout = self->dropout_timeout;
+  GST_OBJECT_UNLOCK(self);
+  {
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    qos.swap(self->state->pending_qos);
+    const guint64 left_out = track_dropouts(self, pads, outbuf, mode, timeout, changes);
+    if (self->state->out_cuda) {
+      if (!bundle_in_cuda_memory(self, pads, outbuf, left_out, missing)) {
+        for (GstMessage* m : qos) gst_message_unref(m);
+        return GST_FLOW_ERROR;
+      }
+    } else {
+      missing = bundle_in_system_memory(self, pads, outbuf, left_out);
+    }
   }
+  /* posted without the state lock: bus sync handlers may call back into the element */
+  for (GstMessage* m : qos) gst_element_post_message(GST_ELEMENT(self), m);
+  for (const DropoutChange& c : changes) post_dropout_change(self, c);
   gst_buffer_add_stitch_bundle_meta(outbuf, guint(pads.size()), missing);
   return GST_FLOW_OK;
 }
@@ -689,6 +868,16 @@ static void gst_stitch_sync_set_property(GObject* object, guint prop_id, const G
       GST_OBJECT_UNLOCK(self);
       break;
     case PROP_INPUT_EOS: self->input_eos = GstStitchSyncInputEos(g_value_get_enum(value)); break;
+    case PROP_DROPOUT:
+      GST_OBJECT_LOCK(self);
+      self->dropout = GstStitchSyncDropout(g_value_get_enum(value));
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_DROPOUT_TIMEOUT:
+      GST_OBJECT_LOCK(self);
+      self->dropout_timeout = g_value_get_uint64(value);
+      GST_OBJECT_UNLOCK(self);
+      break;
     case PROP_BACKEND:
       GST_OBJECT_LOCK(self);
       self->backend = stitch::Backend(g_value_get_enum(value));
@@ -710,6 +899,16 @@ static void gst_stitch_sync_get_property(GObject* object, guint prop_id, GValue*
       GST_OBJECT_UNLOCK(self);
       break;
     case PROP_INPUT_EOS: g_value_set_enum(value, self->input_eos); break;
+    case PROP_DROPOUT:
+      GST_OBJECT_LOCK(self);
+      g_value_set_enum(value, self->dropout);
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_DROPOUT_TIMEOUT:
+      GST_OBJECT_LOCK(self);
+      g_value_set_uint64(value, self->dropout_timeout);
+      GST_OBJECT_UNLOCK(self);
+      break;
     case PROP_BACKEND:
       GST_OBJECT_LOCK(self);
       g_value_set_enum(value, int(self->backend));
@@ -750,6 +949,20 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
                         GST_TYPE_STITCH_SYNC_INPUT_EOS, DEFAULT_INPUT_EOS,
                         GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS)));
   g_object_class_install_property(
+      gobject_class, PROP_DROPOUT,
+      g_param_spec_enum("dropout", "Dropout",
+                        "A camera that ended or stalled: freeze its region on its last frame, or "
+                        "fill it from its neighbours (the view is marked missing)",
+                        GST_TYPE_STITCH_SYNC_DROPOUT, DEFAULT_DROPOUT,
+                        GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS)));
+  g_object_class_install_property(
+      gobject_class, PROP_DROPOUT_TIMEOUT,
+      g_param_spec_uint64("dropout-timeout", "Dropout timeout",
+                          "A camera whose newest frame ended this long (ns) before the output "
+                          "time has dropped out (a warning is posted; it rejoins with its next frame)",
+                          0, G_MAXUINT64, DEFAULT_DROPOUT_TIMEOUT,
+                          GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS)));
+  g_object_class_install_property(
       gobject_class, PROP_BACKEND,
       g_param_spec_enum("backend", "Backend",
                         "auto: bundles in CUDA memory (converted on the GPU) when a device opens and "
@@ -770,6 +983,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   element_class->release_pad = GST_DEBUG_FUNCPTR(gst_stitch_sync_release_pad);
   element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_sync_set_context);
   agg_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_event);
+  agg_class->clip = GST_DEBUG_FUNCPTR(gst_stitch_sync_clip);
   agg_class->sink_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_query);
   agg_class->src_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_src_query);
   agg_class->fixate_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_fixate_src_caps);
@@ -781,6 +995,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   vagg_class->aggregate_frames = GST_DEBUG_FUNCPTR(gst_stitch_sync_aggregate_frames);
 
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_SYNC_INPUT_EOS, GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(GST_TYPE_STITCH_SYNC_DROPOUT, GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(gst_stitch_sync_pad_get_type(), GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_sync_debug, "stitchsync", 0, "stitch synchronizer");
 }
@@ -790,5 +1005,7 @@ static void gst_stitch_sync_init(GstStitchSync* self) {
   self->fps_d = DEFAULT_FRAMERATE_D;
   self->input_eos = DEFAULT_INPUT_EOS;
   self->backend = DEFAULT_BACKEND;
+  self->dropout = DEFAULT_DROPOUT;
+  self->dropout_timeout = DEFAULT_DROPOUT_TIMEOUT;
   self->state = new StitchSyncState();
 }

@@ -10,5 +10,10 @@ typedef enum {
   GST_STITCH_SYNC_INPUT_EOS_END_STREAM = 1,
 } GstStitchSyncInputEos;
 
+typedef enum {
+  GST_STITCH_SYNC_DROPOUT_FREEZE = 0,
+  GST_STITCH_SYNC_DROPOUT_FILL = 1,
+} GstStitchSyncDropout;
+
 GST_ELEMENT_REGISTER_DECLARE(stitchsync);
 G_END_DECLS

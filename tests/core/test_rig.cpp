@@ -151,6 +151,22 @@ TEST(RigJson, MalformedInputGivesClearErrors) {
   EXPECT_THROW(rig_load("/nonexistent/rig.json"), RigError);
 }
 
+// Hostile and truncated files (issue 7; the first was found by tests/fuzz/fuzz_rig.cpp): a
+// RigError that says why, never another exception, a crash or a hang.
+TEST(RigJson, HostileInputGivesClearErrors) {
+  // a number beyond double (nlohmann throws out_of_range, not parse_error)
+  EXPECT_NE(error_of("777777777777E777777").find("malformed JSON"), std::string::npos);
+  EXPECT_NE(error_of(R"({"cameras":[{"width":64,"height":48,"fx":1e999}]})").find("malformed JSON"),
+            std::string::npos);
+  // deep nesting, truncation, binary junk, an empty file
+  EXPECT_NE(error_of(std::string(100000, '[')).find("malformed JSON"), std::string::npos);
+  EXPECT_NE(error_of(R"({"cameras":[{"width":640,"height":4)").find("malformed JSON"), std::string::npos);
+  EXPECT_NE(error_of(std::string("\xff\xfe\x00\x01", 4)).find("malformed JSON"), std::string::npos);
+  EXPECT_NE(error_of("").find("malformed JSON"), std::string::npos);
+  // absurd sizes are refused by name, not allocated
+  EXPECT_NE(error_of(R"({"cameras":[{"width":2000000000,"height":48,"fx":1}]})").find("width"), std::string::npos);
+}
+
 TEST(RigAdapt, ScalingToStreamSizeKeepsGeometry) {
   Rig rig = two_camera_rig(25.0);
   rig_compute_rough_homographies(rig);

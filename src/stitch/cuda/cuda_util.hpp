@@ -39,7 +39,17 @@ class DeviceBuffer {
     if (ptr_) cudaFree(ptr_);
     ptr_ = nullptr;
     bytes_ = 0;
-    STITCH_CUDA(cudaMalloc(&ptr_, bytes));
+    const cudaError_t e = cudaMalloc(&ptr_, bytes);
+    if (e == cudaErrorMemoryAllocation) {
+      cudaGetLastError();
+      std::size_t free_bytes = 0, total = 0;
+      cudaMemGetInfo(&free_bytes, &total);
+      ptr_ = nullptr;
+      throw std::runtime_error("out of GPU memory: cannot allocate " + std::to_string(bytes >> 20) + " MiB (" +
+                               std::to_string(free_bytes >> 20) + " of " + std::to_string(total >> 20) +
+                               " MiB free); use a smaller canvas or output, or backend=cpu");
+    }
+    cuda_check(e, "cudaMalloc");
     bytes_ = bytes;
   }
   uint8_t* data() const { return static_cast<uint8_t*>(ptr_); }

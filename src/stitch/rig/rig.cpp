@@ -112,7 +112,8 @@ Rig rig_from_json_string(const std::string& text) {
   json j;
   try {
     j = json::parse(text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {
+    /* parse errors, and numbers out of range (1e999): found by tests/fuzz */
     throw RigError(std::string("malformed JSON: ") + e.what());
   }
   if (!j.is_object()) fail("", "the rig must be a JSON object");
