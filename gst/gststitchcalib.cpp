@@ -12,6 +12,14 @@
  * - neither: calibration from the images alone (features, pairwise homographies chained to
  *   the reference camera).
  *
+ * `projection` picks the canvas: `plane` (the reference camera's image plane, homographies),
+ * `cylindrical` or `spherical` (equirectangular; each camera's K and R map the canvas, and a
+ * ring that looks all around gets a 360-degree canvas whose seam closes at the wrap). Unset, the
+ * rig-file's `projection` holds. Non-planar calibration needs a rig-file (rough focal lengths
+ * and rotations): features of every overlapping pair feed one bundle adjustment of all
+ * rotations and focal lengths, then `wave-correct` levels the horizon. `bundle-adjust=true`
+ * does the same for a planar rig (a rotating one) instead of chaining pairwise corrections.
+ *
  * It calibrates on the first bundle, then pools the matches of the first `calibration-frames`
  * frames (every 5th) into a refined calibration that replaces it (moving people and noise
  * average out on a static rig). It recalibrates when the `recalibrate` action signal is emitted,
@@ -29,6 +37,13 @@
  *   videoconvert ! autovideosink \
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib rig-file=/tmp/ring.json projection=cylindrical \
+ *   save-file=/tmp/ring-calib.json ! stitchblend ! videoconvert ! autovideosink \
+ *   multifilesrc location=/tmp/ring/cam0_%03d.png index=0 caps=image/png,framerate=5/1 ! pngdec ! s.sink_0 \
+ *   multifilesrc location=/tmp/ring/cam1_%03d.png index=0 caps=image/png,framerate=5/1 ! pngdec ! s.sink_1 \
+ *   ... (one input per camera of the rig; stitch-render-rig --ring 6 writes such a ring)
  * ]|
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib load-file=/tmp/calib.json ! stitchblend ! \
@@ -67,6 +82,9 @@ enum {
   PROP_REFERENCE,
   PROP_CALIBRATION_FRAMES,
   PROP_BACKEND,
+  PROP_PROJECTION,
+  PROP_BUNDLE_ADJUST,
+  PROP_WAVE_CORRECT,
 };
 enum { SIGNAL_RECALIBRATE, LAST_SIGNAL };
 static guint signals[LAST_SIGNAL];
@@ -95,6 +113,7 @@ struct CalibSettings {
   int reference = DEFAULT_REFERENCE;
   int calibration_frames = DEFAULT_CALIBRATION_FRAMES;
   stitch::Backend backend = stitch::Backend::Auto;
+  std::optional<stitch::Projection> projection;  // unset: the rig-file's
 };
 
 struct CalibState {
@@ -175,6 +194,20 @@ static GType features_get_type(void) {
   return type;
 }
 
+static GType projection_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::Projection::Plane), "The reference camera's image plane (homographies)", "plane"},
+      {int(stitch::Projection::Cylindrical), "Cylinder about the rig's vertical axis", "cylindrical"},
+      {int(stitch::Projection::Spherical), "Sphere, equirectangular", "spherical"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchCalibProjection", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
 static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
     "sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
@@ -197,7 +230,8 @@ static void post_result(GstStitchCalib* self, const stitch::CalibrationResult& r
       r.refined_cameras, "inliers", G_TYPE_INT, inliers, "rms-px", G_TYPE_DOUBLE,
       accepted ? rms / accepted : 0.0, "canvas-width", G_TYPE_INT, r.rig.canvas_width,
       "canvas-height", G_TYPE_INT, r.rig.canvas_height, "warnings", G_TYPE_INT,
-      int(r.warnings.size()), NULL);
+      int(r.warnings.size()), "projection", G_TYPE_STRING, r.rig.projection.c_str(), "canvas-wrap",
+      G_TYPE_BOOLEAN, gboolean(r.rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_after_px, NULL);
   gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
 }
 
@@ -224,8 +258,18 @@ static stitch::CalibrationResult run_calibration(
   if (rough) {
     stitch::Rig start = *rough;
     if (s.reference >= 0) start.reference = s.reference;
+    if (s.projection && start.projection != stitch::projection_name(*s.projection)) {
+      /* Another canvas: what the file computed for its own one does not apply. */
+      start.projection = stitch::projection_name(*s.projection);
+      for (auto& c : start.cameras) c.homography.reset();
+      start.canvas_width = start.canvas_height = 0;
+      start.canvas_scale = 0;
+    }
     return stitch::calibrate_from_rig(start, frames, s.options);
   }
+  if (s.projection && *s.projection != stitch::Projection::Plane)
+    throw stitch::RigError(std::string("projection=") + stitch::projection_name(*s.projection) +
+                           " needs rough focal lengths and rotations: give a rig-file");
   if (previous) {
     /* re-calibration without a rig: refine the previous geometry with features */
     return stitch::calibrate_from_rig(*previous, frames, s.options);
@@ -265,10 +309,17 @@ static gboolean calibrate_now(GstStitchCalib* self, const std::vector<stitch::Im
       GST_ELEMENT_ERROR(self, RESOURCE, READ, ("%s", e.what()), (NULL));
       return FALSE;
     }
+    if (s.projection && rig.projection != stitch::projection_name(*s.projection))
+      GST_ELEMENT_WARNING(self, RESOURCE, READ,
+                          ("load-file \"%s\" holds a %s calibration; projection=%s applies to "
+                           "estimation only, the file is used as is",
+                           s.load_file.c_str(), rig.projection.c_str(), stitch::projection_name(*s.projection)),
+                          (NULL));
     if (!rig.calibrated()) {
       GST_ELEMENT_ERROR(self, RESOURCE, READ,
-                        ("load-file \"%s\" holds no calibration (every camera needs a "
-                         "\"homography\" and the rig a \"canvas\"); use rig-file for rough "
+                        ("load-file \"%s\" holds no calibration (a planar rig needs a "
+                         "\"homography\" per camera and a \"canvas\", a non-planar one a \"canvas\" "
+                         "with \"scale\"); use rig-file for rough "
                          "parameters",
                          s.load_file.c_str()),
                         (NULL));
@@ -296,6 +347,14 @@ static gboolean calibrate_now(GstStitchCalib* self, const std::vector<stitch::Im
     r.rig = rig;
     install(self, r, "file");
     return TRUE;
+  }
+  if (s.rig_file.empty() && !st->current &&
+      ((s.projection && *s.projection != stitch::Projection::Plane) || s.options.bundle_adjust)) {
+    GST_ELEMENT_ERROR(self, RESOURCE, NOT_FOUND,
+                      ("%s needs rough focal lengths and rotations: set rig-file",
+                       s.options.bundle_adjust ? "bundle-adjust=true" : "a cylindrical or spherical projection"),
+                      (NULL));
+    return FALSE;
   }
   if (!s.rig_file.empty() && !st->rough) {
     try {
@@ -523,6 +582,9 @@ static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const 
     case PROP_REFERENCE: s.reference = g_value_get_int(value); break;
     case PROP_CALIBRATION_FRAMES: s.calibration_frames = g_value_get_int(value); break;
     case PROP_BACKEND: s.backend = stitch::Backend(g_value_get_enum(value)); break;
+    case PROP_PROJECTION: s.projection = stitch::Projection(g_value_get_enum(value)); break;
+    case PROP_BUNDLE_ADJUST: s.options.bundle_adjust = g_value_get_boolean(value); break;
+    case PROP_WAVE_CORRECT: s.options.wave_correct = g_value_get_boolean(value); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -544,6 +606,9 @@ static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue
     case PROP_REFERENCE: g_value_set_int(value, s.reference); break;
     case PROP_CALIBRATION_FRAMES: g_value_set_int(value, s.calibration_frames); break;
     case PROP_BACKEND: g_value_set_enum(value, int(s.backend)); break;
+    case PROP_PROJECTION: g_value_set_enum(value, int(s.projection.value_or(stitch::Projection::Plane))); break;
+    case PROP_BUNDLE_ADJUST: g_value_set_boolean(value, s.options.bundle_adjust); break;
+    case PROP_WAVE_CORRECT: g_value_set_boolean(value, s.options.wave_correct); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -602,6 +667,19 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
       g_param_spec_enum("backend", "Backend",
                         "Feature matching runs on the CPU in every mode (it runs rarely)",
                         GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+  g_object_class_install_property(gobject_class, PROP_PROJECTION,
+      g_param_spec_enum("projection", "Projection",
+                        "Canvas projection (unset: the rig-file's \"projection\"); cylindrical and "
+                        "spherical need a rig-file and may wrap around 360 degrees",
+                        projection_get_type(), int(stitch::Projection::Plane), rw));
+  g_object_class_install_property(gobject_class, PROP_BUNDLE_ADJUST,
+      g_param_spec_boolean("bundle-adjust", "Bundle adjust",
+                           "Planar rigs: refine all rotations and focal lengths jointly on every "
+                           "pair's matches instead of chaining pairwise corrections (needs a "
+                           "rig-file; non-planar rigs always do)", FALSE, rw));
+  g_object_class_install_property(gobject_class, PROP_WAVE_CORRECT,
+      g_param_spec_boolean("wave-correct", "Wave correct",
+                           "Non-planar rigs: level the horizon after the bundle adjustment", TRUE, rw));
 
   signals[SIGNAL_RECALIBRATE] = g_signal_new_class_handler(
       "recalibrate", G_TYPE_FROM_CLASS(klass), GSignalFlags(G_SIGNAL_RUN_LAST | G_SIGNAL_ACTION),
@@ -625,6 +703,7 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
 
   gst_type_mark_as_plugin_api(refine_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(features_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(projection_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_BACKEND, GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_calib_debug, "stitchcalib", 0, "stitch calibration");
 }

@@ -17,6 +17,8 @@ inline stitch_cuda::ViewGeometry to_device_geometry(const ViewPlacement& v) {
   g.roi_h = v.roi.empty() ? 0 : v.roi.height;
   g.camera_w = v.camera_width;
   g.camera_h = v.camera_height;
+  g.projection = static_cast<int>(v.projection);
+  for (int k = 0; k < 4; ++k) g.output_to_angles[k] = float(v.output_to_angles[k]);
   return g;
 }
 
