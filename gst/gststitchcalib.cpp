@@ -39,11 +39,13 @@
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
  * ]|
  * |[
- * gst-launch-1.0 stitchsync name=s ! stitchcalib rig-file=/tmp/ring.json projection=cylindrical \
- *   save-file=/tmp/ring-calib.json ! stitchblend ! videoconvert ! autovideosink \
- *   multifilesrc location=/tmp/ring/cam0_%03d.png index=0 caps=image/png,framerate=5/1 ! pngdec ! s.sink_0 \
- *   multifilesrc location=/tmp/ring/cam1_%03d.png index=0 caps=image/png,framerate=5/1 ! pngdec ! s.sink_1 \
- *   ... (one input per camera of the rig; stitch-render-rig --ring 6 writes such a ring)
+ * # a 360-degree ring of 6 cameras: build/tests/stitch-render-rig --photo data/photos/boat1_1600.jpg \
+ * #   --ring spherical --cameras 6 --hfov 80 --frames 10 --out /tmp/ring
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib rig-file=/tmp/ring/rig_rough.json projection=cylindrical \
+ *   save-file=/tmp/ring/calib.json ! stitchblend ! videoconvert ! autovideosink \
+ *   filesrc location=/tmp/ring/cam0.avi ! decodebin ! s.sink_0 filesrc location=/tmp/ring/cam1.avi ! decodebin ! s.sink_1 \
+ *   filesrc location=/tmp/ring/cam2.avi ! decodebin ! s.sink_2 filesrc location=/tmp/ring/cam3.avi ! decodebin ! s.sink_3 \
+ *   filesrc location=/tmp/ring/cam4.avi ! decodebin ! s.sink_4 filesrc location=/tmp/ring/cam5.avi ! decodebin ! s.sink_5
  * ]|
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib load-file=/tmp/calib.json ! stitchblend ! \

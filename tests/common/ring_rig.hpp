@@ -2,11 +2,13 @@
 // panorama (cylindrical or equirectangular): exact ground truth for the projection tests and the
 // ring benchmark. Header-only (the GPU-host binaries link no test_data.cpp).
 #pragma once
+#include <Eigen/Dense>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/rig/projection_math.hpp"
 #include "stitch/rig/rig.hpp"
+#include "synthetic_rig.hpp"
 
 namespace testdata {
 
@@ -52,12 +54,7 @@ inline RingScene render_ring(const cv::Mat& panorama, int n, int width, int heig
   s.truth.projection = stitch::projection_name(kind);
   s.truth.reference = 0;
   for (int i = 0; i < n; ++i) {
-    stitch::Camera c;
-    c.width = width;
-    c.height = height;
-    c.fx = c.fy = f;
-    c.cx = (width - 1) * 0.5;
-    c.cy = (height - 1) * 0.5;
+    stitch::Camera c = pinhole(width, height, f);
     c.yaw_deg = 360.0 * i / n;
     if (c.yaw_deg > 180) c.yaw_deg -= 360;
     c.pitch_deg = pitch_deg;

@@ -75,15 +75,18 @@ std::vector<Eigen::Vector2d> projected_outline(const Rig& rig, int cam, const Ca
   return out;
 }
 
+// q = H p when p maps in front (positive homogeneous z).
+bool apply_in_front(const Eigen::Matrix3d& H, const Eigen::Vector2d& p, Eigen::Vector2d& q) {
+  const Eigen::Vector3d h = H * Eigen::Vector3d(p.x(), p.y(), 1.0);
+  if (!(h.z() > 1e-9)) return false;
+  q = h.head<2>() / h.z();
+  return true;
+}
+
 }  // namespace
 
 bool CameraCanvasMap::to_canvas(const Eigen::Vector2d& pixel, Eigen::Vector2d& canvas) const {
-  if (kind == Projection::Plane) {
-    const Eigen::Vector3d q = H * Eigen::Vector3d(pixel.x(), pixel.y(), 1.0);
-    if (!(q.z() > 1e-9)) return false;
-    canvas = q.head<2>() / q.z();
-    return true;
-  }
+  if (kind == Projection::Plane) return apply_in_front(H, pixel, canvas);
   const Eigen::Vector3d r = RKinv * Eigen::Vector3d(pixel.x(), pixel.y(), 1.0);
   double a, b;
   if (!stitch_projection::ray_to_angles(static_cast<int>(kind), r.x(), r.y(), r.z(), a, b)) return false;
@@ -92,12 +95,7 @@ bool CameraCanvasMap::to_canvas(const Eigen::Vector2d& pixel, Eigen::Vector2d& c
 }
 
 bool CameraCanvasMap::to_camera(const Eigen::Vector2d& canvas, Eigen::Vector2d& pixel) const {
-  if (kind == Projection::Plane) {
-    const Eigen::Vector3d q = H_inv * Eigen::Vector3d(canvas.x(), canvas.y(), 1.0);
-    if (!(q.z() > 1e-9)) return false;
-    pixel = q.head<2>() / q.z();
-    return true;
-  }
+  if (kind == Projection::Plane) return apply_in_front(H_inv, canvas, pixel);
   const double angle[4] = {1 / scale, -origin_x / scale, 1 / scale, -origin_y / scale};
   const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> M = KRt;
   return stitch_projection::canvas_to_camera(static_cast<int>(kind), angle, M.data(), canvas.x(), canvas.y(),
