@@ -64,6 +64,11 @@ __device__ __forceinline__ float position_weight(float u, float v, int w, int h)
 // view does not cover the pixel.
 __device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int y, float& u, float& v) {
   if (x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) return 0.f;
+  if (vg.wrap_w > 0) {
+    // Across the wrap the roi is the whole width: skip the columns the view cannot reach.
+    const float xu = float(x) < vg.span_x0 ? float(x + vg.wrap_w) : float(x);
+    if (xu > vg.span_x1) return 0.f;
+  }
   if (!view_to_camera(vg, float(x), float(y), u, v)) return 0.f;
   return position_weight(u, v, vg.camera_w, vg.camera_h);
 }

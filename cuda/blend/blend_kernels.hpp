@@ -21,6 +21,8 @@ struct ViewGeometry {
   int camera_w, camera_h;
   int projection;              // stitch_projection::Kind
   float output_to_angles[4];   // non-planar: a = [0] x + [1], b = [2] y + [3]
+  int wrap_w;                  // > 0: the view crosses the 360-degree wrap and reaches only
+  float span_x0, span_x1;      // the columns [span_x0, span_x1] (unwrapped, modulo wrap_w)
 };
 
 // dst (roi-sized) = camera frame `src` sampled where output pixel roi + (x, y) maps to.

@@ -9,12 +9,15 @@
 #include <random>
 #include <Eigen/Geometry>
 
+#include "stitch/blend/blender_cpu.hpp"
 #include "stitch/blend/compositor.hpp"
+#include "stitch/color/color.hpp"
 #include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/calib/calibrator.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/overlap.hpp"
+#include "stitch/warp/flow_pairs.hpp"
 #include "stitch/warp/geometry.hpp"
 #include "stitch/warp/warper.hpp"
 #include "cuda_test.hpp"
@@ -136,6 +139,17 @@ TEST(Projection, RingWrapsAndOverlapsAcrossTheWrap) {
     const std::vector<ViewPlacement> views = place_views(rig, canvas_geometry(rig));
     EXPECT_EQ(views[3].roi.x, 0);
     EXPECT_EQ(views[3].roi.width, rig.canvas_width);
+    // Its reach, for the kernels' early exit: every column it covers lies in the span.
+    ASSERT_EQ(views[3].wrap_width, rig.canvas_width);
+    EXPECT_GE(views[3].span_x0, 0);
+    EXPECT_GT(views[3].span_x1, rig.canvas_width);
+    EXPECT_LT(views[3].span_x1 - views[3].span_x0, rig.canvas_width / 3);
+    for (int x = 0; x < rig.canvas_width; ++x) {
+      double u, v;
+      const bool sees = view_to_camera(views[3], x, rig.canvas_origin_y, u, v) && u >= -1 && u <= 480;
+      const double xu = x < views[3].span_x0 ? x + rig.canvas_width : x;
+      if (sees) EXPECT_LE(xu, views[3].span_x1) << "column " << x;
+    }
     for (int i : {0, 1, 2, 4, 5}) EXPECT_LT(views[i].roi.width, rig.canvas_width / 2) << i;
     for (int i = 0; i < 6; ++i) {
       float area = 0;
@@ -156,6 +170,44 @@ TEST(Projection, RingWrapsAndOverlapsAcrossTheWrap) {
       uncovered += !any;
     }
     EXPECT_EQ(uncovered, 0);
+  }
+}
+
+TEST(Projection, WrapOverlapsReachFlowAndColor) {
+  // Odd and even rings: exactly one view crosses the wrap (it runs through that view's centre),
+  // and the flow planner and the color sampler find every neighbouring overlap, the ones next
+  // to the wrap included.
+  for (int n : {5, 6}) {
+    Rig rig;
+    rig.projection = "cylindrical";
+    for (int i = 0; i < n; ++i) {
+      Camera c = testdata::pinhole(480, 360, 240 / std::tan((250.0 / n) * M_PI / 180));  // ~1.4 x spacing wide
+      c.yaw_deg = std::remainder(360.0 * i / n + 10, 360.0);
+      rig.cameras.push_back(c);
+    }
+    rig.reference = 1;
+    rig_layout_canvas(rig);
+    ASSERT_TRUE(rig.canvas_wrap) << n;
+    const std::vector<ViewPlacement> views = place_views(rig, canvas_geometry(rig));
+    int full = 0;
+    std::vector<cv::Mat> weights;
+    for (const auto& v : views) {
+      full += v.roi.width == rig.canvas_width;
+      weights.push_back(position_weight_map(v));
+    }
+    EXPECT_EQ(full, 1) << n;
+    const std::vector<FlowPairPlan> plans = plan_flow_pairs(views, weights, 16, FlowQuality::Medium);
+    const ColorSampling sampling = make_color_sampling(rig, 2000);
+    for (int i = 0; i < n; ++i) {
+      const int a = std::min(i, (i + 1) % n), b = std::max(i, (i + 1) % n);
+      bool flow = false, color = false;
+      for (const auto& p : plans) flow |= p.a == a && p.b == b && p.rect.width < rig.canvas_width / 2;
+      for (const auto& p : sampling.pairs) color |= p.a == a && p.b == b && p.count() > 200;
+      EXPECT_TRUE(flow) << n << " cameras: no flow for " << a << "-" << b;
+      EXPECT_TRUE(color) << n << " cameras: no color samples for " << a << "-" << b;
+    }
+    EXPECT_EQ(int(plans.size()), n);
+    EXPECT_EQ(int(sampling.pairs.size()), n);
   }
 }
 

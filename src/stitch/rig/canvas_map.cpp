@@ -50,6 +50,7 @@ std::vector<Eigen::Vector2d> projected_outline(const Rig& rig, int cam, const Ca
   Eigen::Vector2d centre;
   if (!m.to_canvas({c.cx, c.cy}, centre))
     throw RigError("camera " + std::to_string(cam) + " looks along the cylinder's axis");
+  centre.x() -= std::floor((centre.x() + 0.5) / m.period) * m.period;  // the centre's turn of the canvas
   const bool north = sees(c, {0, -1, 0}), south = sees(c, {0, 1, 0});
   if ((north || south) && m.kind == Projection::Cylindrical)
     throw RigError("camera " + std::to_string(cam) +
@@ -139,8 +140,12 @@ void layout_projected_canvas(Rig& rig) {
   constexpr int kBins = 720;  // horizontal coverage, half a degree a bin
   std::vector<bool> covered(kBins, false);
   double minx = 1e300, maxx = -1e300, miny = 1e300, maxy = -1e300, input_area = 0;
+  std::vector<double> centres;  // camera centres' canvas x
   for (int i = 0; i < n; ++i) {
-    std::vector<Eigen::Vector2d> q = projected_outline(rig, i, projected_map(rig, rig.cameras[i], scale, 0, 0));
+    Eigen::Vector2d centre;
+    const CameraCanvasMap map = projected_map(rig, rig.cameras[i], scale, 0, 0);
+    centres.push_back(map.to_canvas({rig.cameras[i].cx, rig.cameras[i].cy}, centre) ? centre.x() : 0.0);
+    std::vector<Eigen::Vector2d> q = projected_outline(rig, i, map);
     if (q.empty()) throw RigError("camera " + std::to_string(i) + " does not project onto the canvas");
     double x0 = 1e300, x1 = -1e300;
     for (const auto& p : q) {
@@ -159,13 +164,20 @@ void layout_projected_canvas(Rig& rig) {
   const bool wrap = std::all_of(covered.begin(), covered.end(), [](bool v) { return v; });
   double cw;
   if (wrap) {
-    // An even width that is exactly 360 degrees; the reference view in the middle.
+    // An even width that is exactly 360 degrees. The wrap runs through the centre of the camera
+    // most opposite the reference: that view alone crosses it, and no overlap is cut in two.
     cw = 2 * std::round(0.5 * period);
     const double ratio = cw / period;
     scale *= ratio;
     miny *= ratio;
     maxy *= ratio;
-    rig.canvas_origin_x = 0.5 * (cw - 1) - ref_centre.x() * ratio;
+    const double opposite = ref_centre.x() + 0.5 * period;
+    double wrap_x = centres[0];
+    for (double c : centres)
+      if (std::abs(std::remainder(c - opposite, period)) < std::abs(std::remainder(wrap_x - opposite, period)))
+        wrap_x = c;
+    rig.canvas_origin_x = -0.5 - wrap_x * ratio;
+    rig.canvas_origin_x -= std::floor((rig.canvas_origin_x + ref_centre.x() * ratio) / cw) * cw;
   } else {
     cw = std::ceil(maxx - std::floor(minx)) + 1;
     rig.canvas_origin_x = -std::floor(minx);

@@ -121,6 +121,12 @@ std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out
     if (rig.canvas_wrap && (minx < -0.5 || maxx > out.width - 0.5)) {
       // The view crosses the 360-degree wrap: it shows at both edges. Its rectangle spans the
       // whole width; the angle mapping is periodic, so each column samples the right side.
+      const double margin = 2 + 0.02 * (maxx - minx);
+      v.wrap_width = out.width;
+      // Kept starting inside the canvas, so that only the left edge's columns need unwrapping.
+      const double shift = minx - margin < 0 ? out.width : 0;
+      v.span_x0 = minx - margin + shift;
+      v.span_x1 = maxx + margin + shift;
       minx = 0;
       maxx = out.width - 1;
     }

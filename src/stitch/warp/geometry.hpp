@@ -31,6 +31,12 @@ struct ViewPlacement {
   Projection projection = Projection::Plane;
   // Non-planar: a = [0] x + [1], b = [2] y + [3] (output pixel -> canvas angles, radians).
   Eigen::Vector4d output_to_angles = Eigen::Vector4d::Zero();
+  // A view across the 360-degree wrap (its roi spans the whole width): the output width, and
+  // the columns it can reach with a margin, unwrapped: span_x0 in [0, wrap_width), span_x1
+  // beyond wrap_width; column x < span_x0 stands for x + wrap_width.
+  // Lets the kernels skip the columns it cannot see. wrap_width = 0 for every other view.
+  int wrap_width = 0;
+  double span_x0 = 0, span_x1 = 0;
 };
 
 // Camera pixel (u, v) of output pixel (x, y); false behind the camera (or the canvas plane).
