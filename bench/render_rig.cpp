@@ -18,6 +18,10 @@
 // gamma, no noise; alpha 0 where no camera sees) and, with --ground-truth all, gt_NNNN.png
 // for every frame. --illumination-step F dims the whole scene from frame F on (a light
 // switched off), so the suite can see how color correction follows a sudden change.
+//
+// --ring cylindrical|spherical: instead, N cameras (yaws 360/N apart) around a full circle, the
+// photo taken as a 360-degree panorama of that projection (tests/common/ring_rig.hpp); writes
+// cam*.avi (a static scene), rig_true.json (laid out, wrapping canvas) and rig_rough.json.
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -33,6 +37,7 @@
 #include <string>
 #include <vector>
 
+#include "ring_rig.hpp"
 #include "stitch/rig/rig.hpp"
 
 namespace {
@@ -50,6 +55,7 @@ struct Options {
   bool ground_truth_every_frame = false;
   int illumination_step = 0;           // first frame of the dimmed scene; 0 = never
   double illumination_factor = 0.7;
+  std::string ring;  // empty: a planar rig; else the projection of a 360-degree ring
 };
 
 void usage(std::FILE* f) {
@@ -57,7 +63,7 @@ void usage(std::FILE* f) {
                "usage: stitch-render-rig --photo PATH --cameras N --out DIR [--width 480] "
                "[--height 360]\n"
                "         [--frames 60] [--fps 30] [--hfov 55] [--overlap 0.35] [--seed 1] "
-               "[--moving-object 1]\n"
+               "[--moving-object 1] [--ring cylindrical|spherical]\n"
                "         [--ground-truth first|all] [--illumination-step FRAME] [--illumination-factor 0.7]\n"
                "Renders N overlapping camera clips (camK.avi) from one photo with exact geometry,\n"
                "plus rig_true.json, rig_rough.json and gt_frame0.png.\n");
@@ -111,6 +117,7 @@ Options parse_args(int argc, char** argv) {
       o.ground_truth_every_frame = v == "all";
     } else if (key == "--illumination-step") o.illumination_step = parse_int(key, v);
     else if (key == "--illumination-factor") o.illumination_factor = parse_number(key, v);
+    else if (key == "--ring") o.ring = v;
     else die(2, "unknown option " + key);
   }
   if (o.photo.empty()) die(2, "--photo is required");
@@ -248,6 +255,63 @@ void draw_disc(cv::Mat& img, const Disc& d, double cx, double cy) {
 
 }  // namespace
 
+void open_writers(const Options& o, std::vector<cv::VideoWriter>& writers) {
+  writers.resize(o.cameras);
+  const cv::Size size(o.width, o.height);
+  for (int c = 0; c < o.cameras; ++c) {
+    const std::string path = (std::filesystem::path(o.out) / ("cam" + std::to_string(c) + ".avi")).string();
+    const int fourcc = cv::VideoWriter::fourcc('M', 'J', 'P', 'G');
+    if (!writers[c].open(path, cv::CAP_OPENCV_MJPEG, fourcc, o.fps, size, true) &&
+        !writers[c].open(path, cv::CAP_ANY, fourcc, o.fps, size, true))
+      die(1, "cannot open a video writer for \"" + path + "\"");
+    writers[c].set(cv::VIDEOWRITER_PROP_QUALITY, 95);
+  }
+}
+
+// --ring: a 360-degree ring from the photo taken as a panorama.
+int render_ring_clips(const Options& o, const cv::Mat& photo) {
+  stitch::Projection kind;
+  try {
+    kind = stitch::projection_from_name(o.ring);
+  } catch (const std::exception& e) {
+    die(2, std::string("--ring: ") + e.what());
+  }
+  if (kind == stitch::Projection::Plane) die(2, "--ring needs cylindrical or spherical");
+  if (o.cameras < 3) die(2, "--ring needs at least 3 cameras");
+  const double f = (o.width / 2.0) / std::tan(o.hfov * kPi / 360.0);
+  if (o.hfov * o.cameras < 370) die(2, "the ring leaves gaps: --hfov times --cameras must exceed 370 degrees");
+  cv::Mat rgba;
+  cv::cvtColor(photo, rgba, cv::COLOR_BGR2RGBA);
+  // The photo's own left and right edges meet inside camera 1, away from the canvas wrap.
+  testdata::RingScene s = testdata::render_ring(rgba, o.cameras, o.width, o.height, f, kind, 0.0, 360.0 / o.cameras);
+  std::mt19937 rng(o.seed);
+  stitch::Rig rough = s.truth;
+  try {
+    stitch::rig_layout_canvas(s.truth);
+    stitch::rig_save(s.truth, (std::filesystem::path(o.out) / "rig_true.json").string());
+    std::uniform_real_distribution<double> df(-0.03, 0.03), dyaw(-2.0, 2.0), dpitch(-1.0, 1.0);
+    for (auto& cam : rough.cameras) {
+      cam.fx *= 1.0 + df(rng);
+      cam.fy = cam.fx;
+      cam.yaw_deg += dyaw(rng);
+      cam.pitch_deg += dpitch(rng);
+    }
+    stitch::rig_save(rough, (std::filesystem::path(o.out) / "rig_rough.json").string());
+  } catch (const std::exception& e) {
+    die(1, std::string("cannot build the ring: ") + e.what());
+  }
+  std::vector<cv::VideoWriter> writers;
+  open_writers(o, writers);
+  for (int c = 0; c < o.cameras; ++c) {
+    cv::Mat bgr;
+    cv::cvtColor(s.frames[c], bgr, cv::COLOR_RGBA2BGR);
+    for (int t = 0; t < o.frames; ++t) writers[c].write(bgr);
+  }
+  std::printf("ring of %d cameras (%s) in %s: canvas %dx%d, wraps: %s\n", o.cameras, o.ring.c_str(), o.out.c_str(),
+              s.truth.canvas_width, s.truth.canvas_height, s.truth.canvas_wrap ? "yes" : "no");
+  return 0;
+}
+
 int main(int argc, char** argv) {
   const Options o = parse_args(argc, argv);
   if (!std::filesystem::exists(o.photo)) die(2, "photo \"" + o.photo + "\" does not exist");
@@ -256,6 +320,7 @@ int main(int argc, char** argv) {
   std::error_code ec;
   std::filesystem::create_directories(o.out, ec);
   if (!std::filesystem::is_directory(o.out)) die(1, "cannot create the output folder \"" + o.out + "\"");
+  if (!o.ring.empty()) return render_ring_clips(o, photo);
 
   const int n = o.cameras;
   const double hfov = o.hfov * kPi / 180.0;
@@ -370,16 +435,9 @@ int main(int argc, char** argv) {
   }
 
   // Writers.
-  std::vector<cv::VideoWriter> writers(n);
+  std::vector<cv::VideoWriter> writers;
+  open_writers(o, writers);
   const cv::Size size(o.width, o.height);
-  for (int c = 0; c < n; ++c) {
-    const std::string path = (std::filesystem::path(o.out) / ("cam" + std::to_string(c) + ".avi")).string();
-    const int fourcc = cv::VideoWriter::fourcc('M', 'J', 'P', 'G');
-    if (!writers[c].open(path, cv::CAP_OPENCV_MJPEG, fourcc, o.fps, size, true) &&
-        !writers[c].open(path, cv::CAP_ANY, fourcc, o.fps, size, true))
-      die(1, "cannot open a video writer for \"" + path + "\"");
-    writers[c].set(cv::VIDEOWRITER_PROP_QUALITY, 95);
-  }
 
   std::vector<Photometric> photometric;
   for (int c = 0; c < n; ++c) photometric.push_back(make_photometric(rng));

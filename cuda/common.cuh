@@ -5,6 +5,7 @@
 #include <stdint.h>
 
 #include "blend/blend_kernels.hpp"
+#include "stitch/rig/projection_math.hpp"
 
 namespace stitch_cuda {
 
@@ -39,6 +40,18 @@ __device__ __forceinline__ bool to_camera(const Homography& H, float x, float y,
   return true;
 }
 
+// Camera coordinates of output pixel (x, y) of view `vg` (stitch::view_to_camera); false behind
+// the camera.
+__device__ __forceinline__ bool view_to_camera(const ViewGeometry& vg, float x, float y, float& u, float& v) {
+  if (vg.projection == stitch_projection::kPlane) {
+    Homography H;
+#pragma unroll
+    for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
+    return to_camera(H, x, y, u, v);
+  }
+  return stitch_projection::canvas_to_camera(vg.projection, vg.output_to_angles, vg.output_to_camera, x, y, u, v);
+}
+
 // stitch::position_weight: a tent, 1 at the centre and 0 half a pixel outside the border.
 __device__ __forceinline__ float position_weight(float u, float v, int w, int h) {
   const float wx = fminf(u + 0.5f, w - 0.5f - u) / (w * 0.5f);
@@ -51,10 +64,12 @@ __device__ __forceinline__ float position_weight(float u, float v, int w, int h)
 // view does not cover the pixel.
 __device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int y, float& u, float& v) {
   if (x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) return 0.f;
-  Homography H;
-#pragma unroll
-  for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
-  if (!to_camera(H, float(x), float(y), u, v)) return 0.f;
+  if (vg.wrap_w > 0) {
+    // Across the wrap the roi is the whole width: skip the columns the view cannot reach.
+    const float xu = float(x) < vg.span_x0 ? float(x + vg.wrap_w) : float(x);
+    if (xu > vg.span_x1) return 0.f;
+  }
+  if (!view_to_camera(vg, float(x), float(y), u, v)) return 0.f;
   return position_weight(u, v, vg.camera_w, vg.camera_h);
 }
 

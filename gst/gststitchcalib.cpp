@@ -12,6 +12,14 @@
  * - neither: calibration from the images alone (features, pairwise homographies chained to
  *   the reference camera).
  *
+ * `projection` picks the canvas: `plane` (the reference camera's image plane, homographies),
+ * `cylindrical` or `spherical` (equirectangular; each camera's K and R map the canvas, and a
+ * ring that looks all around gets a 360-degree canvas whose seam closes at the wrap). Unset, the
+ * rig-file's `projection` holds. Non-planar calibration needs a rig-file (rough focal lengths
+ * and rotations): features of every overlapping pair feed one bundle adjustment of all
+ * rotations and focal lengths, then `wave-correct` levels the horizon. `bundle-adjust=true`
+ * does the same for a planar rig (a rotating one) instead of chaining pairwise corrections.
+ *
  * It calibrates on the first bundle, then pools the matches of the first `calibration-frames`
  * frames (every 5th) into a refined calibration that replaces it (moving people and noise
  * average out on a static rig). It recalibrates when the `recalibrate` action signal is emitted,
@@ -36,6 +44,15 @@
  *   videoconvert ! autovideosink \
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * |[
+ * # a 360-degree ring of 6 cameras: build/tests/stitch-render-rig --photo data/photos/boat1_1600.jpg \
+ * #   --ring spherical --cameras 6 --hfov 80 --frames 10 --out /tmp/ring
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib rig-file=/tmp/ring/rig_rough.json projection=cylindrical \
+ *   save-file=/tmp/ring/calib.json ! stitchblend ! videoconvert ! autovideosink \
+ *   filesrc location=/tmp/ring/cam0.avi ! decodebin ! s.sink_0 filesrc location=/tmp/ring/cam1.avi ! decodebin ! s.sink_1 \
+ *   filesrc location=/tmp/ring/cam2.avi ! decodebin ! s.sink_2 filesrc location=/tmp/ring/cam3.avi ! decodebin ! s.sink_3 \
+ *   filesrc location=/tmp/ring/cam4.avi ! decodebin ! s.sink_4 filesrc location=/tmp/ring/cam5.avi ! decodebin ! s.sink_5
  * ]|
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib load-file=/tmp/calib.json ! stitchblend ! \
@@ -75,6 +92,9 @@ enum {
   PROP_CALIBRATION_FRAMES,
   PROP_BACKEND,
   PROP_ON_RESIZE,
+  PROP_PROJECTION,
+  PROP_BUNDLE_ADJUST,
+  PROP_WAVE_CORRECT,
 };
 
 typedef enum { ON_RESIZE_RECALIBRATE = 0, ON_RESIZE_ERROR = 1 } OnResize;
@@ -106,6 +126,7 @@ struct CalibSettings {
   int calibration_frames = DEFAULT_CALIBRATION_FRAMES;
   stitch::Backend backend = stitch::Backend::Auto;
   OnResize on_resize = ON_RESIZE_RECALIBRATE;
+  std::optional<stitch::Projection> projection;  // unset: the rig-file's
 };
 
 struct CalibState {
@@ -238,6 +259,20 @@ static GType features_get_type(void) {
   return type;
 }
 
+static GType projection_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::Projection::Plane), "The reference camera's image plane (homographies)", "plane"},
+      {int(stitch::Projection::Cylindrical), "Cylinder about the rig's vertical axis", "cylindrical"},
+      {int(stitch::Projection::Spherical), "Sphere, equirectangular", "spherical"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchCalibProjection", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
 static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
     "sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
@@ -260,7 +295,8 @@ static void post_result(GstStitchCalib* self, const stitch::CalibrationResult& r
       r.refined_cameras, "inliers", G_TYPE_INT, inliers, "rms-px", G_TYPE_DOUBLE,
       accepted ? rms / accepted : 0.0, "canvas-width", G_TYPE_INT, r.rig.canvas_width,
       "canvas-height", G_TYPE_INT, r.rig.canvas_height, "warnings", G_TYPE_INT,
-      int(r.warnings.size()), NULL);
+      int(r.warnings.size()), "projection", G_TYPE_STRING, r.rig.projection.c_str(), "canvas-wrap",
+      G_TYPE_BOOLEAN, gboolean(r.rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_after_px, NULL);
   gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
 }
 
@@ -287,8 +323,18 @@ static stitch::CalibrationResult run_calibration(
   if (rough) {
     stitch::Rig start = *rough;
     if (s.reference >= 0) start.reference = s.reference;
+    if (s.projection && start.projection != stitch::projection_name(*s.projection)) {
+      /* Another canvas: what the file computed for its own one does not apply. */
+      start.projection = stitch::projection_name(*s.projection);
+      for (auto& c : start.cameras) c.homography.reset();
+      start.canvas_width = start.canvas_height = 0;
+      start.canvas_scale = 0;
+    }
     return stitch::calibrate_from_rig(start, frames, s.options);
   }
+  if (s.projection && *s.projection != stitch::Projection::Plane)
+    throw stitch::RigError(std::string("projection=") + stitch::projection_name(*s.projection) +
+                           " needs rough focal lengths and rotations: give a rig-file");
   if (previous) {
     /* re-calibration without a rig: refine the previous geometry with features */
     return stitch::calibrate_from_rig(*previous, frames, s.options);
@@ -328,10 +374,17 @@ static gboolean calibrate_now(GstStitchCalib* self, const std::vector<stitch::Im
       GST_ELEMENT_ERROR(self, RESOURCE, READ, ("%s", e.what()), (NULL));
       return FALSE;
     }
+    if (s.projection && rig.projection != stitch::projection_name(*s.projection))
+      GST_ELEMENT_WARNING(self, RESOURCE, READ,
+                          ("load-file \"%s\" holds a %s calibration; projection=%s applies to "
+                           "estimation only, the file is used as is",
+                           s.load_file.c_str(), rig.projection.c_str(), stitch::projection_name(*s.projection)),
+                          (NULL));
     if (!rig.calibrated()) {
       GST_ELEMENT_ERROR(self, RESOURCE, READ,
-                        ("load-file \"%s\" holds no calibration (every camera needs a "
-                         "\"homography\" and the rig a \"canvas\"); use rig-file for rough "
+                        ("load-file \"%s\" holds no calibration (a planar rig needs a "
+                         "\"homography\" per camera and a \"canvas\", a non-planar one a \"canvas\" "
+                         "with \"scale\"); use rig-file for rough "
                          "parameters",
                          s.load_file.c_str()),
                         (NULL));
@@ -359,6 +412,14 @@ static gboolean calibrate_now(GstStitchCalib* self, const std::vector<stitch::Im
     r.rig = rig;
     install(self, r, "file");
     return TRUE;
+  }
+  if (s.rig_file.empty() && !st->current &&
+      ((s.projection && *s.projection != stitch::Projection::Plane) || s.options.bundle_adjust)) {
+    GST_ELEMENT_ERROR(self, RESOURCE, NOT_FOUND,
+                      ("%s needs rough focal lengths and rotations: set rig-file",
+                       s.options.bundle_adjust ? "bundle-adjust=true" : "a cylindrical or spherical projection"),
+                      (NULL));
+    return FALSE;
   }
   if (!s.rig_file.empty() && !st->rough) {
     try {
@@ -609,6 +670,9 @@ static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const 
     case PROP_CALIBRATION_FRAMES: s.calibration_frames = g_value_get_int(value); break;
     case PROP_BACKEND: s.backend = stitch::Backend(g_value_get_enum(value)); break;
     case PROP_ON_RESIZE: s.on_resize = OnResize(g_value_get_enum(value)); break;
+    case PROP_PROJECTION: s.projection = stitch::Projection(g_value_get_enum(value)); break;
+    case PROP_BUNDLE_ADJUST: s.options.bundle_adjust = g_value_get_boolean(value); break;
+    case PROP_WAVE_CORRECT: s.options.wave_correct = g_value_get_boolean(value); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -631,6 +695,9 @@ static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue
     case PROP_CALIBRATION_FRAMES: g_value_set_int(value, s.calibration_frames); break;
     case PROP_BACKEND: g_value_set_enum(value, int(s.backend)); break;
     case PROP_ON_RESIZE: g_value_set_enum(value, int(s.on_resize)); break;
+    case PROP_PROJECTION: g_value_set_enum(value, int(s.projection.value_or(stitch::Projection::Plane))); break;
+    case PROP_BUNDLE_ADJUST: g_value_set_boolean(value, s.options.bundle_adjust); break;
+    case PROP_WAVE_CORRECT: g_value_set_boolean(value, s.options.wave_correct); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -694,6 +761,19 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
                         "An input that changes resolution mid-stream: calibrate again for the new "
                         "sizes (with a warning), or stop with an error",
                         on_resize_get_type(), ON_RESIZE_RECALIBRATE, rw));
+  g_object_class_install_property(gobject_class, PROP_PROJECTION,
+      g_param_spec_enum("projection", "Projection",
+                        "Canvas projection (unset: the rig-file's \"projection\"); cylindrical and "
+                        "spherical need a rig-file and may wrap around 360 degrees",
+                        projection_get_type(), int(stitch::Projection::Plane), rw));
+  g_object_class_install_property(gobject_class, PROP_BUNDLE_ADJUST,
+      g_param_spec_boolean("bundle-adjust", "Bundle adjust",
+                           "Planar rigs: refine all rotations and focal lengths jointly on every "
+                           "pair's matches instead of chaining pairwise corrections (needs a "
+                           "rig-file; non-planar rigs always do)", FALSE, rw));
+  g_object_class_install_property(gobject_class, PROP_WAVE_CORRECT,
+      g_param_spec_boolean("wave-correct", "Wave correct",
+                           "Non-planar rigs: level the horizon after the bundle adjustment", TRUE, rw));
 
   signals[SIGNAL_RECALIBRATE] = g_signal_new_class_handler(
       "recalibrate", G_TYPE_FROM_CLASS(klass), GSignalFlags(G_SIGNAL_RUN_LAST | G_SIGNAL_ACTION),
@@ -718,6 +798,7 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
   gst_type_mark_as_plugin_api(refine_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(features_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(on_resize_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(projection_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_BACKEND, GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_calib_debug, "stitchcalib", 0, "stitch calibration");
 }

@@ -7,14 +7,14 @@
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
 #        OUT=... scripts/gpu_check.sh [quick]     (on the GPU host; quick: tests only)
 set -uo pipefail
-GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults"
+GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection"
 if [ "${1:-}" = pack ]; then
   BUILD=${2:-build}
   rm -rf .gpubundle && mkdir -p .gpubundle
   cp "$BUILD/tests/boat1_1600.ppm" .gpubundle/
   bins=""
   for t in $GPU_TESTS; do [ -x "$BUILD/tests/$t" ] && bins="$bins $BUILD/tests/$t"; done
-  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline; do
+  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection; do
     [ -x "$BUILD/bench/$b" ] && bins="$bins $BUILD/bench/$b"
   done
   GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile" \

@@ -18,18 +18,12 @@ struct ComposeParams {
   DeviceImage out;
 };
 
-Homography homography_of(const ViewGeometry& v) {
-  Homography h;
-  for (int k = 0; k < 9; ++k) h.m[k] = v.output_to_camera[k];
-  return h;
-}
-
-__global__ void warp_kernel(DeviceImage src, Homography H, int roi_x, int roi_y, DeviceImage dst) {
+__global__ void warp_kernel(DeviceImage src, ViewGeometry vg, int roi_x, int roi_y, DeviceImage dst) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= dst.width || y >= dst.height) return;
   float u, v;
   float4 c = make_float4(0.f, 0.f, 0.f, 0.f);
-  if (to_camera(H, float(roi_x + x), float(roi_y + y), u, v) && u > -1.f && v > -1.f && u < src.width &&
+  if (view_to_camera(vg, float(roi_x + x), float(roi_y + y), u, v) && u > -1.f && v > -1.f && u < src.width &&
       v < src.height)
     c = sample_bilinear(src.data, src.pitch, src.width, src.height, u, v);
   *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) =
@@ -148,7 +142,7 @@ ComposeParams params_of(int n, const ViewGeometry* views, const DeviceImage* ima
 void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream) {
   if (dst.width <= 0 || dst.height <= 0) return;
   const dim3 block(32, 8), grid((dst.width + 31) / 32, (dst.height + 7) / 8);
-  warp_kernel<<<grid, block, 0, stream>>>(src, homography_of(view), view.roi_x, view.roi_y, dst);
+  warp_kernel<<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst);
   check_launch("warp kernel");
 }
 

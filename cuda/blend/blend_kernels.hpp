@@ -16,12 +16,16 @@ struct DeviceImage {
 };
 
 struct ViewGeometry {
-  float output_to_camera[9];
+  float output_to_camera[9];  // planar: output pixel -> camera pixel; else rig ray -> camera pixel
   int roi_x, roi_y, roi_w, roi_h;  // in output pixels; roi_w = 0: not visible
   int camera_w, camera_h;
+  int projection;              // stitch_projection::Kind
+  float output_to_angles[4];   // non-planar: a = [0] x + [1], b = [2] y + [3]
+  int wrap_w;                  // > 0: the view crosses the 360-degree wrap and reaches only
+  float span_x0, span_x1;      // the columns [span_x0, span_x1] (unwrapped, modulo wrap_w)
 };
 
-// dst (roi-sized) = camera frame `src` sampled at output_to_camera(roi + (x, y)).
+// dst (roi-sized) = camera frame `src` sampled where output pixel roi + (x, y) maps to.
 void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream);
 
 // Position-weighted mean of views already warped into their rois; warped[i].data == nullptr

@@ -26,13 +26,6 @@ ViewsParam views_param(const ViewGeometry* views, const DeviceImage* frames, int
   return p;
 }
 
-__device__ __forceinline__ Homography homography(const ViewGeometry& v) {
-  Homography h;
-#pragma unroll
-  for (int k = 0; k < 9; ++k) h.m[k] = v.output_to_camera[k];
-  return h;
-}
-
 // cv::cvtColor(RGBA2GRAY) on 8-bit values: fixed-point BT.601 luma.
 __device__ __forceinline__ uint8_t luma(float4 c) {
   const int r = to_u8(c.x), g = to_u8(c.y), b = to_u8(c.z);
@@ -70,7 +63,7 @@ __global__ void overlap_gray_kernel(const FlowPairDevice* pairs, FlowPairMask ac
     const ViewGeometry& vg = vp.views[v];
     const DeviceImage& f = vp.frames[v];
     float u = 0.f, w = 0.f;
-    const bool in_front = to_camera(homography(vg), ox, oy, u, w);
+    const bool in_front = view_to_camera(vg, ox, oy, u, w);
     valid[k] = in_front && u >= 0.f && w >= 0.f && u <= vg.camera_w - 1 && w <= vg.camera_h - 1;
     g[k] = in_front ? luma(sample_bilinear(f.data, f.pitch, f.width, f.height, u, w)) : 0;
   }
@@ -250,7 +243,7 @@ __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations o
   }
   float u, w;
   float4 c = make_float4(0.f, 0.f, 0.f, 0.f);
-  if (to_camera(homography(me), px + dx, py + dy, u, w) && u > -1.f && w > -1.f && u < frame.width &&
+  if (view_to_camera(me, px + dx, py + dy, u, w) && u > -1.f && w > -1.f && u < frame.width &&
       w < frame.height)
     c = sample_bilinear(frame.data, frame.pitch, frame.width, frame.height, u, w);
   *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) =

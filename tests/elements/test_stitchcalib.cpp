@@ -140,6 +140,15 @@ TEST(StitchCalibBadInput, MissingRigFile) {
   EXPECT_TRUE(r.error_contains("cannot open rig file")) << (r.errors.empty() ? "no error" : r.errors[0]);
 }
 
+TEST(StitchCalibBadInput, CurvedProjectionWithoutRigFile) {
+  for (const char* props : {"projection=spherical", "bundle-adjust=true"}) {
+    gsttest::RunResult r;
+    gsttest::run_pipeline(chain(props, 2), crops(2), 2, r);
+    ASSERT_FALSE(r.errors.empty()) << props;
+    EXPECT_NE(r.errors[0].find("rig-file"), std::string::npos) << r.errors[0];
+  }
+}
+
 TEST(StitchCalibBadInput, MalformedRigFile) {
   const std::string rig = write_file("bad.json", "{\"cameras\": [ {\"width\": 640, ");
   gsttest::RunResult r;

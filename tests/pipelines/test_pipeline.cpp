@@ -510,6 +510,43 @@ TEST_F(SyntheticRig, CalibratesFromImagesAlone) {
 // ---------------------------------------------------------------------------------------------
 // Real clips from the shared data.
 
+// A 360-degree ring of 6 cameras rendered as an equirectangular scene, stitched on a cylinder
+// (the projection property overrides the rig file's) through flow warp, color and blend.
+TEST(Ring, SixCamerasAroundStitchOnACylinder) {
+  if (!std::filesystem::exists(renderer_path())) GTEST_SKIP() << "renderer not built";
+  std::string missing;
+  ASSERT_TRUE(elements_available(missing)) << "GStreamer elements missing: " << missing;
+  const std::string dir = testdata::temp_dir() + "/ring";
+  std::filesystem::create_directories(dir);
+  const int rc = run_command(shell_quote(renderer_path()) + " --photo " +
+                             shell_quote(testdata::repo_path("data/photos/boat1_1600.jpg")) +
+                             " --ring spherical --cameras 6 --hfov 80 --width 400 --height 300 --frames 4 --out " +
+                             shell_quote(dir));
+  ASSERT_EQ(rc, 0);
+  const std::string calib_file = dir + "/calib.json";
+  std::filesystem::remove(calib_file);
+  const std::string desc = "stitchsync name=s ! stitchcalib calibration-frames=1 projection=cylindrical rig-file=\"" +
+                           dir + "/rig_rough.json\" save-file=\"" + calib_file +
+                           "\" ! stitchflowwarp ! stitchcolor ! stitchblend name=blend ! fakesink sync=false" +
+                           inputs_avi(dir, 6);
+  const PipelineRun run = run_to_eos(desc, kPipelineTimeoutS);
+  ASSERT_RAN_TO_EOS(run);
+  EXPECT_EQ(run.refined_cameras, 6);
+  EXPECT_EQ(run.output_frames, 4);
+  const stitch::Rig calib = stitch::rig_load(calib_file);
+  EXPECT_EQ(calib.projection, "cylindrical");
+  EXPECT_TRUE(calib.canvas_wrap);
+  std::vector<std::string> clips;
+  for (int i = 0; i < 6; ++i) clips.push_back(dir + "/cam" + std::to_string(i) + ".avi");
+  const stitch::AlignmentReport a = alignment_on_frame(calib, clips, 0, kAviReaders);
+  std::printf("FIGURE: 6-camera 360-degree ring, cylindrical: alignment median %.3f px over %d matches "
+              "(pairs: %s)\n",
+              a.median_px, a.matches, pair_medians(a).c_str());
+  EXPECT_EQ(a.pair_median_px.size(), 6u) << "every neighbouring pair, the one across the wrap too";
+  EXPECT_GE(a.median_px, 0);
+  EXPECT_LE(a.median_px, 1.0);
+}
+
 TEST(RealClips, KarthikThreeCamHouse) {
   const std::string left = testdata::shared_path("video/karthik_3cam_house/left.mp4");
   if (left.empty())

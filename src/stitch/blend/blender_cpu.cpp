@@ -12,21 +12,14 @@ namespace stitch {
 cv::Mat position_weight_map(const ViewPlacement& v) {
   if (v.roi.empty()) return cv::Mat();
   cv::Mat w(v.roi.height, v.roi.width, CV_32F);
-  const Eigen::Matrix3d& M = v.output_to_camera;
   cv::parallel_for_(cv::Range(0, v.roi.height), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
       float* pw = w.ptr<float>(y);
       const double oy = v.roi.y + y;
       for (int x = 0; x < v.roi.width; ++x) {
         const double ox = v.roi.x + x;
-        const double Z = M(2, 0) * ox + M(2, 1) * oy + M(2, 2);
-        if (!(Z > 1e-12)) {
-          pw[x] = 0.f;
-          continue;
-        }
-        const double u = (M(0, 0) * ox + M(0, 1) * oy + M(0, 2)) / Z;
-        const double vv = (M(1, 0) * ox + M(1, 1) * oy + M(1, 2)) / Z;
-        pw[x] = position_weight(u, vv, v.camera_width, v.camera_height);
+        double u, vv;
+        pw[x] = view_to_camera(v, ox, oy, u, vv) ? position_weight(u, vv, v.camera_width, v.camera_height) : 0.f;
       }
     }
   });

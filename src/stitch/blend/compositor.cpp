@@ -18,7 +18,7 @@ Compositor::Compositor(Backend backend) : backend_(resolve_backend(backend, /*st
 
 void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, CompositorInput input) {
   if (!rig.calibrated()) throw RigError("the rig carries no calibration (homographies and canvas)");
-  for (std::size_t i = 0; i < rig.cameras.size(); ++i) {
+  for (std::size_t i = 0; i < rig.cameras.size() && rig.planar(); ++i) {
     const Camera& c = rig.cameras[i];
     std::string problem = homography_problem(*c.homography, c.width, c.height);
     if (!problem.empty())

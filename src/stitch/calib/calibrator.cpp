@@ -10,7 +10,9 @@
 #include <queue>
 #include <random>
 
+#include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/cv_interop.hpp"
+#include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/overlap.hpp"
 
 namespace stitch {
@@ -82,9 +84,9 @@ std::vector<cv::DMatch> match(const Features& a, const Features& b, FeatureType 
 }
 
 // Canvas-space bounding box of the overlap of two views; empty when they do not overlap.
-cv::Rect2d overlap_box(const Camera& a, const Camera& b) {
+cv::Rect2d overlap_box(const Rig& rig, int a, int b) {
   float area = 0;
-  const std::vector<cv::Point2f> inter = canvas_overlap(a, b, &area);
+  const std::vector<cv::Point2f> inter = canvas_overlap(rig, a, b, &area);
   if (area <= 1.0f || inter.empty()) return {};
   float x0 = inter[0].x, y0 = inter[0].y, x1 = x0, y1 = y0;
   for (const auto& p : inter) {
@@ -225,7 +227,7 @@ std::vector<OverlapEdge> overlap_edges(const Rig& rig) {
   const int n = int(rig.cameras.size());
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
-      cv::Rect2d box = overlap_box(rig.cameras[a], rig.cameras[b]);
+      cv::Rect2d box = overlap_box(rig, a, b);
       if (box.area() > 0) edges.push_back({a, b, box.area()});
     }
   return edges;
@@ -234,6 +236,112 @@ std::vector<OverlapEdge> overlap_edges(const Rig& rig) {
 void check_frames(const std::vector<ImageView>& frames) {
   for (std::size_t i = 0; i < frames.size(); ++i)
     if (frames[i].empty()) throw RigError("camera " + std::to_string(i) + " has no frame to calibrate on");
+}
+
+// Half the diagonal field of view of a camera, radians.
+double half_diagonal_fov(const Camera& c) {
+  return std::atan(0.5 * std::hypot(c.width / c.fx, c.height / c.fy));
+}
+
+// The rotation model (every camera turns about one centre): feature matches of every pair that
+// the rough rotations say may overlap, checked against the rough pairwise homography, then one
+// bundle adjustment of all rotations and focal lengths, wave correction (non-planar), and the
+// canvas (planar: the reference camera's image plane).
+CalibrationResult calibrate_rotations(const Rig& rough, const std::vector<std::vector<ImageView>>& sets,
+                                      const CalibrationOptions& o) {
+  CalibrationResult res;
+  res.rig = rough;
+  Rig& rig = res.rig;
+  const int n = int(rig.cameras.size());
+  std::vector<std::vector<Features>> feats(sets.size(), std::vector<Features>(n));
+  for (std::size_t t = 0; t < sets.size(); ++t)
+    for (int i = 0; i < n; ++i) feats[t][i] = detect(to_gray(sets[t][i]), cv::Mat(), o);
+  std::vector<PairMatches> matches;
+  std::vector<bool> matched(n, false);
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      const Camera &A = rig.cameras[a], &B = rig.cameras[b];
+      const double axes = std::acos(std::clamp(A.R().col(2).dot(B.R().col(2)), -1.0, 1.0));
+      if (axes > (half_diagonal_fov(A) + half_diagonal_fov(B)) * (1 + o.overlap_margin)) continue;
+      PairReport rep;
+      rep.camera = b;
+      rep.neighbour = a;
+      std::vector<cv::Point2f> pa, pb;
+      for (const auto& f : feats)
+        for (const auto& mt : match(f[a], f[b], o.features)) {
+          pa.push_back(f[a].keypoints[mt.queryIdx].pt);
+          pb.push_back(f[b].keypoints[mt.trainIdx].pt);
+        }
+      rep.matches = int(pa.size());
+      std::vector<uchar> inl;
+      cv::Mat H;
+      if (pa.size() >= 8) H = cv::findHomography(pa, pb, cv::RANSAC, o.ransac_threshold_px, inl, 2000, 0.995);
+      rep.inliers = H.empty() ? 0 : cv::countNonZero(inl);
+      // The matches must agree with the rough geometry: a repeated texture elsewhere in the
+      // view would otherwise pull the pair together wrongly.
+      const Eigen::Matrix3d predicted = rough_pairwise_homography(rig, a, b);
+      PairMatches pm;
+      pm.a = a;
+      pm.b = b;
+      for (std::size_t k = 0; k < pa.size() && rep.inliers >= o.min_inliers; ++k) {
+        if (!inl[k]) continue;
+        const Eigen::Vector2d q = apply_homography(predicted, {pa[k].x, pa[k].y});
+        if ((q - Eigen::Vector2d(pb[k].x, pb[k].y)).norm() > 0.25 * std::max(B.width, B.height)) continue;
+        pm.pa.emplace_back(pa[k].x, pa[k].y);
+        pm.pb.emplace_back(pb[k].x, pb[k].y);
+      }
+      rep.accepted = int(pm.pa.size()) >= o.min_inliers;
+      if (rep.accepted) {
+        // At most 300 matches a pair, spread over the list: enough for 4 parameters a camera.
+        if (pm.pa.size() > 300) {
+          PairMatches thin = pm;
+          thin.pa.clear();
+          thin.pb.clear();
+          for (std::size_t k = 0; k < 300; ++k) {
+            thin.pa.push_back(pm.pa[k * pm.pa.size() / 300]);
+            thin.pb.push_back(pm.pb[k * pm.pb.size() / 300]);
+          }
+          pm = std::move(thin);
+        }
+        matches.push_back(pm);
+        matched[a] = matched[b] = true;
+      } else if (rep.matches > 0) {
+        rep.note = "too few matches that agree with the rough rig (" + std::to_string(pm.pa.size()) + ")";
+      }
+      res.pairs.push_back(rep);
+    }
+  for (int i = 0; i < n; ++i)
+    if (!matched[i])
+      res.warnings.push_back("camera " + std::to_string(i) + ": no feature matches with any other camera; "
+                             "keeping its rough rotation and focal length");
+  if (!matches.empty()) {
+    const BundleAdjustReport ba = bundle_adjust(rig, matches);
+    res.ba_rms_before_px = ba.rms_before_px;
+    res.ba_rms_after_px = ba.rms_after_px;
+    if (ba.ok) {
+      for (int i = 0; i < n; ++i) res.refined_cameras += matched[i];
+      for (auto& rep : res.pairs) {
+        if (!rep.accepted) continue;
+        double sum = 0;
+        int count = 0;
+        for (const auto& pm : matches)
+          if (pm.a == rep.neighbour && pm.b == rep.camera)
+            for (std::size_t k = 0; k < pm.pa.size(); ++k, ++count)
+              sum += std::pow(transfer_error_px(rig, pm.a, pm.b, pm.pa[k], pm.pb[k]), 2);
+        rep.rms_px = count ? std::sqrt(sum / count) : 0;
+      }
+    } else {
+      res.warnings.push_back("bundle adjustment did not converge: keeping the rough rotations");
+    }
+  }
+  if (!rig.planar()) {
+    if (o.wave_correct) wave_correct(rig);
+    rig.canvas_scale = 0;  // follow the refined focal lengths
+  } else {
+    for (int i = 0; i < n; ++i) rig.cameras[i].homography = rough_pairwise_homography(rig, i, rig.reference);
+  }
+  rig_layout_canvas(rig);
+  return res;
 }
 
 }  // namespace
@@ -270,6 +378,14 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<std::ve
                      std::to_string(frames.size()) + " streams are connected");
     check_frames(frames);
   }
+  if (o.refinement != Refinement::None && (!rough.planar() || o.bundle_adjust)) {
+    if (rough.planar() && rough.plane_distance_m > 0)
+      throw RigError("bundle adjustment models a rotating rig: it cannot refine plane-induced homographies "
+                     "(plane_distance_m with camera positions); turn bundle-adjust off");
+    if (rough.reference < 0 || rough.reference >= int(rough.cameras.size()))
+      throw RigError("reference camera index out of range");
+    return calibrate_rotations(rough, sets, o);
+  }
   CalibrationResult res;
   res.rig = rough;
   bool have_all = true;
@@ -303,7 +419,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<std::ve
       if (e.a != cam && e.b != cam) continue;
       const int nb = e.a == cam ? e.b : e.a;
       if (!placed[nb]) continue;
-      cv::Rect2d box = overlap_box(rig.cameras[cam], rig.cameras[nb]);
+      cv::Rect2d box = overlap_box(rig, cam, nb);
       const double m = o.overlap_margin * rig.cameras[cam].width;
       box.x -= m;
       box.y -= m;
@@ -393,6 +509,8 @@ CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, in
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
   if (sets.empty()) throw RigError("no frames to calibrate on");
+  if (o.bundle_adjust)
+    throw RigError("bundle adjustment needs rough camera parameters (focal lengths, rotations): give a rig-file");
   const std::vector<ImageView>& frames = sets[0];
   const int n = int(frames.size());
   if (n < 2) throw RigError("calibration needs at least two cameras");
@@ -481,7 +599,7 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
   std::vector<double> all;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
-      if (overlap_box(rig.cameras[a], rig.cameras[b]).area() <= 0) continue;
+      if (overlap_box(rig, a, b).area() <= 0) continue;
       auto m = match(feats[a], feats[b], o.features);
       if (m.size() < 8) continue;
       std::vector<cv::Point2f> pa, pb;
@@ -493,11 +611,13 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
       cv::Mat F = cv::findFundamentalMat(pa, pb, inl, cv::FM_RANSAC, 1.5, 0.999);
       if (F.empty()) continue;
       std::vector<double> d;
+      const CameraCanvasMap ma = camera_canvas_map(rig, a), mb = camera_canvas_map(rig, b);
       for (std::size_t k = 0; k < pa.size(); ++k) {
-        if (!inl[k]) continue;
-        const cv::Point2f qa = to_canvas(rig.cameras[a], pa[k]);
-        const cv::Point2f qb = to_canvas(rig.cameras[b], pb[k]);
-        d.push_back(std::hypot(qa.x - qb.x, qa.y - qb.y));
+        Eigen::Vector2d qa, qb;
+        if (!inl[k] || !ma.to_canvas({pa[k].x, pa[k].y}, qa) || !mb.to_canvas({pb[k].x, pb[k].y}, qb)) continue;
+        double dx = qa.x() - qb.x();
+        if (rig.canvas_wrap) dx -= std::round(dx / rig.canvas_width) * rig.canvas_width;  // across the wrap
+        d.push_back(std::hypot(dx, qa.y() - qb.y()));
       }
       if (d.size() < 8) continue;
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());

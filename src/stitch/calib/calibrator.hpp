@@ -27,6 +27,10 @@ struct CalibrationOptions {
   double ransac_threshold_px = 3.0;
   int max_features = 4000;         // per image and overlap
   double feature_megapixels = 1.0; // larger frames are downscaled for detection
+  // Refine every camera's rotation and focal length jointly on all pairwise matches (bundle
+  // adjustment) instead of chaining pairwise corrections; always on for non-planar rigs.
+  bool bundle_adjust = false;
+  bool wave_correct = true;        // non-planar rigs: level the horizon after the adjustment
 };
 
 struct PairReport {
@@ -38,13 +42,15 @@ struct PairReport {
 };
 
 struct CalibrationResult {
-  Rig rig;                         // calibrated: homographies + canvas
+  Rig rig;                         // calibrated: homographies (planar) or K, R + canvas
   std::vector<PairReport> pairs;
   std::vector<std::string> warnings;
   int refined_cameras = 0;         // cameras whose homography the features corrected
+  double ba_rms_before_px = -1, ba_rms_after_px = -1;  // bundle adjustment, when it ran
 };
 
-// `rough` needs camera parameters; homographies already in it are used as the starting
+// `rough` needs camera parameters (a cylindrical or spherical rig: K and R, refined by bundle
+// adjustment; so is a planar one with options.bundle_adjust); homographies already in it are used as the starting
 // point instead. frames[i] is camera i (RGBA). Throws RigError on degenerate geometry;
 // a refinement that fails keeps the rough homography and adds a warning.
 CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageView>& frames,

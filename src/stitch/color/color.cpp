@@ -1,4 +1,5 @@
 #include "stitch/color/color.hpp"
+#include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/overlap.hpp"
 
 #include <Eigen/Dense>
@@ -9,10 +10,12 @@
 namespace stitch {
 namespace {
 
-bool in_image(const Eigen::Vector3d& q, int w, int h, double& x, double& y) {
-  if (!(q.z() > 1e-9)) return false;
-  x = q.x() / q.z();
-  y = q.y() / q.z();
+// Camera pixel of canvas point p, when it lies inside the image (one pixel from the border).
+bool in_image(const CameraCanvasMap& m, const Eigen::Vector2d& p, int w, int h, double& x, double& y) {
+  Eigen::Vector2d q;
+  if (!m.to_camera(p, q)) return false;
+  x = q.x();
+  y = q.y();
   return x >= 1 && y >= 1 && x <= w - 2 && y <= h - 2;
 }
 
@@ -136,11 +139,11 @@ ColorSampling make_color_sampling(const Rig& rig, int max_samples_per_pair) {
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
       float area = 0;
-      const std::vector<cv::Point2f> inter = canvas_overlap(rig.cameras[a], rig.cameras[b], &area);
+      const std::vector<cv::Point2f> inter = canvas_overlap(rig, a, b, &area);
       if (area < 64.0f || inter.empty()) continue;
       const cv::Rect box = cv::boundingRect(inter);
       const double step = std::max(1.0, std::sqrt(double(area) / std::max(1, max_samples_per_pair)));
-      const Eigen::Matrix3d Ha = rig.cameras[a].homography->inverse(), Hb = rig.cameras[b].homography->inverse();
+      const CameraCanvasMap ma = camera_canvas_map(rig, a), mb = camera_canvas_map(rig, b);
       ColorSampling::Pair g;
       g.a = a;
       g.b = b;
@@ -148,9 +151,8 @@ ColorSampling make_color_sampling(const Rig& rig, int max_samples_per_pair) {
         for (double x = box.x + step * 0.5; x < box.x + box.width; x += step) {
           if (cv::pointPolygonTest(inter, cv::Point2f(float(x), float(y)), false) < 0) continue;
           double xa, ya, xb, yb;
-          const Eigen::Vector3d p(x, y, 1);
-          if (!in_image(Ha * p, rig.cameras[a].width, rig.cameras[a].height, xa, ya)) continue;
-          if (!in_image(Hb * p, rig.cameras[b].width, rig.cameras[b].height, xb, yb)) continue;
+          if (!in_image(ma, {x, y}, rig.cameras[a].width, rig.cameras[a].height, xa, ya)) continue;
+          if (!in_image(mb, {x, y}, rig.cameras[b].width, rig.cameras[b].height, xb, yb)) continue;
           g.xy_a.push_back(int32_t(std::lround(xa)));
           g.xy_a.push_back(int32_t(std::lround(ya)));
           g.xy_b.push_back(int32_t(std::lround(xb)));

@@ -17,6 +17,11 @@ inline stitch_cuda::ViewGeometry to_device_geometry(const ViewPlacement& v) {
   g.roi_h = v.roi.empty() ? 0 : v.roi.height;
   g.camera_w = v.camera_width;
   g.camera_h = v.camera_height;
+  g.projection = static_cast<int>(v.projection);
+  for (int k = 0; k < 4; ++k) g.output_to_angles[k] = float(v.output_to_angles[k]);
+  g.wrap_w = v.wrap_width;
+  g.span_x0 = float(v.span_x0);
+  g.span_x1 = float(v.span_x1);
   return g;
 }
 

@@ -2,6 +2,8 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/rig/canvas_map.hpp"
+
 namespace stitch {
 
 std::vector<cv::Point2f> canvas_overlap(const Camera& a, const Camera& b, float* area) {
@@ -15,6 +17,29 @@ std::vector<cv::Point2f> canvas_overlap(const Camera& a, const Camera& b, float*
   if (area) *area = inter.size() >= 3 ? s : 0.f;
   if (inter.size() < 3) inter.clear();
   return inter;
+}
+
+std::vector<cv::Point2f> canvas_overlap(const Rig& rig, int a, int b, float* area) {
+  if (rig.planar()) return canvas_overlap(rig.cameras.at(a), rig.cameras.at(b), area);
+  auto hull = [&](int cam, double shift) {
+    std::vector<cv::Point2f> pts, h;
+    for (const auto& p : camera_canvas_outline(rig, cam)) pts.emplace_back(float(p.x() + shift), float(p.y()));
+    cv::convexHull(pts, h);
+    return h;
+  };
+  const std::vector<cv::Point2f> ha = hull(a, 0);
+  std::vector<cv::Point2f> best;
+  float best_area = 0;
+  for (int k = rig.canvas_wrap ? -1 : 0; k <= (rig.canvas_wrap ? 1 : 0); ++k) {
+    std::vector<cv::Point2f> inter;
+    const float s = cv::intersectConvexConvex(ha, hull(b, double(k) * rig.canvas_width), inter, true);
+    if (inter.size() >= 3 && s > best_area) {
+      best_area = s;
+      best = inter;
+    }
+  }
+  if (area) *area = best_area;
+  return best;
 }
 
 std::vector<std::pair<int, int>> max_spanning_order(int n, int root, const std::vector<OverlapEdge>& edges) {

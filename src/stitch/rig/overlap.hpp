@@ -13,6 +13,11 @@ namespace stitch {
 // Canvas polygon shared by two calibrated views; empty when they do not overlap.
 std::vector<cv::Point2f> canvas_overlap(const Camera& a, const Camera& b, float* area = nullptr);
 
+// The same for views a and b of a calibrated rig of any projection: non-planar footprints are
+// taken as their convex hulls, and on a wrapping canvas the overlap across the wrap counts
+// (the polygon then reaches outside [0, width); canvas_to_camera maps it periodically).
+std::vector<cv::Point2f> canvas_overlap(const Rig& rig, int a, int b, float* area = nullptr);
+
 struct OverlapEdge {
   int a, b;
   double weight;  // how much the two views share (area, sample count, matches)

@@ -1,7 +1,10 @@
 #include "stitch/rig/rig.hpp"
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <cmath>
+
+#include "stitch/rig/canvas_map.hpp"
 #include <cstdio>
 #include <fstream>
 #include <limits>
@@ -101,8 +104,33 @@ Eigen::Matrix3d Camera::R() const {
   return Ry * Rx * Rz;
 }
 
+void Camera::set_R(const Eigen::Matrix3d& R) {
+  // R = Ry(yaw) Rx(pitch) Rz(roll): column 2 = (cos p sin y, -sin p, cos p cos y),
+  // row 1 = (cos p sin r, cos p cos r, -sin p).
+  pitch_deg = std::asin(std::clamp(-R(1, 2), -1.0, 1.0)) * 180.0 / kPi;
+  yaw_deg = std::atan2(R(0, 2), R(2, 2)) * 180.0 / kPi;
+  roll_deg = std::atan2(R(1, 0), R(1, 1)) * 180.0 / kPi;
+}
+
+const char* projection_name(Projection p) {
+  switch (p) {
+    case Projection::Plane: return "plane";
+    case Projection::Cylindrical: return "cylindrical";
+    case Projection::Spherical: return "spherical";
+  }
+  return "?";
+}
+
+Projection projection_from_name(const std::string& name) {
+  if (name == "plane") return Projection::Plane;
+  if (name == "cylindrical") return Projection::Cylindrical;
+  if (name == "spherical") return Projection::Spherical;
+  throw RigError("projection \"" + name + "\" is not supported (supported: plane, cylindrical, spherical)");
+}
+
 bool Rig::calibrated() const {
   if (canvas_width <= 0 || canvas_height <= 0 || cameras.empty()) return false;
+  if (!planar()) return canvas_scale > 0;
   for (const auto& c : cameras)
     if (!c.homography) return false;
   return true;
@@ -126,8 +154,7 @@ Rig rig_from_json_string(const std::string& text) {
     if (!it->is_string()) fail("", "\"projection\" must be a string");
     rig.projection = it->get<std::string>();
   }
-  if (rig.projection != "plane")
-    fail("", "projection \"" + rig.projection + "\" is not supported (supported: plane)");
+  projection_from_name(rig.projection);  // throws, naming the supported ones
   auto cams = j.find("cameras");
   if (cams == j.end() || !cams->is_array() || cams->empty())
     fail("", "\"cameras\" must be a non-empty array");
@@ -142,6 +169,16 @@ Rig rig_from_json_string(const std::string& text) {
     if (!it->is_object()) fail("", "\"canvas\" must be an object");
     rig.canvas_width = get_int(*it, "width", "canvas", true, 0, 1, kMaxSide);
     rig.canvas_height = get_int(*it, "height", "canvas", true, 0, 1, kMaxSide);
+    if (!rig.planar()) {
+      rig.canvas_scale = get_number(*it, "scale", "canvas", true);
+      if (rig.canvas_scale <= 0) fail("canvas", "\"scale\" must be positive (pixels per radian)");
+      rig.canvas_origin_x = get_number(*it, "origin_x", "canvas", true);
+      rig.canvas_origin_y = get_number(*it, "origin_y", "canvas", true);
+      if (auto w = it->find("wrap"); w != it->end()) {
+        if (!w->is_boolean()) fail("canvas", "\"wrap\" must be true or false");
+        rig.canvas_wrap = w->get<bool>();
+      }
+    }
   }
   return rig;
 }
@@ -165,8 +202,15 @@ std::string rig_to_json_string(const Rig& rig) {
   j["projection"] = rig.projection;
   j["reference"] = rig.reference;
   if (rig.plane_distance_m > 0) j["plane_distance_m"] = rig.plane_distance_m;
-  if (rig.canvas_width > 0 && rig.canvas_height > 0)
+  if (rig.canvas_width > 0 && rig.canvas_height > 0) {
     j["canvas"] = {{"width", rig.canvas_width}, {"height", rig.canvas_height}};
+    if (!rig.planar() && rig.canvas_scale > 0) {
+      j["canvas"]["scale"] = rig.canvas_scale;
+      j["canvas"]["origin_x"] = rig.canvas_origin_x;
+      j["canvas"]["origin_y"] = rig.canvas_origin_y;
+      j["canvas"]["wrap"] = rig.canvas_wrap;
+    }
+  }
   j["cameras"] = json::array();
   for (const auto& c : rig.cameras) {
     json cj = {{"width", c.width}, {"height", c.height}, {"fx", c.fx},   {"fy", c.fy},
@@ -256,6 +300,7 @@ std::string homography_problem(const Eigen::Matrix3d& H, int width, int height) 
 }
 
 void rig_layout_canvas(Rig& rig) {
+  if (!rig.planar()) return layout_projected_canvas(rig);
   double minx = std::numeric_limits<double>::max(), miny = minx;
   double maxx = -minx, maxy = -minx;
   double input_area = 0;
@@ -294,6 +339,7 @@ void rig_layout_canvas(Rig& rig) {
 void rig_compute_rough_homographies(Rig& rig) {
   if (rig.reference < 0 || rig.reference >= static_cast<int>(rig.cameras.size()))
     throw RigError("reference camera index out of range");
+  if (!rig.planar()) return rig_layout_canvas(rig);  // K and R are the whole model
   for (std::size_t i = 0; i < rig.cameras.size(); ++i)
     rig.cameras[i].homography = rough_pairwise_homography(rig, static_cast<int>(i), rig.reference);
   rig_layout_canvas(rig);
@@ -321,6 +367,8 @@ bool rig_adapt_to_sizes(Rig& rig, const std::vector<std::array<int, 2>>& sizes) 
     c.height = h;
     changed = true;
   }
+  // A projected canvas follows the cameras' new focal lengths (rig_layout_canvas picks it again).
+  if (changed && !rig.planar()) rig.canvas_scale = 0;
   return changed;
 }
 

@@ -5,7 +5,10 @@
 //  * camera orientation R = Ry(yaw) * Rx(pitch) * Rz(roll) maps camera rays into the rig frame
 //    (x right, y down, z forward); +yaw looks right, +pitch looks up, +roll turns the image
 //    clockwise as seen by the viewer;
-//  * "homography" maps camera pixels to canvas pixels (row-major, 9 numbers).
+//  * "homography" maps camera pixels to canvas pixels (row-major, 9 numbers), planar rigs only;
+//  * non-planar rigs ("cylindrical", "spherical") map canvas pixels to cameras through K and R:
+//    canvas (X, Y) -> angles a = (X - origin_x) / scale, b = (Y - origin_y) / scale -> rig ray
+//    (projection_math.hpp) -> camera ray R^T ray -> pixel K (R^T ray) (when in front, z > 0).
 #pragma once
 
 #include <Eigen/Core>
@@ -30,7 +33,12 @@ struct Camera {
 
   Eigen::Matrix3d K() const;
   Eigen::Matrix3d R() const;  // camera -> rig rotation
+  void set_R(const Eigen::Matrix3d& R);  // stores R as yaw/pitch/roll (R = Ry Rx Rz)
 };
+
+enum class Projection { Plane, Cylindrical, Spherical };
+const char* projection_name(Projection p);
+Projection projection_from_name(const std::string& name);  // throws RigError naming the choices
 
 struct Rig {
   std::string projection = "plane";
@@ -38,8 +46,17 @@ struct Rig {
   int canvas_width = 0, canvas_height = 0;  // 0 when not calibrated
   double plane_distance_m = 0;              // >0: plane-induced homographies use "t"
   std::vector<Camera> cameras;
+  // Non-planar canvases: pixels per radian, canvas pixel of angles (0, 0), and whether the
+  // canvas spans 360 degrees horizontally (then width == 2 pi scale and columns wrap).
+  double canvas_scale = 0;
+  double canvas_origin_x = 0, canvas_origin_y = 0;
+  bool canvas_wrap = false;
 
-  bool calibrated() const;  // every camera has a homography and the canvas is set
+  Projection projection_kind() const { return projection_from_name(projection); }
+  bool planar() const { return projection == "plane"; }
+  // Planar: every camera has a homography and the canvas is set; non-planar: the canvas and
+  // its scale are set.
+  bool calibrated() const;
 };
 
 // JSON I/O. Throws RigError with a message that names the problem (and the camera index).
@@ -57,9 +74,11 @@ Eigen::Matrix3d rough_pairwise_homography(const Rig& rig, int src, int dst);
 // camera's image plane) and lays out the canvas. Throws RigError on degenerate geometry.
 void rig_compute_rough_homographies(Rig& rig);
 
-// Shifts all homographies so the union of the warped views starts at (0,0), and sets the
+// Planar rigs: shifts all homographies so the union of the warped views starts at (0,0), and sets the
 // canvas size to cover it. Throws RigError when a view does not project (behind the plane)
 // or the canvas would be absurdly large.
+// Non-planar rigs: canvas scale (kept when set, else the median focal length), origin and size
+// from where the cameras look; a canvas that the views cover all around wraps (360 degrees).
 void rig_layout_canvas(Rig& rig);
 
 // Adapts a rig written for other view sizes to the streams' sizes (scales intrinsics and

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/rig/canvas_map.hpp"
+
 namespace stitch {
 
 namespace {
@@ -16,11 +18,16 @@ Rect largest_covered_rect(const Rig& rig) {
   const double scale = std::min(1.0, 1024.0 / std::max(rig.canvas_width, rig.canvas_height));
   const int w = std::max(1, int(rig.canvas_width * scale)), h = std::max(1, int(rig.canvas_height * scale));
   cv::Mat cover(h, w, CV_8U, cv::Scalar(0));
-  for (const auto& cam : rig.cameras) {
-    std::vector<cv::Point> poly;
-    for (const auto& q : camera_canvas_corners(cam))
-      poly.emplace_back(int(std::lround(q.x() * scale)), int(std::lround(q.y() * scale)));
-    cv::fillConvexPoly(cover, poly, cv::Scalar(1));
+  for (int i = 0; i < int(rig.cameras.size()); ++i) {
+    const std::vector<Eigen::Vector2d> outline = camera_canvas_outline(rig, i);
+    // A wrapping canvas also gets the copies of the outline one period to either side.
+    for (int k = rig.canvas_wrap ? -1 : 0; k <= (rig.canvas_wrap ? 1 : 0); ++k) {
+      std::vector<cv::Point> poly;
+      for (const auto& q : outline)
+        poly.emplace_back(int(std::lround((q.x() + k * rig.canvas_width) * scale)), int(std::lround(q.y() * scale)));
+      if (rig.planar()) cv::fillConvexPoly(cover, poly, cv::Scalar(1));
+      else cv::fillPoly(cover, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(1));
+    }
   }
   // Shrink by one pixel so that rounding never lets an uncovered border in.
   cv::erode(cover, cover, cv::Mat::ones(3, 3, CV_8U));
@@ -86,19 +93,42 @@ OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, Cro
 
 std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out) {
   std::vector<ViewPlacement> views;
-  for (const auto& cam : rig.cameras) {
+  const Eigen::Matrix3d& A = out.canvas_to_output;  // axis-aligned scale + offset
+  for (int i = 0; i < int(rig.cameras.size()); ++i) {
+    const Camera& cam = rig.cameras[i];
     ViewPlacement v;
     v.camera_width = cam.width;
     v.camera_height = cam.height;
-    const Eigen::Matrix3d cam_to_out = out.canvas_to_output * cam.homography.value();
-    v.output_to_camera = cam_to_out.inverse();
+    if (rig.planar()) {
+      const Eigen::Matrix3d cam_to_out = A * cam.homography.value();
+      v.output_to_camera = cam_to_out.inverse();
+    } else {
+      // output -> canvas -> angles, both axis-aligned: a = ((x - A02) / A00 - origin_x) / scale.
+      v.projection = rig.projection_kind();
+      v.output_to_camera = cam.K() * cam.R().transpose();
+      const double s = rig.canvas_scale;
+      v.output_to_angles = {1 / (A(0, 0) * s), -(A(0, 2) / A(0, 0) + rig.canvas_origin_x) / s, 1 / (A(1, 1) * s),
+                            -(A(1, 2) / A(1, 1) + rig.canvas_origin_y) / s};
+    }
     double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
-    for (const auto& q : camera_canvas_corners(cam)) {
+    for (const auto& q : camera_canvas_outline(rig, i)) {
       const Eigen::Vector2d o = apply_homography(out.canvas_to_output, q);
       minx = std::min(minx, o.x());
       miny = std::min(miny, o.y());
       maxx = std::max(maxx, o.x());
       maxy = std::max(maxy, o.y());
+    }
+    if (rig.canvas_wrap && (minx < -0.5 || maxx > out.width - 0.5)) {
+      // The view crosses the 360-degree wrap: it shows at both edges. Its rectangle spans the
+      // whole width; the angle mapping is periodic, so each column samples the right side.
+      const double margin = 2 + 0.02 * (maxx - minx);
+      v.wrap_width = out.width;
+      // Kept starting inside the canvas, so that only the left edge's columns need unwrapping.
+      const double shift = minx - margin < 0 ? out.width : 0;
+      v.span_x0 = minx - margin + shift;
+      v.span_x1 = maxx + margin + shift;
+      minx = 0;
+      maxx = out.width - 1;
     }
     const int x0 = std::max(0, int(std::floor(minx))), y0 = std::max(0, int(std::floor(miny)));
     const int x1 = std::min(out.width - 1, int(std::ceil(maxx)));

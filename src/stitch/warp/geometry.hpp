@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <vector>
 
+#include "stitch/rig/projection_math.hpp"
 #include "stitch/rig/rig.hpp"
 
 namespace stitch {
@@ -23,9 +24,41 @@ struct OutputGeometry {
 
 struct ViewPlacement {
   Rect roi;                     // in output pixels; empty when the view is not visible
-  Eigen::Matrix3d output_to_camera;  // output pixel -> camera pixel
+  // Planar: output pixel -> camera pixel (homography). Non-planar: rig ray -> camera pixel
+  // (K R^T), applied to the ray of the output pixel's canvas angles (output_to_angles).
+  Eigen::Matrix3d output_to_camera;
   int camera_width = 0, camera_height = 0;
+  Projection projection = Projection::Plane;
+  // Non-planar: a = [0] x + [1], b = [2] y + [3] (output pixel -> canvas angles, radians).
+  Eigen::Vector4d output_to_angles = Eigen::Vector4d::Zero();
+  // A view across the 360-degree wrap (its roi spans the whole width): the output width, and
+  // the columns it can reach with a margin, unwrapped: span_x0 in [0, wrap_width), span_x1
+  // beyond wrap_width; column x < span_x0 stands for x + wrap_width.
+  // Lets the kernels skip the columns it cannot see. wrap_width = 0 for every other view.
+  int wrap_width = 0;
+  double span_x0 = 0, span_x1 = 0;
 };
+
+// Camera pixel (u, v) of output pixel (x, y); false behind the camera (or the canvas plane).
+inline bool view_to_camera(const ViewPlacement& v, double x, double y, double& u, double& w) {
+  const Eigen::Matrix3d& M = v.output_to_camera;
+  if (v.projection == Projection::Plane) {
+    const double Z = M(2, 0) * x + M(2, 1) * y + M(2, 2);
+    if (!(Z > 1e-12)) return false;
+    u = (M(0, 0) * x + M(0, 1) * y + M(0, 2)) / Z;
+    w = (M(1, 0) * x + M(1, 1) * y + M(1, 2)) / Z;
+    return true;
+  }
+  const Eigen::Vector4d& A = v.output_to_angles;
+  Eigen::Vector3d ray;
+  stitch_projection::angles_to_ray(static_cast<int>(v.projection), A[0] * x + A[1], A[2] * y + A[3], ray.x(),
+                                   ray.y(), ray.z());
+  const Eigen::Vector3d c = M * ray;
+  if (!(c.z() > 1e-9)) return false;
+  u = c.x() / c.z();
+  w = c.y() / c.z();
+  return true;
+}
 
 // Output size and canvas->output transform. requested_w/h = 0 keep the canvas (or crop) size;
 // one of them set keeps the aspect ratio; both set fit the canvas inside, centred.

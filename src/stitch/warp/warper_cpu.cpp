@@ -15,7 +15,6 @@ void camera_maps(const ViewPlacement& v, const Rect& part, const cv::Mat& displa
                  cv::Mat& map_x, cv::Mat& map_y) {
   map_x.create(part.height, part.width, CV_32F);
   map_y.create(part.height, part.width, CV_32F);
-  const Eigen::Matrix3d& M = v.output_to_camera;
   const bool moved = !displacement.empty();
   cv::parallel_for_(cv::Range(0, part.height), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
@@ -28,12 +27,10 @@ void camera_maps(const ViewPlacement& v, const Rect& part, const cv::Mat& displa
           ox += pd[x][0];
           oy += pd[x][1];
         }
-        const double X = M(0, 0) * ox + M(0, 1) * oy + M(0, 2);
-        const double Y = M(1, 0) * ox + M(1, 1) * oy + M(1, 2);
-        const double Z = M(2, 0) * ox + M(2, 1) * oy + M(2, 2);
-        const bool ok = Z > 1e-12;
-        px[x] = ok ? float(X / Z) : -1e6f;
-        py[x] = ok ? float(Y / Z) : -1e6f;
+        double u, w;
+        const bool ok = view_to_camera(v, ox, oy, u, w);
+        px[x] = ok ? float(u) : -1e6f;
+        py[x] = ok ? float(w) : -1e6f;
       }
     }
   });

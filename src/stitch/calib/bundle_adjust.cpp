@@ -1,0 +1,195 @@
+#include "stitch/calib/bundle_adjust.hpp"
+
+#include <Eigen/Dense>
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <unsupported/Eigen/NonLinearOptimization>
+#include <unsupported/Eigen/NumericalDiff>
+
+namespace stitch {
+namespace {
+
+struct Model {
+  std::vector<Eigen::Matrix3d> R, K;
+};
+
+// Parameters: per camera a rotation increment (axis-angle, left-multiplied on the start
+// rotation; absent for the reference) and, when refined, a relative focal change.
+struct Layout {
+  int n = 0, reference = 0;
+  bool focal = true, shared = false;
+  int rot_index(int cam) const { return cam < reference ? 3 * cam : cam == reference ? -1 : 3 * (cam - 1); }
+  int focal_index(int cam) const { return focal ? 3 * (n - 1) + (shared ? 0 : cam) : -1; }
+  int size() const { return 3 * (n - 1) + (focal ? (shared ? 1 : n) : 0); }
+};
+
+Eigen::Vector2d project(const Eigen::Matrix3d& K, const Eigen::Matrix3d& R, const Eigen::Vector3d& ray) {
+  const Eigen::Vector3d p = K * (R.transpose() * ray);
+  // Behind the camera: a large residual, so that the solver moves away from it.
+  if (!(p.z() > 1e-9)) return {1e6, 1e6};
+  return p.head<2>() / p.z();
+}
+
+struct Problem {
+  const Rig* start;
+  Layout layout;
+  std::vector<std::array<int, 2>> cams;         // per match
+  std::vector<Eigen::Vector2d> pa, pb;
+
+  Model model(const Eigen::VectorXd& x) const {
+    Model m;
+    for (int i = 0; i < layout.n; ++i) {
+      const Camera& c = start->cameras[i];
+      Eigen::Matrix3d R = c.R();
+      if (const int r = layout.rot_index(i); r >= 0) {
+        const Eigen::Vector3d w = x.segment<3>(r);
+        const double angle = w.norm();
+        if (angle > 1e-15) R = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix() * R;
+      }
+      Eigen::Matrix3d K = c.K();
+      if (const int f = layout.focal_index(i); f >= 0) {
+        K(0, 0) *= 1 + x[f];
+        K(1, 1) *= 1 + x[f];
+      }
+      m.R.push_back(R);
+      m.K.push_back(K);
+    }
+    return m;
+  }
+
+  void residuals(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
+    const Model m = model(x);
+    for (std::size_t k = 0; k < pa.size(); ++k) {
+      const int a = cams[k][0], b = cams[k][1];
+      const Eigen::Vector3d ra = m.R[a] * (m.K[a].inverse() * Eigen::Vector3d(pa[k].x(), pa[k].y(), 1));
+      const Eigen::Vector3d rb = m.R[b] * (m.K[b].inverse() * Eigen::Vector3d(pb[k].x(), pb[k].y(), 1));
+      f.segment<2>(4 * k) = project(m.K[b], m.R[b], ra) - pb[k];
+      f.segment<2>(4 * k + 2) = project(m.K[a], m.R[a], rb) - pa[k];
+    }
+  }
+};
+
+struct Functor {
+  using Scalar = double;
+  using InputType = Eigen::VectorXd;
+  using ValueType = Eigen::VectorXd;
+  using JacobianType = Eigen::MatrixXd;
+  enum { InputsAtCompileTime = Eigen::Dynamic, ValuesAtCompileTime = Eigen::Dynamic };
+  const Problem* problem;
+  int inputs() const { return problem->layout.size(); }
+  int values() const { return int(4 * problem->pa.size()); }
+  int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
+    problem->residuals(x, f);
+    return 0;
+  }
+};
+
+double rms(const Eigen::VectorXd& f) { return f.size() ? std::sqrt(f.squaredNorm() / (f.size() / 2)) : 0; }
+
+void apply(Rig& rig, const Problem& p, const Eigen::VectorXd& x) {
+  const Model m = p.model(x);
+  for (int i = 0; i < p.layout.n; ++i) {
+    Camera& c = rig.cameras[i];
+    c.set_R(m.R[i]);
+    c.fx = m.K[i](0, 0);
+    c.fy = m.K[i](1, 1);
+  }
+}
+
+}  // namespace
+
+double transfer_error_px(const Rig& rig, int a, int b, const Eigen::Vector2d& pa, const Eigen::Vector2d& pb) {
+  const Camera& A = rig.cameras.at(a);
+  const Camera& B = rig.cameras.at(b);
+  const Eigen::Vector3d ra = A.R() * (A.K().inverse() * Eigen::Vector3d(pa.x(), pa.y(), 1));
+  const Eigen::Vector3d rb = B.R() * (B.K().inverse() * Eigen::Vector3d(pb.x(), pb.y(), 1));
+  return std::sqrt((project(B.K(), B.R(), ra) - pb).squaredNorm() + (project(A.K(), A.R(), rb) - pa).squaredNorm());
+}
+
+BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& matches, const BundleAdjustOptions& o) {
+  BundleAdjustReport rep;
+  const int n = int(rig.cameras.size());
+  if (n < 2 || rig.reference < 0 || rig.reference >= n) return rep;
+  Problem p;
+  p.start = &rig;
+  p.layout = {n, rig.reference, o.refine_focal, o.shared_focal};
+  for (const auto& m : matches)
+    for (std::size_t k = 0; k < m.pa.size() && k < m.pb.size(); ++k) {
+      p.cams.push_back({m.a, m.b});
+      p.pa.push_back(m.pa[k]);
+      p.pb.push_back(m.pb[k]);
+    }
+  if (p.pa.empty()) return rep;
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(p.layout.size());
+  Eigen::VectorXd f(4 * p.pa.size());
+  p.residuals(x, f);
+  rep.rms_before_px = rms(f);
+  for (int round = 0; round < 2; ++round) {
+    Functor fn{&p};
+    Eigen::NumericalDiff<Functor> numdiff(fn);
+    Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
+    lm.parameters.maxfev = o.max_iterations * (p.layout.size() + 1);
+    lm.minimize(x);
+    if (round == 1) break;
+    // Drop the matches the fit does not explain (false matches, parallax) and fit again.
+    f.resize(4 * p.pa.size());
+    p.residuals(x, f);
+    Problem kept = p;
+    kept.cams.clear();
+    kept.pa.clear();
+    kept.pb.clear();
+    for (std::size_t k = 0; k < p.pa.size(); ++k) {
+      if (f.segment<4>(4 * k).norm() > o.outlier_px * std::sqrt(2.0)) continue;
+      kept.cams.push_back(p.cams[k]);
+      kept.pa.push_back(p.pa[k]);
+      kept.pb.push_back(p.pb[k]);
+    }
+    rep.dropped = int(p.pa.size() - kept.pa.size());
+    if (kept.pa.size() < 8) break;
+    p = std::move(kept);
+  }
+  f.resize(4 * p.pa.size());
+  p.residuals(x, f);
+  rep.rms_after_px = rms(f);
+  rep.matches = int(p.pa.size());
+  rep.ok = x.allFinite() && rep.rms_after_px <= rep.rms_before_px + 1e-9;
+  if (rep.ok) apply(rig, p, x);
+  return rep;
+}
+
+Eigen::Matrix3d wave_correct(Rig& rig) {
+  // The "up" direction is the one most orthogonal to every camera's x axis: the eigenvector of
+  // the smallest eigenvalue of sum x x^T (OpenCV's horizontal wave correction does the same).
+  Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d down_sum = Eigen::Vector3d::Zero();
+  for (const auto& c : rig.cameras) {
+    const Eigen::Matrix3d R = c.R();
+    S += R.col(0) * R.col(0).transpose();
+    down_sum += R.col(1);
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(S);
+  // x axes that (almost) all point the same way span no plane: nothing to level.
+  if (es.eigenvalues()(1) < 0.02 * double(rig.cameras.size())) return Eigen::Matrix3d::Identity();
+  Eigen::Vector3d down = es.eigenvectors().col(0);
+  if (down.dot(down_sum) < 0) down = -down;
+  // Keep the reference camera's heading: its optical axis, made horizontal, stays forward.
+  const Eigen::Matrix3d Rref = rig.cameras.at(rig.reference).R();
+  Eigen::Vector3d fwd = Rref.col(2) - Rref.col(2).dot(down) * down;
+  if (fwd.norm() < 1e-6) fwd = Rref.col(0).cross(down);
+  fwd.normalize();
+  const Eigen::Vector3d right = down.cross(fwd);
+  // New rig frame: x = right, y = down, z = forward, with the reference yaw kept.
+  Eigen::Matrix3d G;
+  G.row(0) = right.transpose();
+  G.row(1) = down.transpose();
+  G.row(2) = fwd.transpose();
+  const double yaw = rig.cameras.at(rig.reference).yaw_deg * 3.14159265358979323846 / 180.0;
+  Eigen::Matrix3d Ry;
+  Ry << std::cos(yaw), 0, std::sin(yaw), 0, 1, 0, -std::sin(yaw), 0, std::cos(yaw);
+  const Eigen::Matrix3d C = Ry * G;
+  for (auto& c : rig.cameras) c.set_R(C * c.R());
+  return C;
+}
+
+}  // namespace stitch

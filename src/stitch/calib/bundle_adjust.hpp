@@ -1,0 +1,47 @@
+// Global refinement of a rotating rig: every camera's rotation and focal length fitted jointly
+// to the feature matches of all overlapping pairs (Levenberg-Marquardt, Eigen), so that errors
+// do not add up along a chain of pairwise fits; and wave correction, which levels the horizon.
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "stitch/rig/rig.hpp"
+
+namespace stitch {
+
+struct PairMatches {
+  int a = -1, b = -1;
+  std::vector<Eigen::Vector2d> pa, pb;  // the same scene point in camera a and camera b (pixels)
+};
+
+struct BundleAdjustOptions {
+  bool refine_focal = true;
+  // One focal scale for every camera (a rig of identical cameras): the ratios of the start
+  // focal lengths stay. Fewer unknowns; per-camera focals can drift along a chain of overlaps.
+  bool shared_focal = false;
+  int max_iterations = 100;      // LM iterations per round
+  double outlier_px = 3.0;       // after the first round, matches off by more are dropped
+};
+
+struct BundleAdjustReport {
+  double rms_before_px = -1, rms_after_px = -1;  // symmetric transfer error over the kept matches
+  int matches = 0, dropped = 0;
+  bool ok = false;
+};
+
+// Refines R and f (fx, fy together; principal points stay) of every camera; the reference
+// camera's rotation is held (it fixes the rig frame). Cameras without matches stay as they are.
+BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& matches,
+                                 const BundleAdjustOptions& options = {});
+
+// Transfer error of one match through the rotation model (pixels, a->b and b->a summed in
+// quadrature); the BA's residual.
+double transfer_error_px(const Rig& rig, int a, int b, const Eigen::Vector2d& pa, const Eigen::Vector2d& pb);
+
+// Horizontal wave correction: rotates the whole rig so that the cameras' x axes lie in the
+// horizontal plane as far as possible (the normal of the plane that they span becomes "up"),
+// keeping the reference camera's heading. Returns the rotation applied (rig frame).
+Eigen::Matrix3d wave_correct(Rig& rig);
+
+}  // namespace stitch

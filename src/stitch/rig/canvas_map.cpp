@@ -1,0 +1,196 @@
+#include "stitch/rig/canvas_map.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+
+#include "stitch/rig/projection_math.hpp"
+
+namespace stitch {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr int kMaxSide = 32768;
+constexpr int kOutlineSteps = 16;  // border samples per image edge
+
+// The canvas map of a non-planar camera with the given canvas scale and origin.
+CameraCanvasMap projected_map(const Rig& rig, const Camera& c, double scale, double ox, double oy) {
+  CameraCanvasMap m;
+  m.kind = rig.projection_kind();
+  m.KRt = c.K() * c.R().transpose();
+  m.RKinv = c.R() * c.K().inverse();
+  m.scale = scale;
+  m.origin_x = ox;
+  m.origin_y = oy;
+  m.period = 2 * kPi * scale;
+  return m;
+}
+
+// The image border, clockwise from the top-left corner, kOutlineSteps samples per edge.
+std::vector<Eigen::Vector2d> border_samples(const Camera& c) {
+  const double w = c.width - 1, h = c.height - 1;
+  std::vector<Eigen::Vector2d> pts;
+  for (int k = 0; k < kOutlineSteps; ++k) pts.emplace_back(w * k / kOutlineSteps, 0);
+  for (int k = 0; k < kOutlineSteps; ++k) pts.emplace_back(w, h * k / kOutlineSteps);
+  for (int k = 0; k < kOutlineSteps; ++k) pts.emplace_back(w - w * k / kOutlineSteps, h);
+  for (int k = 0; k < kOutlineSteps; ++k) pts.emplace_back(0, h - h * k / kOutlineSteps);
+  return pts;
+}
+
+// True when the rig direction `ray` lands inside the camera's image.
+bool sees(const Camera& c, const Eigen::Vector3d& ray) {
+  const Eigen::Vector3d p = c.K() * (c.R().transpose() * ray);
+  if (!(p.z() > 1e-9)) return false;
+  const double u = p.x() / p.z(), v = p.y() / p.z();
+  return u >= -0.5 && v >= -0.5 && u <= c.width - 0.5 && v <= c.height - 0.5;
+}
+
+std::vector<Eigen::Vector2d> projected_outline(const Rig& rig, int cam, const CameraCanvasMap& m) {
+  const Camera& c = rig.cameras.at(static_cast<std::size_t>(cam));
+  Eigen::Vector2d centre;
+  if (!m.to_canvas({c.cx, c.cy}, centre))
+    throw RigError("camera " + std::to_string(cam) + " looks along the cylinder's axis");
+  centre.x() -= std::floor((centre.x() + 0.5) / m.period) * m.period;  // the centre's turn of the canvas
+  const bool north = sees(c, {0, -1, 0}), south = sees(c, {0, 1, 0});
+  if ((north || south) && m.kind == Projection::Cylindrical)
+    throw RigError("camera " + std::to_string(cam) +
+                   " sees a pole, which a cylindrical canvas cannot hold: use projection=spherical");
+  std::vector<Eigen::Vector2d> out;
+  double ymin = 1e300, ymax = -1e300;
+  for (const auto& p : border_samples(c)) {
+    Eigen::Vector2d q;
+    if (!m.to_canvas(p, q)) continue;
+    q.x() += std::round((centre.x() - q.x()) / m.period) * m.period;  // continuous around the centre
+    ymin = std::min(ymin, q.y());
+    ymax = std::max(ymax, q.y());
+    out.push_back(q);
+  }
+  if (north || south) {
+    // The view holds a pole: on the canvas it covers a full band from that pole.
+    const double pole_y = m.origin_y + (north ? -0.5 : 0.5) * kPi * m.scale;
+    const double far_y = north ? ymax : ymin;
+    const double x0 = centre.x() - 0.5 * m.period, x1 = centre.x() + 0.5 * m.period;
+    out = {{x0, std::min(pole_y, far_y)}, {x1, std::min(pole_y, far_y)}, {x1, std::max(pole_y, far_y)},
+           {x0, std::max(pole_y, far_y)}};
+  }
+  return out;
+}
+
+// q = H p when p maps in front (positive homogeneous z).
+bool apply_in_front(const Eigen::Matrix3d& H, const Eigen::Vector2d& p, Eigen::Vector2d& q) {
+  const Eigen::Vector3d h = H * Eigen::Vector3d(p.x(), p.y(), 1.0);
+  if (!(h.z() > 1e-9)) return false;
+  q = h.head<2>() / h.z();
+  return true;
+}
+
+}  // namespace
+
+bool CameraCanvasMap::to_canvas(const Eigen::Vector2d& pixel, Eigen::Vector2d& canvas) const {
+  if (kind == Projection::Plane) return apply_in_front(H, pixel, canvas);
+  const Eigen::Vector3d r = RKinv * Eigen::Vector3d(pixel.x(), pixel.y(), 1.0);
+  double a, b;
+  if (!stitch_projection::ray_to_angles(static_cast<int>(kind), r.x(), r.y(), r.z(), a, b)) return false;
+  canvas = {origin_x + scale * a, origin_y + scale * b};
+  return true;
+}
+
+bool CameraCanvasMap::to_camera(const Eigen::Vector2d& canvas, Eigen::Vector2d& pixel) const {
+  if (kind == Projection::Plane) return apply_in_front(H_inv, canvas, pixel);
+  const double angle[4] = {1 / scale, -origin_x / scale, 1 / scale, -origin_y / scale};
+  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> M = KRt;
+  return stitch_projection::canvas_to_camera(static_cast<int>(kind), angle, M.data(), canvas.x(), canvas.y(),
+                                             pixel.x(), pixel.y());
+}
+
+CameraCanvasMap camera_canvas_map(const Rig& rig, int cam) {
+  const Camera& c = rig.cameras.at(static_cast<std::size_t>(cam));
+  if (!rig.planar()) return projected_map(rig, c, rig.canvas_scale, rig.canvas_origin_x, rig.canvas_origin_y);
+  if (!c.homography) throw RigError("camera " + std::to_string(cam) + " has no homography");
+  CameraCanvasMap m;
+  m.H = *c.homography;
+  m.H_inv = m.H.inverse();
+  return m;
+}
+
+std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
+  if (rig.planar()) {
+    const auto q = camera_canvas_corners(rig.cameras.at(static_cast<std::size_t>(cam)));
+    return {q.begin(), q.end()};
+  }
+  return projected_outline(rig, cam, camera_canvas_map(rig, cam));
+}
+
+void layout_projected_canvas(Rig& rig) {
+  const int n = static_cast<int>(rig.cameras.size());
+  if (rig.reference < 0 || rig.reference >= n) throw RigError("reference camera index out of range");
+  double scale = rig.canvas_scale;
+  if (!(scale > 0)) {
+    std::vector<double> f;
+    for (const auto& c : rig.cameras) f.push_back(0.5 * (c.fx + c.fy));
+    std::nth_element(f.begin(), f.begin() + n / 2, f.end());
+    scale = f[n / 2];
+  }
+  // Outlines with the origin at angles (0, 0), each unwrapped next to the reference view.
+  const CameraCanvasMap ref_map = projected_map(rig, rig.cameras[rig.reference], scale, 0, 0);
+  Eigen::Vector2d ref_centre;
+  if (!ref_map.to_canvas({rig.cameras[rig.reference].cx, rig.cameras[rig.reference].cy}, ref_centre))
+    throw RigError("the reference camera looks along the cylinder's axis");
+  const double period = 2 * kPi * scale;
+  constexpr int kBins = 720;  // horizontal coverage, half a degree a bin
+  std::vector<bool> covered(kBins, false);
+  double minx = 1e300, maxx = -1e300, miny = 1e300, maxy = -1e300, input_area = 0;
+  std::vector<double> centres;  // camera centres' canvas x
+  for (int i = 0; i < n; ++i) {
+    Eigen::Vector2d centre;
+    const CameraCanvasMap map = projected_map(rig, rig.cameras[i], scale, 0, 0);
+    centres.push_back(map.to_canvas({rig.cameras[i].cx, rig.cameras[i].cy}, centre) ? centre.x() : 0.0);
+    std::vector<Eigen::Vector2d> q = projected_outline(rig, i, map);
+    if (q.empty()) throw RigError("camera " + std::to_string(i) + " does not project onto the canvas");
+    double x0 = 1e300, x1 = -1e300;
+    for (const auto& p : q) {
+      x0 = std::min(x0, p.x());
+      x1 = std::max(x1, p.x());
+      miny = std::min(miny, p.y());
+      maxy = std::max(maxy, p.y());
+    }
+    const double shift = std::round((ref_centre.x() - 0.5 * (x0 + x1)) / period) * period;
+    minx = std::min(minx, x0 + shift);
+    maxx = std::max(maxx, x1 + shift);
+    const int b0 = int(std::floor(x0 / period * kBins)), b1 = int(std::ceil(x1 / period * kBins));
+    for (int b = b0; b < b1 && b < b0 + kBins; ++b) covered[((b % kBins) + kBins) % kBins] = true;
+    input_area += double(rig.cameras[i].width) * rig.cameras[i].height;
+  }
+  const bool wrap = std::all_of(covered.begin(), covered.end(), [](bool v) { return v; });
+  double cw;
+  if (wrap) {
+    // An even width that is exactly 360 degrees. The wrap runs through the centre of the camera
+    // most opposite the reference: that view alone crosses it, and no overlap is cut in two.
+    cw = 2 * std::round(0.5 * period);
+    const double ratio = cw / period;
+    scale *= ratio;
+    miny *= ratio;
+    maxy *= ratio;
+    const double opposite = ref_centre.x() + 0.5 * period;
+    double wrap_x = centres[0];
+    for (double c : centres)
+      if (std::abs(std::remainder(c - opposite, period)) < std::abs(std::remainder(wrap_x - opposite, period)))
+        wrap_x = c;
+    rig.canvas_origin_x = -0.5 - wrap_x * ratio;
+    rig.canvas_origin_x -= std::floor((rig.canvas_origin_x + ref_centre.x() * ratio) / cw) * cw;
+  } else {
+    cw = std::ceil(maxx - std::floor(minx)) + 1;
+    rig.canvas_origin_x = -std::floor(minx);
+  }
+  const double ch = std::ceil(maxy - std::floor(miny)) + 1;
+  if (cw > kMaxSide || ch > kMaxSide || cw * ch > 16.0 * input_area)
+    throw RigError("degenerate geometry: the " + rig.projection + " canvas would be " + std::to_string(int(cw)) +
+                   "x" + std::to_string(int(ch)) + " pixels (views close to the cylinder's axis?)");
+  rig.canvas_origin_y = -std::floor(miny);
+  rig.canvas_scale = scale;
+  rig.canvas_wrap = wrap;
+  rig.canvas_width = static_cast<int>(cw);
+  rig.canvas_height = static_cast<int>(ch);
+}
+
+}  // namespace stitch

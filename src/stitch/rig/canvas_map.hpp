@@ -1,0 +1,37 @@
+// Camera pixel <-> canvas pixel for every projection (planar homography, or cylindrical /
+// spherical through K and R), and the canvas footprint of a camera. Host side; the device
+// side evaluates the same projection_math.hpp.
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "stitch/rig/rig.hpp"
+
+namespace stitch {
+
+struct CameraCanvasMap {
+  Projection kind = Projection::Plane;
+  Eigen::Matrix3d H = Eigen::Matrix3d::Identity(), H_inv = Eigen::Matrix3d::Identity();  // plane
+  Eigen::Matrix3d KRt = Eigen::Matrix3d::Identity();   // non-planar: rig ray -> camera pixel (homogeneous)
+  Eigen::Matrix3d RKinv = Eigen::Matrix3d::Identity(); // non-planar: camera pixel -> rig ray
+  double scale = 1, origin_x = 0, origin_y = 0;
+  double period = 0;  // canvas pixels per 360 degrees (non-planar)
+
+  // False where the mapping has no answer (behind the camera or the canvas plane).
+  bool to_canvas(const Eigen::Vector2d& pixel, Eigen::Vector2d& canvas) const;
+  bool to_camera(const Eigen::Vector2d& canvas, Eigen::Vector2d& pixel) const;
+};
+
+// The map of camera `cam` of a calibrated rig (planar: needs the homography).
+CameraCanvasMap camera_canvas_map(const Rig& rig, int cam);
+
+// Canvas polygon around the camera's image (planar: its four corners; non-planar: its border
+// sampled, x unwrapped so the polygon is continuous, possibly reaching outside [0, width) on
+// a wrapping canvas). Throws RigError when a cylindrical camera sees a pole.
+std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam);
+
+// rig_layout_canvas() of a non-planar rig (see rig.hpp).
+void layout_projected_canvas(Rig& rig);
+
+}  // namespace stitch
