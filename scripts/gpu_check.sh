@@ -7,7 +7,7 @@
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
 #        OUT=... scripts/gpu_check.sh [quick]     (on the GPU host; quick: tests only)
 set -uo pipefail
-GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory"
+GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_cuda_blend"
 if [ "${1:-}" = pack ]; then
   BUILD=${2:-build}
   rm -rf .gpubundle && mkdir -p .gpubundle
@@ -34,7 +34,7 @@ for t in $GPU_TESTS; do
   echo "== $t"
   timeout 300 "$B/$t" > "$OUT/$t.log" 2>&1
   echo "rc=$?"
-  grep -E "PSNR|FLOW|COLOR|CONVERT|FLOWWARP|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
+  grep -E "PSNR|FLOW|COLOR|MULTIBAND|CONVERT|FLOWWARP|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
 done 2>&1 | tee "$OUT/tests.txt"
 if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
 echo "== kernels"; timeout 300 $B/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"

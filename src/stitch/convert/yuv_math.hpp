@@ -5,11 +5,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#ifdef __CUDACC__
-#define STITCH_HD __host__ __device__ __forceinline__
-#else
-#define STITCH_HD inline
-#endif
+#include "stitch/host_device.hpp"
 
 namespace stitch {
 
