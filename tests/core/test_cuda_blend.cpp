@@ -13,6 +13,9 @@
 #include "synthetic_rig.hpp"
 #include "stitch/blend/multiband.hpp"
 #include "stitch/blend/seam.hpp"
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/blend/seam_cuda.hpp"
+#endif
 
 using namespace stitch;
 
@@ -87,6 +90,57 @@ TEST(CudaMultiband, BlenderMatchesCpuOnTheSameViewsAndLabels) {
       const std::string what = std::to_string(bands) + " bands" + (with_seams ? ", dp seams" : ", middle seams");
       expect_close(out.download(), expected, what.c_str(), 2);
     }
+  }
+#endif
+}
+
+TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  testdata::RotatingRig s = rig_scene();
+  const OutputGeometry g = canvas_geometry(s.rig);
+  const std::vector<ViewPlacement> views = place_views(s.rig, g);
+  auto warper = Warper::create(Backend::Cpu);
+  warper->prepare(views);
+  SeamFinder cpu;
+  SeamFinderCuda gpu;
+  cpu.prepare(views, g.width, g.height);
+  gpu.prepare(views, g.width, g.height);
+  ASSERT_EQ(gpu.pairs().size(), 2u);
+  cv::RNG rng(3);
+  for (int frame = 0; frame < 4; ++frame) {
+    // Each frame: the views shifted a little (motion) plus noise, the same on both backends.
+    std::vector<cv::Mat> rois;
+    std::vector<ImageView> host, dev_views;
+    std::vector<std::unique_ptr<testdata::DeviceMat>> dev;
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      cv::Mat f = s.frames[i].clone(), noise(f.size(), CV_8UC4);
+      const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 2.0 * frame, 0, 1, 0);
+      cv::warpAffine(s.frames[i], f, shift, f.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+      rng.fill(noise, cv::RNG::UNIFORM, 0, 8);
+      f += noise;
+      rois.emplace_back(views[i].roi.height, views[i].roi.width, CV_8UC4, cv::Scalar::all(0));
+      warper->warp(int(i), as_view(f), as_view(rois.back()));
+      host.push_back(as_view(rois.back()));
+      dev.push_back(std::make_unique<testdata::DeviceMat>(rois.back()));
+      dev_views.push_back(dev.back()->view());
+    }
+    const std::vector<uint8_t>& want = cpu.find(host);
+    const uint8_t* got_dev = gpu.find(dev_views);
+    std::vector<uint8_t> got(want.size());
+    ASSERT_EQ(cudaMemcpy(got.data(), got_dev, got.size(), cudaMemcpyDeviceToHost), cudaSuccess);
+    std::size_t same_labels = 0;
+    for (std::size_t k = 0; k < got.size(); ++k) same_labels += got[k] == want[k];
+    const std::vector<std::vector<int>> paths = gpu.paths();
+    std::size_t rows = 0, same_rows = 0;
+    for (std::size_t p = 0; p < paths.size(); ++p) {
+      ASSERT_EQ(paths[p].size(), cpu.pairs()[p].path.size());
+      for (std::size_t r = 0; r < paths[p].size(); ++r) rows++, same_rows += paths[p][r] == cpu.pairs()[p].path[r];
+    }
+    std::printf("MULTIBAND seams frame %d: CUDA vs CPU: %.4f%% of path points and %.5f%% of labels equal\n", frame,
+                100.0 * same_rows / rows, 100.0 * same_labels / got.size());
+    EXPECT_GE(double(same_rows) / rows, 0.99);
+    EXPECT_GE(double(same_labels) / got.size(), 0.999);
   }
 #endif
 }

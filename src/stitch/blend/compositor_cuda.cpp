@@ -3,6 +3,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "stitch/blend/seam_cuda.hpp"
 #include "stitch/cuda/cuda_util.hpp"
 #include "stitch/cuda/view_geometry.hpp"
 
@@ -22,27 +23,15 @@ struct CudaComposer::State {
   int bands = MultibandBlender::kDefaultBands;
   std::unique_ptr<MultibandBlender> multiband;
   std::vector<DeviceBuffer> warped;
-  // Seam finding (on the host): its settings, the finder, and host copies of the views.
+  // Seam finding: its settings and the finder.
   bool find_seams = false;
   SeamSettings seam_settings;
-  std::unique_ptr<SeamFinder> seam;
-  std::vector<std::vector<uint8_t>> host_views;
+  std::unique_ptr<SeamFinderCuda> seam;
 
   // Blends device views with multiband, cutting the masks along this frame's seams first.
   void multiband_fuse(const std::vector<ImageView>& views, const ImageView& out) {
-    stream.sync();  // uploads and warps done: the blender runs on its own stream
-    if (seam) {
-      std::vector<ImageView> host(views.size());
-      for (std::size_t i = 0; i < views.size(); ++i) {
-        if (views[i].empty()) continue;
-        const std::size_t pitch = std::size_t(views[i].width) * 4;
-        host_views[i].resize(pitch * views[i].height);
-        STITCH_CUDA(cudaMemcpy2D(host_views[i].data(), pitch, views[i].data, views[i].pitch, pitch, views[i].height,
-                                 cudaMemcpyDeviceToHost));
-        host[i] = ImageView{host_views[i].data(), pitch, views[i].width, views[i].height, PixelFormat::RGBA8, false};
-      }
-      multiband->set_labels(seam->find(host).data());
-    }
+    stream.sync();  // uploads and warps done: the seam finder and the blender have their own streams
+    if (seam) multiband->set_labels(seam->find(views), /*on_device=*/true);
     multiband->fuse(views, out);
   }
 
@@ -121,9 +110,8 @@ void CudaComposer::prepare(const std::vector<ViewPlacement>& views, int out_widt
   }
   s_->seam.reset();
   if (s_->multiband && s_->find_seams) {
-    s_->seam = std::make_unique<SeamFinder>(s_->seam_settings);
+    s_->seam = std::make_unique<SeamFinderCuda>(s_->seam_settings);
     s_->seam->prepare(views, out_width, out_height);
-    s_->host_views.resize(views.size());
   }
   s_->views.clear();
   for (const auto& v : views) s_->views.push_back(to_device_geometry(v));

@@ -38,10 +38,11 @@ std::vector<uint8_t> nearest_view_labels(const std::vector<ViewPlacement>& views
 class MultibandBlender : public Blender {
  public:
   static constexpr int kDefaultBands = 5;
-  // Labels (width*height, in host memory) to blend the next fuse() calls with, instead of the
-  // nearest-view labels; nullptr returns to those. Pixels labelled with a missing view are
-  // given to the nearest present one.
-  virtual void set_labels(const uint8_t* labels) = 0;
+  // Labels (width*height) to blend the next fuse() calls with, instead of the nearest-view
+  // labels; nullptr returns to those. Host labels: pixels labelled with a missing view are
+  // given to the nearest present one. Device labels (CUDA blender only; the CUDA seam finder's)
+  // are used as they are and must stay valid until the next set_labels().
+  virtual void set_labels(const uint8_t* labels, bool on_device = false) = 0;
   virtual const MultibandLayout& layout() const = 0;
 
   static std::unique_ptr<MultibandBlender> create(Backend backend, int bands = kDefaultBands);

@@ -70,9 +70,16 @@ inline uint8_t to_u8(float v) { return uint8_t(std::min(std::max(v + 0.5f, 0.f),
 
 using Level = cv::Mat;  // CV_32FC4: rgb, and the mask's weight in the fourth channel
 
-// Separable pyrDown (w x h -> w/2 x h/2) and pyrUp (-> 2w x 2h), pyramid_math's definitions.
-Level down(const Level& src) {
-  Level tmp(src.rows, src.cols / 2, CV_32FC4), dst(src.rows / 2, src.cols / 2, CV_32FC4);
+// The top-left rows x cols of a buffer allocated once (no allocation per frame).
+Level part(const Level& full, int rows, int cols) {
+  CV_Assert(rows <= full.rows && cols <= full.cols);
+  return full(cv::Rect(0, 0, cols, rows));
+}
+
+// Separable pyrDown (w x h -> w/2 x h/2) and pyrUp (-> 2w x 2h) into dst (sized by the caller),
+// pyramid_math's definitions; `scratch` holds the pass between the two.
+void down(const Level& src, const Level& scratch, Level dst) {
+  Level tmp = part(scratch, src.rows, dst.cols);
   cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
       const cv::Vec4f* s = src.ptr<cv::Vec4f>(y);
@@ -96,11 +103,10 @@ Level down(const Level& src) {
       }
     }
   });
-  return dst;
 }
 
-Level up(const Level& src) {
-  Level tmp(src.rows, src.cols * 2, CV_32FC4), dst(src.rows * 2, src.cols * 2, CV_32FC4);
+void up(const Level& src, const Level& scratch, Level dst) {
+  Level tmp = part(scratch, src.rows, dst.cols);
   cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
       const cv::Vec4f* s = src.ptr<cv::Vec4f>(y);
@@ -129,7 +135,6 @@ Level up(const Level& src) {
       }
     }
   });
-  return dst;
 }
 
 class MultibandBlenderCpu final : public MultibandBlender {
@@ -141,9 +146,20 @@ class MultibandBlenderCpu final : public MultibandBlender {
     views_ = views;
     layout_ = plan_multiband(views, out_width, out_height, bands_);
     nearest_.clear();
+    int max_w = 1, max_h = 1;
+    for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
+    acc_.assign(layout_.bands + 1, Level());
+    gauss_.assign(layout_.bands + 1, Level());
+    for (int k = 0; k <= layout_.bands; ++k) {
+      acc_[k].create(layout_.padded_height >> k, layout_.padded_width >> k, CV_32FC4);
+      gauss_[k].create(max_h >> k, max_w >> k, CV_32FC4);
+    }
+    upper_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
+    scratch_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
   }
 
-  void set_labels(const uint8_t* labels) override {
+  void set_labels(const uint8_t* labels, bool on_device) override {
+    if (on_device) throw std::invalid_argument("the CPU multiband blender takes labels in host memory");
     if (labels) custom_.assign(labels, labels + std::size_t(layout_.width) * layout_.height);
     else custom_.clear();
   }
@@ -160,18 +176,18 @@ class MultibandBlenderCpu final : public MultibandBlender {
       if (!warped[i].empty() && !views_[i].roi.empty()) mask |= uint64_t(1) << i;
     const std::vector<uint8_t>& labels = labels_for(mask);
     const int L = layout_.bands;
-
-    std::vector<Level> acc(L + 1);
-    for (int k = 0; k <= L; ++k)
-      acc[k] = Level(layout_.padded_height >> k, layout_.padded_width >> k, CV_32FC4, cv::Scalar::all(0));
+    std::vector<Level>& acc = acc_;
+    for (int k = 0; k <= L; ++k) acc[k].setTo(cv::Scalar::all(0));
+    std::vector<Level> g(L + 1);
     for (std::size_t i = 0; i < warped.size(); ++i) {
       if (!(mask >> i & 1)) continue;
-      std::vector<Level> g(L + 1);
-      g[0] = load_view(int(i), warped[i], labels);
-      for (int k = 1; k <= L; ++k) g[k] = down(g[k - 1]);
       const Rect& pr = layout_.rects[i];
+      for (int k = 0; k <= L; ++k) g[k] = part(gauss_[k], pr.height >> k, pr.width >> k);
+      load_view(int(i), warped[i], labels, g[0]);
+      for (int k = 1; k <= L; ++k) down(g[k - 1], scratch_, g[k]);
       for (int k = 0; k <= L; ++k) {
-        const Level upper = k < L ? up(g[k + 1]) : Level();
+        const Level upper = k < L ? part(upper_, g[k].rows, g[k].cols) : Level();
+        if (k < L) up(g[k + 1], scratch_, upper);
         Level a = acc[k](cv::Rect(pr.x >> k, pr.y >> k, pr.width >> k, pr.height >> k));
         cv::parallel_for_(cv::Range(0, a.rows), [&](const cv::Range& r) {
           for (int y = r.start; y < r.end; ++y) {
@@ -189,12 +205,13 @@ class MultibandBlenderCpu final : public MultibandBlender {
     }
     // Normalise every band by its summed weight, then collapse from the coarsest level.
     for (int k = 0; k <= L; ++k) normalise(acc[k]);
-    Level img = acc[L];
+    // Collapse in place: acc[k] += up(acc[k + 1]) (the fourth channel is meaningless from here on).
     for (int k = L - 1; k >= 0; --k) {
-      Level u = up(img);
-      u += acc[k];  // the fourth channel is meaningless from here on
-      img = u;
+      const Level upper = part(upper_, acc[k].rows, acc[k].cols);
+      up(acc[k + 1], scratch_, upper);
+      acc[k] += upper;
     }
+    const Level& img = acc[0];
     cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& r) {
       for (int y = r.start; y < r.end; ++y) {
         const cv::Vec4f* p = img.ptr<cv::Vec4f>(y);
@@ -223,10 +240,9 @@ class MultibandBlenderCpu final : public MultibandBlender {
 
   // Level 0 of view i over its padded rectangle: its pixels (mirrored outside its roi) and
   // its mask (1 where the labels give it the pixel).
-  Level load_view(int i, const ImageView& v, const std::vector<uint8_t>& labels) const {
+  void load_view(int i, const ImageView& v, const std::vector<uint8_t>& labels, Level g) const {
     const Rect& pr = layout_.rects[i];
     const Rect& roi = views_[i].roi;
-    Level g(pr.height, pr.width, CV_32FC4);
     cv::parallel_for_(cv::Range(0, pr.height), [&](const cv::Range& r) {
       for (int y = r.start; y < r.end; ++y) {
         const int cy = pr.y + y;
@@ -241,7 +257,6 @@ class MultibandBlenderCpu final : public MultibandBlender {
         }
       }
     });
-    return g;
   }
 
   const std::vector<uint8_t>& labels_for(uint64_t mask) {
@@ -262,6 +277,10 @@ class MultibandBlenderCpu final : public MultibandBlender {
   MultibandLayout layout_;
   std::map<uint64_t, std::vector<uint8_t>> nearest_;
   std::vector<uint8_t> custom_, merged_;
+  // Allocated once per geometry: the canvas pyramid, one view's Gaussian pyramid (at the largest
+  // view's size), the upsampled level and the pass between the separable filters.
+  std::vector<Level> acc_, gauss_;
+  Level upper_, scratch_;
 };
 
 }  // namespace

@@ -23,6 +23,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
     layout_ = plan_multiband(views, out_width, out_height, bands_);
     nearest_mask_ = nearest_for_ = ~uint64_t(0);
     custom_.clear();
+    device_labels_ = nullptr;
     const int L = layout_.bands;
     int max_w = 0, max_h = 0;
     for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
@@ -53,8 +54,9 @@ class MultibandBlenderCuda final : public MultibandBlender {
     labels_dev_.resize(std::size_t(out_width) * out_height);
   }
 
-  void set_labels(const uint8_t* labels) override {
-    if (labels) custom_.assign(labels, labels + std::size_t(layout_.width) * layout_.height);
+  void set_labels(const uint8_t* labels, bool on_device) override {
+    device_labels_ = on_device ? labels : nullptr;
+    if (labels && !on_device) custom_.assign(labels, labels + std::size_t(layout_.width) * layout_.height);
     else custom_.clear();
     nearest_mask_ = ~uint64_t(0);  // the device copy must be refreshed
   }
@@ -72,7 +74,11 @@ class MultibandBlenderCuda final : public MultibandBlender {
       if (!warped[i].on_device) throw std::invalid_argument("CUDA blender needs device memory");
       mask |= uint64_t(1) << i;
     }
-    upload_labels(mask);
+    const uint8_t* labels = device_labels_;
+    if (!labels) {
+      upload_labels(mask);
+      labels = labels_dev_.data();
+    }
     const cudaStream_t s = stream_.get();
     const int L = layout_.bands;
     STITCH_CUDA(cudaMemsetAsync(acc_mem_.data(), 0, acc_mem_.size(), s));
@@ -83,7 +89,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
       std::vector<FloatImage> g(L + 1);
       for (int k = 0; k <= L; ++k) g[k] = sized(gauss_[k], pr.width >> k, pr.height >> k);
       stitch_cuda::launch_mb_load_view(to_device_image(warped[i]), roi.x - pr.x, roi.y - pr.y, pr.x, pr.y,
-                                       labels_dev_.data(), layout_.width, layout_.height, int(i), g[0], s);
+                                       labels, layout_.width, layout_.height, int(i), g[0], s);
       for (int k = 1; k <= L; ++k) stitch_cuda::launch_mb_down(g[k - 1], tmp(g[k - 1].height, g[k].width), g[k], s);
       for (int k = 0; k <= L; ++k) {
         FloatImage upper;
@@ -105,7 +111,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
       stitch_cuda::launch_mb_add_normalised(acc_[k], next, true, s);
       img = next;
     }
-    stitch_cuda::launch_mb_store(img, labels_dev_.data(), to_device_image(out), s);
+    stitch_cuda::launch_mb_store(img, labels, to_device_image(out), s);
     stream_.sync();
   }
 
@@ -146,6 +152,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
   uint64_t nearest_mask_ = ~uint64_t(0);  // the present views the device labels are for
   uint64_t nearest_for_ = ~uint64_t(0);   // the present views nearest_ is for
   std::vector<uint8_t> custom_, nearest_;
+  const uint8_t* device_labels_ = nullptr;  // given by set_labels(..., true)
   CudaStream stream_;
 };
 

@@ -7,12 +7,9 @@
 
 #include "stitch/blend/blender_cpu.hpp"
 #include "stitch/blend/multiband.hpp"
+#include "stitch/blend/seam_math.hpp"
 
 namespace stitch {
-
-namespace {
-constexpr float kOutside = 1e5f;  // a seam point outside the overlap: allowed, but never cheap
-}
 
 void SeamFinder::prepare(const std::vector<ViewPlacement>& views, int width, int height) {
   if (views.size() >= kNoView) throw std::invalid_argument("too many views");
@@ -77,7 +74,7 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
     for (int y = 0; y < r.height; ++y) {
       const uint8_t* p = warped[i].row(y);
       uint8_t* l = luma_[i].data() + std::size_t(y) * r.width;
-      for (int x = 0; x < r.width; ++x) l[x] = uint8_t((p[4 * x] + 2 * p[4 * x + 1] + p[4 * x + 2] + 2) >> 2);
+      for (int x = 0; x < r.width; ++x) l[x] = seam::luma(p + 4 * x);
     }
     if (previous_luma_[i].size() != luma_[i].size()) previous_luma_[i] = luma_[i];
   }
@@ -106,43 +103,29 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
     y = std::min(std::max(y, r.y), r.y + r.height - 1);
     return int(l[std::size_t(y - r.y) * r.width + (x - r.x)]);
   };
-  // Color difference, not luma: a magenta object on grey of the same luma must still show.
-  auto difference = [&](int x, int y) {
-    const uint8_t* a = warped[p.a].row(y - ra.y) + 4 * (x - ra.x);
-    const uint8_t* b = warped[p.b].row(y - rb.y) + 4 * (x - rb.x);
-    return (std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2])) / 3.f;
-  };
+  const seam::Weights w = weights();
   auto cost = [&](int row, int col) {
     const int bx = p.vertical ? col : row, by = p.vertical ? row : col;
     const float centre = p.centre_cost[std::size_t(by) * p.box.width + bx];
-    if (centre < 0) return kOutside;
+    if (centre < 0) return seam::kOutside;
     const int x = p.box.x + bx, y = p.box.y + by;
     const int a = luma(la, ra, x, y), b = luma(lb, rb, x, y);
-    const int ga = std::abs(luma(la, ra, x + 1, y) - luma(la, ra, x - 1, y)) +
-                   std::abs(luma(la, ra, x, y + 1) - luma(la, ra, x, y - 1));
-    const int gb = std::abs(luma(lb, rb, x + 1, y) - luma(lb, rb, x - 1, y)) +
-                   std::abs(luma(lb, rb, x, y + 1) - luma(lb, rb, x, y - 1));
+    const int gradients = std::abs(luma(la, ra, x + 1, y) - luma(la, ra, x - 1, y)) +
+                          std::abs(luma(la, ra, x, y + 1) - luma(la, ra, x, y - 1)) +
+                          std::abs(luma(lb, rb, x + 1, y) - luma(lb, rb, x - 1, y)) +
+                          std::abs(luma(lb, rb, x, y + 1) - luma(lb, rb, x, y - 1));
     const int motion = std::abs(a - luma(pa, ra, x, y)) + std::abs(b - luma(pb, rb, x, y));
-    return settings_.difference_weight * difference(x, y) + settings_.edge_weight * 0.25f * (ga + gb) +
-           settings_.motion_weight * motion + centre;
+    const float difference = seam::color_difference(warped[p.a].row(y - ra.y) + 4 * (x - ra.x),
+                                                    warped[p.b].row(y - rb.y) + 4 * (x - rb.x));
+    return seam::pixel_cost(w, difference, gradients, motion, centre);
   };
   const bool has_previous = int(p.previous_path.size()) == rows;
   std::vector<float> energy(cols), next(cols);
   std::vector<int8_t> step(std::size_t(rows) * cols);
   for (int r = 0; r < rows; ++r) {
-    for (int c = 0; c < cols; ++c) {
-      float best = 0;
-      int8_t s = 0;
-      if (r > 0) {
-        best = energy[c];
-        if (c > 0 && energy[c - 1] < best) best = energy[c - 1], s = -1;
-        if (c + 1 < cols && energy[c + 1] < best) best = energy[c + 1], s = 1;
-      }
-      step[std::size_t(r) * cols + c] = s;
-      float e = best + cost(r, c);
-      if (has_previous) e += settings_.stability * std::abs(c - p.previous_path[r]);
-      next[c] = e;
-    }
+    for (int c = 0; c < cols; ++c)
+      step[std::size_t(r) * cols + c] = int8_t(seam::dp_cell(energy.data(), c, cols, r == 0, cost(r, c), w.stability,
+                                                             has_previous ? p.previous_path[r] : -1, next[c]));
     std::swap(energy, next);
   }
   std::vector<int> path(rows);

@@ -9,6 +9,7 @@
 #include <memory>
 #include <vector>
 
+#include "stitch/blend/seam_math.hpp"
 #include "stitch/image.hpp"
 #include "stitch/warp/geometry.hpp"
 
@@ -42,9 +43,13 @@ class SeamFinder {
     std::vector<int> path, previous_path;
   };
   const std::vector<Pair>& pairs() const { return pairs_; }
+  const SeamSettings& settings() const { return settings_; }
 
  private:
   void cut(Pair& p, const std::vector<ImageView>& warped);
+  seam::Weights weights() const {
+    return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability};
+  }
 
   SeamSettings settings_;
   std::vector<ViewPlacement> views_;
