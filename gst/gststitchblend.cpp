@@ -55,7 +55,7 @@
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_blend_debug);
 #define GST_CAT_DEFAULT gst_stitch_blend_debug
 
-enum { PROP_0, PROP_OUTPUT_WIDTH, PROP_OUTPUT_HEIGHT, PROP_CROP, PROP_BACKEND };
+enum { PROP_0, PROP_OUTPUT_WIDTH, PROP_OUTPUT_HEIGHT, PROP_CROP, PROP_BACKEND, PROP_MODE, PROP_BANDS, PROP_SEAM };
 
 #define DEFAULT_CROP stitch::CropMode::None
 
@@ -95,6 +95,33 @@ static GType crop_get_type(void) {
       {0, NULL, NULL}};
   if (g_once_init_enter(&type)) {
     GType t = g_enum_register_static("GstStitchBlendCrop", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GType mode_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::BlendMode::Weighted), "Position-weighted mean (the paper's eq. 15-16)", "weighted"},
+      {int(stitch::BlendMode::Multiband), "Multiband: Laplacian pyramids blended band by band", "multiband"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchBlendMode", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GType seam_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::SeamMode::None), "Middle of every overlap (where the views' position weights meet)", "none"},
+      {int(stitch::SeamMode::DynamicProgramming),
+       "Least visible path by dynamic programming, kept near the last frame's", "dp"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchBlendSeam", values);
     g_once_init_leave(&type, t);
   }
   return type;
@@ -343,8 +370,15 @@ static void gst_stitch_blend_set_property(GObject* object, guint prop_id, const 
     case PROP_OUTPUT_HEIGHT: s.output_height = g_value_get_int(value); break;
     case PROP_CROP: s.crop = stitch::CropMode(g_value_get_enum(value)); break;
     case PROP_BACKEND: s.backend = stitch::Backend(g_value_get_enum(value)); break;
+    case PROP_MODE: s.blend = stitch::BlendMode(g_value_get_enum(value)); break;
+    case PROP_BANDS: s.bands = g_value_get_int(value); break;
+    case PROP_SEAM: s.seam = stitch::SeamMode(g_value_get_enum(value)); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
+  if ((prop_id == PROP_SEAM || prop_id == PROP_MODE) && s.seam != stitch::SeamMode::None &&
+      s.blend != stitch::BlendMode::Multiband)
+    GST_WARNING_OBJECT(self, "seam=%s has no effect with mode=weighted: set mode=multiband",
+                       s.seam == stitch::SeamMode::DynamicProgramming ? "dp" : "?");
   self->state->settings_changed = true;
   GST_OBJECT_UNLOCK(self);
 }
@@ -359,6 +393,9 @@ static void gst_stitch_blend_get_property(GObject* object, guint prop_id, GValue
     case PROP_OUTPUT_HEIGHT: g_value_set_int(value, s.output_height); break;
     case PROP_CROP: g_value_set_enum(value, int(s.crop)); break;
     case PROP_BACKEND: g_value_set_enum(value, int(s.backend)); break;
+    case PROP_MODE: g_value_set_enum(value, int(s.blend)); break;
+    case PROP_BANDS: g_value_set_int(value, s.bands); break;
+    case PROP_SEAM: g_value_set_enum(value, int(s.seam)); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
   GST_OBJECT_UNLOCK(self);
@@ -395,6 +432,23 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   g_object_class_install_property(gobject_class, PROP_BACKEND,
       g_param_spec_enum("backend", "Backend", "Implementation of warp and blend",
                         GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+  g_object_class_install_property(gobject_class, PROP_MODE,
+      g_param_spec_enum("mode", "Mode",
+                        "How overlapping views are fused: the position-weighted mean, or multiband (Laplacian "
+                        "pyramid) blending, which mixes coarse structure over a wide band and detail over a "
+                        "narrow one",
+                        mode_get_type(), int(stitch::BlendMode::Weighted), rw));
+  g_object_class_install_property(gobject_class, PROP_BANDS,
+      g_param_spec_int("bands", "Bands",
+                       "Pyramid levels of mode=multiband (fewer on small outputs: the coarsest level keeps "
+                       "2 pixels); the widest band spreads over about 2^bands pixels",
+                       1, 10, stitch::MultibandBlender::kDefaultBands, rw));
+  g_object_class_install_property(gobject_class, PROP_SEAM,
+      g_param_spec_enum("seam", "Seam",
+                        "Where mode=multiband cuts each overlap between two views: its middle, or the path "
+                        "that crosses the least color difference, edges and motion, kept near the last "
+                        "frame's path so that it does not jump",
+                        seam_get_type(), int(stitch::SeamMode::None), rw));
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);
@@ -415,6 +469,8 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   trans_class->passthrough_on_same_caps = FALSE;
 
   gst_type_mark_as_plugin_api(crop_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(mode_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(seam_get_type(), GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_blend_debug, "stitchblend", 0, "stitch blend");
 }
 

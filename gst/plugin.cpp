@@ -1,5 +1,6 @@
 #include <gst/gst.h>
 
+#include "gststitchbin.h"
 #include "gststitchblend.h"
 #include "gststitchcalib.h"
 #include "gststitchcolor.h"
@@ -13,6 +14,7 @@ static gboolean plugin_init(GstPlugin* plugin) {
   ok |= GST_ELEMENT_REGISTER(stitchcolor, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchflowwarp, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchblend, plugin);
+  ok |= GST_ELEMENT_REGISTER(stitchbin, plugin);  // after its children
   return ok;
 }
 

@@ -7,14 +7,14 @@
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
 #        OUT=... scripts/gpu_check.sh [quick]     (on the GPU host; quick: tests only)
 set -uo pipefail
-GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection"
+GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection test_cuda_blend"
 if [ "${1:-}" = pack ]; then
   BUILD=${2:-build}
   rm -rf .gpubundle && mkdir -p .gpubundle
   cp "$BUILD/tests/boat1_1600.ppm" .gpubundle/
   bins=""
   for t in $GPU_TESTS; do [ -x "$BUILD/tests/$t" ] && bins="$bins $BUILD/tests/$t"; done
-  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection; do
+  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection stitch-bench-blend; do
     [ -x "$BUILD/bench/$b" ] && bins="$bins $BUILD/bench/$b"
   done
   GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile" \
@@ -34,10 +34,12 @@ for t in $GPU_TESTS; do
   echo "== $t"
   timeout 300 "$B/$t" > "$OUT/$t.log" 2>&1
   echo "rc=$?"
-  grep -E "PSNR|FLOW|COLOR|CONVERT|FLOWWARP|GPUFAULT|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
+  grep -E "PSNR|FLOW|COLOR|MULTIBAND|CONVERT|FLOWWARP|GPUFAULT|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
 done 2>&1 | tee "$OUT/tests.txt"
 if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
 echo "== kernels"; timeout 300 $B/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
+echo "== blend modes"; timeout 300 $B/stitch-bench-blend --photo "$STITCH_TEST_PPM" --frames 100 --cpu-frames 5 \
+  --json "$OUT/blend.json" 2>&1 | tee "$OUT/bench_blend.txt"
 echo "== core chain"; timeout 300 $B/stitch-bench-chain --photo "$STITCH_TEST_PPM" --frames 300 --cpu-frames 5 \
   --json "$OUT/chain.json" 2>&1 | tee "$OUT/bench_chain.txt"
 echo "== GStreamer pipelines" | tee "$OUT/bench_pipeline.txt"
@@ -48,7 +50,8 @@ done
 echo "== decoded by nvh264dec (2 x 720x404 H.264)"
 L=data/limlight_2cam_apartment
 for chain in "stitchblend backend=cpu" "stitchblend" "stitchcolor ! stitchflowwarp ! stitchblend backend=cpu" \
-             "stitchcolor ! stitchflowwarp ! stitchblend"; do
+             "stitchcolor ! stitchflowwarp ! stitchblend" "stitchcolor ! stitchflowwarp ! stitchblend mode=multiband" \
+             "stitchcolor ! stitchflowwarp ! stitchblend mode=multiband seam=dp"; do
   t0=$EPOCHREALTIME
   gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \

@@ -2,6 +2,7 @@
 #pragma once
 #include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "stitch/rig/rig.hpp"
 
@@ -43,6 +44,37 @@ inline cv::Mat with_parallax(const cv::Mat& img, double amplitude) {
   cv::Mat out;
   cv::remap(img, out, mx, my, cv::INTER_CUBIC, cv::BORDER_REFLECT);
   return out;
+}
+
+}  // namespace testdata
+
+namespace testdata {
+
+// Three 480x360 cameras of `photo` on a rotating rig (yaw -30/0/30 deg, a little roll; rough
+// homographies), camera i's exposure scaled by gains[i].
+struct RotatingRig {
+  stitch::Rig rig;
+  std::vector<cv::Mat> frames;  // RGBA
+};
+
+inline RotatingRig rotating_rig(const cv::Mat& photo_rgba, const double gains[3]) {
+  RotatingRig s;
+  const int w = 480, h = 360;
+  s.rig.reference = 1;
+  for (int i = 0; i < 3; ++i) {
+    stitch::Camera c = pinhole(w, h, 420.0);
+    c.yaw_deg = (i - 1) * 30.0;
+    c.roll_deg = (i - 1) * 2.0;
+    s.rig.cameras.push_back(c);
+    cv::Mat f;
+    cv::resize(photo_rgba(cv::Rect(i * 450, 100, 700, 525)), f, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+    f.convertTo(f, -1, gains[i]);
+    cv::Mat alpha(f.size(), CV_8U, cv::Scalar(255));
+    cv::insertChannel(alpha, f, 3);  // gains touch colour, not alpha
+    s.frames.push_back(f);
+  }
+  stitch::rig_compute_rough_homographies(s.rig);
+  return s;
 }
 
 }  // namespace testdata

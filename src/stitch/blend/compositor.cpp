@@ -13,7 +13,6 @@ Compositor::Compositor(Backend backend) : backend_(resolve_backend(backend, /*st
   }
 #endif
   warper_ = Warper::create(Backend::Cpu);
-  blender_ = Blender::create(Backend::Cpu);
 }
 
 void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, CompositorInput input) {
@@ -25,6 +24,14 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
       throw RigError("camera " + std::to_string(i) + ": degenerate homography: " + problem);
   }
   geometry_ = plan_output(rig, settings.output_width, settings.output_height, settings.crop);
+  const bool find_seams = settings.blend == BlendMode::Multiband && settings.seam != SeamMode::None;
+  seam_.reset();
+  if (cuda_) {
+    cuda_->set_blend_mode(settings.blend, settings.bands, find_seams ? &settings.seam_settings : nullptr);
+  } else {
+    blender_ = make_blender(Backend::Cpu, settings.blend, settings.bands);
+    if (find_seams) seam_ = std::make_unique<SeamFinder>(settings.seam_settings);
+  }
   views_ = place_views(rig, geometry_);
   input_ = input;
   scratch_.assign(views_.size(), {});
@@ -49,6 +56,12 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   }
   if (cuda_) cuda_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
   else blender_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
+  if (seam_) seam_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
+}
+
+void Compositor::fuse_cpu(const std::vector<ImageView>& views, const ImageView& out) {
+  if (seam_) static_cast<MultibandBlender&>(*blender_).set_labels(seam_->find(views).data());
+  blender_->fuse(views, out);
 }
 
 void Compositor::compose_prewarped(const std::vector<ImageView>& views, const ImageView& out) {
@@ -62,7 +75,7 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
   }
   if (!resample_) {
     if (cuda_) cuda_->fuse(views, out);
-    else blender_->fuse(views, out);
+    else fuse_cpu(views, out);
     return;
   }
   if (cuda_) {
@@ -76,7 +89,7 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
   canvas.width = blend_geometry_.width;
   canvas.height = blend_geometry_.height;
   canvas.pitch = static_cast<std::size_t>(canvas.width) * 4;
-  blender_->fuse(views, canvas);
+  fuse_cpu(views, canvas);
   const cv::Mat src(canvas.height, canvas.width, CV_8UC4, canvas.data, canvas.pitch);
   cv::Mat dst(out.height, out.width, CV_8UC4, out.data, out.pitch);
   const Eigen::Matrix3d& A = geometry_.canvas_to_output;
@@ -130,7 +143,7 @@ void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& 
     warped[i] = dst;
   }
   if (cuda_) cuda_->compose(frames, out);
-  else blender_->fuse(warped, out);
+  else fuse_cpu(warped, out);
 }
 
 }  // namespace stitch

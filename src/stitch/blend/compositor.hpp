@@ -7,6 +7,8 @@
 
 #include "stitch/blend/blender.hpp"
 #include "stitch/blend/compositor_cuda.hpp"
+#include "stitch/blend/multiband.hpp"
+#include "stitch/blend/seam.hpp"
 #include "stitch/rig/rig.hpp"
 #include "stitch/warp/geometry.hpp"
 #include "stitch/warp/warper.hpp"
@@ -22,6 +24,10 @@ struct CompositorSettings {
   int output_height = 0;
   CropMode crop = CropMode::None;
   Backend backend = Backend::Auto;
+  BlendMode blend = BlendMode::Weighted;
+  int bands = MultibandBlender::kDefaultBands;  // multiband only
+  SeamMode seam = SeamMode::None;                // multiband only: where each view's mask ends
+  SeamSettings seam_settings;
 };
 
 class Compositor {
@@ -46,10 +52,12 @@ class Compositor {
 
  private:
   void compose_prewarped(const std::vector<ImageView>& views, const ImageView& out);
+  void fuse_cpu(const std::vector<ImageView>& views, const ImageView& out);  // seams, then the blender
 
   Backend backend_ = Backend::Cpu;
   std::unique_ptr<Warper> warper_;    // CPU path
-  std::unique_ptr<Blender> blender_;  // CPU path
+  std::unique_ptr<Blender> blender_;  // CPU path: the weighted mean or multiband
+  std::unique_ptr<SeamFinder> seam_;  // CPU path, multiband with seam finding
   // CUDA path; the deleter is set where it is created, so CPU-only builds need no CUDA code.
   std::unique_ptr<CudaComposer, void (*)(CudaComposer*)> cuda_{nullptr, nullptr};
   OutputGeometry geometry_;

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "stitch/blend/seam_cuda.hpp"
 #include "stitch/cuda/cuda_util.hpp"
 #include "stitch/cuda/view_geometry.hpp"
 
@@ -17,6 +18,22 @@ struct CudaComposer::State {
   // Texture objects over the input frames, kept while a frame's buffer stays the same.
   std::vector<unsigned long long> textures;
   std::vector<stitch_cuda::DeviceImage> textured;
+  // Multiband: the blender, and the camera frames warped into their rectangles.
+  BlendMode mode = BlendMode::Weighted;
+  int bands = MultibandBlender::kDefaultBands;
+  std::unique_ptr<MultibandBlender> multiband;
+  std::vector<DeviceBuffer> warped;
+  // Seam finding: its settings and the finder.
+  bool find_seams = false;
+  SeamSettings seam_settings;
+  std::unique_ptr<SeamFinderCuda> seam;
+
+  // Blends device views with multiband, cutting the masks along this frame's seams first.
+  void multiband_fuse(const std::vector<ImageView>& views, const ImageView& out) {
+    stream.sync();  // uploads and warps done: the seam finder and the blender have their own streams
+    if (seam) multiband->set_labels(seam->find(views), /*on_device=*/true);
+    multiband->fuse(views, out);
+  }
 
   ~State() {
     for (auto t : textures) stitch_cuda::destroy_texture(t);
@@ -55,6 +72,16 @@ struct CudaComposer::State {
     d.height = out_h;
     return d;
   }
+  static ImageView device_view(const stitch_cuda::DeviceImage& d) {
+    return ImageView{d.data, d.pitch, d.width, d.height, PixelFormat::RGBA8, true};
+  }
+  // The blender's views: the present ones, already in device memory (empty: missing).
+  static std::vector<ImageView> device_views(const std::vector<stitch_cuda::DeviceImage>& images) {
+    std::vector<ImageView> d(images.size());
+    for (std::size_t i = 0; i < images.size(); ++i)
+      if (images[i].data) d[i] = device_view(images[i]);
+    return d;
+  }
   void finish(const ImageView& out, const stitch_cuda::DeviceImage& d) {
     if (!out.on_device)
       STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, d.data, d.pitch, std::size_t(out_w) * 4, out_h,
@@ -66,8 +93,26 @@ struct CudaComposer::State {
 CudaComposer::CudaComposer() : s_(std::make_unique<State>()) {}
 CudaComposer::~CudaComposer() = default;
 
+void CudaComposer::set_blend_mode(BlendMode mode, int bands, const SeamSettings* seams) {
+  s_->mode = mode;
+  s_->bands = bands;
+  s_->find_seams = seams != nullptr;
+  if (seams) s_->seam_settings = *seams;
+}
+
 void CudaComposer::prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) {
   if (views.size() > std::size_t(stitch_cuda::kMaxViews)) throw std::invalid_argument("at most 16 views on the GPU");
+  s_->multiband.reset();
+  if (s_->mode == BlendMode::Multiband) {
+    s_->multiband = MultibandBlender::create(Backend::Cuda, s_->bands);
+    s_->multiband->prepare(views, out_width, out_height);
+    s_->warped.resize(views.size());
+  }
+  s_->seam.reset();
+  if (s_->multiband && s_->find_seams) {
+    s_->seam = std::make_unique<SeamFinderCuda>(s_->seam_settings);
+    s_->seam->prepare(views, out_width, out_height);
+  }
   s_->views.clear();
   for (const auto& v : views) s_->views.push_back(to_device_geometry(v));
   s_->inputs.resize(views.size());
@@ -81,6 +126,25 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
   for (std::size_t i = 0; i < frames.size(); ++i)
     if (!frames[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(frames[i], i);
   const stitch_cuda::DeviceImage d = s_->target(out);
+  if (s_->multiband) {
+    if (color) throw std::invalid_argument("multiband compose takes no color matrices");
+    std::vector<ImageView> warped(frames.size());
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      const stitch_cuda::ViewGeometry& g = s_->views[i];
+      if (!images[i].data) continue;
+      stitch_cuda::DeviceImage w;
+      w.width = g.roi_w;
+      w.height = g.roi_h;
+      w.pitch = std::size_t(g.roi_w) * 4;
+      s_->warped[i].resize(w.pitch * w.height);
+      w.data = s_->warped[i].data();
+      stitch_cuda::launch_warp(images[i], g, w, s_->stream.get());
+      warped[i] = s_->device_view(w);
+    }
+    s_->multiband_fuse(warped, s_->device_view(d));
+    s_->finish(out, d);
+    return;
+  }
   std::vector<unsigned long long> tex;
   if (s_->texture_all(images, tex))
     stitch_cuda::launch_compose_tex(int(images.size()), s_->views.data(), tex.data(), color, d, s_->stream.get());
@@ -101,7 +165,11 @@ void CudaComposer::fuse_resampled(const std::vector<ImageView>& views, const Ima
   canvas.pitch = std::size_t(canvas.width) * 4;
   s_->canvas.resize(canvas.pitch * canvas.height);
   canvas.data = s_->canvas.data();
-  stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), canvas, s_->stream.get());
+  if (s_->multiband) {
+    s_->multiband_fuse(s_->device_views(images), s_->device_view(canvas));
+  } else {
+    stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), canvas, s_->stream.get());
+  }
   // Invert the (scale + translation) affine: dst pixel -> canvas pixel.
   const double a = canvas_to_output[0], b = canvas_to_output[1], c = canvas_to_output[2];
   const double d = canvas_to_output[3], e = canvas_to_output[4], f = canvas_to_output[5];
@@ -132,7 +200,11 @@ void CudaComposer::fuse(const std::vector<ImageView>& views, const ImageView& ou
   for (std::size_t i = 0; i < views.size(); ++i)
     if (!views[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(views[i], i);
   const stitch_cuda::DeviceImage d = s_->target(out);
-  stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), d, s_->stream.get());
+  if (s_->multiband) {
+    s_->multiband_fuse(s_->device_views(images), s_->device_view(d));
+  } else {
+    stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), d, s_->stream.get());
+  }
   s_->finish(out, d);
 }
 

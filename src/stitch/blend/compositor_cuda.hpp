@@ -5,6 +5,8 @@
 #include <memory>
 #include <vector>
 
+#include "stitch/blend/multiband.hpp"
+#include "stitch/blend/seam.hpp"
 #include "stitch/image.hpp"
 #include "stitch/warp/geometry.hpp"
 
@@ -14,6 +16,10 @@ class CudaComposer {
  public:
   CudaComposer();
   ~CudaComposer();
+  // Weighted: the fused kernels; Multiband: views warped into device rectangles, then the
+  // CUDA multiband blender, its masks cut by a seam finder when `seams` is given. Takes effect
+  // at the next prepare().
+  void set_blend_mode(BlendMode mode, int bands, const SeamSettings* seams = nullptr);
   void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height);
   // frames: camera frames; color: 9 floats per view (row-major, out_c = sum_k in_k M[k][c]) or null.
   void compose(const std::vector<ImageView>& frames, const ImageView& out, const float* color = nullptr);

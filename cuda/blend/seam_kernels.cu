@@ -1,0 +1,117 @@
+#include "../launch_check.hpp"
+#include "seam_kernels.hpp"
+
+namespace stitch_cuda {
+
+namespace sm = stitch::seam;
+
+namespace {
+
+__device__ __forceinline__ int luma_at(const uint8_t* l, const int* roi, int x, int y) {
+  x = min(max(x, roi[0]), roi[0] + roi[2] - 1);
+  y = min(max(y, roi[1]), roi[1] + roi[3] - 1);
+  return l[size_t(y - roi[1]) * roi[2] + (x - roi[0])];
+}
+
+__global__ void luma_kernel(DeviceImage view, uint8_t* luma) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= view.width || y >= view.height) return;
+  luma[size_t(y) * view.width + x] = sm::luma(view.data + size_t(y) * view.pitch + size_t(x) * 4);
+}
+
+__global__ void cost_kernel(SeamPairGeometry p, DeviceImage va, DeviceImage vb, const uint8_t* la, const uint8_t* lb,
+                            const uint8_t* pa, const uint8_t* pb, const float* centre_map, sm::Weights w, float* cost) {
+  const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
+  if (bx >= p.box_w || by >= p.box_h) return;
+  const int row = p.vertical ? by : bx, col = p.vertical ? bx : by, cols = p.vertical ? p.box_w : p.box_h;
+  float& out = cost[size_t(row) * cols + col];
+  const float centre = centre_map[size_t(by) * p.box_w + bx];
+  if (centre < 0.f) {
+    out = sm::kOutside;
+    return;
+  }
+  const int x = p.box_x + bx, y = p.box_y + by;
+  const int a = luma_at(la, p.roi_a, x, y), b = luma_at(lb, p.roi_b, x, y);
+  const int gradients = abs(luma_at(la, p.roi_a, x + 1, y) - luma_at(la, p.roi_a, x - 1, y)) +
+                        abs(luma_at(la, p.roi_a, x, y + 1) - luma_at(la, p.roi_a, x, y - 1)) +
+                        abs(luma_at(lb, p.roi_b, x + 1, y) - luma_at(lb, p.roi_b, x - 1, y)) +
+                        abs(luma_at(lb, p.roi_b, x, y + 1) - luma_at(lb, p.roi_b, x, y - 1));
+  const int motion = abs(a - luma_at(pa, p.roi_a, x, y)) + abs(b - luma_at(pb, p.roi_b, x, y));
+  const float difference =
+      sm::color_difference(va.data + size_t(y - p.roi_a[1]) * va.pitch + size_t(x - p.roi_a[0]) * 4,
+                           vb.data + size_t(y - p.roi_b[1]) * vb.pitch + size_t(x - p.roi_b[0]) * 4);
+  out = sm::pixel_cost(w, difference, gradients, motion, centre);
+}
+
+// One block: the rows one after the other (each depends on the one before), the columns of a row
+// across the threads; two rows of energy in shared memory. Then one thread walks back.
+__global__ void dp_kernel(const float* cost, int rows, int cols, const int* previous, float stability, int8_t* steps,
+                          int* path) {
+  extern __shared__ float energy[];  // 2 x cols
+  float* above = energy;
+  float* here = energy + cols;
+  for (int r = 0; r < rows; ++r) {
+    const int prev = previous ? previous[r] : -1;
+    for (int c = threadIdx.x; c < cols; c += blockDim.x)
+      steps[size_t(r) * cols + c] =
+          int8_t(sm::dp_cell(above, c, cols, r == 0, cost[size_t(r) * cols + c], stability, prev, here[c]));
+    __syncthreads();
+    float* t = above;
+    above = here;
+    here = t;
+  }
+  if (threadIdx.x != 0) return;
+  int c = 0;  // the first minimum, as std::min_element
+  for (int k = 1; k < cols; ++k)
+    if (above[k] < above[c]) c = k;
+  for (int r = rows - 1; r >= 0; --r) {
+    path[r] = c;
+    c += steps[size_t(r) * cols + c];
+  }
+}
+
+__global__ void labels_kernel(uint8_t* labels, int label_width, SeamPairGeometry p, const float* centre, const int* path) {
+  const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
+  if (bx >= p.box_w || by >= p.box_h || centre[size_t(by) * p.box_w + bx] < 0.f) return;
+  const int row = p.vertical ? by : bx, col = p.vertical ? bx : by;
+  uint8_t& l = labels[size_t(p.box_y + by) * label_width + p.box_x + bx];
+  if (l == p.a || l == p.b) l = uint8_t(col < path[row] ? p.a : p.b);
+}
+
+const dim3 kBlock(32, 8);
+dim3 grid_for(int w, int h) { return dim3((w + kBlock.x - 1) / kBlock.x, (h + kBlock.y - 1) / kBlock.y); }
+
+}  // namespace
+
+void launch_seam_luma(const DeviceImage& view, uint8_t* luma, cudaStream_t stream) {
+  luma_kernel<<<grid_for(view.width, view.height), kBlock, 0, stream>>>(view, luma);
+  check_launch("seam luma_kernel");
+}
+
+void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, const DeviceImage& view_b,
+                      const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
+                      const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
+                      float* cost, cudaStream_t stream) {
+  cost_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, view_a, view_b, luma_a, luma_b, previous_a,
+                                                                      previous_b, centre, weights, cost);
+  check_launch("seam cost_kernel");
+}
+
+void launch_seam_dp(const float* cost, int rows, int cols, const int* previous, float stability, int8_t* steps,
+                    int* path, cudaStream_t stream) {
+  const size_t shared = size_t(2) * cols * sizeof(float);
+  if (shared > 48 * 1024) {
+    const cudaError_t e = cudaFuncSetAttribute(dp_kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(shared));
+    if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp_kernel: overlap too wide: ") + cudaGetErrorString(e));
+  }
+  dp_kernel<<<1, 1024, shared, stream>>>(cost, rows, cols, previous, stability, steps, path);
+  check_launch("seam dp_kernel");
+}
+
+void launch_seam_labels(uint8_t* labels, int label_width, const SeamPairGeometry& pair, const float* centre,
+                        const int* path, cudaStream_t stream) {
+  labels_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(labels, label_width, pair, centre, path);
+  check_launch("seam labels_kernel");
+}
+
+}  // namespace stitch_cuda

@@ -1,0 +1,35 @@
+// Launchers of the seam finder's kernels (definitions in seam_kernels.cu); the per-pixel
+// arithmetic is stitch/blend/seam_math.hpp, shared with the CPU seam finder.
+#pragma once
+#include <cuda_runtime_api.h>
+#include <stdint.h>
+
+#include "blend_kernels.hpp"
+#include "stitch/blend/seam_math.hpp"
+
+namespace stitch_cuda {
+
+struct SeamPairGeometry {
+  int a, b;      // views; a lies before the seam
+  int vertical;  // 1: one path point per row of the box
+  int box_x, box_y, box_w, box_h;
+  int roi_a[4], roi_b[4];  // the views' rectangles (x, y, width, height)
+};
+
+// luma (width x height, packed) = (r + 2g + b + 2) / 4 of an RGBA view.
+void launch_seam_luma(const DeviceImage& view, uint8_t* luma, cudaStream_t stream);
+// cost (rows x cols in the seam's frame) of every box pixel; centre (box-sized) < 0 outside
+// the overlap. previous lumas may equal the current ones (no motion).
+void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, const DeviceImage& view_b,
+                      const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
+                      const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
+                      float* cost, cudaStream_t stream);
+// The least-energy path through cost (one block sweeps the rows); previous == nullptr: no pull.
+// steps: rows x cols scratch; path: rows.
+void launch_seam_dp(const float* cost, int rows, int cols, const int* previous, float stability, int8_t* steps,
+                    int* path, cudaStream_t stream);
+// Overlap pixels labelled a or b: a before the path, b from it on.
+void launch_seam_labels(uint8_t* labels, int label_width, const SeamPairGeometry& pair, const float* centre,
+                        const int* path, cudaStream_t stream);
+
+}  // namespace stitch_cuda

@@ -1,0 +1,304 @@
+#include <algorithm>
+#include <map>
+#include <opencv2/core.hpp>
+#include <stdexcept>
+
+#include "stitch/blend/blender_cpu.hpp"
+#include "stitch/blend/multiband.hpp"
+#include "stitch/blend/pyramid_math.hpp"
+
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/cuda/stages_cuda.hpp"
+#endif
+
+namespace stitch {
+
+MultibandLayout plan_multiband(const std::vector<ViewPlacement>& views, int width, int height, int bands) {
+  if (width <= 0 || height <= 0) throw std::invalid_argument("multiband: empty output");
+  if (bands < 0) throw std::invalid_argument("multiband: negative band count");
+  MultibandLayout l;
+  l.bands = bands;
+  while (l.bands > 0 && (std::min(width, height) >> l.bands) < 2) --l.bands;
+  const int unit = 1 << l.bands;
+  l.width = width;
+  l.height = height;
+  l.padded_width = (width + unit - 1) / unit * unit;
+  l.padded_height = (height + unit - 1) / unit * unit;
+  // Widened like OpenCV's MultiBandBlender (3 · 2^bands), so that a view's coarse mask can
+  // spread past its rectangle.
+  const int gap = 3 * unit;
+  for (const ViewPlacement& v : views) {
+    Rect r;
+    if (!v.roi.empty()) {
+      const int x0 = std::max(0, (v.roi.x - gap) / unit * unit);
+      const int y0 = std::max(0, (v.roi.y - gap) / unit * unit);
+      const int x1 = std::min(l.padded_width, (v.roi.x + v.roi.width + gap + unit - 1) / unit * unit);
+      const int y1 = std::min(l.padded_height, (v.roi.y + v.roi.height + gap + unit - 1) / unit * unit);
+      r = {x0, y0, x1 - x0, y1 - y0};
+    }
+    l.rects.push_back(r);
+  }
+  return l;
+}
+
+std::vector<uint8_t> nearest_view_labels(const std::vector<ViewPlacement>& views, int width, int height,
+                                         uint64_t present_mask) {
+  if (views.size() > 64 || views.size() >= kNoView) throw std::invalid_argument("too many views");
+  std::vector<uint8_t> labels(std::size_t(width) * height, kNoView);
+  std::vector<float> best(labels.size(), 0.f);
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    if (!(present_mask >> i & 1) || views[i].roi.empty()) continue;
+    const Rect& r = views[i].roi;
+    const cv::Mat w = position_weight_map(views[i]);
+    for (int y = 0; y < r.height; ++y) {
+      const float* pw = w.ptr<float>(y);
+      const std::size_t row = std::size_t(r.y + y) * width + r.x;
+      for (int x = 0; x < r.width; ++x)
+        if (pw[x] > best[row + x]) {
+          best[row + x] = pw[x];
+          labels[row + x] = uint8_t(i);
+        }
+    }
+  }
+  return labels;
+}
+
+namespace {
+
+// Rounds like the CUDA kernels' to_u8 (half up), so both backends agree.
+inline uint8_t to_u8(float v) { return uint8_t(std::min(std::max(v + 0.5f, 0.f), 255.f)); }
+
+using Level = cv::Mat;  // CV_32FC4: rgb, and the mask's weight in the fourth channel
+
+// The top-left rows x cols of a buffer allocated once (no allocation per frame).
+Level part(const Level& full, int rows, int cols) {
+  CV_Assert(rows <= full.rows && cols <= full.cols);
+  return full(cv::Rect(0, 0, cols, rows));
+}
+
+// Separable pyrDown (w x h -> w/2 x h/2) and pyrUp (-> 2w x 2h) into dst (sized by the caller),
+// pyramid_math's definitions; `scratch` holds the pass between the two.
+void down(const Level& src, const Level& scratch, Level dst) {
+  Level tmp = part(scratch, src.rows, dst.cols);
+  cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) {
+      const cv::Vec4f* s = src.ptr<cv::Vec4f>(y);
+      cv::Vec4f* d = tmp.ptr<cv::Vec4f>(y);
+      for (int x = 0; x < tmp.cols; ++x) {
+        cv::Vec4f a(0, 0, 0, 0);
+        for (int i = -2; i <= 2; ++i) a += s[pyramid::down_source(x, i, src.cols)] * pyramid::binomial_tap(i);
+        d[x] = a;
+      }
+    }
+  });
+  cv::parallel_for_(cv::Range(0, dst.rows), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) {
+      const cv::Vec4f* rows[5];
+      for (int i = -2; i <= 2; ++i) rows[i + 2] = tmp.ptr<cv::Vec4f>(pyramid::down_source(y, i, tmp.rows));
+      cv::Vec4f* d = dst.ptr<cv::Vec4f>(y);
+      for (int x = 0; x < dst.cols; ++x) {
+        cv::Vec4f a(0, 0, 0, 0);
+        for (int i = -2; i <= 2; ++i) a += rows[i + 2][x] * pyramid::binomial_tap(i);
+        d[x] = a;
+      }
+    }
+  });
+}
+
+void up(const Level& src, const Level& scratch, Level dst) {
+  Level tmp = part(scratch, src.rows, dst.cols);
+  cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) {
+      const cv::Vec4f* s = src.ptr<cv::Vec4f>(y);
+      cv::Vec4f* d = tmp.ptr<cv::Vec4f>(y);
+      for (int x = 0; x < tmp.cols; ++x) {
+        cv::Vec4f a(0, 0, 0, 0);
+        for (int i = -2; i <= 2; ++i) {
+          float w;
+          const int k = pyramid::up_source(x, i, tmp.cols, w);
+          if (k >= 0) a += s[k] * w;
+        }
+        d[x] = a;
+      }
+    }
+  });
+  cv::parallel_for_(cv::Range(0, dst.rows), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) {
+      cv::Vec4f* d = dst.ptr<cv::Vec4f>(y);
+      std::fill(d, d + dst.cols, cv::Vec4f(0, 0, 0, 0));
+      for (int i = -2; i <= 2; ++i) {
+        float w;
+        const int k = pyramid::up_source(y, i, dst.rows, w);
+        if (k < 0) continue;
+        const cv::Vec4f* s = tmp.ptr<cv::Vec4f>(k);
+        for (int x = 0; x < dst.cols; ++x) d[x] += s[x] * w;
+      }
+    }
+  });
+}
+
+class MultibandBlenderCpu final : public MultibandBlender {
+ public:
+  explicit MultibandBlenderCpu(int bands) : bands_(bands) {}
+
+  void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) override {
+    if (views.size() > 64) throw std::invalid_argument("at most 64 views");
+    views_ = views;
+    layout_ = plan_multiband(views, out_width, out_height, bands_);
+    nearest_.clear();
+    int max_w = 1, max_h = 1;
+    for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
+    acc_.assign(layout_.bands + 1, Level());
+    gauss_.assign(layout_.bands + 1, Level());
+    for (int k = 0; k <= layout_.bands; ++k) {
+      acc_[k].create(layout_.padded_height >> k, layout_.padded_width >> k, CV_32FC4);
+      gauss_[k].create(max_h >> k, max_w >> k, CV_32FC4);
+    }
+    upper_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
+    scratch_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
+  }
+
+  void set_labels(const uint8_t* labels, bool on_device) override {
+    if (on_device) throw std::invalid_argument("the CPU multiband blender takes labels in host memory");
+    if (labels) custom_.assign(labels, labels + std::size_t(layout_.width) * layout_.height);
+    else custom_.clear();
+  }
+  const MultibandLayout& layout() const override { return layout_; }
+  Backend backend() const override { return Backend::Cpu; }
+
+  void fuse(const std::vector<ImageView>& warped, const ImageView& out) override {
+    if (warped.size() != views_.size()) throw std::invalid_argument("view count differs from prepare()");
+    if (out.width != layout_.width || out.height != layout_.height)
+      throw std::invalid_argument("output size differs from prepare()");
+    if (out.on_device) throw std::invalid_argument("CPU blender got device memory");
+    uint64_t mask = 0;
+    for (std::size_t i = 0; i < warped.size(); ++i)
+      if (!warped[i].empty() && !views_[i].roi.empty()) mask |= uint64_t(1) << i;
+    const std::vector<uint8_t>& labels = labels_for(mask);
+    const int L = layout_.bands;
+    std::vector<Level>& acc = acc_;
+    for (int k = 0; k <= L; ++k) acc[k].setTo(cv::Scalar::all(0));
+    std::vector<Level> g(L + 1);
+    for (std::size_t i = 0; i < warped.size(); ++i) {
+      if (!(mask >> i & 1)) continue;
+      const Rect& pr = layout_.rects[i];
+      for (int k = 0; k <= L; ++k) g[k] = part(gauss_[k], pr.height >> k, pr.width >> k);
+      load_view(int(i), warped[i], labels, g[0]);
+      for (int k = 1; k <= L; ++k) down(g[k - 1], scratch_, g[k]);
+      for (int k = 0; k <= L; ++k) {
+        const Level upper = k < L ? part(upper_, g[k].rows, g[k].cols) : Level();
+        if (k < L) up(g[k + 1], scratch_, upper);
+        Level a = acc[k](cv::Rect(pr.x >> k, pr.y >> k, pr.width >> k, pr.height >> k));
+        cv::parallel_for_(cv::Range(0, a.rows), [&](const cv::Range& r) {
+          for (int y = r.start; y < r.end; ++y) {
+            const cv::Vec4f* pg = g[k].ptr<cv::Vec4f>(y);
+            const cv::Vec4f* pu = k < L ? upper.ptr<cv::Vec4f>(y) : nullptr;
+            cv::Vec4f* pa = a.ptr<cv::Vec4f>(y);
+            for (int x = 0; x < a.cols; ++x) {
+              const float w = pg[x][3];
+              for (int c = 0; c < 3; ++c) pa[x][c] += (pg[x][c] - (pu ? pu[x][c] : 0.f)) * w;
+              pa[x][3] += w;
+            }
+          }
+        });
+      }
+    }
+    // Normalise every band by its summed weight, then collapse from the coarsest level.
+    for (int k = 0; k <= L; ++k) normalise(acc[k]);
+    // Collapse in place: acc[k] += up(acc[k + 1]) (the fourth channel is meaningless from here on).
+    for (int k = L - 1; k >= 0; --k) {
+      const Level upper = part(upper_, acc[k].rows, acc[k].cols);
+      up(acc[k + 1], scratch_, upper);
+      acc[k] += upper;
+    }
+    const Level& img = acc[0];
+    cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) {
+        const cv::Vec4f* p = img.ptr<cv::Vec4f>(y);
+        const uint8_t* lab = labels.data() + std::size_t(y) * out.width;
+        uint8_t* o = out.row(y);
+        for (int x = 0; x < out.width; ++x) {
+          for (int c = 0; c < 3; ++c) o[4 * x + c] = lab[x] == kNoView ? 0 : to_u8(p[x][c]);
+          o[4 * x + 3] = 255;
+        }
+      }
+    });
+  }
+
+ private:
+  static void normalise(Level& a) {
+    cv::parallel_for_(cv::Range(0, a.rows), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) {
+        cv::Vec4f* p = a.ptr<cv::Vec4f>(y);
+        for (int x = 0; x < a.cols; ++x) {
+          const float inv = 1.f / (p[x][3] + 1e-5f);
+          p[x] = cv::Vec4f(p[x][0] * inv, p[x][1] * inv, p[x][2] * inv, 0.f);
+        }
+      }
+    });
+  }
+
+  // Level 0 of view i over its padded rectangle: its pixels (mirrored outside its roi) and
+  // its mask (1 where the labels give it the pixel).
+  void load_view(int i, const ImageView& v, const std::vector<uint8_t>& labels, Level g) const {
+    const Rect& pr = layout_.rects[i];
+    const Rect& roi = views_[i].roi;
+    cv::parallel_for_(cv::Range(0, pr.height), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) {
+        const int cy = pr.y + y;
+        const uint8_t* src = v.row(pyramid::reflect(cy - roi.y, roi.height));
+        const uint8_t* lab = cy < layout_.height ? labels.data() + std::size_t(cy) * layout_.width : nullptr;
+        cv::Vec4f* d = g.ptr<cv::Vec4f>(y);
+        for (int x = 0; x < pr.width; ++x) {
+          const int cx = pr.x + x;
+          const uint8_t* p = src + 4 * pyramid::reflect(cx - roi.x, roi.width);
+          const bool mine = lab && cx < layout_.width && lab[cx] == i;
+          d[x] = cv::Vec4f(p[0], p[1], p[2], mine ? 1.f : 0.f);
+        }
+      }
+    });
+  }
+
+  const std::vector<uint8_t>& labels_for(uint64_t mask) {
+    auto it = nearest_.find(mask);
+    if (it == nearest_.end()) {
+      if (nearest_.size() > 16) nearest_.clear();
+      it = nearest_.emplace(mask, nearest_view_labels(views_, layout_.width, layout_.height, mask)).first;
+    }
+    if (custom_.empty()) return it->second;
+    merged_ = custom_;
+    for (std::size_t p = 0; p < merged_.size(); ++p)
+      if (merged_[p] == kNoView || !(mask >> merged_[p] & 1)) merged_[p] = it->second[p];
+    return merged_;
+  }
+
+  int bands_;
+  std::vector<ViewPlacement> views_;
+  MultibandLayout layout_;
+  std::map<uint64_t, std::vector<uint8_t>> nearest_;
+  std::vector<uint8_t> custom_, merged_;
+  // Allocated once per geometry: the canvas pyramid, one view's Gaussian pyramid (at the largest
+  // view's size), the upsampled level and the pass between the separable filters.
+  std::vector<Level> acc_, gauss_;
+  Level upper_, scratch_;
+};
+
+}  // namespace
+
+std::unique_ptr<MultibandBlender> MultibandBlender::create(Backend backend, int bands) {
+  switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {
+#ifdef STITCH_HAVE_CUDA
+    case Backend::Cuda: return make_multiband_blender_cuda(bands);
+#endif
+    case Backend::Cpu: return std::make_unique<MultibandBlenderCpu>(bands);
+    default: break;
+  }
+  throw std::runtime_error("no multiband blender for this backend");
+}
+
+std::unique_ptr<Blender> make_blender(Backend backend, BlendMode mode, int bands) {
+  if (mode == BlendMode::Multiband) return MultibandBlender::create(backend, bands);
+  return Blender::create(backend);
+}
+
+}  // namespace stitch

@@ -1,0 +1,149 @@
+#include "stitch/blend/seam.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "stitch/blend/blender_cpu.hpp"
+#include "stitch/blend/multiband.hpp"
+#include "stitch/blend/seam_math.hpp"
+
+namespace stitch {
+
+void SeamFinder::prepare(const std::vector<ViewPlacement>& views, int width, int height) {
+  if (views.size() >= kNoView) throw std::invalid_argument("too many views");
+  views_ = views;
+  width_ = width;
+  height_ = height;
+  pairs_.clear();
+  nearest_mask_ = ~uint64_t(0);
+  luma_.assign(views.size(), {});
+  previous_luma_.assign(views.size(), {});
+  std::vector<cv::Mat> weight(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i) weight[i] = position_weight_map(views[i]);
+  for (std::size_t a = 0; a < views.size(); ++a)
+    for (std::size_t b = a + 1; b < views.size(); ++b) {
+      const Rect &ra = views[a].roi, &rb = views[b].roi;
+      if (ra.empty() || rb.empty()) continue;
+      const int x0 = std::max(ra.x, rb.x), y0 = std::max(ra.y, rb.y);
+      const int x1 = std::min(ra.x + ra.width, rb.x + rb.width), y1 = std::min(ra.y + ra.height, rb.y + rb.height);
+      if (x1 <= x0 || y1 <= y0) continue;
+      // The overlap proper: where both views have weight; its bounding box.
+      int bx0 = x1, by0 = y1, bx1 = x0, by1 = y0;
+      for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x)
+          if (weight[a].at<float>(y - ra.y, x - ra.x) > 0 && weight[b].at<float>(y - rb.y, x - rb.x) > 0) {
+            bx0 = std::min(bx0, x), by0 = std::min(by0, y), bx1 = std::max(bx1, x + 1), by1 = std::max(by1, y + 1);
+          }
+      if (bx1 - bx0 < 3 || by1 - by0 < 3) continue;
+      Pair p;
+      p.box = {bx0, by0, bx1 - bx0, by1 - by0};
+      p.vertical = p.box.height >= p.box.width;
+      const double ca = p.vertical ? ra.x + 0.5 * ra.width : ra.y + 0.5 * ra.height;
+      const double cb = p.vertical ? rb.x + 0.5 * rb.width : rb.y + 0.5 * rb.height;
+      p.a = int(ca <= cb ? a : b);
+      p.b = int(ca <= cb ? b : a);
+      const Rect &pa = views[p.a].roi, &pb = views[p.b].roi;
+      p.centre_cost.assign(std::size_t(p.box.width) * p.box.height, -1.f);
+      for (int y = 0; y < p.box.height; ++y)
+        for (int x = 0; x < p.box.width; ++x) {
+          const int cx = p.box.x + x, cy = p.box.y + y;
+          const float wa = weight[p.a].at<float>(cy - pa.y, cx - pa.x), wb = weight[p.b].at<float>(cy - pb.y, cx - pb.x);
+          if (wa > 0 && wb > 0)
+            p.centre_cost[std::size_t(y) * p.box.width + x] = settings_.centre_weight * std::abs(wa - wb) / (wa + wb);
+        }
+      pairs_.push_back(std::move(p));
+    }
+}
+
+const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warped) {
+  if (warped.size() != views_.size()) throw std::invalid_argument("view count differs from prepare()");
+  uint64_t mask = 0;
+  for (std::size_t i = 0; i < warped.size(); ++i) {
+    if (warped[i].empty() || views_[i].roi.empty()) {
+      luma_[i].clear();
+      continue;
+    }
+    if (warped[i].on_device) throw std::invalid_argument("the seam finder reads views in host memory");
+    mask |= uint64_t(1) << i;
+    // Luma of the view (r + 2g + b) / 4: the seam's costs are measured on it.
+    const Rect& r = views_[i].roi;
+    std::swap(luma_[i], previous_luma_[i]);
+    luma_[i].resize(std::size_t(r.width) * r.height);
+    for (int y = 0; y < r.height; ++y) {
+      const uint8_t* p = warped[i].row(y);
+      uint8_t* l = luma_[i].data() + std::size_t(y) * r.width;
+      for (int x = 0; x < r.width; ++x) l[x] = seam::luma(p + 4 * x);
+    }
+    if (previous_luma_[i].size() != luma_[i].size()) previous_luma_[i] = luma_[i];
+  }
+  if (mask != nearest_mask_) {
+    nearest_ = nearest_view_labels(views_, width_, height_, mask);
+    nearest_mask_ = mask;
+  }
+  labels_ = nearest_;
+  for (Pair& p : pairs_) {
+    if (!(mask >> p.a & 1) || !(mask >> p.b & 1)) {
+      p.path.clear();
+      continue;
+    }
+    cut(p, warped);
+  }
+  return labels_;
+}
+
+void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
+  // Work in the seam's frame: "rows" run along the seam, "columns" across it.
+  const int rows = p.vertical ? p.box.height : p.box.width, cols = p.vertical ? p.box.width : p.box.height;
+  const Rect &ra = views_[p.a].roi, &rb = views_[p.b].roi;
+  const std::vector<uint8_t> &la = luma_[p.a], &lb = luma_[p.b], &pa = previous_luma_[p.a], &pb = previous_luma_[p.b];
+  auto luma = [](const std::vector<uint8_t>& l, const Rect& r, int x, int y) {
+    x = std::min(std::max(x, r.x), r.x + r.width - 1);
+    y = std::min(std::max(y, r.y), r.y + r.height - 1);
+    return int(l[std::size_t(y - r.y) * r.width + (x - r.x)]);
+  };
+  const seam::Weights w = weights();
+  auto cost = [&](int row, int col) {
+    const int bx = p.vertical ? col : row, by = p.vertical ? row : col;
+    const float centre = p.centre_cost[std::size_t(by) * p.box.width + bx];
+    if (centre < 0) return seam::kOutside;
+    const int x = p.box.x + bx, y = p.box.y + by;
+    const int a = luma(la, ra, x, y), b = luma(lb, rb, x, y);
+    const int gradients = std::abs(luma(la, ra, x + 1, y) - luma(la, ra, x - 1, y)) +
+                          std::abs(luma(la, ra, x, y + 1) - luma(la, ra, x, y - 1)) +
+                          std::abs(luma(lb, rb, x + 1, y) - luma(lb, rb, x - 1, y)) +
+                          std::abs(luma(lb, rb, x, y + 1) - luma(lb, rb, x, y - 1));
+    const int motion = std::abs(a - luma(pa, ra, x, y)) + std::abs(b - luma(pb, rb, x, y));
+    const float difference = seam::color_difference(warped[p.a].row(y - ra.y) + 4 * (x - ra.x),
+                                                    warped[p.b].row(y - rb.y) + 4 * (x - rb.x));
+    return seam::pixel_cost(w, difference, gradients, motion, centre);
+  };
+  const bool has_previous = int(p.previous_path.size()) == rows;
+  std::vector<float> energy(cols), next(cols);
+  std::vector<int8_t> step(std::size_t(rows) * cols);
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c)
+      step[std::size_t(r) * cols + c] = int8_t(seam::dp_cell(energy.data(), c, cols, r == 0, cost(r, c), w.stability,
+                                                             has_previous ? p.previous_path[r] : -1, next[c]));
+    std::swap(energy, next);
+  }
+  std::vector<int> path(rows);
+  int c = int(std::min_element(energy.begin(), energy.end()) - energy.begin());
+  for (int r = rows - 1; r >= 0; --r) {
+    path[r] = c;
+    c += step[std::size_t(r) * cols + c];
+  }
+  p.path = path;
+  p.previous_path = path;
+  // Every overlap pixel labelled a or b goes to a before the seam and to b after it.
+  for (int r = 0; r < rows; ++r)
+    for (int cc = 0; cc < cols; ++cc) {
+      const int bx = p.vertical ? cc : r, by = p.vertical ? r : cc;
+      if (p.centre_cost[std::size_t(by) * p.box.width + bx] < 0) continue;
+      uint8_t& l = labels_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
+      if (l == p.a || l == p.b) l = uint8_t(cc < path[r] ? p.a : p.b);
+    }
+}
+
+}  // namespace stitch

@@ -1,0 +1,141 @@
+#include "stitch/blend/seam_cuda.hpp"
+
+#include <stdexcept>
+
+#include "../../../cuda/blend/seam_kernels.hpp"
+#include "stitch/blend/multiband.hpp"
+#include "stitch/cuda/cuda_util.hpp"
+#include "stitch/cuda/view_geometry.hpp"
+
+namespace stitch {
+
+struct SeamFinderCuda::State {
+  SeamFinder planner;  // the pairs and their centre costs (geometry only)
+  std::vector<ViewPlacement> views;
+  int width = 0, height = 0;
+  struct PairState {
+    stitch_cuda::SeamPairGeometry geometry;
+    int rows = 0, cols = 0;
+    DeviceBuffer centre, cost, steps, path, previous;
+    bool has_previous = false, cut = false;
+  };
+  std::vector<PairState> pairs;
+  std::vector<DeviceBuffer> luma, previous_luma;
+  std::vector<bool> has_luma;
+  DeviceBuffer labels, nearest;
+  uint64_t nearest_mask = ~uint64_t(0);
+  CudaStream stream;
+  explicit State(const SeamSettings& s) : planner(s) {}
+};
+
+SeamFinderCuda::SeamFinderCuda(const SeamSettings& settings) : s_(std::make_unique<State>(settings)) {}
+SeamFinderCuda::~SeamFinderCuda() = default;
+
+const std::vector<SeamFinder::Pair>& SeamFinderCuda::pairs() const { return s_->planner.pairs(); }
+
+void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width, int height) {
+  s_->planner.prepare(views, width, height);
+  s_->views = views;
+  s_->width = width;
+  s_->height = height;
+  s_->pairs.clear();
+  for (const SeamFinder::Pair& p : s_->planner.pairs()) {
+    State::PairState ps;
+    stitch_cuda::SeamPairGeometry& g = ps.geometry;
+    g.a = p.a;
+    g.b = p.b;
+    g.vertical = p.vertical;
+    g.box_x = p.box.x, g.box_y = p.box.y, g.box_w = p.box.width, g.box_h = p.box.height;
+    const Rect &ra = views[p.a].roi, &rb = views[p.b].roi;
+    const int roi_a[4] = {ra.x, ra.y, ra.width, ra.height}, roi_b[4] = {rb.x, rb.y, rb.width, rb.height};
+    std::copy(roi_a, roi_a + 4, g.roi_a);
+    std::copy(roi_b, roi_b + 4, g.roi_b);
+    ps.rows = p.vertical ? p.box.height : p.box.width;
+    ps.cols = p.vertical ? p.box.width : p.box.height;
+    const std::size_t cells = std::size_t(ps.rows) * ps.cols;
+    ps.centre.resize(cells * sizeof(float));
+    STITCH_CUDA(cudaMemcpy(ps.centre.data(), p.centre_cost.data(), cells * sizeof(float), cudaMemcpyHostToDevice));
+    ps.cost.resize(cells * sizeof(float));
+    ps.steps.resize(cells);
+    ps.path.resize(ps.rows * sizeof(int));
+    ps.previous.resize(ps.rows * sizeof(int));
+    s_->pairs.push_back(std::move(ps));
+  }
+  s_->luma.clear();
+  s_->previous_luma.clear();
+  for (const ViewPlacement& v : views) {
+    const std::size_t px = v.roi.empty() ? 1 : std::size_t(v.roi.width) * v.roi.height;
+    s_->luma.emplace_back(px);
+    s_->previous_luma.emplace_back(px);
+  }
+  s_->has_luma.assign(views.size(), false);
+  s_->labels.resize(std::size_t(width) * height);
+  s_->nearest.resize(std::size_t(width) * height);
+  s_->nearest_mask = ~uint64_t(0);
+}
+
+const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
+  State& s = *s_;
+  if (warped.size() != s.views.size()) throw std::invalid_argument("view count differs from prepare()");
+  const cudaStream_t st = s.stream.get();
+  uint64_t mask = 0;
+  for (std::size_t i = 0; i < warped.size(); ++i) {
+    if (warped[i].empty() || s.views[i].roi.empty()) {
+      s.has_luma[i] = false;
+      continue;
+    }
+    if (!warped[i].on_device) throw std::invalid_argument("the CUDA seam finder reads views in device memory");
+    mask |= uint64_t(1) << i;
+    std::swap(s.luma[i], s.previous_luma[i]);
+    stitch_cuda::launch_seam_luma(to_device_image(warped[i]), s.luma[i].data(), st);
+    if (!s.has_luma[i])  // no previous frame: no motion
+      STITCH_CUDA(cudaMemcpyAsync(s.previous_luma[i].data(), s.luma[i].data(),
+                                  std::size_t(warped[i].width) * warped[i].height, cudaMemcpyDeviceToDevice, st));
+    s.has_luma[i] = true;
+  }
+  if (mask != s.nearest_mask) {
+    const std::vector<uint8_t> nearest = nearest_view_labels(s.views, s.width, s.height, mask);
+    STITCH_CUDA(cudaMemcpyAsync(s.nearest.data(), nearest.data(), nearest.size(), cudaMemcpyHostToDevice, st));
+    STITCH_CUDA(cudaStreamSynchronize(st));  // `nearest` is a host temporary
+    s.nearest_mask = mask;
+  }
+  STITCH_CUDA(cudaMemcpyAsync(s.labels.data(), s.nearest.data(), std::size_t(s.width) * s.height,
+                              cudaMemcpyDeviceToDevice, st));
+  const SeamSettings& settings = s.planner.settings();
+  const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability};
+  for (State::PairState& p : s.pairs) {
+    const int a = p.geometry.a, b = p.geometry.b;
+    p.cut = (mask >> a & 1) && (mask >> b & 1);
+    if (!p.cut) {
+      p.has_previous = false;
+      continue;
+    }
+    stitch_cuda::launch_seam_cost(p.geometry, to_device_image(warped[a]), to_device_image(warped[b]),
+                                  s.luma[a].data(), s.luma[b].data(), s.previous_luma[a].data(),
+                                  s.previous_luma[b].data(), reinterpret_cast<const float*>(p.centre.data()), w,
+                                  reinterpret_cast<float*>(p.cost.data()), st);
+    stitch_cuda::launch_seam_dp(reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
+                                p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
+                                w.stability, reinterpret_cast<int8_t*>(p.steps.data()),
+                                reinterpret_cast<int*>(p.path.data()), st);
+    stitch_cuda::launch_seam_labels(s.labels.data(), s.width, p.geometry, reinterpret_cast<const float*>(p.centre.data()),
+                                    reinterpret_cast<const int*>(p.path.data()), st);
+    STITCH_CUDA(cudaMemcpyAsync(p.previous.data(), p.path.data(), p.rows * sizeof(int), cudaMemcpyDeviceToDevice, st));
+    p.has_previous = true;
+  }
+  s.stream.sync();
+  return s.labels.data();
+}
+
+std::vector<std::vector<int>> SeamFinderCuda::paths() const {
+  std::vector<std::vector<int>> out;
+  for (const State::PairState& p : s_->pairs) {
+    out.emplace_back();
+    if (!p.cut) continue;
+    out.back().resize(p.rows);
+    STITCH_CUDA(cudaMemcpy(out.back().data(), p.path.data(), p.rows * sizeof(int), cudaMemcpyDeviceToHost));
+  }
+  return out;
+}
+
+}  // namespace stitch

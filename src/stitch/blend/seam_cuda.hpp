@@ -1,0 +1,29 @@
+// The seam finder on the device (built with CUDA only): the same pairs, costs and dynamic
+// programming as SeamFinder (seam_math.hpp), on views in device memory; the labels stay on
+// the device for the CUDA multiband blender.
+#pragma once
+#include <memory>
+#include <vector>
+
+#include "stitch/blend/seam.hpp"
+
+namespace stitch {
+
+class SeamFinderCuda {
+ public:
+  explicit SeamFinderCuda(const SeamSettings& settings = {});
+  ~SeamFinderCuda();
+  void prepare(const std::vector<ViewPlacement>& views, int width, int height);
+  // Device labels (width*height) for this frame's views (device memory, roi-sized; empty =
+  // missing); valid until the next call.
+  const uint8_t* find(const std::vector<ImageView>& warped);
+  // The last paths, downloaded (for tests): one per pair of pairs(), empty when not cut.
+  std::vector<std::vector<int>> paths() const;
+  const std::vector<SeamFinder::Pair>& pairs() const;
+
+ private:
+  struct State;
+  std::unique_ptr<State> s_;
+};
+
+}  // namespace stitch

@@ -1,0 +1,68 @@
+// The seam finder's per-pixel arithmetic, one definition for the CPU and the CUDA code. Products
+// and sums are rounded one by one (no fused multiply-add on the device) so that both backends
+// compute the same energies and so cut along the same paths.
+#pragma once
+#include <stdint.h>
+
+#include "stitch/host_device.hpp"
+
+namespace stitch {
+namespace seam {
+
+struct Weights {  // SeamSettings, for the kernels
+  float difference, edge, motion, stability;
+};
+
+constexpr float kOutside = 1e5f;  // a seam point outside the overlap: allowed, but never cheap
+
+STITCH_HD float mul(float a, float b) {
+#ifdef __CUDA_ARCH__
+  return __fmul_rn(a, b);
+#else
+  return a * b;
+#endif
+}
+STITCH_HD float add(float a, float b) {
+#ifdef __CUDA_ARCH__
+  return __fadd_rn(a, b);
+#else
+  return a + b;
+#endif
+}
+STITCH_HD int absi(int v) { return v < 0 ? -v : v; }
+
+STITCH_HD uint8_t luma(const uint8_t* rgba) {
+  return uint8_t((rgba[0] + 2 * rgba[1] + rgba[2] + 2) >> 2);
+}
+
+// Mean |a - b| over r, g, b: color, not luma (a magenta object on grey of the same luma shows).
+STITCH_HD float color_difference(const uint8_t* a, const uint8_t* b) {
+  return float(absi(a[0] - b[0]) + absi(a[1] - b[1]) + absi(a[2] - b[2])) / 3.f;
+}
+
+// What a seam through a pixel costs: the views' color difference there, their gradients (sum
+// of |dx| + |dy| of each view's luma), the change since the last frame, and the centre cost.
+STITCH_HD float pixel_cost(const Weights& w, float difference, int gradients, int motion, float centre) {
+  return add(add(add(mul(w.difference, difference), mul(mul(w.edge, 0.25f), float(gradients))),
+                 mul(w.motion, float(motion))),
+             centre);
+}
+
+// One DP cell: the cheapest of the three cells above (ties: straight, then left), plus this
+// cell's cost and the pull towards last frame's path (previous < 0: none). Returns the step.
+STITCH_HD int dp_cell(const float* above, int c, int cols, bool first_row, float cost, float stability, int previous,
+                      float& energy) {
+  float best = 0.f;
+  int step = 0;
+  if (!first_row) {
+    best = above[c];
+    if (c > 0 && above[c - 1] < best) best = above[c - 1], step = -1;
+    if (c + 1 < cols && above[c + 1] < best) best = above[c + 1], step = 1;
+  }
+  energy = add(best, cost);
+  if (previous >= 0) energy = add(energy, mul(stability, float(absi(c - previous))));
+  return step;
+}
+
+}  // namespace seam
+}  // namespace stitch

@@ -1,0 +1,250 @@
+// Multiband (Laplacian pyramid) blending on the CPU: against OpenCV's MultiBandBlender as the
+// reference, and on the properties that make it worth having.
+#include <gtest/gtest.h>
+
+#include <opencv2/imgproc.hpp>
+#include <opencv2/stitching/detail/blenders.hpp>
+
+#include "stitch/blend/compositor.hpp"
+#include "stitch/blend/multiband.hpp"
+#include "stitch/cv_interop.hpp"
+#include "stitch/warp/warper.hpp"
+#include "test_data.hpp"
+
+using namespace stitch;
+
+namespace {
+
+// Three cameras of one photo on a rotating rig, with different exposures so that the blend
+// has something to hide.
+testdata::RotatingRig rotating_rig() {
+  const double gains[3] = {0.8, 1.0, 1.2};
+  return testdata::rotating_rig(testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg")), gains);
+}
+
+struct Warped {
+  OutputGeometry geometry;
+  std::vector<ViewPlacement> views;
+  std::vector<cv::Mat> rois;
+  std::vector<ImageView> ptrs;
+};
+
+Warped warp_all(const Rig& rig, std::vector<cv::Mat>& frames) {
+  Warped w;
+  w.geometry = canvas_geometry(rig);
+  w.views = place_views(rig, w.geometry);
+  auto warper = Warper::create(Backend::Cpu);
+  warper->prepare(w.views);
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    const Rect& r = w.views[i].roi;
+    w.rois.emplace_back(r.height, r.width, CV_8UC4, cv::Scalar::all(0));
+    warper->warp(int(i), as_view(frames[i]), as_view(w.rois.back()));
+    w.ptrs.push_back(as_view(w.rois.back()));
+  }
+  return w;
+}
+
+}  // namespace
+
+TEST(Multiband, MatchesOpenCvMultiBandBlender) {
+  testdata::RotatingRig s = rotating_rig();
+  Warped w = warp_all(s.rig, s.frames);
+  const int W = w.geometry.width, H = w.geometry.height;
+  const int bands = 5;
+  auto ours = MultibandBlender::create(Backend::Cpu, bands);
+  ours->prepare(w.views, W, H);
+  cv::Mat out(H, W, CV_8UC4);
+  ours->fuse(w.ptrs, as_view(out));
+
+  // The reference blends the same views with the same masks (our nearest-view labels). It
+  // keeps its pyramids in 16-bit integers, truncating at every level: it is fed the views
+  // scaled by 8 (well inside 16 bits) so that its rounding stays below one output level.
+  constexpr double kScale = 8.0;
+  const std::vector<uint8_t> labels = nearest_view_labels(w.views, W, H, 0b111);
+  cv::detail::MultiBandBlender ref(false, bands, CV_32F);
+  ref.prepare(cv::Rect(0, 0, W, H));
+  for (int i = 0; i < 3; ++i) {
+    const Rect& r = w.views[i].roi;
+    cv::Mat rgb, mask(r.height, r.width, CV_8U);
+    cv::cvtColor(w.rois[i], rgb, cv::COLOR_RGBA2RGB);
+    rgb.convertTo(rgb, CV_16SC3, kScale);
+    for (int y = 0; y < r.height; ++y)
+      for (int x = 0; x < r.width; ++x)
+        mask.at<uint8_t>(y, x) = labels[std::size_t(r.y + y) * W + r.x + x] == i ? 255 : 0;
+    ref.feed(rgb, mask, cv::Point(r.x, r.y));
+  }
+  cv::Mat ref16, ref_mask, ref8;
+  ref.blend(ref16, ref_mask);
+  ref16.convertTo(ref8, CV_8U, 1.0 / kScale);
+  cv::Mat ours_rgb;
+  cv::cvtColor(out, ours_rgb, cv::COLOR_RGBA2RGB);
+  cv::Mat diff;
+  cv::absdiff(ours_rgb, ref8, diff);
+  diff.setTo(cv::Scalar::all(0), ref_mask == 0);
+  const double covered = cv::countNonZero(ref_mask);
+  ASSERT_GT(covered, 0.5 * W * H);
+  const double mean_diff = cv::sum(diff)[0] / covered + cv::sum(diff)[1] / covered + cv::sum(diff)[2] / covered;
+  cv::Mat diff_gray;
+  cv::cvtColor(diff, diff_gray, cv::COLOR_RGB2GRAY);
+  const double off_by_more_than_3 = cv::countNonZero(diff_gray > 3) / covered;
+  const double mse = cv::norm(ours_rgb, ref8, cv::NORM_L2SQR, ref_mask) / (3 * covered);
+  const double psnr = 10 * std::log10(255.0 * 255.0 / std::max(mse, 1e-12));
+  std::printf("multiband vs OpenCV MultiBandBlender (%dx%d, %d bands): PSNR %.2f dB, mean |diff| %.3f per pixel "
+              "(3 channels), %.4f%% of pixels off by > 3\n",
+              W, H, bands, psnr, mean_diff, 100 * off_by_more_than_3);
+  EXPECT_GT(psnr, 48.0);
+  EXPECT_LT(mean_diff, 1.2);
+  EXPECT_LT(off_by_more_than_3, 0.001);
+}
+
+TEST(Multiband, IdenticalViewsReproduceThePhoto) {
+  // Two exact crops of one photo: every band agrees, so the pyramid collapses to the photo.
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  const Rig rig = testdata::shifted_rig(2, 400, 300, 200);
+  Compositor comp(Backend::Cpu);
+  CompositorSettings settings;
+  settings.blend = BlendMode::Multiband;
+  comp.prepare(rig, settings);
+  cv::Mat out(300, 600, CV_8UC4);
+  cv::Mat cam0 = photo(cv::Rect(0, 0, 400, 300)).clone(), cam1 = photo(cv::Rect(200, 0, 400, 300)).clone();
+  comp.compose({as_view(cam0), as_view(cam1)}, as_view(out));
+  EXPECT_GT(testdata::psnr_rgb(out, photo(cv::Rect(0, 0, 600, 300))), 45.0);
+}
+
+TEST(Multiband, SpreadsAnExposureStepAcrossTheOverlap) {
+  const Rig rig = testdata::shifted_rig(2, 400, 300, 200);
+  cv::Mat bright(300, 400, CV_8UC4, cv::Scalar(200, 200, 200, 255)), dark(300, 400, CV_8UC4, cv::Scalar(120, 120, 120, 255));
+  Compositor comp(Backend::Cpu);
+  CompositorSettings settings;
+  settings.blend = BlendMode::Multiband;
+  comp.prepare(rig, settings);
+  cv::Mat out(300, 600, CV_8UC4);
+  comp.compose({as_view(bright), as_view(dark)}, as_view(out));
+  // Each view alone away from the seam (x = 300); in between a gradual, monotonic transition
+  // instead of the 80-level step of a hard cut.
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 100)[0], 200);
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 500)[0], 120);
+  int prev = 255, max_step = 0;
+  for (int x = 150; x < 450; ++x) {
+    const int v = out.at<cv::Vec4b>(150, x)[0];
+    EXPECT_LE(v, prev) << "x=" << x;
+    if (prev != 255) max_step = std::max(max_step, prev - v);
+    prev = v;
+  }
+  EXPECT_LE(max_step, 8);
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 300)[3], 255);
+}
+
+TEST(Multiband, MissingViewIsLeftOutAndCustomLabelsAreFollowed) {
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  const Rig rig = testdata::shifted_rig(2, 400, 300, 200);
+  const OutputGeometry g = canvas_geometry(rig);
+  const std::vector<ViewPlacement> views = place_views(rig, g);
+  auto blender = MultibandBlender::create(Backend::Cpu, 4);
+  blender->prepare(views, g.width, g.height);
+  cv::Mat cam0 = photo(cv::Rect(0, 0, 400, 300)).clone(), cam1(300, 400, CV_8UC4, cv::Scalar(0, 0, 255, 255));
+  cv::Mat out(g.height, g.width, CV_8UC4);
+  blender->fuse({as_view(cam0), ImageView{}}, as_view(out));
+  // Without view 1 the overlap is view 0's (no black blended in), the rest is black.
+  EXPECT_GT(testdata::psnr_rgb(out(cv::Rect(0, 0, 400, 300)), cam0), 45.0);
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 550)[2], 0);
+  // Labels that give the whole overlap to view 1 (blue): x = 250 is blue, not the photo.
+  std::vector<uint8_t> labels = nearest_view_labels(views, g.width, g.height, 0b11);
+  for (int y = 0; y < g.height; ++y)
+    for (int x = 200; x < 400; ++x) labels[std::size_t(y) * g.width + x] = 1;
+  blender->set_labels(labels.data());
+  blender->fuse({as_view(cam0), as_view(cam1)}, as_view(out));
+  EXPECT_GT(out.at<cv::Vec4b>(150, 260)[2], 240);
+  EXPECT_LT(out.at<cv::Vec4b>(150, 260)[0], 15);
+  EXPECT_EQ(out.at<cv::Vec4b>(150, 300)[2], 255);
+}
+
+namespace {
+
+// Two exact crops of a photo 200 px apart (overlap x = 200..399); view 1 also shows a square
+// that view 0 does not (an object seen by one camera only, or moving).
+struct SeamScene {
+  Rig rig = testdata::shifted_rig(2, 400, 300, 200);
+  cv::Mat cam0, cam1;
+  std::vector<ViewPlacement> views;
+  OutputGeometry geometry;
+  SeamScene(int square_x) {
+    const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+    cam0 = photo(cv::Rect(0, 0, 400, 300)).clone();
+    cam1 = photo(cv::Rect(200, 0, 400, 300)).clone();
+    // canvas x = square_x .. square_x + 40, rows 100..180
+    cv::rectangle(cam1, cv::Rect(square_x - 200, 100, 40, 80), cv::Scalar(255, 0, 255, 255), cv::FILLED);
+    geometry = canvas_geometry(rig);
+    views = place_views(rig, geometry);
+  }
+};
+
+}  // namespace
+
+TEST(Seam, GoesAroundWhatOnlyOneViewShows) {
+  SeamScene s(280);  // the square straddles the overlap's middle, x = 300
+  SeamFinder finder;
+  finder.prepare(s.views, s.geometry.width, s.geometry.height);
+  ASSERT_EQ(finder.pairs().size(), 1u);
+  const std::vector<uint8_t> labels = finder.find({as_view(s.cam0), as_view(s.cam1)});
+  const SeamFinder::Pair& p = finder.pairs()[0];
+  ASSERT_TRUE(p.vertical);
+  ASSERT_EQ(int(p.path.size()), p.box.height);
+  for (int y = 100; y < 180; ++y) {
+    const int x = p.box.x + p.path[y - p.box.y];
+    EXPECT_TRUE(x <= 280 || x >= 320) << "row " << y << ": the seam crosses the square at x=" << x;
+  }
+  // The square lies entirely on one side: all of its pixels carry one label.
+  const uint8_t first = labels[std::size_t(100) * s.geometry.width + 280];
+  for (int y = 100; y < 180; ++y)
+    for (int x = 280; x < 320; ++x) ASSERT_EQ(labels[std::size_t(y) * s.geometry.width + x], first);
+  // Away from the overlap, each view keeps its own side.
+  EXPECT_EQ(labels[std::size_t(150) * s.geometry.width + 100], 0);
+  EXPECT_EQ(labels[std::size_t(150) * s.geometry.width + 500], 1);
+}
+
+TEST(Seam, StaysPutUnderNoiseAndFollowsTheLastFrame) {
+  SeamScene s(280);
+  SeamFinder finder;
+  finder.prepare(s.views, s.geometry.width, s.geometry.height);
+  finder.find({as_view(s.cam0), as_view(s.cam1)});
+  std::vector<int> first = finder.pairs()[0].path;
+  cv::RNG rng(7);
+  double moved = 0;
+  for (int t = 0; t < 8; ++t) {
+    cv::Mat n0 = s.cam0.clone(), n1 = s.cam1.clone(), noise(n0.size(), CV_8UC4);
+    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
+    n0 += noise;
+    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
+    n1 += noise;
+    const std::vector<int> before = finder.pairs()[0].path;
+    finder.find({as_view(n0), as_view(n1)});
+    const std::vector<int>& after = finder.pairs()[0].path;
+    for (std::size_t r = 0; r < after.size(); ++r) moved += std::abs(after[r] - before[r]);
+  }
+  const double per_row = moved / (8.0 * first.size());
+  std::printf("seam moved %.3f px per row per frame under sensor noise\n", per_row);
+  EXPECT_LT(per_row, 0.5);
+}
+
+TEST(Seam, MultibandWithSeamsShowsTheSquareWholeOrNotAtAll) {
+  SeamScene s(280);
+  CompositorSettings settings;
+  settings.blend = BlendMode::Multiband;
+  settings.seam = SeamMode::DynamicProgramming;
+  Compositor with(Backend::Cpu), without(Backend::Cpu);
+  with.prepare(s.rig, settings);
+  settings.seam = SeamMode::None;
+  without.prepare(s.rig, settings);
+  cv::Mat a(300, 600, CV_8UC4), b(300, 600, CV_8UC4);
+  with.compose({as_view(s.cam0), as_view(s.cam1)}, as_view(a));
+  without.compose({as_view(s.cam0), as_view(s.cam1)}, as_view(b));
+  // Without seams the middle cut halves the square (x = 300): its left part is the photo and
+  // its right part magenta. With seams both halves agree.
+  auto magenta = [](const cv::Mat& m, int x) {
+    const cv::Vec4b p = m.at<cv::Vec4b>(140, x);
+    return p[0] > 200 && p[2] > 200 && p[1] < 60;
+  };
+  EXPECT_NE(magenta(b, 284), magenta(b, 316));
+  EXPECT_EQ(magenta(a, 284), magenta(a, 316));
+}
