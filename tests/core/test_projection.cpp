@@ -158,6 +158,12 @@ TEST(Projection, RingWrapsAndOverlapsAcrossTheWrap) {
       canvas_overlap(rig, i, (i + 3) % 6, &area);
       EXPECT_EQ(area, 0.f) << "opposite cameras " << i << " and " << (i + 3) % 6;
     }
+    // Auto-crop keeps the whole 360 degrees (only rows are cropped), so the panorama still wraps.
+    const Rect covered = largest_covered_rect(rig);
+    EXPECT_EQ(covered.x, 0);
+    EXPECT_EQ(covered.width, rig.canvas_width);
+    EXPECT_GT(covered.height, rig.canvas_height / 2);
+    EXPECT_LT(covered.height, rig.canvas_height);
     // Every column of the canvas is covered at the horizon.
     std::vector<cv::Mat> weights;
     int uncovered = 0;
