@@ -232,6 +232,14 @@ TEST(Projection, RigJsonKeepsTheCanvas) {
   EXPECT_EQ(again.canvas_width, rig.canvas_width);
   EXPECT_EQ(again.canvas_height, rig.canvas_height);
   EXPECT_DOUBLE_EQ(again.canvas_origin_y, rig.canvas_origin_y);
+  // Streams of another size: the intrinsics scale and the canvas follows them (half the size).
+  Rig half = back;
+  ASSERT_TRUE(rig_adapt_to_sizes(half, std::vector<std::array<int, 2>>(6, {240, 180})));
+  EXPECT_FALSE(half.calibrated());  // the canvas scale is laid out again
+  rig_layout_canvas(half);
+  EXPECT_TRUE(half.canvas_wrap);
+  EXPECT_NEAR(half.canvas_width, rig.canvas_width / 2.0, 2);
+  EXPECT_NEAR(half.canvas_height, rig.canvas_height / 2.0, 2);
   // Errors name the problem.
   try {
     rig_from_json_string(R"({"projection": "fisheye", "cameras": [{"width": 4, "height": 4, "fx": 2}]})");
