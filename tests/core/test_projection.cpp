@@ -111,7 +111,7 @@ TEST(Projection, OutputPlacementMapsLikeTheCanvas) {
       const CameraCanvasMap m = camera_canvas_map(rig, cam);
       for (int y = 0; y < g.height; y += 17)
         for (int x = 0; x < g.width; x += 13) {
-          double u, v;
+          double u = 0, v = 0;
           Eigen::Vector2d p;
           const bool a = view_to_camera(views[cam], x, y, u, v);
           const bool b = m.to_camera(apply_homography(out_to_canvas, {double(x), double(y)}), p);
@@ -145,10 +145,12 @@ TEST(Projection, RingWrapsAndOverlapsAcrossTheWrap) {
     EXPECT_GT(views[3].span_x1, rig.canvas_width);
     EXPECT_LT(views[3].span_x1 - views[3].span_x0, rig.canvas_width / 3);
     for (int x = 0; x < rig.canvas_width; ++x) {
-      double u, v;
+      double u = 0, v = 0;
       const bool sees = view_to_camera(views[3], x, rig.canvas_origin_y, u, v) && u >= -1 && u <= 480;
       const double xu = x < views[3].span_x0 ? x + rig.canvas_width : x;
-      if (sees) EXPECT_LE(xu, views[3].span_x1) << "column " << x;
+      if (sees) {
+        EXPECT_LE(xu, views[3].span_x1) << "column " << x;
+      }
     }
     for (int i : {0, 1, 2, 4, 5}) EXPECT_LT(views[i].roi.width, rig.canvas_width / 2) << i;
     for (int i = 0; i < 6; ++i) {
@@ -170,7 +172,7 @@ TEST(Projection, RingWrapsAndOverlapsAcrossTheWrap) {
     for (int x = 0; x < rig.canvas_width; ++x) {
       bool any = false;
       for (int i = 0; i < 6 && !any; ++i) {
-        double u, v;
+        double u = 0, v = 0;
         any = view_to_camera(views[i], x, rig.canvas_origin_y, u, v) && u >= 0 && v >= 0 && u <= 479 && v <= 359;
       }
       uncovered += !any;
