@@ -41,9 +41,12 @@ __device__ __forceinline__ bool to_camera(const Homography& H, float x, float y,
 }
 
 // Camera coordinates of output pixel (x, y) of view `vg` (stitch::view_to_camera); false behind
-// the camera.
+// the camera. kCurved = false compiles the planar mapping alone: kernels are instantiated both
+// ways and launched planar-only when every view is planar, so the trigonometry of the curved
+// projections costs planar rigs nothing (registers, occupancy).
+template <bool kCurved>
 __device__ __forceinline__ bool view_to_camera(const ViewGeometry& vg, float x, float y, float& u, float& v) {
-  if (vg.projection == stitch_projection::kPlane) {
+  if (!kCurved || vg.projection == stitch_projection::kPlane) {
     Homography H;
 #pragma unroll
     for (int k = 0; k < 9; ++k) H.m[k] = vg.output_to_camera[k];
@@ -62,15 +65,23 @@ __device__ __forceinline__ float position_weight(float u, float v, int w, int h)
 
 // Position weight of view `vg` at output pixel (x, y), with its camera coordinates; 0 where the
 // view does not cover the pixel.
+template <bool kCurved>
 __device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int y, float& u, float& v) {
   if (x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) return 0.f;
-  if (vg.wrap_w > 0) {
+  if (kCurved && vg.wrap_w > 0) {
     // Across the wrap the roi is the whole width: skip the columns the view cannot reach.
     const float xu = float(x) < vg.span_x0 ? float(x + vg.wrap_w) : float(x);
     if (xu > vg.span_x1) return 0.f;
   }
-  if (!view_to_camera(vg, float(x), float(y), u, v)) return 0.f;
+  if (!view_to_camera<kCurved>(vg, float(x), float(y), u, v)) return 0.f;
   return position_weight(u, v, vg.camera_w, vg.camera_h);
+}
+
+// Whether any of the n views needs the curved mapping (host side: picks the instantiation).
+inline bool any_curved(const ViewGeometry* views, int n) {
+  for (int i = 0; i < n; ++i)
+    if (views[i].projection != stitch_projection::kPlane) return true;
+  return false;
 }
 
 __device__ __forceinline__ uint8_t to_u8(float v) { return uint8_t(fminf(fmaxf(v + 0.5f, 0.f), 255.f)); }

@@ -40,6 +40,8 @@ if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -
 echo "== kernels"; timeout 300 $B/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
 echo "== blend modes"; timeout 300 $B/stitch-bench-blend --photo "$STITCH_TEST_PPM" --frames 100 --cpu-frames 5 \
   --json "$OUT/blend.json" 2>&1 | tee "$OUT/bench_blend.txt"
+echo "== projections"; timeout 200 $B/stitch-bench-projection --photo "$STITCH_TEST_PPM" --frames 10 \
+  --json "$OUT/projection.json" 2>&1 | tee "$OUT/bench_projection.txt"
 echo "== core chain"; timeout 300 $B/stitch-bench-chain --photo "$STITCH_TEST_PPM" --frames 300 --cpu-frames 5 \
   --json "$OUT/chain.json" 2>&1 | tee "$OUT/bench_chain.txt"
 echo "== GStreamer pipelines" | tee "$OUT/bench_pipeline.txt"

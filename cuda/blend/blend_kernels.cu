@@ -18,12 +18,13 @@ struct ComposeParams {
   DeviceImage out;
 };
 
+template <bool kCurved>
 __global__ void warp_kernel(DeviceImage src, ViewGeometry vg, int roi_x, int roi_y, DeviceImage dst) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= dst.width || y >= dst.height) return;
   float u, v;
   float4 c = make_float4(0.f, 0.f, 0.f, 0.f);
-  if (view_to_camera(vg, float(roi_x + x), float(roi_y + y), u, v) && u > -1.f && v > -1.f && u < src.width &&
+  if (view_to_camera<kCurved>(vg, float(roi_x + x), float(roi_y + y), u, v) && u > -1.f && v > -1.f && u < src.width &&
       v < src.height)
     c = sample_bilinear(src.data, src.pitch, src.width, src.height, u, v);
   *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) =
@@ -51,7 +52,7 @@ __device__ __forceinline__ void store_mean(const DeviceImage& out, int x, int y,
 }
 
 // mode 0: views are warped rois (fuse); mode 1: views are camera frames (compose).
-template <int kMode>
+template <int kMode, bool kCurved>
 __global__ void blend_kernel(const ComposeParams p) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= p.out.width || y >= p.out.height) return;
@@ -60,7 +61,7 @@ __global__ void blend_kernel(const ComposeParams p) {
     const ViewGeometry& vg = p.views[i];
     const DeviceImage& s = p.src[i];
     float u, v;
-    const float w = s.data ? view_weight(vg, x, y, u, v) : 0.f;
+    const float w = s.data ? view_weight<kCurved>(vg, x, y, u, v) : 0.f;
     if (w <= 0.f) continue;
     float4 c;
     if (kMode == 0) {
@@ -87,13 +88,14 @@ struct TexComposeParams {
   DeviceImage out;
 };
 
+template <bool kCurved>
 __global__ void compose_tex_kernel(const TexComposeParams p) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= p.out.width || y >= p.out.height) return;
   float r = 0.f, g = 0.f, b = 0.f, wsum = 0.f;
   for (int i = 0; i < p.n; ++i) {
     float u, v;
-    const float w = p.tex[i] ? view_weight(p.views[i], x, y, u, v) : 0.f;
+    const float w = p.tex[i] ? view_weight<kCurved>(p.views[i], x, y, u, v) : 0.f;
     if (w <= 0.f) continue;
     // Texel centres sit at +0.5 in texture coordinates; normalised reads return [0, 1].
     float4 c = tex2D<float4>(p.tex[i], u + 0.5f, v + 0.5f);
@@ -142,7 +144,8 @@ ComposeParams params_of(int n, const ViewGeometry* views, const DeviceImage* ima
 void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream) {
   if (dst.width <= 0 || dst.height <= 0) return;
   const dim3 block(32, 8), grid((dst.width + 31) / 32, (dst.height + 7) / 8);
-  warp_kernel<<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst);
+  if (any_curved(&view, 1)) warp_kernel<true><<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst);
+  else warp_kernel<false><<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst);
   check_launch("warp kernel");
 }
 
@@ -160,7 +163,8 @@ void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, co
                  cudaStream_t stream) {
   const ComposeParams p = params_of(n, views, warped, out);
   const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
-  blend_kernel<0><<<grid, block, 0, stream>>>(p);
+  if (any_curved(views, n)) blend_kernel<0, true><<<grid, block, 0, stream>>>(p);
+  else blend_kernel<0, false><<<grid, block, 0, stream>>>(p);
   check_launch("fuse kernel");
 }
 
@@ -173,7 +177,8 @@ void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames,
       for (int k = 0; k < 9; ++k) p.color[i][k] = color[9 * i + k];
   }
   const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
-  blend_kernel<1><<<grid, block, 0, stream>>>(p);
+  if (any_curved(views, n)) blend_kernel<1, true><<<grid, block, 0, stream>>>(p);
+  else blend_kernel<1, false><<<grid, block, 0, stream>>>(p);
   check_launch("compose kernel");
 }
 
@@ -191,7 +196,8 @@ void launch_compose_tex(int n, const ViewGeometry* views, const unsigned long lo
   p.has_color = color != nullptr;
   p.out = out;
   const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
-  compose_tex_kernel<<<grid, block, 0, stream>>>(p);
+  if (any_curved(views, n)) compose_tex_kernel<true><<<grid, block, 0, stream>>>(p);
+  else compose_tex_kernel<false><<<grid, block, 0, stream>>>(p);
   check_launch("compose (texture) kernel");
 }
 

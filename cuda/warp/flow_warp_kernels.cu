@@ -45,6 +45,7 @@ __device__ __forceinline__ float2 sample_flow(const float* f, int w, int h, floa
                      (1 - ay) * ((1 - ax) * a.y + ax * b.y) + ay * ((1 - ax) * c.y + ax * d.y));
 }
 
+template <bool kCurved>
 __global__ void overlap_gray_kernel(const FlowPairDevice* pairs, FlowPairMask active, const ViewsParam vp) {
   const int z = blockIdx.z;
   if (!active.test(z)) return;
@@ -63,7 +64,7 @@ __global__ void overlap_gray_kernel(const FlowPairDevice* pairs, FlowPairMask ac
     const ViewGeometry& vg = vp.views[v];
     const DeviceImage& f = vp.frames[v];
     float u = 0.f, w = 0.f;
-    const bool in_front = view_to_camera(vg, ox, oy, u, w);
+    const bool in_front = view_to_camera<kCurved>(vg, ox, oy, u, w);
     valid[k] = in_front && u >= 0.f && w >= 0.f && u <= vg.camera_w - 1 && w <= vg.camera_h - 1;
     g[k] = in_front ? luma(sample_bilinear(f.data, f.pitch, f.width, f.height, u, w)) : 0;
   }
@@ -205,6 +206,7 @@ struct Destinations {
   DeviceImage dst[kMaxViews];
 };
 
+template <bool kCurved>
 __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations out, const FlowPairDevice* pairs,
                                        int n_pairs, FlowPairMask active, float inv_scale) {
   const int v = blockIdx.z;
@@ -226,12 +228,12 @@ __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations o
       wsum = 0.f;
       for (int k = 0; k < vp.n; ++k) {
         float u, w;
-        wsum += view_weight(vp.views[k], px, py, u, w);
+        wsum += view_weight<kCurved>(vp.views[k], px, py, u, w);
       }
     }
     const int other = P.a == v ? P.b : P.a;
     float u, w;
-    const float theta = view_weight(vp.views[other], px, py, u, w) / fmaxf(wsum, 1e-12f);
+    const float theta = view_weight<kCurved>(vp.views[other], px, py, u, w) / fmaxf(wsum, 1e-12f);
     if (theta <= 0.f) continue;
     // View a samples at p + theta_b flow_{b->a}; view b at p + theta_a flow_{a->b}.
     const float* field = P.a == v ? P.flow[1] : P.flow[0];
@@ -243,7 +245,7 @@ __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations o
   }
   float u, w;
   float4 c = make_float4(0.f, 0.f, 0.f, 0.f);
-  if (view_to_camera(me, px + dx, py + dy, u, w) && u > -1.f && w > -1.f && u < frame.width &&
+  if (view_to_camera<kCurved>(me, px + dx, py + dy, u, w) && u > -1.f && w > -1.f && u < frame.width &&
       w < frame.height)
     c = sample_bilinear(frame.data, frame.pitch, frame.width, frame.height, u, w);
   *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) =
@@ -257,8 +259,11 @@ dim3 grid_for(int w, int h, int z) { return dim3((w + 31) / 32, (h + 7) / 8, z);
 void launch_overlap_gray(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& active,
                          const ViewGeometry* views, const DeviceImage* frames, int n_views, cudaStream_t stream) {
   if (n_pairs <= 0) return;
-  overlap_gray_kernel<<<grid_for(max_w, max_h, n_pairs), dim3(32, 8), 0, stream>>>(pairs, active,
-                                                                                  views_param(views, frames, n_views));
+  const ViewsParam vp = views_param(views, frames, n_views);
+  if (any_curved(views, n_views))
+    overlap_gray_kernel<true><<<grid_for(max_w, max_h, n_pairs), dim3(32, 8), 0, stream>>>(pairs, active, vp);
+  else
+    overlap_gray_kernel<false><<<grid_for(max_w, max_h, n_pairs), dim3(32, 8), 0, stream>>>(pairs, active, vp);
   check_launch("overlap gray kernel");
 }
 
@@ -320,8 +325,12 @@ void launch_flow_warp_views(const ViewGeometry* views, const DeviceImage* frames
   }
   if (max_w == 0 || max_h == 0) return;
   if (n_pairs > kMaxFlowPairs) throw std::invalid_argument("too many overlapping pairs");
-  flow_warp_views_kernel<<<grid_for(max_w, max_h, n_views), dim3(32, 8), 0, stream>>>(
-      views_param(views, frames, n_views), out, pairs, n_pairs, active, inv_scale);
+  const ViewsParam vp = views_param(views, frames, n_views);
+  const dim3 grid = grid_for(max_w, max_h, n_views), block(32, 8);
+  if (any_curved(views, n_views))
+    flow_warp_views_kernel<true><<<grid, block, 0, stream>>>(vp, out, pairs, n_pairs, active, inv_scale);
+  else
+    flow_warp_views_kernel<false><<<grid, block, 0, stream>>>(vp, out, pairs, n_pairs, active, inv_scale);
   check_launch("flow warp kernel");
 }
 

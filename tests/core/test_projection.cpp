@@ -111,7 +111,7 @@ TEST(Projection, OutputPlacementMapsLikeTheCanvas) {
       const CameraCanvasMap m = camera_canvas_map(rig, cam);
       for (int y = 0; y < g.height; y += 17)
         for (int x = 0; x < g.width; x += 13) {
-          double u, v;
+          double u = 0, v = 0;
           Eigen::Vector2d p;
           const bool a = view_to_camera(views[cam], x, y, u, v);
           const bool b = m.to_camera(apply_homography(out_to_canvas, {double(x), double(y)}), p);
@@ -145,10 +145,12 @@ TEST(Projection, RingWrapsAndOverlapsAcrossTheWrap) {
     EXPECT_GT(views[3].span_x1, rig.canvas_width);
     EXPECT_LT(views[3].span_x1 - views[3].span_x0, rig.canvas_width / 3);
     for (int x = 0; x < rig.canvas_width; ++x) {
-      double u, v;
+      double u = 0, v = 0;
       const bool sees = view_to_camera(views[3], x, rig.canvas_origin_y, u, v) && u >= -1 && u <= 480;
       const double xu = x < views[3].span_x0 ? x + rig.canvas_width : x;
-      if (sees) EXPECT_LE(xu, views[3].span_x1) << "column " << x;
+      if (sees) {
+        EXPECT_LE(xu, views[3].span_x1) << "column " << x;
+      }
     }
     for (int i : {0, 1, 2, 4, 5}) EXPECT_LT(views[i].roi.width, rig.canvas_width / 2) << i;
     for (int i = 0; i < 6; ++i) {
@@ -158,13 +160,19 @@ TEST(Projection, RingWrapsAndOverlapsAcrossTheWrap) {
       canvas_overlap(rig, i, (i + 3) % 6, &area);
       EXPECT_EQ(area, 0.f) << "opposite cameras " << i << " and " << (i + 3) % 6;
     }
+    // Auto-crop keeps the whole 360 degrees (only rows are cropped), so the panorama still wraps.
+    const Rect covered = largest_covered_rect(rig);
+    EXPECT_EQ(covered.x, 0);
+    EXPECT_EQ(covered.width, rig.canvas_width);
+    EXPECT_GT(covered.height, rig.canvas_height / 2);
+    EXPECT_LT(covered.height, rig.canvas_height);
     // Every column of the canvas is covered at the horizon.
     std::vector<cv::Mat> weights;
     int uncovered = 0;
     for (int x = 0; x < rig.canvas_width; ++x) {
       bool any = false;
       for (int i = 0; i < 6 && !any; ++i) {
-        double u, v;
+        double u = 0, v = 0;
         any = view_to_camera(views[i], x, rig.canvas_origin_y, u, v) && u >= 0 && v >= 0 && u <= 479 && v <= 359;
       }
       uncovered += !any;
@@ -226,6 +234,14 @@ TEST(Projection, RigJsonKeepsTheCanvas) {
   EXPECT_EQ(again.canvas_width, rig.canvas_width);
   EXPECT_EQ(again.canvas_height, rig.canvas_height);
   EXPECT_DOUBLE_EQ(again.canvas_origin_y, rig.canvas_origin_y);
+  // Streams of another size: the intrinsics scale and the canvas follows them (half the size).
+  Rig half = back;
+  ASSERT_TRUE(rig_adapt_to_sizes(half, std::vector<std::array<int, 2>>(6, {240, 180})));
+  EXPECT_FALSE(half.calibrated());  // the canvas scale is laid out again
+  rig_layout_canvas(half);
+  EXPECT_TRUE(half.canvas_wrap);
+  EXPECT_NEAR(half.canvas_width, rig.canvas_width / 2.0, 2);
+  EXPECT_NEAR(half.canvas_height, rig.canvas_height / 2.0, 2);
   // Errors name the problem.
   try {
     rig_from_json_string(R"({"projection": "fisheye", "cameras": [{"width": 4, "height": 4, "fx": 2}]})");

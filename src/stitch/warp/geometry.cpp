@@ -59,6 +59,11 @@ Rect largest_covered_rect(const Rig& rig) {
   r.y = int(std::ceil(best_rect.y / scale));
   r.width = std::min(rig.canvas_width - r.x, int(std::floor(best_rect.width / scale)));
   r.height = std::min(rig.canvas_height - r.y, int(std::floor(best_rect.height / scale)));
+  if (rig.canvas_wrap && best_rect.width == w) {
+    // Covered all round: keep exactly 360 degrees, so that the panorama still wraps.
+    r.x = 0;
+    r.width = rig.canvas_width;
+  }
   return r;
 }
 
@@ -94,6 +99,9 @@ OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, Cro
 std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out) {
   std::vector<ViewPlacement> views;
   const Eigen::Matrix3d& A = out.canvas_to_output;  // axis-aligned scale + offset
+  // The output shows the whole 360 degrees of a wrapping canvas (not a horizontal crop of it).
+  const bool output_wraps = rig.canvas_wrap && std::abs(A(0, 0) * rig.canvas_width - out.width) < 1e-6 &&
+                            std::abs(A(0, 2) - (0.5 * A(0, 0) - 0.5)) < 1e-6;
   for (int i = 0; i < int(rig.cameras.size()); ++i) {
     const Camera& cam = rig.cameras[i];
     ViewPlacement v;
@@ -111,22 +119,27 @@ std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out
                             -(A(1, 2) / A(1, 1) + rig.canvas_origin_y) / s};
     }
     double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
+    double canvas_minx = 1e300, canvas_maxx = -1e300;
     for (const auto& q : camera_canvas_outline(rig, i)) {
       const Eigen::Vector2d o = apply_homography(out.canvas_to_output, q);
+      canvas_minx = std::min(canvas_minx, q.x());
+      canvas_maxx = std::max(canvas_maxx, q.x());
       minx = std::min(minx, o.x());
       miny = std::min(miny, o.y());
       maxx = std::max(maxx, o.x());
       maxy = std::max(maxy, o.y());
     }
-    if (rig.canvas_wrap && (minx < -0.5 || maxx > out.width - 0.5)) {
+    if (rig.canvas_wrap && (canvas_minx < -0.5 || canvas_maxx > rig.canvas_width - 0.5)) {
       // The view crosses the 360-degree wrap: it shows at both edges. Its rectangle spans the
       // whole width; the angle mapping is periodic, so each column samples the right side.
-      const double margin = 2 + 0.02 * (maxx - minx);
-      v.wrap_width = out.width;
-      // Kept starting inside the canvas, so that only the left edge's columns need unwrapping.
-      const double shift = minx - margin < 0 ? out.width : 0;
-      v.span_x0 = minx - margin + shift;
-      v.span_x1 = maxx + margin + shift;
+      if (output_wraps) {
+        const double margin = 2 + 0.02 * (maxx - minx);
+        v.wrap_width = out.width;
+        // Kept starting inside the output, so that only the left edge's columns need unwrapping.
+        const double shift = minx - margin < 0 ? out.width : 0;
+        v.span_x0 = minx - margin + shift;
+        v.span_x1 = maxx + margin + shift;
+      }
       minx = 0;
       maxx = out.width - 1;
     }
