@@ -812,6 +812,16 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
       return GST_FLOW_EOS;
     }
   }
+  /* Every input ended: the base class ends the stream itself only when it does not aggregate on
+   * a timeout (live inputs, force-live), where it would repeat the end forever. */
+  bool all_ended = true;
+  for (GstVideoAggregatorPad* pad : pads)
+    all_ended = all_ended && !gst_video_aggregator_pad_get_prepared_frame(pad) &&
+                gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
+  if (all_ended) {
+    GST_INFO_OBJECT(self, "every input ended; ending the stream");
+    return GST_FLOW_EOS;
+  }
   std::vector<DropoutChange> changes;
   std::vector<GstMessage*> qos;
   guint64 missing = 0;

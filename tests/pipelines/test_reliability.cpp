@@ -268,6 +268,21 @@ TEST_P(Dropout, TimestampJumpDropsOutAndRejoins) {
   EXPECT_FALSE(dropped);
 }
 
+// File inputs that may stall: force-live aggregates on the clock, the stalled camera drops out
+// and rejoins, and the stream still ends when every input has ended.
+TEST(ForceLive, StallingFileInputDropsOutAndTheStreamEnds) {
+  std::vector<std::vector<Push>> in = {coded_frames(0, 0, 59), coded_frames(1, 0, 9)};
+  for (const Push& p : coded_frames(1, 40, 59)) in[1].push_back(p);
+  Collected run;
+  run_pipeline(bundles("force-live=true latency=50000000 dropout=fill dropout-timeout=250000000", 2), in, run, 10);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  EXPECT_GE(run.outputs.size(), 55u);
+  EXPECT_LE(run.outputs.size(), 61u);
+  EXPECT_TRUE(run.warned("sink_1", "dropped out"));
+  ASSERT_EQ(run.dropouts.size(), 2u) << "one dropout and one rejoin, nothing at the end";
+  EXPECT_FALSE(run.outputs.back().missing & 2);
+}
+
 // A camera that ends: with fill its view is left out from then on (a warning says it ended).
 TEST_P(Dropout, EndedCameraIsLeftOutOrFrozen) {
   const bool fill = GetParam();
