@@ -766,7 +766,7 @@ static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAgg
       if (had_frame) reason = gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad)) ? "it ended" : "it stopped sending frames";
     } else if (GST_CLOCK_TIME_IS_VALID(now)) {
       const GstClockTime end = current_frame_end(pad);
-      if (GST_CLOCK_TIME_IS_VALID(end) && now > end + timeout)
+      if (GST_CLOCK_TIME_IS_VALID(end) && now > end && now - end > timeout)
         reason = "no frame for " + std::to_string((now - end) / GST_MSECOND) + " ms";
     }
     const bool out = !reason.empty();

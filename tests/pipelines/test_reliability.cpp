@@ -716,3 +716,33 @@ TEST(Reconnect, EndedCameraRejoinsAfterANewStream) {
   gst_structure_get_boolean(run.dropouts.back(), "dropped", &dropped);
   EXPECT_FALSE(dropped);
 }
+
+// The new properties and their defaults (names are contracts: README and DESIGN use them).
+TEST(Properties, DropoutAndResizeDefaults) {
+  gsttest::init();
+  GstElement* sync = gst_element_factory_make("stitchsync", nullptr);
+  GstElement* calib = gst_element_factory_make("stitchcalib", nullptr);
+  ASSERT_NE(sync, nullptr);
+  ASSERT_NE(calib, nullptr);
+  auto nick = [](GstElement* e, const char* prop) {
+    GValue v = G_VALUE_INIT;
+    g_value_init(&v, g_object_class_find_property(G_OBJECT_GET_CLASS(e), prop)->value_type);
+    g_object_get_property(G_OBJECT(e), prop, &v);
+    GEnumClass* klass = G_ENUM_CLASS(g_type_class_ref(G_VALUE_TYPE(&v)));
+    const std::string n = g_enum_get_value(klass, g_value_get_enum(&v))->value_nick;
+    g_type_class_unref(klass);
+    g_value_unset(&v);
+    return n;
+  };
+  EXPECT_EQ(nick(sync, "dropout"), "freeze");
+  EXPECT_EQ(nick(calib, "on-resize"), "recalibrate");
+  guint64 timeout = 0;
+  g_object_get(sync, "dropout-timeout", &timeout, NULL);
+  EXPECT_EQ(timeout, 500 * GST_MSECOND);
+  gst_util_set_object_arg(G_OBJECT(sync), "dropout", "fill");
+  gst_util_set_object_arg(G_OBJECT(calib), "on-resize", "error");
+  EXPECT_EQ(nick(sync, "dropout"), "fill");
+  EXPECT_EQ(nick(calib, "on-resize"), "error");
+  gst_object_unref(sync);
+  gst_object_unref(calib);
+}
