@@ -766,7 +766,7 @@ static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAgg
       if (had_frame) reason = gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad)) ? "it ended" : "it stopped sending frames";
     } else if (GST_CLOCK_TIME_IS_VALID(now)) {
       const GstClockTime end = current_frame_end(pad);
-      if (GST_CLOCK_TIME_IS_VALID(end) && now > end + timeout)
+      if (GST_CLOCK_TIME_IS_VALID(end) && now > end && now - end > timeout)
         reason = "no frame for " + std::to_string((now - end) / GST_MSECOND) + " ms";
     }
     const bool out = !reason.empty();
@@ -811,6 +811,16 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
       GST_INFO_OBJECT(self, "%s ended; ending the stream (input-eos=end-stream)", GST_PAD_NAME(pad));
       return GST_FLOW_EOS;
     }
+  }
+  /* Every input ended: the base class ends the stream itself only when it does not aggregate on
+   * a timeout (live inputs, force-live), where it would repeat the end forever. */
+  bool all_ended = true;
+  for (GstVideoAggregatorPad* pad : pads)
+    all_ended = all_ended && !gst_video_aggregator_pad_get_prepared_frame(pad) &&
+                gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
+  if (all_ended) {
+    GST_INFO_OBJECT(self, "every input ended; ending the stream");
+    return GST_FLOW_EOS;
   }
   std::vector<DropoutChange> changes;
   std::vector<GstMessage*> qos;

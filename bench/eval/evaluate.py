@@ -14,7 +14,8 @@ the same way for all of them:
   both               time per frame on this machine's CPU and its ratio to OpenCV per-frame
 
 Stitchers: our chain (stitchcolor ! stitchflowwarp ! stitchblend) and its ablations without
-stitchcolor, without stitchflowwarp and without both; cv::Stitcher per frame (the paper's
+stitchcolor, without stitchflowwarp and without both; the chain with stitchblend
+mode=multiband, and with mode=multiband seam=dp; cv::Stitcher per frame (the paper's
 AutoStitch baseline) and estimated once then composing every frame.
 
 Output (default out/eval): report.md (tables), results.json, per-frame PSNR and flicker plots
@@ -51,6 +52,8 @@ OURS = [
     ("ours-no-color", "stitchflowwarp", ""),
     ("ours-no-flowwarp", "stitchcolor", ""),
     ("ours-blend-only", "", ""),
+    ("ours-multiband", "stitchcolor ! stitchflowwarp", "mode=multiband"),
+    ("ours-multiband-dp-seam", "stitchcolor ! stitchflowwarp", "mode=multiband seam=dp"),
 ]
 OPENCV = [("opencv-per-frame", "per-frame"), ("opencv-once", "once")]
 BASELINE = "opencv-per-frame"
@@ -437,6 +440,7 @@ def write_report(report, results, args, elapsed):
              "Stitchers: **ours** = `stitchcolor ! stitchflowwarp ! stitchblend` (defaults; calibrated by "
              "`stitchcalib` from the rough rig on ground-truth rigs, from the images alone on real clips); "
              "ablations without stitchcolor, without stitchflowwarp, and without both (blend only); "
+             "the chain with `stitchblend mode=multiband` and with `mode=multiband seam=dp`; "
              "**opencv-per-frame** = `cv::Stitcher::stitch()` on every frame set (the paper's AutoStitch "
              "baseline), **opencv-once** = `estimateTransform()` on the first frame set then "
              "`composePanorama()` on each; both PANORAMA mode with SIFT features and the plane warper "

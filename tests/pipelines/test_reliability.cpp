@@ -268,6 +268,21 @@ TEST_P(Dropout, TimestampJumpDropsOutAndRejoins) {
   EXPECT_FALSE(dropped);
 }
 
+// File inputs that may stall: force-live aggregates on the clock, the stalled camera drops out
+// and rejoins, and the stream still ends when every input has ended.
+TEST(ForceLive, StallingFileInputDropsOutAndTheStreamEnds) {
+  std::vector<std::vector<Push>> in = {coded_frames(0, 0, 59), coded_frames(1, 0, 9)};
+  for (const Push& p : coded_frames(1, 40, 59)) in[1].push_back(p);
+  Collected run;
+  run_pipeline(bundles("force-live=true latency=50000000 dropout=fill dropout-timeout=250000000", 2), in, run, 10);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  EXPECT_GE(run.outputs.size(), 55u);
+  EXPECT_LE(run.outputs.size(), 61u);
+  EXPECT_TRUE(run.warned("sink_1", "dropped out"));
+  ASSERT_EQ(run.dropouts.size(), 2u) << "one dropout and one rejoin, nothing at the end";
+  EXPECT_FALSE(run.outputs.back().missing & 2);
+}
+
 // A camera that ends: with fill its view is left out from then on (a warning says it ended).
 TEST_P(Dropout, EndedCameraIsLeftOutOrFrozen) {
   const bool fill = GetParam();
@@ -700,4 +715,34 @@ TEST(Reconnect, EndedCameraRejoinsAfterANewStream) {
   gboolean dropped = TRUE;
   gst_structure_get_boolean(run.dropouts.back(), "dropped", &dropped);
   EXPECT_FALSE(dropped);
+}
+
+// The new properties and their defaults (names are contracts: README and DESIGN use them).
+TEST(Properties, DropoutAndResizeDefaults) {
+  gsttest::init();
+  GstElement* sync = gst_element_factory_make("stitchsync", nullptr);
+  GstElement* calib = gst_element_factory_make("stitchcalib", nullptr);
+  ASSERT_NE(sync, nullptr);
+  ASSERT_NE(calib, nullptr);
+  auto nick = [](GstElement* e, const char* prop) {
+    GValue v = G_VALUE_INIT;
+    g_value_init(&v, g_object_class_find_property(G_OBJECT_GET_CLASS(e), prop)->value_type);
+    g_object_get_property(G_OBJECT(e), prop, &v);
+    GEnumClass* klass = G_ENUM_CLASS(g_type_class_ref(G_VALUE_TYPE(&v)));
+    const std::string n = g_enum_get_value(klass, g_value_get_enum(&v))->value_nick;
+    g_type_class_unref(klass);
+    g_value_unset(&v);
+    return n;
+  };
+  EXPECT_EQ(nick(sync, "dropout"), "freeze");
+  EXPECT_EQ(nick(calib, "on-resize"), "recalibrate");
+  guint64 timeout = 0;
+  g_object_get(sync, "dropout-timeout", &timeout, NULL);
+  EXPECT_EQ(timeout, 500 * GST_MSECOND);
+  gst_util_set_object_arg(G_OBJECT(sync), "dropout", "fill");
+  gst_util_set_object_arg(G_OBJECT(calib), "on-resize", "error");
+  EXPECT_EQ(nick(sync, "dropout"), "fill");
+  EXPECT_EQ(nick(calib, "on-resize"), "error");
+  gst_object_unref(sync);
+  gst_object_unref(calib);
 }
