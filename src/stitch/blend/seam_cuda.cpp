@@ -127,6 +127,12 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
   return s.labels.data();
 }
 
+std::vector<uint8_t> SeamFinderCuda::labels() const {
+  std::vector<uint8_t> out(std::size_t(s_->width) * s_->height);
+  STITCH_CUDA(cudaMemcpy(out.data(), s_->labels.data(), out.size(), cudaMemcpyDeviceToHost));
+  return out;
+}
+
 std::vector<std::vector<int>> SeamFinderCuda::paths() const {
   std::vector<std::vector<int>> out;
   for (const State::PairState& p : s_->pairs) {
