@@ -15,6 +15,16 @@
  * The panorama size is fixed by the first calibration (or the properties): later
  * recalibrations are fitted into the same frame, so encoders and muxers see no caps change.
  *
+ * `mode=multiband` blends band by band instead (Burt-Adelson Laplacian pyramids, `bands`
+ * levels): each output pixel belongs to one view, and each view's mask is blurred per level, so
+ * exposure differences fade over a wide band while detail is cut sharply (no ghosted double
+ * edges where the views disagree). By default the masks meet in the middle of every overlap;
+ * `seam=dp` moves the cut, frame by frame, along the path of least color difference, edges and
+ * motion through each overlap (dynamic programming), pulled towards the previous frame's path so
+ * that it does not jump. Both run on the GPU where the blend does.
+ * `debug` draws each view's outline, the overlaps, the seams and what stitchflowwarp's flow did
+ * onto the panorama.
+ *
  * ## Example launch lines
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend crop=auto ! videoconvert ! \
@@ -25,6 +35,19 @@
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend output-width=1280 ! \
  *   videoconvert ! autovideosink \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * Multiband blending with seams placed around moving objects, and the debug view:
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchcolor ! stitchflowwarp ! \
+ *   stitchblend mode=multiband seam=dp ! videoconvert ! autovideosink \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchflowwarp ! \
+ *   stitchblend mode=multiband seam=dp debug=all ! videoconvert ! autovideosink \
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
  * ]|
@@ -502,7 +525,7 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   gst_element_class_add_static_pad_template(element_class, &src_template);
   gst_element_class_set_static_metadata(element_class, "Stitch blend", "Filter/Editor/Video",
       "Warps the views of a calibrated stitch bundle onto the canvas and fuses them into one "
-      "panorama (position-weighted mean)",
+      "panorama (position-weighted mean, or multiband with optional seam finding)",
       "gst-stitch developers");
 
   trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_caps);
