@@ -62,15 +62,14 @@ for chain in "stitchblend backend=cpu" "stitchblend" "stitchcolor ! stitchflowwa
     filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v "gldisplay\|nvrtc" | grep -A2 "^ERROR" | head -4
   echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"
 done 2>&1 | tee "$OUT/pipelines.txt"
-BLEND_PROPS=""
-[ "$MODE" = blend ] && BLEND_PROPS="mode=multiband seam=dp"
-echo "== the whole chain in CUDA memory (nvh264dec ! stitchsync ... stitchblend $BLEND_PROPS ! cudadownload) vs the CPU chain"
+if [ "$MODE" = blend ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
+echo "== the whole chain in CUDA memory (nvh264dec ! stitchsync ... stitchblend ! cudadownload) vs the CPU chain"
 # The CPU run calibrates and saves; the CUDA run loads that calibration, so both warp alike.
 for b in cpu cuda; do
   if [ $b = cuda ]; then
-    chain="stitchsync name=s ! stitchcalib load-file=$OUT/calib.json ! stitchcolor ! stitchflowwarp ! stitchblend $BLEND_PROPS ! cudadownload"
+    chain="stitchsync name=s ! stitchcalib load-file=$OUT/calib.json ! stitchcolor ! stitchflowwarp ! stitchblend ! cudadownload"
   else
-    chain="stitchsync name=s backend=cpu ! stitchcalib save-file=$OUT/calib.json ! stitchcolor backend=cpu ! stitchflowwarp backend=cpu ! stitchblend backend=cpu $BLEND_PROPS"
+    chain="stitchsync name=s backend=cpu ! stitchcalib save-file=$OUT/calib.json ! stitchcolor backend=cpu ! stitchflowwarp backend=cpu ! stitchblend backend=cpu"
   fi
   gst-launch-1.0 -v $chain ! video/x-raw,format=RGBA ! multifilesink location=$OUT/pano_$b.raw max-files=1 \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
