@@ -57,6 +57,7 @@ constexpr Proxy kProxies[] = {
     {"output-width", kBlend},      {"output-height", kBlend},
     {"crop", kBlend},              {"mode", kBlend},
     {"bands", kBlend},             {"seam", kBlend},
+    {"debug", kBlend},
     {"backend", kAllChildren},
 };
 
@@ -68,6 +69,10 @@ GParamSpec* clone_pspec(GParamSpec* p) {
   if (t == G_TYPE_PARAM_ENUM) {
     GParamSpecEnum* e = G_PARAM_SPEC_ENUM(p);
     return g_param_spec_enum(name, nick, blurb, G_TYPE_FROM_CLASS(e->enum_class), e->default_value, flags);
+  }
+  if (t == G_TYPE_PARAM_FLAGS) {
+    GParamSpecFlags* f = G_PARAM_SPEC_FLAGS(p);
+    return g_param_spec_flags(name, nick, blurb, G_TYPE_FROM_CLASS(f->flags_class), f->default_value, flags);
   }
   if (t == G_TYPE_PARAM_BOOLEAN)
     return g_param_spec_boolean(name, nick, blurb, G_PARAM_SPEC_BOOLEAN(p)->default_value, flags);

@@ -15,6 +15,16 @@
  * The panorama size is fixed by the first calibration (or the properties): later
  * recalibrations are fitted into the same frame, so encoders and muxers see no caps change.
  *
+ * `mode=multiband` blends band by band instead (Burt-Adelson Laplacian pyramids, `bands`
+ * levels): each output pixel belongs to one view, and each view's mask is blurred per level, so
+ * exposure differences fade over a wide band while detail is cut sharply (no ghosted double
+ * edges where the views disagree). By default the masks meet in the middle of every overlap;
+ * `seam=dp` moves the cut, frame by frame, along the path of least color difference, edges and
+ * motion through each overlap (dynamic programming), pulled towards the previous frame's path so
+ * that it does not jump. Both run on the GPU where the blend does.
+ * `debug` draws each view's outline, the overlaps, the seams and what stitchflowwarp's flow did
+ * onto the panorama.
+ *
  * ## Example launch lines
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend crop=auto ! videoconvert ! \
@@ -25,6 +35,19 @@
  * |[
  * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend output-width=1280 ! \
  *   videoconvert ! autovideosink \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * Multiband blending with seams placed around moving objects, and the debug view:
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchcolor ! stitchflowwarp ! \
+ *   stitchblend mode=multiband seam=dp ! videoconvert ! autovideosink \
+ *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
+ *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
+ * ]|
+ * |[
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchflowwarp ! \
+ *   stitchblend mode=multiband seam=dp debug=all ! videoconvert ! autovideosink \
  *   filesrc location=data/limlight_2cam_apartment/left.mp4 ! decodebin ! s.sink_0 \
  *   filesrc location=data/limlight_2cam_apartment/right.mp4 ! decodebin ! s.sink_1
  * ]|
@@ -55,7 +78,7 @@
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_blend_debug);
 #define GST_CAT_DEFAULT gst_stitch_blend_debug
 
-enum { PROP_0, PROP_OUTPUT_WIDTH, PROP_OUTPUT_HEIGHT, PROP_CROP, PROP_BACKEND, PROP_MODE, PROP_BANDS, PROP_SEAM };
+enum { PROP_0, PROP_OUTPUT_WIDTH, PROP_OUTPUT_HEIGHT, PROP_CROP, PROP_BACKEND, PROP_MODE, PROP_BANDS, PROP_SEAM, PROP_DEBUG };
 
 #define DEFAULT_CROP stitch::CropMode::None
 
@@ -63,6 +86,7 @@ struct BlendState {
   /* settings (object lock) */
   stitch::CompositorSettings settings;
   bool settings_changed = true;
+  guint debug = 0; /* stitch::DebugFlags */
   /* state (streaming thread) */
   StitchCudaOwned<stitch::Compositor> compositor;
   guint64 rig_version = G_MAXUINT64;
@@ -122,6 +146,23 @@ static GType seam_get_type(void) {
       {0, NULL, NULL}};
   if (g_once_init_enter(&type)) {
     GType t = g_enum_register_static("GstStitchBlendSeam", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GType debug_get_type(void) {
+  static GType type = 0;
+  static const GFlagsValue values[] = {
+      {stitch::kDebugOutlines, "Each view's outline, in its own color", "outlines"},
+      {stitch::kDebugOverlaps, "The overlaps, tinted", "overlaps"},
+      {stitch::kDebugSeams, "The seams: where the blend changes view", "seams"},
+      {stitch::kDebugFlow, "What stitchflowwarp's flow did in each overlap (mean magnitude, confidence)", "flow"},
+      {stitch::kDebugOutlines | stitch::kDebugOverlaps | stitch::kDebugSeams | stitch::kDebugFlow, "Everything",
+       "all"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_flags_register_static("GstStitchBlendDebug", values);
     g_once_init_leave(&type, t);
   }
   return type;
@@ -340,8 +381,27 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
   view.width = GST_VIDEO_FRAME_WIDTH(&out);
   view.height = GST_VIDEO_FRAME_HEIGHT(&out);
   view.on_device = st->out_cuda;
+  GST_OBJECT_LOCK(self);
+  const guint debug = st->debug;
+  GST_OBJECT_UNLOCK(self);
+  std::vector<stitch::FlowPairStats> flow;
+  if (GstStitchFlowMeta* fm = (debug & stitch::kDebugFlow) ? gst_buffer_get_stitch_flow_meta(inbuf) : nullptr)
+    for (guint i = 0; i < fm->n_pairs; ++i) {
+      const GstStitchFlowPair& p = fm->pairs[i];
+      stitch::FlowPairStats f;
+      f.view_a = p.view_a;
+      f.view_b = p.view_b;
+      f.rect = {p.rect[0], p.rect[1], p.rect[2], p.rect[3]};
+      f.mean_magnitude = p.mean_magnitude;
+      f.confident_fraction = p.confident_fraction;
+      flow.push_back(f);
+    }
   const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchblend", [&]() {
-    st->compositor.run([&](stitch::Compositor& c) { c.compose(mapping.views(), view); });
+    st->compositor.run([&](stitch::Compositor& c) {
+      c.set_debug(debug);
+      c.set_flow_stats(std::move(flow));
+      c.compose(mapping.views(), view);
+    });
   });
   gst_video_frame_unmap(&out);
   return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
@@ -373,6 +433,10 @@ static void gst_stitch_blend_set_property(GObject* object, guint prop_id, const 
     case PROP_MODE: s.blend = stitch::BlendMode(g_value_get_enum(value)); break;
     case PROP_BANDS: s.bands = g_value_get_int(value); break;
     case PROP_SEAM: s.seam = stitch::SeamMode(g_value_get_enum(value)); break;
+    case PROP_DEBUG:
+      self->state->debug = g_value_get_flags(value);
+      GST_OBJECT_UNLOCK(self);
+      return; /* drawn per frame: no rebuild */
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
   if ((prop_id == PROP_SEAM || prop_id == PROP_MODE) && s.seam != stitch::SeamMode::None &&
@@ -396,6 +460,7 @@ static void gst_stitch_blend_get_property(GObject* object, guint prop_id, GValue
     case PROP_MODE: g_value_set_enum(value, int(s.blend)); break;
     case PROP_BANDS: g_value_set_int(value, s.bands); break;
     case PROP_SEAM: g_value_set_enum(value, int(s.seam)); break;
+    case PROP_DEBUG: g_value_set_flags(value, self->state->debug); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
   GST_OBJECT_UNLOCK(self);
@@ -449,12 +514,18 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
                         "that crosses the least color difference, edges and motion, kept near the last "
                         "frame's path so that it does not jump",
                         seam_get_type(), int(stitch::SeamMode::None), rw));
+  g_object_class_install_property(gobject_class, PROP_DEBUG,
+      g_param_spec_flags("debug", "Debug view",
+                         "Draws onto the panorama why it looks the way it does: each view's outline, the "
+                         "overlaps, the seams, and what stitchflowwarp's flow did in each overlap (e.g. "
+                         "debug=outlines+seams, debug=all). With CUDA memory the frame is drawn on the host.",
+                         debug_get_type(), 0, GParamFlags(rw | GST_PARAM_MUTABLE_PLAYING)));
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);
   gst_element_class_set_static_metadata(element_class, "Stitch blend", "Filter/Editor/Video",
       "Warps the views of a calibrated stitch bundle onto the canvas and fuses them into one "
-      "panorama (position-weighted mean)",
+      "panorama (position-weighted mean, or multiband with optional seam finding)",
       "gst-stitch developers");
 
   trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_caps);
@@ -471,6 +542,7 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   gst_type_mark_as_plugin_api(crop_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(mode_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(seam_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(debug_get_type(), GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_blend_debug, "stitchblend", 0, "stitch blend");
 }
 

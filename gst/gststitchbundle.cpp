@@ -174,6 +174,51 @@ GstStitchWarpMeta* gst_buffer_get_stitch_warp_meta(GstBuffer* buffer) {
       gst_buffer_get_meta(buffer, gst_stitch_warp_meta_api_get_type()));
 }
 
+/* ---- flow meta ---- */
+
+GType gst_stitch_flow_meta_api_get_type(void) {
+  static GType type = 0;
+  static const gchar* tags[] = {"stitch", NULL};
+  if (g_once_init_enter(&type)) {
+    GType t = gst_meta_api_type_register("GstStitchFlowMetaAPI", tags);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static gboolean flow_meta_init(GstMeta* meta, gpointer, GstBuffer*) {
+  reinterpret_cast<GstStitchFlowMeta*>(meta)->n_pairs = 0;
+  return TRUE;
+}
+
+static gboolean flow_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*, GQuark type, gpointer) {
+  if (!GST_META_TRANSFORM_IS_COPY(type)) return FALSE;
+  return gst_buffer_add_stitch_flow_meta(dest, reinterpret_cast<GstStitchFlowMeta*>(meta)) != NULL;
+}
+
+const GstMetaInfo* gst_stitch_flow_meta_get_info(void) {
+  static const GstMetaInfo* info = NULL;
+  if (g_once_init_enter(&info)) {
+    const GstMetaInfo* mi = gst_meta_register(gst_stitch_flow_meta_api_get_type(), "GstStitchFlowMeta",
+                                              sizeof(GstStitchFlowMeta), flow_meta_init, NULL, flow_meta_transform);
+    g_once_init_leave(&info, mi);
+  }
+  return info;
+}
+
+GstStitchFlowMeta* gst_buffer_add_stitch_flow_meta(GstBuffer* buffer, const GstStitchFlowMeta* from) {
+  auto* m = reinterpret_cast<GstStitchFlowMeta*>(gst_buffer_add_meta(buffer, gst_stitch_flow_meta_get_info(), NULL));
+  if (m) {
+    m->n_pairs = MIN(from->n_pairs, STITCH_MAX_FLOW_PAIRS);
+    std::memcpy(m->pairs, from->pairs, sizeof(GstStitchFlowPair) * m->n_pairs);
+  }
+  return m;
+}
+
+GstStitchFlowMeta* gst_buffer_get_stitch_flow_meta(GstBuffer* buffer) {
+  return reinterpret_cast<GstStitchFlowMeta*>(gst_buffer_get_meta(buffer, gst_stitch_flow_meta_api_get_type()));
+}
+
 /* ---- backend enum ---- */
 
 GType gst_stitch_backend_get_type(void) {

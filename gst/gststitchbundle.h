@@ -77,6 +77,26 @@ const GstMetaInfo* gst_stitch_warp_meta_get_info(void);
 GstStitchWarpMeta* gst_buffer_add_stitch_warp_meta(GstBuffer* buffer, const GstStitchWarpMeta* from);
 GstStitchWarpMeta* gst_buffer_get_stitch_warp_meta(GstBuffer* buffer);
 
+/* Set by stitchflowwarp after warping: what the flow did in each overlap of the frame (rects in
+ * canvas pixels); stitchblend's debug view draws it. */
+#define STITCH_MAX_FLOW_PAIRS 64
+typedef struct {
+  gint view_a, view_b;
+  gint rect[4];
+  gdouble mean_magnitude, confident_fraction;
+} GstStitchFlowPair;
+
+typedef struct {
+  GstMeta meta;
+  guint n_pairs;
+  GstStitchFlowPair pairs[STITCH_MAX_FLOW_PAIRS];
+} GstStitchFlowMeta;
+
+GType gst_stitch_flow_meta_api_get_type(void);
+const GstMetaInfo* gst_stitch_flow_meta_get_info(void);
+GstStitchFlowMeta* gst_buffer_add_stitch_flow_meta(GstBuffer* buffer, const GstStitchFlowMeta* from);
+GstStitchFlowMeta* gst_buffer_get_stitch_flow_meta(GstBuffer* buffer);
+
 /* backend=auto|cpu|cuda, shared by every element. */
 #define GST_TYPE_STITCH_BACKEND (gst_stitch_backend_get_type())
 GType gst_stitch_backend_get_type(void);

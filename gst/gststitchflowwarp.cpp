@@ -249,9 +249,20 @@ static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, Gst
     });
   });
   if (ok) {
-    for (const auto& s : st->warper->stats())
+    /* what the flow did, for stitchblend's debug view and for the log */
+    GstStitchFlowMeta flow{};
+    for (const auto& s : st->warper->stats()) {
       GST_LOG_OBJECT(self, "views %d-%d: mean flow %.2f px, %.0f%% consistent", s.view_a, s.view_b,
                      s.mean_magnitude, 100.0 * s.confident_fraction);
+      if (flow.n_pairs == STITCH_MAX_FLOW_PAIRS) continue;
+      GstStitchFlowPair& p = flow.pairs[flow.n_pairs++];
+      p.view_a = s.view_a;
+      p.view_b = s.view_b;
+      p.rect[0] = s.rect.x, p.rect[1] = s.rect.y, p.rect[2] = s.rect.width, p.rect[3] = s.rect.height;
+      p.mean_magnitude = s.mean_magnitude;
+      p.confident_fraction = s.confident_fraction;
+    }
+    gst_buffer_add_stitch_flow_meta(outbuf, &flow);
   }
   return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
 }

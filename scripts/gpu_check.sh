@@ -5,7 +5,8 @@
 # 64 MiB a device call carries, so it holds only binaries that link no OpenCV
 # imgcodecs/videoio (their codec and GDAL trees are large).
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
-#        OUT=... scripts/gpu_check.sh [quick]     (on the GPU host; quick: tests only)
+#        OUT=... scripts/gpu_check.sh [quick|blend] (on the GPU host; quick: tests only;
+#                                                   blend: tests, blend modes, decoded pipelines)
 set -uo pipefail
 GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection test_cuda_blend"
 if [ "${1:-}" = pack ]; then
@@ -37,9 +38,9 @@ for t in $GPU_TESTS; do
   grep -E "PSNR|FLOW|COLOR|MULTIBAND|CONVERT|FLOWWARP|GPUFAULT|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
 done 2>&1 | tee "$OUT/tests.txt"
 if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
+MODE=${1:-}
+if [ "$MODE" != blend ]; then
 echo "== kernels"; timeout 300 $B/stitch-bench-cuda --photo "$STITCH_TEST_PPM" --json "$OUT/cuda.json" 2>&1 | tee "$OUT/bench_cuda.txt"
-echo "== blend modes"; timeout 300 $B/stitch-bench-blend --photo "$STITCH_TEST_PPM" --frames 100 --cpu-frames 5 \
-  --json "$OUT/blend.json" 2>&1 | tee "$OUT/bench_blend.txt"
 echo "== projections"; timeout 200 $B/stitch-bench-projection --photo "$STITCH_TEST_PPM" --frames 10 \
   --json "$OUT/projection.json" 2>&1 | tee "$OUT/bench_projection.txt"
 echo "== core chain"; timeout 300 $B/stitch-bench-chain --photo "$STITCH_TEST_PPM" --frames 300 --cpu-frames 5 \
@@ -49,6 +50,9 @@ for mode in "--cuda-input" "" "--system-output"; do
   timeout 280 $B/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 600 $mode \
     --json "$OUT/pipeline${mode//-/_}.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee -a "$OUT/bench_pipeline.txt"
 done
+fi
+echo "== blend modes"; timeout 300 $B/stitch-bench-blend --photo "$STITCH_TEST_PPM" --frames 100 --cpu-frames 5 \
+  --json "$OUT/blend.json" 2>&1 | tee "$OUT/bench_blend.txt"
 echo "== decoded by nvh264dec (2 x 720x404 H.264)"
 L=data/limlight_2cam_apartment
 for chain in "stitchblend backend=cpu" "stitchblend" "stitchcolor ! stitchflowwarp ! stitchblend backend=cpu" \
@@ -60,6 +64,7 @@ for chain in "stitchblend backend=cpu" "stitchblend" "stitchcolor ! stitchflowwa
     filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v "gldisplay\|nvrtc" | grep -A2 "^ERROR" | head -4
   echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"
 done 2>&1 | tee "$OUT/pipelines.txt"
+if [ "$MODE" = blend ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
 echo "== the whole chain in CUDA memory (nvh264dec ! stitchsync ... stitchblend ! cudadownload) vs the CPU chain"
 # The CPU run calibrates and saves; the CUDA run loads that calibration, so both warp alike.
 for b in cpu cuda; do

@@ -12,6 +12,7 @@ packages=(
   gstreamer1.0-plugins-bad gstreamer1.0-plugins-ugly gstreamer1.0-libav
   python3-opencv python3-numpy python3-matplotlib
   libgstrtspserver-1.0-dev valgrind clang-14 libclang-rt-14-dev python3-gi gir1.2-gst-rtsp-server-1.0
+  python3-gst-1.0
 )
 missing=()
 for p in "${packages[@]}"; do

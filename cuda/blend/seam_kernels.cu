@@ -43,18 +43,19 @@ __global__ void cost_kernel(SeamPairGeometry p, DeviceImage va, DeviceImage vb, 
   out = sm::pixel_cost(w, difference, gradients, motion, centre);
 }
 
-// One block: the rows one after the other (each depends on the one before), the columns of a row
-// across the threads; two rows of energy in shared memory. Then one thread walks back.
-__global__ void dp_kernel(const float* cost, int rows, int cols, const int* previous, float stability, int8_t* steps,
-                          int* path) {
-  extern __shared__ float energy[];  // 2 x cols
+// One block per pair: the rows one after the other (each depends on the one before), the columns
+// of a row across the threads; two rows of energy in shared memory. Then one thread walks back.
+__global__ void dp_kernel(const SeamDpJob* jobs, float stability) {
+  extern __shared__ float energy[];  // 2 x max_cols
+  const SeamDpJob job = jobs[blockIdx.x];
+  const int rows = job.rows, cols = job.cols;
   float* above = energy;
   float* here = energy + cols;
   for (int r = 0; r < rows; ++r) {
-    const int prev = previous ? previous[r] : -1;
+    const int prev = job.previous ? job.previous[r] : -1;
     for (int c = threadIdx.x; c < cols; c += blockDim.x)
-      steps[size_t(r) * cols + c] =
-          int8_t(sm::dp_cell(above, c, cols, r == 0, cost[size_t(r) * cols + c], stability, prev, here[c]));
+      job.steps[size_t(r) * cols + c] =
+          int8_t(sm::dp_cell(above, c, cols, r == 0, job.cost[size_t(r) * cols + c], stability, prev, here[c]));
     __syncthreads();
     float* t = above;
     above = here;
@@ -65,8 +66,8 @@ __global__ void dp_kernel(const float* cost, int rows, int cols, const int* prev
   for (int k = 1; k < cols; ++k)
     if (above[k] < above[c]) c = k;
   for (int r = rows - 1; r >= 0; --r) {
-    path[r] = c;
-    c += steps[size_t(r) * cols + c];
+    job.path[r] = c;
+    c += job.steps[size_t(r) * cols + c];
   }
 }
 
@@ -97,14 +98,14 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
   check_launch("seam cost_kernel");
 }
 
-void launch_seam_dp(const float* cost, int rows, int cols, const int* previous, float stability, int8_t* steps,
-                    int* path, cudaStream_t stream) {
-  const size_t shared = size_t(2) * cols * sizeof(float);
+void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, cudaStream_t stream) {
+  if (n_jobs <= 0) return;
+  const size_t shared = size_t(2) * max_cols * sizeof(float);
   if (shared > 48 * 1024) {
     const cudaError_t e = cudaFuncSetAttribute(dp_kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(shared));
     if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp_kernel: overlap too wide: ") + cudaGetErrorString(e));
   }
-  dp_kernel<<<1, 1024, shared, stream>>>(cost, rows, cols, previous, stability, steps, path);
+  dp_kernel<<<n_jobs, 1024, shared, stream>>>(jobs, stability);
   check_launch("seam dp_kernel");
 }
 

@@ -24,10 +24,18 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
                       const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
                       const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
                       float* cost, cudaStream_t stream);
-// The least-energy path through cost (one block sweeps the rows); previous == nullptr: no pull.
-// steps: rows x cols scratch; path: rows.
-void launch_seam_dp(const float* cost, int rows, int cols, const int* previous, float stability, int8_t* steps,
-                    int* path, cudaStream_t stream);
+// One pair's dynamic programming: the least-energy path through cost (rows x cols);
+// previous == nullptr: no pull; steps: rows x cols scratch; path: rows.
+struct SeamDpJob {
+  const float* cost;
+  int rows, cols;
+  const int* previous;
+  int8_t* steps;
+  int* path;
+};
+// All pairs at once, one block each (a block sweeps its rows one after the other); jobs is in
+// device memory; max_cols sizes the shared rows.
+void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, cudaStream_t stream);
 // Overlap pixels labelled a or b: a before the path, b from it on.
 void launch_seam_labels(uint8_t* labels, int label_width, const SeamPairGeometry& pair, const float* centre,
                         const int* path, cudaStream_t stream);

@@ -59,3 +59,38 @@ TEST(StitchBlendModes, MultibandAndSeamsReproduceConsistentViews) {
     EXPECT_GT(testdata::psnr_rgb(pano, s.photo(cv::Rect(0, 200, 1040, 480))), 45.0) << props;
   }
 }
+
+TEST(StitchBlendDebug, DrawsSeamsOutlinesAndFlowWithoutTouchingTheRest) {
+  Scene s = scene();
+  auto run = [&](const std::string& chain) {
+    gsttest::RunResult r;
+    gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib + " ! " + chain +
+                              " ! appsink name=out sync=false" + gsttest::appsrc_inputs(2),
+                          s.views, 2, r);
+    EXPECT_TRUE(r.errors.empty()) << (r.errors.empty() ? "" : r.errors[0]);
+    return r.frames.empty() ? cv::Mat() : r.frames.back().clone();
+  };
+  const cv::Mat plain = run("stitchflowwarp ! stitchblend"), seams = run("stitchflowwarp ! stitchblend debug=seams"),
+                all = run("stitchflowwarp ! stitchblend debug=all");
+  ASSERT_FALSE(plain.empty() || seams.empty() || all.empty());
+  // Overlap x = 400..639: the seam (nearest-view labels) runs down its middle, x ~ 520, in red.
+  int red_rows = 0;
+  for (int y = 0; y < seams.rows; ++y) {
+    bool red = false;
+    for (int x = 510; x < 530; ++x) {
+      const cv::Vec4b p = seams.at<cv::Vec4b>(y, x);
+      red |= p[0] == 255 && p[1] == 0 && p[2] == 0;
+    }
+    red_rows += red;
+  }
+  EXPECT_GT(red_rows, seams.rows * 9 / 10);
+  // debug=seams leaves everything away from the seam as it was.
+  EXPECT_EQ(cv::norm(seams(cv::Rect(0, 0, 500, 480)), plain(cv::Rect(0, 0, 500, 480)), cv::NORM_INF), 0.0);
+  // debug=all also tints the overlap and draws outlines and the flow pair's rectangle.
+  cv::Mat diff;
+  cv::absdiff(all, plain, diff);
+  const double overlap_changed = cv::countNonZero(cv::Mat(diff(cv::Rect(420, 100, 80, 280))).reshape(1) > 0);
+  EXPECT_GT(overlap_changed, 0.5 * 80 * 280);                                  // tinted
+  EXPECT_GT(cv::norm(all(cv::Rect(0, 0, 1040, 3)), plain(cv::Rect(0, 0, 1040, 3)), cv::NORM_INF), 50.0);  // outlines
+  EXPECT_EQ(cv::norm(all(cv::Rect(100, 100, 200, 200)), plain(cv::Rect(100, 100, 200, 200)), cv::NORM_INF), 0.0);
+}

@@ -116,11 +116,46 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
   cv::warpAffine(src, dst, affine, dst.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0, 0, 0, 255));
 }
 
+void Compositor::draw_debug(uint64_t present, const ImageView& out) {
+  DebugScene scene;
+  scene.views = views_;
+  scene.label_width = blend_geometry_.width;
+  scene.label_height = blend_geometry_.height;
+  if (resample_) scene.label_to_output = geometry_.canvas_to_output;
+  std::vector<uint8_t> seams = cuda_ ? cuda_->seam_labels() : std::vector<uint8_t>();
+  if (seam_) {
+    scene.labels = seam_->labels().data();
+  } else if (!seams.empty()) {
+    scene.labels = seams.data();
+  } else {
+    // The weighted mean's weights, and multiband's default masks, meet where the nearest view changes.
+    if (present != debug_labels_mask_) {
+      debug_labels_ = nearest_view_labels(blend_views_, blend_geometry_.width, blend_geometry_.height, present);
+      debug_labels_mask_ = present;
+    }
+    scene.labels = debug_labels_.data();
+  }
+  scene.flow = flow_stats_;
+  scene.canvas_to_output = geometry_.canvas_to_output;
+  auto draw = [&](const ImageView& host) { draw_debug_view(host, debug_, scene); };
+  if (cuda_) cuda_->draw_on_host(out, draw);
+  else draw(out);
+}
+
 void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& out) {
   if (!prepared()) throw std::logic_error("compose() before prepare()");
   if (frames.size() != views_.size())
     throw std::invalid_argument("got " + std::to_string(frames.size()) + " frames for " +
                                 std::to_string(views_.size()) + " cameras");
+  compose_views(frames, out);
+  if (!debug_) return;
+  uint64_t present = 0;
+  for (std::size_t i = 0; i < frames.size(); ++i)
+    if (!frames[i].empty()) present |= uint64_t(1) << i;
+  draw_debug(present, out);
+}
+
+void Compositor::compose_views(const std::vector<ImageView>& frames, const ImageView& out) {
   if (input_ == CompositorInput::Prewarped) {
     compose_prewarped(frames, out);
     return;

@@ -7,6 +7,7 @@
 
 #include "stitch/blend/blender.hpp"
 #include "stitch/blend/compositor_cuda.hpp"
+#include "stitch/blend/debug_view.hpp"
 #include "stitch/blend/multiband.hpp"
 #include "stitch/blend/seam.hpp"
 #include "stitch/rig/rig.hpp"
@@ -46,6 +47,11 @@ class Compositor {
   // Where the views must lie for CompositorInput::Prewarped (the canvas, 1:1).
   const std::vector<ViewPlacement>& prewarped_placements() const { return blend_views_; }
 
+  // DebugFlags to draw onto every panorama from now on (0: none), and the flow statistics of
+  // the frame about to be composed (stitchflowwarp's) for kDebugFlow.
+  void set_debug(unsigned flags) { debug_ = flags; }
+  void set_flow_stats(std::vector<FlowPairStats> stats) { flow_stats_ = std::move(stats); }
+
   // frames[i] is camera i's frame, or its pre-warped view (empty view = camera missing).
   // `out` is output-sized.
   void compose(const std::vector<ImageView>& frames, const ImageView& out);
@@ -53,6 +59,8 @@ class Compositor {
  private:
   void compose_prewarped(const std::vector<ImageView>& views, const ImageView& out);
   void fuse_cpu(const std::vector<ImageView>& views, const ImageView& out);  // seams, then the blender
+  void compose_views(const std::vector<ImageView>& frames, const ImageView& out);
+  void draw_debug(uint64_t present, const ImageView& out);
 
   Backend backend_ = Backend::Cpu;
   std::unique_ptr<Warper> warper_;    // CPU path
@@ -68,6 +76,10 @@ class Compositor {
   std::vector<std::vector<uint8_t>> scratch_;  // warped rectangles, reused every frame
   bool resample_ = false;                      // pre-warped input: the output crops/scales the canvas
   std::vector<uint8_t> canvas_;                // CPU path: the canvas fused before crop/scale
+  unsigned debug_ = 0;
+  std::vector<FlowPairStats> flow_stats_;
+  uint64_t debug_labels_mask_ = ~uint64_t(0);  // the present views debug_labels_ are for
+  std::vector<uint8_t> debug_labels_;          // nearest-view labels on the blend grid
 };
 
 }  // namespace stitch

@@ -209,3 +209,23 @@ void CudaComposer::fuse(const std::vector<ImageView>& views, const ImageView& ou
 }
 
 }  // namespace stitch
+
+namespace stitch {
+
+std::vector<uint8_t> CudaComposer::seam_labels() const {
+  return s_->seam ? s_->seam->labels() : std::vector<uint8_t>();
+}
+
+void CudaComposer::draw_on_host(const ImageView& out, const std::function<void(const ImageView&)>& draw) {
+  if (!out.on_device) {
+    draw(out);
+    return;
+  }
+  const std::size_t pitch = std::size_t(out.width) * 4;
+  std::vector<uint8_t> host(pitch * out.height);
+  STITCH_CUDA(cudaMemcpy2D(host.data(), pitch, out.data, out.pitch, pitch, out.height, cudaMemcpyDeviceToHost));
+  draw(ImageView{host.data(), pitch, out.width, out.height, PixelFormat::RGBA8, false});
+  STITCH_CUDA(cudaMemcpy2D(out.data, out.pitch, host.data(), pitch, pitch, out.height, cudaMemcpyHostToDevice));
+}
+
+}  // namespace stitch

@@ -2,6 +2,7 @@
 // be in device memory (used in place) or in system memory (uploaded / downloaded through
 // buffers allocated once, not per frame).
 #pragma once
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -28,6 +29,11 @@ class CudaComposer {
   // The same, fused on the device into the prepared size, then cropped/scaled into `out` (any
   // size) by output = canvas_to_output · canvas (bilinear).
   void fuse_resampled(const std::vector<ImageView>& views, const ImageView& out, const double canvas_to_output[6]);
+
+  // The labels of the last multiband blend with seams (host copy), empty without seams.
+  std::vector<uint8_t> seam_labels() const;
+  // Runs `draw` on a host copy of `out` (device memory: downloaded, then uploaded back).
+  void draw_on_host(const ImageView& out, const std::function<void(const ImageView&)>& draw);
 
  private:
   struct State;

@@ -78,27 +78,37 @@ Level part(const Level& full, int rows, int cols) {
 
 // Separable pyrDown (w x h -> w/2 x h/2) and pyrUp (-> 2w x 2h) into dst (sized by the caller),
 // pyramid_math's definitions; `scratch` holds the pass between the two.
+// d = sum of taps w[k] · s[k] over 4 channels (the taps in the order pyramid_math sums them).
+inline void taps4(float* d, const float* const* s, const float* w, int n) {
+  float a0 = 0, a1 = 0, a2 = 0, a3 = 0;
+  for (int k = 0; k < n; ++k) a0 += s[k][0] * w[k], a1 += s[k][1] * w[k], a2 += s[k][2] * w[k], a3 += s[k][3] * w[k];
+  d[0] = a0, d[1] = a1, d[2] = a2, d[3] = a3;
+}
+
 void down(const Level& src, const Level& scratch, Level dst) {
   Level tmp = part(scratch, src.rows, dst.cols);
+  const float w5[5] = {pyramid::binomial_tap(-2), pyramid::binomial_tap(-1), pyramid::binomial_tap(0),
+                       pyramid::binomial_tap(1), pyramid::binomial_tap(2)};
   cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
-      const cv::Vec4f* s = src.ptr<cv::Vec4f>(y);
-      cv::Vec4f* d = tmp.ptr<cv::Vec4f>(y);
+      const float* s = src.ptr<float>(y);
+      float* d = tmp.ptr<float>(y);
+      const float* t[5];
       for (int x = 0; x < tmp.cols; ++x) {
-        cv::Vec4f a(0, 0, 0, 0);
-        for (int i = -2; i <= 2; ++i) a += s[pyramid::down_source(x, i, src.cols)] * pyramid::binomial_tap(i);
-        d[x] = a;
+        const bool inside = 2 * x - 2 >= 0 && 2 * x + 2 < src.cols;  // no mirrored tap
+        for (int i = -2; i <= 2; ++i) t[i + 2] = s + 4 * (inside ? 2 * x + i : pyramid::down_source(x, i, src.cols));
+        taps4(d + 4 * x, t, w5, 5);
       }
     }
   });
   cv::parallel_for_(cv::Range(0, dst.rows), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
-      const cv::Vec4f* rows[5];
-      for (int i = -2; i <= 2; ++i) rows[i + 2] = tmp.ptr<cv::Vec4f>(pyramid::down_source(y, i, tmp.rows));
-      cv::Vec4f* d = dst.ptr<cv::Vec4f>(y);
-      for (int x = 0; x < dst.cols; ++x) {
-        cv::Vec4f a(0, 0, 0, 0);
-        for (int i = -2; i <= 2; ++i) a += rows[i + 2][x] * pyramid::binomial_tap(i);
+      const float* rows[5];
+      for (int i = -2; i <= 2; ++i) rows[i + 2] = tmp.ptr<float>(pyramid::down_source(y, i, tmp.rows));
+      float* d = dst.ptr<float>(y);
+      for (int x = 0; x < 4 * dst.cols; ++x) {
+        float a = 0;
+        for (int i = 0; i < 5; ++i) a += rows[i][x] * w5[i];
         d[x] = a;
       }
     }
@@ -109,29 +119,34 @@ void up(const Level& src, const Level& scratch, Level dst) {
   Level tmp = part(scratch, src.rows, dst.cols);
   cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
-      const cv::Vec4f* s = src.ptr<cv::Vec4f>(y);
-      cv::Vec4f* d = tmp.ptr<cv::Vec4f>(y);
+      const float* s = src.ptr<float>(y);
+      float* d = tmp.ptr<float>(y);
+      const float* t[5];
+      float w[5];
       for (int x = 0; x < tmp.cols; ++x) {
-        cv::Vec4f a(0, 0, 0, 0);
+        int n = 0;  // the taps that fall on source pixels (2 or 3), in pyramid_math's order
         for (int i = -2; i <= 2; ++i) {
-          float w;
-          const int k = pyramid::up_source(x, i, tmp.cols, w);
-          if (k >= 0) a += s[k] * w;
+          const int k = pyramid::up_source(x, i, tmp.cols, w[n]);
+          if (k >= 0) t[n++] = s + 4 * k;
         }
-        d[x] = a;
+        taps4(d + 4 * x, t, w, n);
       }
     }
   });
   cv::parallel_for_(cv::Range(0, dst.rows), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) {
-      cv::Vec4f* d = dst.ptr<cv::Vec4f>(y);
-      std::fill(d, d + dst.cols, cv::Vec4f(0, 0, 0, 0));
+      const float* t[5];
+      float w[5];
+      int n = 0;
       for (int i = -2; i <= 2; ++i) {
-        float w;
-        const int k = pyramid::up_source(y, i, dst.rows, w);
-        if (k < 0) continue;
-        const cv::Vec4f* s = tmp.ptr<cv::Vec4f>(k);
-        for (int x = 0; x < dst.cols; ++x) d[x] += s[x] * w;
+        const int k = pyramid::up_source(y, i, dst.rows, w[n]);
+        if (k >= 0) t[n++] = tmp.ptr<float>(k);
+      }
+      float* d = dst.ptr<float>(y);
+      for (int x = 0; x < 4 * dst.cols; ++x) {
+        float a = 0;
+        for (int k = 0; k < n; ++k) a += t[k][x] * w[k];
+        d[x] = a;
       }
     }
   });

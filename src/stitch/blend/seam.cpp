@@ -39,7 +39,10 @@ void SeamFinder::prepare(const std::vector<ViewPlacement>& views, int width, int
       if (bx1 - bx0 < 3 || by1 - by0 < 3) continue;
       Pair p;
       p.box = {bx0, by0, bx1 - bx0, by1 - by0};
-      p.vertical = p.box.height >= p.box.width;
+      // Side by side: a seam from top to bottom; one above the other: from left to right.
+      const double dx = (rb.x + 0.5 * rb.width) - (ra.x + 0.5 * ra.width);
+      const double dy = (rb.y + 0.5 * rb.height) - (ra.y + 0.5 * ra.height);
+      p.vertical = std::abs(dx) >= std::abs(dy);
       const double ca = p.vertical ? ra.x + 0.5 * ra.width : ra.y + 0.5 * ra.height;
       const double cb = p.vertical ? rb.x + 0.5 * rb.width : rb.y + 0.5 * rb.height;
       p.a = int(ca <= cb ? a : b);

@@ -44,6 +44,7 @@ class SeamFinder {
   };
   const std::vector<Pair>& pairs() const { return pairs_; }
   const SeamSettings& settings() const { return settings_; }
+  const std::vector<uint8_t>& labels() const { return labels_; }  // the last find()'s
 
  private:
   void cut(Pair& p, const std::vector<ImageView>& warped);

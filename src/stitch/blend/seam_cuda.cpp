@@ -22,7 +22,8 @@ struct SeamFinderCuda::State {
   std::vector<PairState> pairs;
   std::vector<DeviceBuffer> luma, previous_luma;
   std::vector<bool> has_luma;
-  DeviceBuffer labels, nearest;
+  DeviceBuffer labels, nearest, jobs;  // jobs: the DP jobs of the cut pairs
+  std::vector<stitch_cuda::SeamDpJob> host_jobs;
   uint64_t nearest_mask = ~uint64_t(0);
   CudaStream stream;
   explicit State(const SeamSettings& s) : planner(s) {}
@@ -103,6 +104,10 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
                               cudaMemcpyDeviceToDevice, st));
   const SeamSettings& settings = s.planner.settings();
   const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability};
+  // Costs of every cut pair, then all their DP sweeps in one launch, then the labels pair by pair
+  // (in the CPU's order: boxes of different pairs may overlap).
+  s.host_jobs.clear();
+  int max_cols = 1;
   for (State::PairState& p : s.pairs) {
     const int a = p.geometry.a, b = p.geometry.b;
     p.cut = (mask >> a & 1) && (mask >> b & 1);
@@ -114,10 +119,20 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
                                   s.luma[a].data(), s.luma[b].data(), s.previous_luma[a].data(),
                                   s.previous_luma[b].data(), reinterpret_cast<const float*>(p.centre.data()), w,
                                   reinterpret_cast<float*>(p.cost.data()), st);
-    stitch_cuda::launch_seam_dp(reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
-                                p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
-                                w.stability, reinterpret_cast<int8_t*>(p.steps.data()),
-                                reinterpret_cast<int*>(p.path.data()), st);
+    s.host_jobs.push_back({reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
+                           p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
+                           reinterpret_cast<int8_t*>(p.steps.data()), reinterpret_cast<int*>(p.path.data())});
+    max_cols = std::max(max_cols, p.cols);
+  }
+  if (!s.host_jobs.empty()) {
+    const std::size_t bytes = s.host_jobs.size() * sizeof(stitch_cuda::SeamDpJob);
+    s.jobs.resize(bytes);
+    STITCH_CUDA(cudaMemcpyAsync(s.jobs.data(), s.host_jobs.data(), bytes, cudaMemcpyHostToDevice, st));
+    stitch_cuda::launch_seam_dp(reinterpret_cast<const stitch_cuda::SeamDpJob*>(s.jobs.data()), int(s.host_jobs.size()),
+                                max_cols, w.stability, st);
+  }
+  for (State::PairState& p : s.pairs) {
+    if (!p.cut) continue;
     stitch_cuda::launch_seam_labels(s.labels.data(), s.width, p.geometry, reinterpret_cast<const float*>(p.centre.data()),
                                     reinterpret_cast<const int*>(p.path.data()), st);
     STITCH_CUDA(cudaMemcpyAsync(p.previous.data(), p.path.data(), p.rows * sizeof(int), cudaMemcpyDeviceToDevice, st));
@@ -125,6 +140,12 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
   }
   s.stream.sync();
   return s.labels.data();
+}
+
+std::vector<uint8_t> SeamFinderCuda::labels() const {
+  std::vector<uint8_t> out(std::size_t(s_->width) * s_->height);
+  STITCH_CUDA(cudaMemcpy(out.data(), s_->labels.data(), out.size(), cudaMemcpyDeviceToHost));
+  return out;
 }
 
 std::vector<std::vector<int>> SeamFinderCuda::paths() const {

@@ -19,6 +19,7 @@ class SeamFinderCuda {
   const uint8_t* find(const std::vector<ImageView>& warped);
   // The last paths, downloaded (for tests): one per pair of pairs(), empty when not cut.
   std::vector<std::vector<int>> paths() const;
+  std::vector<uint8_t> labels() const;  // the last find()'s, downloaded
   const std::vector<SeamFinder::Pair>& pairs() const;
 
  private:
