@@ -26,9 +26,10 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   geometry_ = plan_output(rig, settings.output_width, settings.output_height, settings.crop);
   const bool find_seams = settings.blend == BlendMode::Multiband && settings.seam != SeamMode::None;
   seam_.reset();
-  if (cuda_) {
-    cuda_->set_blend_mode(settings.blend, settings.bands, find_seams ? &settings.seam_settings : nullptr);
-  } else {
+#ifdef STITCH_HAVE_CUDA
+  if (cuda_) cuda_->set_blend_mode(settings.blend, settings.bands, find_seams ? &settings.seam_settings : nullptr);
+#endif
+  if (!cuda_) {
     blender_ = make_blender(Backend::Cpu, settings.blend, settings.bands);
     if (find_seams) seam_ = std::make_unique<SeamFinder>(settings.seam_settings);
   }
@@ -54,8 +55,10 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
         scratch_[i].resize(static_cast<std::size_t>(views_[i].roi.width) * views_[i].roi.height * 4);
     }
   }
+#ifdef STITCH_HAVE_CUDA
   if (cuda_) cuda_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
-  else blender_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
+#endif
+  if (!cuda_) blender_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
   if (seam_) seam_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
 }
 
@@ -73,15 +76,20 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
                                   ", its canvas rectangle is " + std::to_string(r.width) + "x" +
                                   std::to_string(r.height));
   }
-  if (!resample_) {
-    if (cuda_) cuda_->fuse(views, out);
-    else fuse_cpu(views, out);
+#ifdef STITCH_HAVE_CUDA
+  if (cuda_ && !resample_) {
+    cuda_->fuse(views, out);
     return;
   }
   if (cuda_) {
     const Eigen::Matrix3d& A = geometry_.canvas_to_output;
     const double affine[6] = {A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2)};
     cuda_->fuse_resampled(views, out, affine);
+    return;
+  }
+#endif
+  if (!resample_) {
+    fuse_cpu(views, out);
     return;
   }
   ImageView canvas;
@@ -177,8 +185,13 @@ void Compositor::compose_views(const std::vector<ImageView>& frames, const Image
     warper_->warp(static_cast<int>(i), frames[i], dst);
     warped[i] = dst;
   }
-  if (cuda_) cuda_->compose(frames, out);
-  else fuse_cpu(warped, out);
+#ifdef STITCH_HAVE_CUDA
+  if (cuda_) {
+    cuda_->compose(frames, out);
+    return;
+  }
+#endif
+  fuse_cpu(warped, out);
 }
 
 }  // namespace stitch
