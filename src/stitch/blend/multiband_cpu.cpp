@@ -27,7 +27,10 @@ MultibandLayout plan_multiband(const std::vector<ViewPlacement>& views, int widt
   // Widened like OpenCV's MultiBandBlender (3 · 2^bands), so that a view's coarse mask can
   // spread past its rectangle.
   const int gap = 3 * unit;
+  l.fill_width = l.fill_height = unit;
   for (const ViewPlacement& v : views) {
+    l.fill_width = std::max(l.fill_width, padded_to_bands(v.roi.width, l.bands));
+    l.fill_height = std::max(l.fill_height, padded_to_bands(v.roi.height, l.bands));
     Rect r;
     if (!v.roi.empty()) {
       const int x0 = std::max(0, (v.roi.x - gap) / unit * unit);
@@ -159,8 +162,7 @@ void up(const Level& src, const Level& scratch, Level dst) {
 // none. fill[0]'s roi-sized corner is the view with its holes filled from its own content.
 void fill_holes(const ImageView& v, int L, std::vector<Level>& pull, std::vector<Level>& fill, const Level& upper_buf,
                 const Level& scratch) {
-  const int unit = 1 << L;
-  const int fw = (v.width + unit - 1) / unit * unit, fh = (v.height + unit - 1) / unit * unit;
+  const int fw = padded_to_bands(v.width, L), fh = padded_to_bands(v.height, L);
   std::vector<Level> p(L + 1), f(L + 1);
   for (int k = 0; k <= L; ++k) {
     p[k] = part(pull[k], fh >> k, fw >> k);
@@ -223,11 +225,7 @@ class MultibandBlenderCpu final : public MultibandBlender {
     }
     upper_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
     scratch_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
-    const int unit = 1 << layout_.bands;
-    int fill_w = unit, fill_h = unit;  // the largest roi, padded to 2^bands
-    for (const ViewPlacement& v : views_)
-      fill_w = std::max(fill_w, (v.roi.width + unit - 1) / unit * unit),
-      fill_h = std::max(fill_h, (v.roi.height + unit - 1) / unit * unit);
+    const int fill_w = layout_.fill_width, fill_h = layout_.fill_height;
     pull_.assign(layout_.bands + 1, Level());
     filled_.assign(layout_.bands + 1, Level());
     for (int k = 0; k <= layout_.bands; ++k) {
@@ -367,8 +365,7 @@ class MultibandBlenderCpu final : public MultibandBlender {
 }  // namespace
 
 cv::Mat multiband_filled_view(const ImageView& view, int bands) {
-  const int unit = 1 << bands;
-  const int fw = (view.width + unit - 1) / unit * unit, fh = (view.height + unit - 1) / unit * unit;
+  const int fw = padded_to_bands(view.width, bands), fh = padded_to_bands(view.height, bands);
   std::vector<Level> pull(bands + 1), fill(bands + 1);
   for (int k = 0; k <= bands; ++k) {
     pull[k].create(fh >> k, fw >> k, CV_32FC4);

@@ -28,12 +28,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
     int max_w = 0, max_h = 0;
     for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
     // One allocation each for the canvas pyramid, the view pyramid and the up/down scratch.
-    // The hole filling's pyramids: the largest roi padded to 2^bands.
-    const int unit = 1 << L;
-    int fill_w = unit, fill_h = unit;
-    for (const ViewPlacement& v : views)
-      fill_w = std::max(fill_w, (v.roi.width + unit - 1) / unit * unit),
-      fill_h = std::max(fill_h, (v.roi.height + unit - 1) / unit * unit);
+    const int fill_w = layout_.fill_width, fill_h = layout_.fill_height;  // the hole filling's level 0
     acc_.assign(L + 1, {});
     gauss_.assign(L + 1, {});
     pull_.assign(L + 1, {});
@@ -107,8 +102,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
       std::vector<FloatImage> g(L + 1);
       for (int k = 0; k <= L; ++k) g[k] = sized(gauss_[k], pr.width >> k, pr.height >> k);
       // Holes filled from the view's own content (pull-push), as the CPU's fill_holes.
-      const int unit = 1 << L;
-      const int fw = (roi.width + unit - 1) / unit * unit, fh = (roi.height + unit - 1) / unit * unit;
+      const int fw = padded_to_bands(roi.width, L), fh = padded_to_bands(roi.height, L);
       std::vector<FloatImage> pull(L + 1), fill(L + 1);
       for (int k = 0; k <= L; ++k) {
         pull[k] = sized(pull_[k], fw >> k, fh >> k);
