@@ -113,18 +113,23 @@ int main(int argc, char** argv) {
                       path, ms[0], ms[1], ms[2]);
         json += buf;
       };
-      if (cpu_frames > 0) {
-        cv::Mat out(g.height, g.width, CV_8UC4);
+      // Every mode on one backend, from the same views into the same output.
+      auto time_modes = [&](Backend backend, const std::vector<ImageView>& views, const ImageView& out, int n,
+                            const char* path) {
         double ms[3];
         for (int m = 0; m < 3; ++m) {
           CompositorSettings s = settings;
           s.blend = kModes[m].blend;
           s.seam = kModes[m].seam;
-          Compositor comp(Backend::Cpu);
+          Compositor comp(backend);
           comp.prepare(rig, s, CompositorInput::Prewarped);
-          ms[m] = time_compose(comp, host, as_view(out), cpu_frames);
+          ms[m] = time_compose(comp, views, out, n);
         }
-        report("CPU", ms);
+        report(path, ms);
+      };
+      if (cpu_frames > 0) {
+        cv::Mat out(g.height, g.width, CV_8UC4);
+        time_modes(Backend::Cpu, host, as_view(out), cpu_frames, "CPU");
       }
 #ifdef STITCH_HAVE_CUDA
       if (gpu) {
@@ -139,17 +144,8 @@ int main(int argc, char** argv) {
           dv[i].on_device = true;
         }
         DeviceBuffer out_buf(std::size_t(g.width) * g.height * 4);
-        ImageView out{out_buf.data(), std::size_t(g.width) * 4, g.width, g.height, PixelFormat::RGBA8, true};
-        double ms[3];
-        for (int m = 0; m < 3; ++m) {
-          CompositorSettings s = settings;
-          s.blend = kModes[m].blend;
-          s.seam = kModes[m].seam;
-          Compositor comp(Backend::Cuda);
-          comp.prepare(rig, s, CompositorInput::Prewarped);
-          ms[m] = time_compose(comp, dv, out, frames);
-        }
-        report("GPU", ms);
+        const ImageView out{out_buf.data(), std::size_t(g.width) * 4, g.width, g.height, PixelFormat::RGBA8, true};
+        time_modes(Backend::Cuda, dv, out, frames, "GPU");
       }
 #endif
       json += "}";

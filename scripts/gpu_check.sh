@@ -57,9 +57,13 @@ echo "== decoded by nvh264dec (2 x 720x404 H.264)"
 L=data/limlight_2cam_apartment
 for chain in "stitchblend backend=cpu" "stitchblend" "stitchcolor ! stitchflowwarp ! stitchblend backend=cpu" \
              "stitchcolor ! stitchflowwarp ! stitchblend" "stitchcolor ! stitchflowwarp ! stitchblend mode=multiband" \
-             "stitchcolor ! stitchflowwarp ! stitchblend mode=multiband seam=dp"; do
+             "stitchcolor ! stitchflowwarp ! stitchblend mode=multiband seam=dp" \
+             "stitchcolor ! stitchflowwarp ! stitchblend mode=multiband seam=dp debug=all" \
+             "stitchbin mode=multiband seam=dp"; do
   t0=$EPOCHREALTIME
-  gst-launch-1.0 -q stitchsync name=s ! stitchcalib ! $chain ! fakesink \
+  head="stitchsync name=s ! stitchcalib ! $chain"
+  [ "${chain#stitchbin}" != "$chain" ] && head="$chain name=s"
+  gst-launch-1.0 -q $head ! fakesink \
     filesrc location=$L/left.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_0 \
     filesrc location=$L/right.mp4 ! qtdemux ! h264parse ! nvh264dec ! s.sink_1 2>&1 | grep -v "gldisplay\|nvrtc" | grep -A2 "^ERROR" | head -4
   echo "$chain: rc=${PIPESTATUS[0]} $(awk "BEGIN{print $EPOCHREALTIME - $t0}") s"

@@ -16,12 +16,39 @@ __device__ __forceinline__ void madd(float4& a, const float4& b, float w) {
   a.x += b.x * w, a.y += b.y * w, a.z += b.z * w, a.w += b.w * w;
 }
 
-__global__ void load_view_kernel(DeviceImage view, int roi_x, int roi_y, int rect_x, int rect_y, const uint8_t* labels,
-                                 int label_w, int label_h, int index, FloatImage dst) {
+__global__ void premultiply_kernel(DeviceImage view, FloatImage pull) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= pull.width || y >= pull.height) return;
+  float4 o = make_float4(0.f, 0.f, 0.f, 0.f);
+  if (x < view.width && y < view.height) {
+    const uchar4 p = *reinterpret_cast<const uchar4*>(view.data + size_t(y) * view.pitch + size_t(x) * 4);
+    const float a = p.w * (1.f / 255.f);
+    o = make_float4(__fmul_rn(p.x, a), __fmul_rn(p.y, a), __fmul_rn(p.z, a), a);
+  }
+  at(pull, x, y) = o;
+}
+
+__global__ void push_kernel(FloatImage pull, FloatImage upper, FloatImage fill) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= fill.width || y >= fill.height) return;
+  const float4 p = at(pull, x, y);
+  float4 f;
+  if (upper.data) {
+    const float4 u = at(upper, x, y);
+    const float r = 1.f - p.w;
+    f = make_float4(p.x + r * u.x, p.y + r * u.y, p.z + r * u.z, p.w);
+  } else {
+    const float inv = 1.f / (p.w + 1e-5f);
+    f = make_float4(p.x * inv, p.y * inv, p.z * inv, p.w);
+  }
+  at(fill, x, y) = f;
+}
+
+__global__ void load_view_kernel(FloatImage filled, int roi_w, int roi_h, int roi_x, int roi_y, int rect_x, int rect_y,
+                                 const uint8_t* labels, int label_w, int label_h, int index, FloatImage dst) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= dst.width || y >= dst.height) return;
-  const int sx = pm::reflect(x - roi_x, view.width), sy = pm::reflect(y - roi_y, view.height);
-  const uchar4 p = *reinterpret_cast<const uchar4*>(view.data + size_t(sy) * view.pitch + size_t(sx) * 4);
+  const float4 p = at(filled, pm::reflect(x - roi_x, roi_w), pm::reflect(y - roi_y, roi_h));
   const int cx = rect_x + x, cy = rect_y + y;
   const bool mine = cx < label_w && cy < label_h && labels[size_t(cy) * label_w + cx] == index;
   at(dst, x, y) = make_float4(p.x, p.y, p.z, mine ? 1.f : 0.f);
@@ -92,10 +119,21 @@ const dim3 kBlock(32, 8);
 
 }  // namespace
 
-void launch_mb_load_view(const DeviceImage& view, int roi_x, int roi_y, int rect_x, int rect_y, const uint8_t* labels,
-                         int label_w, int label_h, int index, const FloatImage& dst, cudaStream_t stream) {
-  load_view_kernel<<<grid_for(dst.width, dst.height, kBlock), kBlock, 0, stream>>>(view, roi_x, roi_y, rect_x, rect_y,
-                                                                                 labels, label_w, label_h, index, dst);
+void launch_mb_premultiply(const DeviceImage& view, const FloatImage& pull, cudaStream_t stream) {
+  premultiply_kernel<<<grid_for(pull.width, pull.height, kBlock), kBlock, 0, stream>>>(view, pull);
+  check_launch("multiband premultiply_kernel");
+}
+
+void launch_mb_push(const FloatImage& pull, const FloatImage& upper, const FloatImage& fill, cudaStream_t stream) {
+  push_kernel<<<grid_for(fill.width, fill.height, kBlock), kBlock, 0, stream>>>(pull, upper, fill);
+  check_launch("multiband push_kernel");
+}
+
+void launch_mb_load_view(const FloatImage& filled, int roi_w, int roi_h, int roi_x, int roi_y, int rect_x, int rect_y,
+                         const uint8_t* labels, int label_w, int label_h, int index, const FloatImage& dst,
+                         cudaStream_t stream) {
+  load_view_kernel<<<grid_for(dst.width, dst.height, kBlock), kBlock, 0, stream>>>(
+      filled, roi_w, roi_h, roi_x, roi_y, rect_x, rect_y, labels, label_w, label_h, index, dst);
   check_launch("multiband load_view_kernel");
 }
 

@@ -14,11 +14,19 @@ struct FloatImage {  // float4 per pixel: rgb, and a mask weight in w
   int width = 0, height = 0;
 };
 
-// dst (the view's padded rectangle at (rect_x, rect_y) of the canvas) = the view's pixels,
-// mirrored outside its roi (roi_x, roi_y: where the roi starts inside the rectangle), and w = 1
-// where labels (label_w x label_h, row-major) give the pixel to `view`.
-void launch_mb_load_view(const DeviceImage& view, int roi_x, int roi_y, int rect_x, int rect_y, const uint8_t* labels,
-                         int label_w, int label_h, int index, const FloatImage& dst, cudaStream_t stream);
+// Hole filling (pull-push), as the CPU's fill_holes: pull (level 0, the view padded) = the
+// view's colours premultiplied by its coverage (alpha), 0 outside the view.
+void launch_mb_premultiply(const DeviceImage& view, const FloatImage& pull, cudaStream_t stream);
+// fill.rgb = pull.rgb + (1 - pull.a) · upper.rgb, or pull.rgb / pull.a at the coarsest level
+// (upper.data == nullptr); fill.w = pull.a.
+void launch_mb_push(const FloatImage& pull, const FloatImage& upper, const FloatImage& fill, cudaStream_t stream);
+// dst (the view's padded rectangle at (rect_x, rect_y) of the canvas) = the view's hole-filled
+// pixels (`filled`, roi_w x roi_h at its top left), mirrored outside its roi (roi_x, roi_y: where
+// the roi starts inside the rectangle), and w = 1 where labels (label_w x label_h, row-major)
+// give the pixel to view `index`.
+void launch_mb_load_view(const FloatImage& filled, int roi_w, int roi_h, int roi_x, int roi_y, int rect_x, int rect_y,
+                         const uint8_t* labels, int label_w, int label_h, int index, const FloatImage& dst,
+                         cudaStream_t stream);
 // dst = pyrDown(src) through tmp (src.height x dst.width).
 void launch_mb_down(const FloatImage& src, const FloatImage& tmp, const FloatImage& dst, cudaStream_t stream);
 // dst = pyrUp(src) through tmp (src.height x dst.width).

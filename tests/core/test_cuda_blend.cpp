@@ -52,6 +52,27 @@ void expect_close(const cv::Mat& got, const cv::Mat& expected, const char* what,
   }
 }
 
+#ifdef STITCH_HAVE_CUDA
+// frames warped (CPU) into their rectangles: in host memory and copied to the device.
+struct WarpedViews {
+  std::vector<cv::Mat> rois;
+  std::vector<ImageView> host, device;
+  std::vector<std::unique_ptr<testdata::DeviceMat>> device_mats;
+  WarpedViews(const std::vector<ViewPlacement>& views, const std::vector<cv::Mat>& frames) {
+    auto warper = Warper::create(Backend::Cpu);
+    warper->prepare(views);
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      rois.emplace_back(views[i].roi.height, views[i].roi.width, CV_8UC4, cv::Scalar::all(0));
+      cv::Mat frame = frames[i];
+      warper->warp(int(i), as_view(frame), as_view(rois.back()));
+      host.push_back(as_view(rois.back()));
+      device_mats.push_back(std::make_unique<testdata::DeviceMat>(rois.back()));
+      device.push_back(device_mats.back()->view());
+    }
+  }
+};
+#endif
+
 }  // namespace
 
 TEST(CudaMultiband, BlenderMatchesCpuOnTheSameViewsAndLabels) {
@@ -60,18 +81,8 @@ TEST(CudaMultiband, BlenderMatchesCpuOnTheSameViewsAndLabels) {
   testdata::RotatingRig s = rig_scene();
   const OutputGeometry g = canvas_geometry(s.rig);
   const std::vector<ViewPlacement> views = place_views(s.rig, g);
-  auto warper = Warper::create(Backend::Cpu);
-  warper->prepare(views);
-  std::vector<cv::Mat> rois;
-  std::vector<ImageView> host, dev_views;
-  std::vector<std::unique_ptr<testdata::DeviceMat>> dev;
-  for (std::size_t i = 0; i < views.size(); ++i) {
-    rois.emplace_back(views[i].roi.height, views[i].roi.width, CV_8UC4, cv::Scalar::all(0));
-    warper->warp(int(i), as_view(s.frames[i]), as_view(rois.back()));
-    host.push_back(as_view(rois.back()));
-    dev.push_back(std::make_unique<testdata::DeviceMat>(rois.back()));
-    dev_views.push_back(dev.back()->view());
-  }
+  WarpedViews w(views, s.frames);
+  const std::vector<ImageView>&host = w.host, &dev_views = w.device;
   SeamFinder seams;
   seams.prepare(views, g.width, g.height);
   const std::vector<uint8_t> cut = seams.find(host);
@@ -100,8 +111,6 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
   testdata::RotatingRig s = rig_scene();
   const OutputGeometry g = canvas_geometry(s.rig);
   const std::vector<ViewPlacement> views = place_views(s.rig, g);
-  auto warper = Warper::create(Backend::Cpu);
-  warper->prepare(views);
   SeamFinder cpu;
   SeamFinderCuda gpu;
   cpu.prepare(views, g.width, g.height);
@@ -110,21 +119,16 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
   cv::RNG rng(3);
   for (int frame = 0; frame < 4; ++frame) {
     // Each frame: the views shifted a little (motion) plus noise, the same on both backends.
-    std::vector<cv::Mat> rois;
-    std::vector<ImageView> host, dev_views;
-    std::vector<std::unique_ptr<testdata::DeviceMat>> dev;
+    std::vector<cv::Mat> frames;
     for (std::size_t i = 0; i < views.size(); ++i) {
-      cv::Mat f = s.frames[i].clone(), noise(f.size(), CV_8UC4);
+      cv::Mat f, noise(s.frames[i].size(), CV_8UC4);
       const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 2.0 * frame, 0, 1, 0);
-      cv::warpAffine(s.frames[i], f, shift, f.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+      cv::warpAffine(s.frames[i], f, shift, s.frames[i].size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
       rng.fill(noise, cv::RNG::UNIFORM, 0, 8);
-      f += noise;
-      rois.emplace_back(views[i].roi.height, views[i].roi.width, CV_8UC4, cv::Scalar::all(0));
-      warper->warp(int(i), as_view(f), as_view(rois.back()));
-      host.push_back(as_view(rois.back()));
-      dev.push_back(std::make_unique<testdata::DeviceMat>(rois.back()));
-      dev_views.push_back(dev.back()->view());
+      frames.push_back(f + noise);
     }
+    WarpedViews w(views, frames);
+    const std::vector<ImageView>&host = w.host, &dev_views = w.device;
     const std::vector<uint8_t>& want = cpu.find(host);
     const uint8_t* got_dev = gpu.find(dev_views);
     std::vector<uint8_t> got(want.size());
@@ -196,16 +200,8 @@ TEST(CudaMultiband, PrewarpedFuseAndResampleMatchCpu) {
   cpu.prepare(s.rig, settings, CompositorInput::Prewarped);
   gpu.prepare(s.rig, settings, CompositorInput::Prewarped);
   // The views pre-warped onto the canvas, as stitchflowwarp hands them on.
-  const std::vector<ViewPlacement>& views = cpu.prewarped_placements();
-  auto warper = Warper::create(Backend::Cpu);
-  warper->prepare(views);
-  std::vector<cv::Mat> rois;
-  std::vector<ImageView> host;
-  for (std::size_t i = 0; i < views.size(); ++i) {
-    rois.emplace_back(views[i].roi.height, views[i].roi.width, CV_8UC4, cv::Scalar::all(0));
-    warper->warp(int(i), as_view(s.frames[i]), as_view(rois.back()));
-    host.push_back(as_view(rois.back()));
-  }
+  const WarpedViews w(cpu.prewarped_placements(), s.frames);
+  const std::vector<ImageView>& host = w.host;
   const OutputGeometry& g = cpu.geometry();
   cv::Mat expected(g.height, g.width, CV_8UC4), got(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
   cpu.compose(host, as_view(expected));
@@ -216,5 +212,46 @@ TEST(CudaMultiband, PrewarpedFuseAndResampleMatchCpu) {
   std::printf("MULTIBAND pre-warped + dp seams, cropped and scaled to %dx%d: CUDA vs CPU PSNR %.2f dB\n", g.width,
               g.height, psnr);
   EXPECT_GE(psnr, 40.0);
+#endif
+}
+
+TEST(CudaMultiband, DebugViewDrawsOnDeviceOutputLikeOnHost) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  testdata::RotatingRig s = rig_scene();
+  CompositorSettings settings;
+  settings.blend = BlendMode::Multiband;
+  settings.seam = SeamMode::DynamicProgramming;
+  Compositor cpu(Backend::Cpu), gpu(Backend::Cuda);
+  cpu.prepare(s.rig, settings);
+  gpu.prepare(s.rig, settings);
+  cpu.set_debug(kDebugSeams | kDebugOutlines);
+  gpu.set_debug(kDebugSeams | kDebugOutlines);
+  const OutputGeometry& g = cpu.geometry();
+  std::vector<ImageView> host;
+  for (auto& f : s.frames) host.push_back(as_view(f));
+  std::vector<std::unique_ptr<testdata::DeviceMat>> dev;
+  std::vector<ImageView> dv;
+  for (auto& f : s.frames) {
+    dev.push_back(std::make_unique<testdata::DeviceMat>(f));
+    dv.push_back(dev.back()->view());
+  }
+  cv::Mat expected(g.height, g.width, CV_8UC4);
+  testdata::DeviceMat out(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(77)));
+  cpu.compose(host, as_view(expected));
+  gpu.compose(dv, out.view());
+  const cv::Mat got = out.download();
+  // The seams (white) and outlines are drawn into the device panorama where the CPU draws them.
+  auto white = [](const cv::Mat& m) {
+    cv::Mat w;
+    cv::inRange(m, cv::Scalar(255, 255, 255, 0), cv::Scalar(255, 255, 255, 255), w);
+    return w;
+  };
+  const cv::Mat a = white(got), b = white(expected);
+  const double both = cv::countNonZero(a & b), either = cv::countNonZero(a | b);
+  std::printf("MULTIBAND debug view on device memory: %.0f white seam pixels, %.1f%% shared with the CPU's\n",
+              double(cv::countNonZero(a)), 100 * both / std::max(1.0, either));
+  EXPECT_GT(cv::countNonZero(a), g.height);  // at least one seam's worth
+  EXPECT_GT(both / either, 0.9);
 #endif
 }

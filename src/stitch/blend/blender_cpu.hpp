@@ -9,6 +9,12 @@ namespace stitch {
 // position_weight() of every pixel of the view's roi (CV_32F, roi-sized; empty for an empty roi).
 cv::Mat position_weight_map(const ViewPlacement& view);
 
+// A view (RGBA, alpha = coverage) as the multiband blender reads it: its colours where it has
+// content, filled where it has none from its own content, coarse to fine (pull-push), so that
+// its coarse bands carry no black into its neighbours'. CV_32FC4 (rgb, coverage), view-sized.
+// `bands`: the blender's (effective) levels.
+cv::Mat multiband_filled_view(const ImageView& view, int bands);
+
 class BlenderCpu final : public Blender {
  public:
   static constexpr int kWeightBits = 14;  // weights are Q14 and sum to exactly 1 << 14

@@ -122,7 +122,10 @@ void Compositor::draw_debug(uint64_t present, const ImageView& out) {
   scene.label_width = blend_geometry_.width;
   scene.label_height = blend_geometry_.height;
   if (resample_) scene.label_to_output = geometry_.canvas_to_output;
-  std::vector<uint8_t> seams = cuda_ ? cuda_->seam_labels() : std::vector<uint8_t>();
+  std::vector<uint8_t> seams;  // the CUDA seam finder's labels (downloaded), if it ran
+#ifdef STITCH_HAVE_CUDA
+  if (cuda_) seams = cuda_->seam_labels();
+#endif
   if (seam_) {
     scene.labels = seam_->labels().data();
   } else if (!seams.empty()) {
@@ -138,8 +141,13 @@ void Compositor::draw_debug(uint64_t present, const ImageView& out) {
   scene.flow = flow_stats_;
   scene.canvas_to_output = geometry_.canvas_to_output;
   auto draw = [&](const ImageView& host) { draw_debug_view(host, debug_, scene); };
-  if (cuda_) cuda_->draw_on_host(out, draw);
-  else draw(out);
+#ifdef STITCH_HAVE_CUDA
+  if (cuda_) {
+    cuda_->draw_on_host(out, draw);
+    return;
+  }
+#endif
+  draw(out);
 }
 
 void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& out) {

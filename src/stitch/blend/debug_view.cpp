@@ -84,7 +84,7 @@ void draw_debug_view(const ImageView& out, unsigned flags, const DebugScene& sce
         const uint8_t l = lab.at<uint8_t>(y, x), r = lab.at<uint8_t>(y, x + 1), d = lab.at<uint8_t>(y + 1, x);
         if (l == kNoView) continue;
         if ((r != kNoView && r != l) || (d != kNoView && d != l))
-          cv::rectangle(img, cv::Rect(x, y, 2, 2), cv::Scalar(255, 0, 0, 255), cv::FILLED);
+          cv::rectangle(img, cv::Rect(x, y, 2, 2), cv::Scalar(255, 255, 255, 255), cv::FILLED);
       }
   }
   if (flags & kDebugOutlines) {

@@ -25,7 +25,11 @@ struct MultibandLayout {
   int width = 0, height = 0;                // the blended output
   int padded_width = 0, padded_height = 0;  // multiples of 2^bands
   std::vector<Rect> rects;                  // per view: its roi widened and aligned; empty: not visible
+  int fill_width = 0, fill_height = 0;      // the largest roi padded to 2^bands (the hole filling's level 0)
 };
+
+// n rounded up to a multiple of 2^bands: the size a view's hole filling works on.
+inline int padded_to_bands(int n, int bands) { return (n + (1 << bands) - 1) >> bands << bands; }
 
 // bands is clamped so that the smallest level keeps at least 2 pixels per side.
 MultibandLayout plan_multiband(const std::vector<ViewPlacement>& views, int width, int height, int bands);

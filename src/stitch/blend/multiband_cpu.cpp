@@ -27,7 +27,10 @@ MultibandLayout plan_multiband(const std::vector<ViewPlacement>& views, int widt
   // Widened like OpenCV's MultiBandBlender (3 · 2^bands), so that a view's coarse mask can
   // spread past its rectangle.
   const int gap = 3 * unit;
+  l.fill_width = l.fill_height = unit;
   for (const ViewPlacement& v : views) {
+    l.fill_width = std::max(l.fill_width, padded_to_bands(v.roi.width, l.bands));
+    l.fill_height = std::max(l.fill_height, padded_to_bands(v.roi.height, l.bands));
     Rect r;
     if (!v.roi.empty()) {
       const int x0 = std::max(0, (v.roi.x - gap) / unit * unit);
@@ -152,6 +155,57 @@ void up(const Level& src, const Level& scratch, Level dst) {
   });
 }
 
+// Pull-push hole filling of one view (roi-sized, alpha = coverage) over `pull` and `fill`
+// (levels 0..L, each at least the roi padded to 2^L): pull = the colours premultiplied by
+// coverage, pyramid down; fill = pull's colours normalised at the coarsest level, then, level
+// by level, the view's own colours where it has content and the coarser fill where it has
+// none. fill[0]'s roi-sized corner is the view with its holes filled from its own content.
+void fill_holes(const ImageView& v, int L, std::vector<Level>& pull, std::vector<Level>& fill, const Level& upper_buf,
+                const Level& scratch) {
+  const int fw = padded_to_bands(v.width, L), fh = padded_to_bands(v.height, L);
+  std::vector<Level> p(L + 1), f(L + 1);
+  for (int k = 0; k <= L; ++k) {
+    p[k] = part(pull[k], fh >> k, fw >> k);
+    f[k] = part(fill[k], fh >> k, fw >> k);
+  }
+  cv::parallel_for_(cv::Range(0, fh), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) {
+      float* d = p[0].ptr<float>(y);
+      for (int x = 0; x < fw; ++x) {
+        if (y >= v.height || x >= v.width) {
+          d[4 * x] = d[4 * x + 1] = d[4 * x + 2] = d[4 * x + 3] = 0.f;
+          continue;
+        }
+        const uint8_t* s = v.row(y) + 4 * x;
+        const float a = s[3] * (1.f / 255.f);
+        d[4 * x] = s[0] * a, d[4 * x + 1] = s[1] * a, d[4 * x + 2] = s[2] * a, d[4 * x + 3] = a;
+      }
+    }
+  });
+  for (int k = 1; k <= L; ++k) down(p[k - 1], scratch, p[k]);
+  auto push = [&](int k, const Level* upper) {  // f[k] = p.rgb + (1 - p.a) · upper (or p.rgb / p.a)
+    cv::parallel_for_(cv::Range(0, f[k].rows), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) {
+        const float* pp = p[k].ptr<float>(y);
+        const float* pu = upper ? upper->ptr<float>(y) : nullptr;
+        float* pf = f[k].ptr<float>(y);
+        for (int x = 0; x < f[k].cols; ++x) {
+          const float a = pp[4 * x + 3];
+          for (int c = 0; c < 3; ++c)
+            pf[4 * x + c] = pu ? pp[4 * x + c] + (1.f - a) * pu[4 * x + c] : pp[4 * x + c] / (a + 1e-5f);
+          pf[4 * x + 3] = a;
+        }
+      }
+    });
+  };
+  push(L, nullptr);
+  for (int k = L - 1; k >= 0; --k) {
+    const Level upper = part(upper_buf, f[k].rows, f[k].cols);
+    up(f[k + 1], scratch, upper);
+    push(k, &upper);
+  }
+}
+
 class MultibandBlenderCpu final : public MultibandBlender {
  public:
   explicit MultibandBlenderCpu(int bands) : bands_(bands) {}
@@ -171,6 +225,15 @@ class MultibandBlenderCpu final : public MultibandBlender {
     }
     upper_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
     scratch_.create(layout_.padded_height, layout_.padded_width, CV_32FC4);
+    const int fill_w = layout_.fill_width, fill_h = layout_.fill_height;
+    pull_.assign(layout_.bands + 1, Level());
+    filled_.assign(layout_.bands + 1, Level());
+    for (int k = 0; k <= layout_.bands; ++k) {
+      pull_[k].create(fill_h >> k, fill_w >> k, CV_32FC4);
+      filled_[k].create(fill_h >> k, fill_w >> k, CV_32FC4);
+    }
+    upper_.create(std::max(upper_.rows, fill_h), std::max(upper_.cols, fill_w), CV_32FC4);
+    scratch_.create(std::max(scratch_.rows, fill_h), std::max(scratch_.cols, fill_w), CV_32FC4);
   }
 
   void set_labels(const uint8_t* labels, bool on_device) override {
@@ -198,7 +261,8 @@ class MultibandBlenderCpu final : public MultibandBlender {
       if (!(mask >> i & 1)) continue;
       const Rect& pr = layout_.rects[i];
       for (int k = 0; k <= L; ++k) g[k] = part(gauss_[k], pr.height >> k, pr.width >> k);
-      load_view(int(i), warped[i], labels, g[0]);
+      fill_holes(warped[i], L, pull_, filled_, upper_, scratch_);
+      load_view(int(i), filled_[0], labels, g[0]);
       for (int k = 1; k <= L; ++k) down(g[k - 1], scratch_, g[k]);
       for (int k = 0; k <= L; ++k) {
         const Level upper = k < L ? part(upper_, g[k].rows, g[k].cols) : Level();
@@ -253,20 +317,20 @@ class MultibandBlenderCpu final : public MultibandBlender {
     });
   }
 
-  // Level 0 of view i over its padded rectangle: its pixels (mirrored outside its roi) and
-  // its mask (1 where the labels give it the pixel).
-  void load_view(int i, const ImageView& v, const std::vector<uint8_t>& labels, Level g) const {
+  // Level 0 of view i over its padded rectangle: its hole-filled pixels (`filled`, roi at the
+  // top left; mirrored outside the roi) and its mask (1 where the labels give it the pixel).
+  void load_view(int i, const Level& filled, const std::vector<uint8_t>& labels, Level g) const {
     const Rect& pr = layout_.rects[i];
     const Rect& roi = views_[i].roi;
     cv::parallel_for_(cv::Range(0, pr.height), [&](const cv::Range& r) {
       for (int y = r.start; y < r.end; ++y) {
         const int cy = pr.y + y;
-        const uint8_t* src = v.row(pyramid::reflect(cy - roi.y, roi.height));
+        const float* src = filled.ptr<float>(pyramid::reflect(cy - roi.y, roi.height));
         const uint8_t* lab = cy < layout_.height ? labels.data() + std::size_t(cy) * layout_.width : nullptr;
         cv::Vec4f* d = g.ptr<cv::Vec4f>(y);
         for (int x = 0; x < pr.width; ++x) {
           const int cx = pr.x + x;
-          const uint8_t* p = src + 4 * pyramid::reflect(cx - roi.x, roi.width);
+          const float* p = src + 4 * pyramid::reflect(cx - roi.x, roi.width);
           const bool mine = lab && cx < layout_.width && lab[cx] == i;
           d[x] = cv::Vec4f(p[0], p[1], p[2], mine ? 1.f : 0.f);
         }
@@ -294,11 +358,23 @@ class MultibandBlenderCpu final : public MultibandBlender {
   std::vector<uint8_t> custom_, merged_;
   // Allocated once per geometry: the canvas pyramid, one view's Gaussian pyramid (at the largest
   // view's size), the upsampled level and the pass between the separable filters.
-  std::vector<Level> acc_, gauss_;
+  std::vector<Level> acc_, gauss_, pull_, filled_;  // pull_, filled_: the hole filling (fill_holes)
   Level upper_, scratch_;
 };
 
 }  // namespace
+
+cv::Mat multiband_filled_view(const ImageView& view, int bands) {
+  const int fw = padded_to_bands(view.width, bands), fh = padded_to_bands(view.height, bands);
+  std::vector<Level> pull(bands + 1), fill(bands + 1);
+  for (int k = 0; k <= bands; ++k) {
+    pull[k].create(fh >> k, fw >> k, CV_32FC4);
+    fill[k].create(fh >> k, fw >> k, CV_32FC4);
+  }
+  Level upper(fh, fw, CV_32FC4), scratch(fh, fw, CV_32FC4);
+  fill_holes(view, bands, pull, fill, upper, scratch);
+  return fill[0](cv::Rect(0, 0, view.width, view.height)).clone();
+}
 
 std::unique_ptr<MultibandBlender> MultibandBlender::create(Backend backend, int bands) {
   switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {

@@ -28,28 +28,41 @@ class MultibandBlenderCuda final : public MultibandBlender {
     int max_w = 0, max_h = 0;
     for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
     // One allocation each for the canvas pyramid, the view pyramid and the up/down scratch.
+    const int fill_w = layout_.fill_width, fill_h = layout_.fill_height;  // the hole filling's level 0
     acc_.assign(L + 1, {});
     gauss_.assign(L + 1, {});
-    std::size_t acc_px = 0, view_px = 0;
+    pull_.assign(L + 1, {});
+    fill_.assign(L + 1, {});
+    std::size_t acc_px = 0, view_px = 0, fill_px = 0;
     for (int k = 0; k <= L; ++k) {
       acc_[k] = {nullptr, layout_.padded_width >> k, layout_.padded_width >> k, layout_.padded_height >> k};
       acc_px += std::size_t(acc_[k].pitch) * acc_[k].height;
       gauss_[k] = {nullptr, max_w >> k, max_w >> k, max_h >> k};
       view_px += std::size_t(gauss_[k].pitch) * gauss_[k].height;
+      pull_[k] = fill_[k] = {nullptr, fill_w >> k, fill_w >> k, fill_h >> k};
+      fill_px += std::size_t(pull_[k].pitch) * pull_[k].height;
     }
     const std::size_t scratch_px = std::size_t(layout_.padded_width) * layout_.padded_height;
     acc_mem_.resize(acc_px * sizeof(float4));
     gauss_mem_.resize(view_px * sizeof(float4));
+    pull_mem_.resize(fill_px * sizeof(float4));
+    fill_mem_.resize(fill_px * sizeof(float4));
     tmp_mem_.resize(scratch_px * sizeof(float4));
     up_mem_.resize(scratch_px * sizeof(float4));
     img_mem_.resize(scratch_px * sizeof(float4));
     float4* a = reinterpret_cast<float4*>(acc_mem_.data());
     float4* g = reinterpret_cast<float4*>(gauss_mem_.data());
+    float4* pl = reinterpret_cast<float4*>(pull_mem_.data());
+    float4* fl = reinterpret_cast<float4*>(fill_mem_.data());
     for (int k = 0; k <= L; ++k) {
       acc_[k].data = a;
       a += std::size_t(acc_[k].pitch) * acc_[k].height;
       gauss_[k].data = g;
       g += std::size_t(gauss_[k].pitch) * gauss_[k].height;
+      pull_[k].data = pl;
+      fill_[k].data = fl;
+      pl += std::size_t(pull_[k].pitch) * pull_[k].height;
+      fl += std::size_t(fill_[k].pitch) * fill_[k].height;
     }
     labels_dev_.resize(std::size_t(out_width) * out_height);
   }
@@ -88,8 +101,23 @@ class MultibandBlenderCuda final : public MultibandBlender {
       const Rect& roi = views_[i].roi;
       std::vector<FloatImage> g(L + 1);
       for (int k = 0; k <= L; ++k) g[k] = sized(gauss_[k], pr.width >> k, pr.height >> k);
-      stitch_cuda::launch_mb_load_view(to_device_image(warped[i]), roi.x - pr.x, roi.y - pr.y, pr.x, pr.y,
-                                       labels, layout_.width, layout_.height, int(i), g[0], s);
+      // Holes filled from the view's own content (pull-push), as the CPU's fill_holes.
+      const int fw = padded_to_bands(roi.width, L), fh = padded_to_bands(roi.height, L);
+      std::vector<FloatImage> pull(L + 1), fill(L + 1);
+      for (int k = 0; k <= L; ++k) {
+        pull[k] = sized(pull_[k], fw >> k, fh >> k);
+        fill[k] = sized(fill_[k], fw >> k, fh >> k);
+      }
+      stitch_cuda::launch_mb_premultiply(to_device_image(warped[i]), pull[0], s);
+      for (int k = 1; k <= L; ++k) stitch_cuda::launch_mb_down(pull[k - 1], tmp(pull[k - 1].height, pull[k].width), pull[k], s);
+      stitch_cuda::launch_mb_push(pull[L], FloatImage{}, fill[L], s);
+      for (int k = L - 1; k >= 0; --k) {
+        const FloatImage upper = scratch(up_mem_, fill[k].width, fill[k].height);
+        stitch_cuda::launch_mb_up(fill[k + 1], tmp(fill[k + 1].height, fill[k].width), upper, s);
+        stitch_cuda::launch_mb_push(pull[k], upper, fill[k], s);
+      }
+      stitch_cuda::launch_mb_load_view(fill[0], roi.width, roi.height, roi.x - pr.x, roi.y - pr.y, pr.x, pr.y, labels,
+                                       layout_.width, layout_.height, int(i), g[0], s);
       for (int k = 1; k <= L; ++k) stitch_cuda::launch_mb_down(g[k - 1], tmp(g[k - 1].height, g[k].width), g[k], s);
       for (int k = 0; k <= L; ++k) {
         FloatImage upper;
@@ -147,8 +175,8 @@ class MultibandBlenderCuda final : public MultibandBlender {
   int bands_;
   std::vector<ViewPlacement> views_;
   MultibandLayout layout_;
-  std::vector<FloatImage> acc_, gauss_;
-  DeviceBuffer acc_mem_, gauss_mem_, tmp_mem_, up_mem_, img_mem_, labels_dev_;
+  std::vector<FloatImage> acc_, gauss_, pull_, fill_;  // pull_, fill_: the hole filling
+  DeviceBuffer acc_mem_, gauss_mem_, pull_mem_, fill_mem_, tmp_mem_, up_mem_, img_mem_, labels_dev_;
   uint64_t nearest_mask_ = ~uint64_t(0);  // the present views the device labels are for
   uint64_t nearest_for_ = ~uint64_t(0);   // the present views nearest_ is for
   std::vector<uint8_t> custom_, nearest_;
