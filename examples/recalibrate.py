@@ -6,11 +6,14 @@ and Enter, or send SIGUSR1 (kill -USR1 PID), and stitchcalib recalibrates from t
 frames while the video goes on with the previous geometry; every calibration stitchcalib posts
 (an element message named "stitchcalib") is printed.
 
-usage: recalibrate.py [--headless] [--frames N] [--recalibrate-after K] VIDEO VIDEO [VIDEO...]
+usage: recalibrate.py [--headless] [--frames N] [--recalibrate-after K] [--calibration-frames C]
+                      VIDEO VIDEO [VIDEO...]
   --frames N              stop after N panoramas (default: the clips' length)
   --recalibrate-after K   send ourselves SIGUSR1 after K panoramas, once stitchcalib's pooled
                           refinement of the first frames is in (it takes no request while
                           busy); what CI does
+  --calibration-frames C  stitchcalib's pooling of the first frames (default 5; 1: none, the
+                          first calibration is final)
   GST_PLUGIN_PATH must reach the stitch plugin (build/gst).
 Exits 0 when the pipeline ran without error and, with --recalibrate-after, a recalibration
 was posted after the signal; 1 otherwise.
@@ -33,13 +36,15 @@ def main():
     ap.add_argument("--headless", action="store_true", help="fakesink instead of a window")
     ap.add_argument("--frames", type=int, default=0)
     ap.add_argument("--recalibrate-after", type=int, default=0)
+    ap.add_argument("--calibration-frames", type=int, default=5)
     args = ap.parse_args()
     if len(args.videos) < 2:
         ap.error("at least two videos")
 
     Gst.init(None)
     sink = "fakesink name=out sync=false signal-handoffs=true" if args.headless else "autovideosink name=out"
-    desc = "stitchbin name=s ! videoconvert ! identity name=tap ! " + sink
+    desc = "stitchbin name=s calib::calibration-frames=%d ! videoconvert ! identity name=tap ! %s" % (
+        args.calibration_frames, sink)
     for i, v in enumerate(args.videos):
         desc += ' filesrc location="%s" ! decodebin ! videoconvert ! s.sink_%d' % (v, i)
     pipeline = Gst.parse_launch(desc)
@@ -88,7 +93,8 @@ def main():
         if msg.type == Gst.MessageType.ELEMENT and msg.get_structure().get_name() == "stitchcalib":
             s = msg.get_structure()
             state["calibrations"].append(s.get_value("version"))
-            state["settled"] |= s.get_value("source") in ("pooled", "file")
+            # settled: no pooled refinement of the first frames is still to come
+            state["settled"] |= s.get_value("source") in ("pooled", "file") or args.calibration_frames <= 1
             # the result of the recalibrate signal (others: the first frames, their pooled refinement)
             state["recalibrated"] |= state["asked"] and s.get_value("source") == "recalibration"
             if done():
