@@ -509,6 +509,9 @@ def targets(results):
         o, b = s.get("ours", {}), s.get(BASELINE, {})
         if "ms_per_frame" not in o or "ms_per_frame" not in b:
             continue
+        if b["ms_per_frame"] <= 0:
+            lines.append("| %s | OpenCV failed on every frame (%d of %d) | – | – |" % (name, b["failures"], b["frames"]))
+            continue
 
         def verdict(ok, a, c, unit):
             return "%s (%s vs %s%s)" % ("yes" if ok else "**no**", fmt(a), fmt(c), unit)
@@ -528,6 +531,7 @@ def main():
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--only", default="", help="comma-separated dataset names")
     ap.add_argument("--no-shared", action="store_true", help="only the repository's own data")
+    ap.add_argument("--report-only", action="store_true", help="rewrite report.md from OUT/results.json")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=CHAIN[|BLEND]",
                     help="another configuration of our chain, e.g. 'smooth=stitchcolor smoothing=0.95 ! "
                          "stitchflowwarp' (CHAIN: elements between stitchcalib and stitchblend; BLEND: "
@@ -543,6 +547,11 @@ def main():
         ap.error("--frames must be at least %d" % (SETTLE + 3))
     os.environ["GST_PLUGIN_PATH"] = os.path.join(args.build, "gst")
     os.environ.setdefault("GST_REGISTRY", os.path.join(args.build, "eval-registry.bin"))
+    if args.report_only:
+        saved = json.load(open(os.path.join(args.out, "results.json")))
+        args.frames = saved["frames"]
+        write_report(args.out, saved["datasets"], args, saved["seconds"])
+        return 0
     shared = os.path.isdir(SHARED) and not args.no_shared
     only = set(filter(None, args.only.split(",")))
     if os.path.isdir(os.path.join(args.out, "work")):
