@@ -207,7 +207,20 @@ def coverage_count(Hs, sizes, shape):
     return count
 
 
-def seam_crops(name, targets, seams, rows, out_png, crop):
+def seam_centres(Hs, sizes, shape):
+    """The middle of each overlap of horizontal neighbours (cameras ordered by where they land)."""
+    centres = []
+    order = sorted(range(len(Hs)), key=lambda i: Hs[i][0, 2])
+    for a, b in zip(order, order[1:]):
+        pair = (warp(np.ones(sizes[a][::-1], np.uint8), Hs[a], (shape[1], shape[0]), True) > 0) & \
+               (warp(np.ones(sizes[b][::-1], np.uint8), Hs[b], (shape[1], shape[0]), True) > 0)
+        ys, xs = np.nonzero(pair)
+        if len(xs):
+            centres.append((int(np.median(xs)), int(np.median(ys))))
+    return centres
+
+
+def seam_crops(seams, rows, out_png, crop):
     """Side-by-side crops around each seam: one row per seam, one column per stitcher."""
     tiles = []
     for cx, cy in seams:
@@ -323,17 +336,9 @@ def evaluate_rig(rig, build, report, frames):
          os.path.join(report, "psnr_%s.png" % name))
     plot(flicker_series, "flicker (mean |dY|, static pixels)", "%s: flicker over time" % name,
          os.path.join(report, "flicker_%s.png" % name))
-    # Seam crops at the middle of each overlap of neighbours, on the true canvas.
-    seams = []
-    order = sorted(range(n), key=lambda i: H_true[i][0, 2])
-    for a, b in zip(order, order[1:]):
-        pair = (warp(np.ones(sizes[a][::-1], np.uint8), H_true[a], (shape[1], shape[0]), True) > 0) & \
-               (warp(np.ones(sizes[b][::-1], np.uint8), H_true[b], (shape[1], shape[0]), True) > 0)
-        ys, xs = np.nonzero(pair)
-        if len(xs):
-            seams.append((int(np.median(xs)), int(np.median(ys))))
     rows = [("ground truth", gts[mid])] + [(s, registered_mid[s]) for s in registered_mid]
-    seam_crops(name, None, seams, rows, os.path.join(report, "seams_%s.png" % name), crop=min(200, shape[0] // 2))
+    seam_crops(seam_centres(H_true, sizes, shape), rows, os.path.join(report, "seams_%s.png" % name),
+               crop=min(200, shape[0] // 2))
     return dict(kind="ground-truth rig", cameras=n, camera_size=list(sizes[0]), frames=frames,
                 illumination_step=step, canvas=[shape[1], shape[0]], stitchers=results)
 
@@ -411,16 +416,8 @@ def evaluate_clip(clip, build, report, frames):
             flush=True)
     plot(flicker_series, "flicker (mean |dY|, static pixels)", "%s: flicker over time" % name,
          os.path.join(report, "flicker_%s.png" % name))
-    seams = []
-    order = sorted(range(n), key=lambda i: ours_H[i][0, 2])
-    for a, b in zip(order, order[1:]):
-        pair = (warp(np.ones(sizes[a][::-1], np.uint8), ours_H[a], (shape[1], shape[0]), True) > 0) & \
-               (warp(np.ones(sizes[b][::-1], np.uint8), ours_H[b], (shape[1], shape[0]), True) > 0)
-        ys, xs = np.nonzero(pair)
-        if len(xs):
-            seams.append((int(np.median(xs)), int(np.median(ys))))
-    seam_crops(name, None, seams, list(registered_mid.items()), os.path.join(report, "seams_%s.png" % name),
-               crop=min(200, shape[0] // 2))
+    seam_crops(seam_centres(ours_H, sizes, shape), list(registered_mid.items()),
+               os.path.join(report, "seams_%s.png" % name), crop=min(200, shape[0] // 2))
     return dict(kind="real clip", cameras=n, camera_size=[int(inputs[0][0].shape[1]), int(inputs[0][0].shape[0])],
                 frames=frames, stitchers=results)
 
