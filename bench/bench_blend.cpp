@@ -65,11 +65,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  const cv::Mat photo = testdata::read_ppm_rgba(photo_path);
-  if (photo.empty()) {
-    std::fprintf(stderr, "cannot read %s (a P6 PPM; run from the repository root or pass --photo)\n", photo_path.c_str());
-    return 2;
-  }
+  const cv::Mat photo = testdata::read_photo_or_exit(photo_path);
   const bool gpu = cuda_device_available();
   if (!gpu) std::printf("no CUDA device: CPU only\n");
   try {

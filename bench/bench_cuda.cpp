@@ -79,11 +79,7 @@ int main(int argc, char** argv) {
   }
   // A real photo as binary PPM (the build decodes data/photos/boat1_1600.jpg to it): this
   // binary links no imgcodecs, so that it fits the bundle carried to the GPU host.
-  const cv::Mat photo = testdata::read_ppm_rgba(photo_path);
-  if (photo.empty()) {
-    std::fprintf(stderr, "cannot read %s (a P6 PPM; run from the repository root or pass --photo)\n", photo_path.c_str());
-    return 2;
-  }
+  const cv::Mat photo = testdata::read_photo_or_exit(photo_path);
   try {
     cudaDeviceProp prop{};
     STITCH_CUDA(cudaGetDeviceProperties(&prop, 0));

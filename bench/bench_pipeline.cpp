@@ -199,11 +199,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  const cv::Mat photo = testdata::read_ppm_rgba(photo_path);
-  if (photo.empty()) {
-    std::fprintf(stderr, "cannot read %s\n", photo_path.c_str());
-    return 2;
-  }
+  const cv::Mat photo = testdata::read_photo_or_exit(photo_path);
   void* cuda_ctx = nullptr;
   if (cuda_input) {
 #ifdef STITCH_HAVE_GST_CUDA

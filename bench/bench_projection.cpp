@@ -110,11 +110,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  const cv::Mat photo = testdata::read_ppm_rgba(photo_path);
-  if (photo.empty()) {
-    std::fprintf(stderr, "cannot read %s (a P6 PPM; run from the repository root or pass --photo)\n", photo_path.c_str());
-    return 2;
-  }
+  const cv::Mat photo = testdata::read_photo_or_exit(photo_path);
   std::printf("%-34s %-11s %9s %10s %10s %10s %10s\n", "case", "output", "eval/out", "CPU ms", "CUDA ms", "memcpy ms",
               "CPU/CUDA");
   std::string json = "{\"cases\":[";

@@ -402,10 +402,9 @@ def evaluate_clip(clip, build, report, frames):
         fl = [float("nan")] + [frame_flicker(images, valid, regs, canvas_static, t) for t in range(1, frames)]
         if images[mid] is not None and regs[mid] is not None:
             registered_mid[sname] = warp(images[mid], regs[mid], (shape[1], shape[0]))
-        est = camera_to_reference(d, info, reference, target_t)
-        if est is None:
-            est = next((camera_to_reference(d, info, reference, t) for t in range(frames)
-                        if camera_to_reference(d, info, reference, t) is not None), None)
+        # The calibration at the target frame, else at the first frame that has one.
+        candidates = (camera_to_reference(d, info, reference, t) for t in [target_t] + list(range(frames)))
+        est = next((h for h in candidates if h is not None), None)
         align, matches = (metrics.alignment(inputs[target_t], est) if est is not None and all(h is not None for h in est)
                           else (float("nan"), 0))
         results[sname] = dict(alignment_px=align, alignment_matches=matches, flicker=nanmean(fl[1:]),
@@ -428,6 +427,13 @@ def fmt(v, digits=2, unit=""):
     if isinstance(v, float) and math.isinf(v):
         return "∞"
     return ("%." + str(digits) + "f%s") % (v, unit)
+
+
+def speed_ratio(base_ms, v):
+    """OpenCV per-frame time / this stitcher's; None when the stitcher did not run."""
+    if "error" in v:
+        return None
+    return base_ms / v["ms_per_frame"] if base_ms and base_ms > 0 and v["ms_per_frame"] > 0 else float("nan")
 
 
 def write_report(report, results, args, elapsed):
@@ -467,10 +473,10 @@ def write_report(report, results, args, elapsed):
                       "| flicker after step | coverage | ms/frame | speed × | failed frames |",
                       "|---|---|---|---|---|---|---|---|---|---|---|---|"]
             for sname, v in s.items():
-                if "error" in v:
+                speed = speed_ratio(base_ms, v)
+                if speed is None:
                     lines.append("| %s | %s |" % (sname, v["error"]))
                     continue
-                speed = base_ms / v["ms_per_frame"] if base_ms and v["ms_per_frame"] > 0 else float("nan")
                 lines.append("| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %d |" % (
                     sname, fmt(v["psnr_db"]), fmt(v["ssim"], 4), fmt(v["psnr_overlap_db"]), fmt(v["seam_visibility"]),
                     fmt(v["corner_error_px"]), fmt(v["flicker"]), fmt(v["flicker_after_step"]), fmt(v["coverage"], 3),
@@ -480,10 +486,10 @@ def write_report(report, results, args, elapsed):
             lines += ["| stitcher | alignment px (matches) | flicker | ms/frame | speed × | failed frames |",
                       "|---|---|---|---|---|---|"]
             for sname, v in s.items():
-                if "error" in v:
+                speed = speed_ratio(base_ms, v)
+                if speed is None:
                     lines.append("| %s | %s |" % (sname, v["error"]))
                     continue
-                speed = base_ms / v["ms_per_frame"] if base_ms and v["ms_per_frame"] > 0 else float("nan")
                 lines.append("| %s | %s (%d) | %s | %s | %s | %d |" % (
                     sname, fmt(v["alignment_px"]), v["alignment_matches"], fmt(v["flicker"]),
                     fmt(v["ms_per_frame"], 1), fmt(speed, 1), v["failures"]))

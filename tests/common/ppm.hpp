@@ -38,4 +38,15 @@ inline cv::Mat test_photo() {
   return p;
 }
 
+
+// The benchmarks' photo: read, or say how to get one and exit with status 2.
+inline cv::Mat read_photo_or_exit(const std::string& path) {
+  cv::Mat photo = read_ppm_rgba(path);
+  if (photo.empty()) {
+    std::fprintf(stderr, "cannot read %s (a P6 PPM; run from the repository root or pass --photo)\n", path.c_str());
+    std::exit(2);
+  }
+  return photo;
+}
+
 }  // namespace testdata
