@@ -5,7 +5,7 @@
 # 64 MiB a device call carries, so it holds only binaries that link no OpenCV
 # imgcodecs/videoio (their codec and GDAL trees are large).
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
-#        OUT=... scripts/gpu_check.sh [quick|blend] (on the GPU host; quick: tests only;
+#        OUT=... scripts/gpu_check.sh [quick|blend|e2e] (on the GPU host; quick: tests only;
 #                                                   blend: tests, blend modes, decoded pipelines)
 set -uo pipefail
 GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection test_cuda_blend"
@@ -15,10 +15,10 @@ if [ "${1:-}" = pack ]; then
   cp "$BUILD/tests/boat1_1600.ppm" .gpubundle/
   bins=""
   for t in $GPU_TESTS; do [ -x "$BUILD/tests/$t" ] && bins="$bins $BUILD/tests/$t"; done
-  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection stitch-bench-blend; do
+  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection stitch-bench-blend stitch-bench-e2e; do
     [ -x "$BUILD/bench/$b" ] && bins="$bins $BUILD/bench/$b"
   done
-  GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile" \
+  GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile videotestsrc x264 x265" \
     ../shared/tools/gpu-bundle .gpubundle/b.tar.gz $bins "$BUILD/gst/libgststitch.so"
   du -sh .gpubundle
   exit
@@ -37,6 +37,12 @@ for t in $GPU_TESTS; do
   echo "rc=$?"
   grep -E "PSNR|FLOW|COLOR|MULTIBAND|CONVERT|FLOWWARP|GPUFAULT|\[  (FAILED|PASSED|SKIPPED) |Failure|error" "$OUT/$t.log" | head -40
 done 2>&1 | tee "$OUT/tests.txt"
+if [ "${1:-}" = e2e ]; then
+  echo "== end to end: NVDEC-decoded H.264/H.265 cameras into the chain, decode-only ceiling, rigs per process, live latency"
+  timeout 560 $B/stitch-bench-e2e --photo "$STITCH_TEST_PPM" --frames ${E2E_FRAMES:-300} --dir /tmp/stitch-e2e \
+    --json "$OUT/e2e.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee "$OUT/bench_e2e.txt"
+  exit
+fi
 if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
 MODE=${1:-}
 if [ "$MODE" != blend ]; then
