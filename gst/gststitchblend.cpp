@@ -415,6 +415,8 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
                        effective.output_width, effective.output_height));
     return FALSE;
   }
+  GST_INFO_OBJECT(self, "panorama %dx%d: estimated working memory %" G_GUINT64_FORMAT " MiB", planned.width,
+                  planned.height, bytes >> 20);
   st->compositor.make(st->cuda, [&]() {
     auto c = std::make_unique<stitch::Compositor>(device_memory ? stitch::Backend::Cuda : settings.backend);
     c->prepare(rig, effective, input);

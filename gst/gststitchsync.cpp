@@ -987,7 +987,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   gst_element_class_add_static_pad_template_with_gtype(element_class, &src_template,
                                                        GST_TYPE_AGGREGATOR_PAD);
   gst_element_class_set_static_metadata(
-      element_class, "Stitch synchronizer", "Filter/Editor/Video/Compositor",
+      element_class, "Stitch synchronizer", "Video/Combiner",
       "Synchronises N camera streams by running time into one multiview bundle per output frame",
       "gst-stitch developers");
 
