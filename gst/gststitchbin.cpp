@@ -4,11 +4,15 @@
  *
  * The whole stitching chain in one element: `stitchsync ! stitchcalib ! stitchcolor !
  * stitchflowwarp ! stitchblend`. Its request pads `sink_%u` take the cameras (they are
- * stitchsync's pads, ghosted); its source pad gives the panorama. The children's main
- * properties are the bin's own, under the same names (`backend` is set on every child); the
+ * stitchsync's pads, ghosted); its source pad gives the panorama. Every property of the
+ * children is the bin's own, under the same name, with the same range, default, description
+ * and mutability (a property that several children have, `backend`, is set on all of them;
+ * construct-only ones such as `force-live` are passed to the child as it is made); the
  * `recalibrate` action signal is stitchcalib's. The children are named sync, calib, color,
- * flowwarp and blend: gst_bin_get_by_name() finds them, and the properties not proxied here are
- * set through them (GstChildProxy), e.g. `stitchbin calib::features=orb color::window=5`.
+ * flowwarp and blend: gst_bin_get_by_name() finds them, and their properties can also be set
+ * through them (GstChildProxy), e.g. `stitchbin calib::features=orb color::window=5`. Control
+ * bindings (GstController) go on the children (`gst_child_proxy_lookup`), which sync them per
+ * frame: the bin does not.
  *
  * ## Example launch lines
  * |[
@@ -39,32 +43,47 @@ constexpr const char* kChildren[][2] = {{"sync", "stitchsync"},
                                         {"color", "stitchcolor"},
                                         {"flowwarp", "stitchflowwarp"},
                                         {"blend", "stitchblend"}};
+constexpr guint kNumChildren = G_N_ELEMENTS(kChildren);
 constexpr int kSync = 0, kCalib = 1, kBlend = 4;
-constexpr int kAllChildren = -1;
 
-// Proxied properties: the bin's property of this name is child `child`'s (or every child's).
+// Properties of the children's base classes that users of the chain set too (GstAggregator's);
+// the others (name, qos, start-time, ...) stay on the children.
+constexpr const char* kBaseClassProperties[] = {"latency", "force-live"};
+
+// Shared properties whose description says what the bin does with them.
+constexpr const char* kBlurbs[][2] = {
+    {"backend",
+     "Where every stage runs (set on all five): auto: on the GPU when a CUDA device opens, the frames then "
+     "staying in CUDA memory from stitchsync to stitchblend, otherwise on the CPU; cpu: every stage on the CPU, "
+     "in system memory; cuda: on the GPU, or an error when no device opens"},
+};
+
+// One property of the bin: the children that have it (a bit per child) and its spec.
 struct Proxy {
-  const char* name;
-  int child;
+  std::string name;
+  guint children = 0;
+  GType value_type = G_TYPE_INVALID;
+  bool construct_only = false;
 };
-constexpr Proxy kProxies[] = {
-    {"framerate", kSync},          {"input-eos", kSync},
-    {"latency", kSync},            {"rig-file", kCalib},
-    {"load-file", kCalib},         {"save-file", kCalib},
-    {"refine", kCalib},            {"recalibrate-interval", kCalib},
-    {"method", 2},                 {"smoothing", 2},
-    {"flow", 3},                   {"quality", 3},
-    {"output-width", kBlend},      {"output-height", kBlend},
-    {"crop", kBlend},              {"mode", kBlend},
-    {"bands", kBlend},             {"seam", kBlend},
-    {"debug", kBlend},
-    {"backend", kAllChildren},
-};
+std::vector<Proxy>* proxies = nullptr;  // made once, in class_init
 
-// A copy of a child's property spec under the same name, for the bin.
-GParamSpec* clone_pspec(GParamSpec* p) {
-  const GParamFlags flags = GParamFlags((p->flags & (G_PARAM_READWRITE)) | G_PARAM_STATIC_STRINGS);
-  const char *name = g_param_spec_get_name(p), *nick = g_param_spec_get_nick(p), *blurb = g_param_spec_get_blurb(p);
+// How late a property may change: 0 (no flag: NULL only), READY, PAUSED, PLAYING.
+int mutability(GParamFlags f) {
+  if (f & GST_PARAM_MUTABLE_PLAYING) return 3;
+  if (f & GST_PARAM_MUTABLE_PAUSED) return 2;
+  if (f & GST_PARAM_MUTABLE_READY) return 1;
+  return 0;
+}
+
+GParamFlags mutability_flag(int m) {
+  static const GParamFlags flags[] = {GParamFlags(0), GParamFlags(GST_PARAM_MUTABLE_READY),
+                                      GParamFlags(GST_PARAM_MUTABLE_PAUSED), GParamFlags(GST_PARAM_MUTABLE_PLAYING)};
+  return flags[m];
+}
+
+// A copy of a child's property spec under the same name, for the bin, with `flags`.
+GParamSpec* clone_pspec(GParamSpec* p, const char* blurb, GParamFlags flags) {
+  const char *name = g_param_spec_get_name(p), *nick = g_param_spec_get_nick(p);
   const GType t = G_PARAM_SPEC_TYPE(p);
   if (t == G_TYPE_PARAM_ENUM) {
     GParamSpecEnum* e = G_PARAM_SPEC_ENUM(p);
@@ -82,6 +101,10 @@ GParamSpec* clone_pspec(GParamSpec* p) {
     GParamSpecInt* i = G_PARAM_SPEC_INT(p);
     return g_param_spec_int(name, nick, blurb, i->minimum, i->maximum, i->default_value, flags);
   }
+  if (t == G_TYPE_PARAM_UINT) {
+    GParamSpecUInt* i = G_PARAM_SPEC_UINT(p);
+    return g_param_spec_uint(name, nick, blurb, i->minimum, i->maximum, i->default_value, flags);
+  }
   if (t == G_TYPE_PARAM_UINT64) {
     GParamSpecUInt64* i = G_PARAM_SPEC_UINT64(p);
     return g_param_spec_uint64(name, nick, blurb, i->minimum, i->maximum, i->default_value, flags);
@@ -94,6 +117,10 @@ GParamSpec* clone_pspec(GParamSpec* p) {
     GParamSpecDouble* d = G_PARAM_SPEC_DOUBLE(p);
     return g_param_spec_double(name, nick, blurb, d->minimum, d->maximum, d->default_value, flags);
   }
+  if (t == G_TYPE_PARAM_FLOAT) {
+    GParamSpecFloat* d = G_PARAM_SPEC_FLOAT(p);
+    return g_param_spec_float(name, nick, blurb, d->minimum, d->maximum, d->default_value, flags);
+  }
   if (t == GST_TYPE_PARAM_FRACTION) {
     GstParamSpecFraction* f = GST_PARAM_SPEC_FRACTION(p);
     return gst_param_spec_fraction(name, nick, blurb, f->min_num, f->min_den, f->max_num, f->max_den, f->def_num,
@@ -102,18 +129,29 @@ GParamSpec* clone_pspec(GParamSpec* p) {
   return nullptr;
 }
 
+GType child_type(guint c) {
+  GstElementFactory* factory = gst_element_factory_find(kChildren[c][1]);
+  if (!factory) return G_TYPE_INVALID;
+  GstPluginFeature* loaded = gst_plugin_feature_load(GST_PLUGIN_FEATURE(factory));
+  gst_object_unref(factory);
+  if (!loaded) return G_TYPE_INVALID;
+  const GType type = gst_element_factory_get_element_type(GST_ELEMENT_FACTORY(loaded));
+  gst_object_unref(loaded);
+  return type;
+}
+
 }  // namespace
 
 struct _GstStitchBin {
   GstBin parent;
-  GstElement* children[G_N_ELEMENTS(kChildren)];
+  GstElement* children[kNumChildren];
   GstPad* srcpad;
+  // Values set before the children exist (construction): applied as they are made.
+  std::vector<std::pair<guint, GValue>>* pending;
 };
 
 G_DEFINE_TYPE(GstStitchBin, gst_stitch_bin, GST_TYPE_BIN);
 GST_ELEMENT_REGISTER_DEFINE(stitchbin, "stitchbin", GST_RANK_NONE, GST_TYPE_STITCH_BIN);
-
-enum { SIGNAL_RECALIBRATE, N_SIGNALS };
 
 static GstStaticPadTemplate sink_template =
     GST_STATIC_PAD_TEMPLATE("sink_%u", GST_PAD_SINK, GST_PAD_REQUEST, GST_STATIC_CAPS("video/x-raw(ANY)"));
@@ -124,6 +162,7 @@ static GstPad* gst_stitch_bin_request_new_pad(GstElement* element, GstPadTemplat
                                               const GstCaps* caps) {
   GstStitchBin* self = GST_STITCH_BIN(element);
   GstElement* sync = self->children[kSync];
+  if (!sync) return NULL;
   GstPad* target = gst_element_request_pad_simple(sync, name ? name : "sink_%u");
   if (!target) {
     GST_ELEMENT_WARNING(self, CORE, PAD, ("stitchsync refused a camera pad named %s", name ? name : "sink_%u"),
@@ -150,28 +189,154 @@ static void gst_stitch_bin_release_pad(GstElement* element, GstPad* pad) {
 }
 
 static void gst_stitch_bin_recalibrate(GstStitchBin* self) {
-  g_signal_emit_by_name(self->children[kCalib], "recalibrate");
+  if (self->children[kCalib]) g_signal_emit_by_name(self->children[kCalib], "recalibrate");
 }
 
 static void gst_stitch_bin_set_property(GObject* object, guint prop_id, const GValue* value, GParamSpec* pspec) {
   GstStitchBin* self = GST_STITCH_BIN(object);
-  if (prop_id == 0 || prop_id > G_N_ELEMENTS(kProxies)) {
+  if (prop_id == 0 || prop_id > proxies->size()) {
     G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
     return;
   }
-  const Proxy& p = kProxies[prop_id - 1];
-  for (guint c = 0; c < G_N_ELEMENTS(kChildren); ++c)
-    if (p.child == kAllChildren || p.child == int(c)) g_object_set_property(G_OBJECT(self->children[c]), p.name, value);
+  if (!self->children[kSync]) {  // constructing: the children are made in constructed()
+    GValue copy = G_VALUE_INIT;
+    g_value_init(&copy, G_VALUE_TYPE(value));
+    g_value_copy(value, &copy);
+    self->pending->emplace_back(prop_id, copy);
+    return;
+  }
+  const Proxy& p = (*proxies)[prop_id - 1];
+  for (guint c = 0; c < kNumChildren; ++c)
+    if (p.children >> c & 1) g_object_set_property(G_OBJECT(self->children[c]), p.name.c_str(), value);
 }
 
 static void gst_stitch_bin_get_property(GObject* object, guint prop_id, GValue* value, GParamSpec* pspec) {
   GstStitchBin* self = GST_STITCH_BIN(object);
-  if (prop_id == 0 || prop_id > G_N_ELEMENTS(kProxies)) {
+  if (prop_id == 0 || prop_id > proxies->size()) {
     G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
     return;
   }
-  const Proxy& p = kProxies[prop_id - 1];
-  g_object_get_property(G_OBJECT(self->children[p.child == kAllChildren ? kBlend : p.child]), p.name, value);
+  const Proxy& p = (*proxies)[prop_id - 1];
+  for (guint c = 0; c < kNumChildren; ++c)
+    if (p.children >> c & 1 && self->children[c]) {
+      g_object_get_property(G_OBJECT(self->children[c]), p.name.c_str(), value);
+      return;
+    }
+}
+
+/* The children, made once the bin's construct-only properties are known. */
+static void gst_stitch_bin_constructed(GObject* object) {
+  G_OBJECT_CLASS(gst_stitch_bin_parent_class)->constructed(object);
+  GstStitchBin* self = GST_STITCH_BIN(object);
+  GstElement* previous = nullptr;
+  bool ok = true;
+  for (guint c = 0; c < kNumChildren && ok; ++c) {
+    // the name, and this child's construct-only properties
+    std::vector<const gchar*> names{"name"};
+    std::vector<GValue> values(1, G_VALUE_INIT);
+    g_value_init(&values[0], G_TYPE_STRING);
+    g_value_set_string(&values[0], kChildren[c][0]);
+    for (const auto& [id, v] : *self->pending) {
+      const Proxy& p = (*proxies)[id - 1];
+      if (p.construct_only && p.children >> c & 1) {
+        names.push_back(p.name.c_str());
+        values.push_back(v);
+      }
+    }
+    self->children[c] =
+        gst_element_factory_make_with_properties(kChildren[c][1], guint(names.size()), names.data(), values.data());
+    g_value_unset(&values[0]);
+    if (!self->children[c]) {
+      ok = false;
+      break;
+    }
+    gst_bin_add(GST_BIN(self), self->children[c]);
+    if (previous && !gst_element_link(previous, self->children[c])) ok = false;
+    previous = self->children[c];
+  }
+  if (ok) {
+    // every other value set at construction
+    for (const auto& [id, v] : *self->pending) {
+      const Proxy& p = (*proxies)[id - 1];
+      if (p.construct_only) continue;
+      for (guint c = 0; c < kNumChildren; ++c)
+        if (p.children >> c & 1) g_object_set_property(G_OBJECT(self->children[c]), p.name.c_str(), &v);
+    }
+  }
+  for (auto& [id, v] : *self->pending) g_value_unset(&v);
+  self->pending->clear();
+  if (!ok) {
+    // Only if the plugin's own elements are missing (a broken install): say so, make no pad.
+    g_critical("stitchbin: cannot build the stitchsync ! ... ! stitchblend chain");
+    for (auto& child : self->children) child = nullptr;
+    self->srcpad = nullptr;
+    return;
+  }
+  GstPad* target = gst_element_get_static_pad(self->children[kBlend], "src");
+  self->srcpad = gst_ghost_pad_new_from_template(
+      "src", target, gst_element_class_get_pad_template(GST_ELEMENT_GET_CLASS(self), "src"));
+  gst_object_unref(target);
+  gst_element_add_pad(GST_ELEMENT(self), self->srcpad);
+}
+
+static void gst_stitch_bin_finalize(GObject* object) {
+  GstStitchBin* self = GST_STITCH_BIN(object);
+  for (auto& [id, v] : *self->pending) g_value_unset(&v);
+  delete self->pending;
+  G_OBJECT_CLASS(gst_stitch_bin_parent_class)->finalize(object);
+}
+
+/* Every property of the children, in chain order, found by name from their specs: a property
+ * that a child gains appears here with no code. */
+static void install_proxies(GObjectClass* gobject_class) {
+  proxies = new std::vector<Proxy>();
+  std::vector<GParamSpec*> first;  // the spec each proxy copies (the first child's)
+  std::vector<int> least_mutable;
+  for (guint c = 0; c < kNumChildren; ++c) {
+    const GType type = child_type(c);
+    if (!type) {
+      g_critical("stitchbin: %s is not registered", kChildren[c][1]);
+      continue;
+    }
+    GObjectClass* child_class = G_OBJECT_CLASS(g_type_class_ref(type));
+    guint n = 0;
+    GParamSpec** specs = g_object_class_list_properties(child_class, &n);
+    for (guint i = 0; i < n; ++i) {
+      GParamSpec* spec = specs[i];
+      const char* name = g_param_spec_get_name(spec);
+      bool wanted = spec->owner_type == type && (spec->flags & G_PARAM_WRITABLE);
+      for (const char* base : kBaseClassProperties) wanted = wanted || g_strcmp0(name, base) == 0;
+      if (!wanted) continue;
+      std::size_t k = 0;
+      while (k < proxies->size() && (*proxies)[k].name != name) ++k;
+      if (k == proxies->size()) {
+        proxies->push_back({name, 0u, spec->value_type, (spec->flags & G_PARAM_CONSTRUCT_ONLY) != 0});
+        first.push_back(spec);
+        least_mutable.push_back(mutability(spec->flags));
+      } else if ((*proxies)[k].value_type != spec->value_type) {
+        g_critical("stitchbin: %s::%s differs from the earlier stage's", kChildren[c][1], name);
+        continue;
+      }
+      (*proxies)[k].children |= 1u << c;
+      least_mutable[k] = std::min(least_mutable[k], mutability(spec->flags));
+    }
+    g_free(specs);
+    g_type_class_unref(child_class);
+  }
+  for (std::size_t k = 0; k < proxies->size(); ++k) {
+    Proxy& p = (*proxies)[k];
+    const char* blurb = g_param_spec_get_blurb(first[k]);
+    for (const auto& b : kBlurbs)
+      if (p.name == b[0]) blurb = b[1];
+    // Readable, writable, construct-only and mutability as the child's (the strictest child's);
+    // not controllable: control bindings go on the children, which sync them per frame.
+    const GParamFlags flags =
+        GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS | (first[k]->flags & G_PARAM_CONSTRUCT_ONLY) |
+                    (first[k]->flags & G_PARAM_DEPRECATED) | mutability_flag(least_mutable[k]));
+    GParamSpec* copy = clone_pspec(first[k], blurb, flags);
+    if (copy) g_object_class_install_property(gobject_class, guint(k + 1), copy);
+    else g_critical("stitchbin: cannot proxy %s (type %s)", p.name.c_str(), G_PARAM_SPEC_TYPE_NAME(first[k]));
+  }
 }
 
 static void gst_stitch_bin_class_init(GstStitchBinClass* klass) {
@@ -179,24 +344,9 @@ static void gst_stitch_bin_class_init(GstStitchBinClass* klass) {
   GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
   gobject_class->set_property = gst_stitch_bin_set_property;
   gobject_class->get_property = gst_stitch_bin_get_property;
-
-  // Each proxied property copies its child's spec (name, range, default, description).
-  for (guint i = 0; i < G_N_ELEMENTS(kProxies); ++i) {
-    const Proxy& p = kProxies[i];
-    GstElementFactory* factory = gst_element_factory_find(kChildren[p.child == kAllChildren ? kBlend : p.child][1]);
-    GType type = factory ? gst_element_factory_get_element_type(factory) : G_TYPE_INVALID;
-    if (factory) gst_object_unref(factory);
-    if (!type) {
-      g_critical("stitchbin: %s is not registered", kChildren[p.child == kAllChildren ? kBlend : p.child][1]);
-      continue;
-    }
-    GObjectClass* child_class = G_OBJECT_CLASS(g_type_class_ref(type));
-    GParamSpec* spec = g_object_class_find_property(child_class, p.name);
-    GParamSpec* copy = spec ? clone_pspec(spec) : nullptr;
-    if (copy) g_object_class_install_property(gobject_class, i + 1, copy);
-    else g_critical("stitchbin: cannot proxy %s::%s", kChildren[p.child == kAllChildren ? kBlend : p.child][1], p.name);
-    g_type_class_unref(child_class);
-  }
+  gobject_class->constructed = gst_stitch_bin_constructed;
+  gobject_class->finalize = gst_stitch_bin_finalize;
+  install_proxies(gobject_class);
 
   g_signal_new_class_handler("recalibrate", G_TYPE_FROM_CLASS(klass),
                              GSignalFlags(G_SIGNAL_RUN_LAST | G_SIGNAL_ACTION), G_CALLBACK(gst_stitch_bin_recalibrate),
@@ -204,7 +354,7 @@ static void gst_stitch_bin_class_init(GstStitchBinClass* klass) {
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);
-  gst_element_class_set_static_metadata(element_class, "Stitch bin", "Filter/Editor/Video/Bin",
+  gst_element_class_set_static_metadata(element_class, "Stitch bin", "Video/Combiner",
       "Stitches the cameras on its sink_%u pads into one panorama: stitchsync, stitchcalib, "
       "stitchcolor, stitchflowwarp and stitchblend in one bin",
       "gst-stitch developers");
@@ -214,27 +364,7 @@ static void gst_stitch_bin_class_init(GstStitchBinClass* klass) {
 }
 
 static void gst_stitch_bin_init(GstStitchBin* self) {
-  GstElement* previous = nullptr;
-  bool ok = true;
-  for (guint c = 0; c < G_N_ELEMENTS(kChildren); ++c) {
-    self->children[c] = gst_element_factory_make(kChildren[c][1], kChildren[c][0]);
-    if (!self->children[c]) {
-      ok = false;
-      break;
-    }
-    gst_bin_add(GST_BIN(self), self->children[c]);
-    if (previous && !gst_element_link(previous, self->children[c])) ok = false;
-    previous = self->children[c];
-  }
-  if (!ok) {
-    // Only if the plugin's own elements are missing (a broken install): say so, make no pad.
-    g_critical("stitchbin: cannot build the stitchsync ! ... ! stitchblend chain");
-    self->srcpad = nullptr;
-    return;
-  }
-  GstPad* target = gst_element_get_static_pad(self->children[kBlend], "src");
-  self->srcpad = gst_ghost_pad_new_from_template(
-      "src", target, gst_element_class_get_pad_template(GST_ELEMENT_GET_CLASS(self), "src"));
-  gst_object_unref(target);
-  gst_element_add_pad(GST_ELEMENT(self), self->srcpad);
+  for (auto& child : self->children) child = nullptr;
+  self->srcpad = nullptr;
+  self->pending = new std::vector<std::pair<guint, GValue>>();
 }

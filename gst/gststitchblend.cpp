@@ -63,6 +63,9 @@
 
 #include <gst/video/video.h>
 
+#include <algorithm>
+#include <cmath>
+
 #include "gststitchbundle.h"
 #include "gststitchcuda.h"
 #include "stitch/blend/compositor.hpp"
@@ -78,7 +81,18 @@
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_blend_debug);
 #define GST_CAT_DEFAULT gst_stitch_blend_debug
 
-enum { PROP_0, PROP_OUTPUT_WIDTH, PROP_OUTPUT_HEIGHT, PROP_CROP, PROP_BACKEND, PROP_MODE, PROP_BANDS, PROP_SEAM, PROP_DEBUG };
+enum {
+  PROP_0,
+  PROP_OUTPUT_WIDTH,
+  PROP_OUTPUT_HEIGHT,
+  PROP_CROP,
+  PROP_BACKEND,
+  PROP_MODE,
+  PROP_BANDS,
+  PROP_SEAM,
+  PROP_DEBUG,
+  PROP_MEMORY_LIMIT
+};
 
 #define DEFAULT_CROP stitch::CropMode::None
 
@@ -87,6 +101,7 @@ struct BlendState {
   stitch::CompositorSettings settings;
   bool settings_changed = true;
   guint debug = 0; /* stitch::DebugFlags */
+  guint memory_limit_mib = 0; /* 0: half the physical memory */
   /* state (streaming thread) */
   StitchCudaOwned<stitch::Compositor> compositor;
   guint64 rig_version = G_MAXUINT64;
@@ -263,6 +278,95 @@ static gboolean gst_stitch_blend_query(GstBaseTransform* trans, GstPadDirection 
   return GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->query(trans, direction, query);
 }
 
+/* Caps of a width x height panorama in the negotiated memory. */
+static GstCaps* panorama_caps(const BlendState* st, gint width, gint height) {
+  GstVideoInfo info = st->out_info;
+  gst_video_info_set_format(&info, GST_VIDEO_FORMAT_RGBA, width, height);
+  info.fps_n = st->out_info.fps_n;
+  info.fps_d = st->out_info.fps_d;
+  info.par_n = info.par_d = 1;
+  GstCaps* caps = gst_video_info_to_caps(&info);
+  if (st->out_cuda) gst_caps_set_features(caps, 0, gst_caps_features_new(STITCH_CAPS_FEATURE_CUDA_MEMORY, NULL));
+  return caps;
+}
+
+/* The panorama downstream takes: `g` when it accepts that size; otherwise the size it fixes
+ * (a capsfilter, a sink of one size), or the one nearest `g` in its range, with the panorama
+ * fitted inside, centred, at its own aspect (letterboxed, as output-width and output-height set
+ * together do). FALSE after an element error when downstream takes no panorama we can make. */
+static gboolean fit_downstream(GstStitchBlend* self, const stitch::Rig& rig, stitch::CompositorSettings& settings,
+                               stitch::OutputGeometry& g) {
+  BlendState* st = self->state;
+  if (g.width == GST_VIDEO_INFO_WIDTH(&st->out_info) && g.height == GST_VIDEO_INFO_HEIGHT(&st->out_info)) return TRUE;
+  GstPad* src = GST_BASE_TRANSFORM_SRC_PAD(self);
+  GstCaps* natural = panorama_caps(st, g.width, g.height);
+  const gboolean accepted = !gst_pad_is_linked(src) || gst_pad_peer_query_accept_caps(src, natural);
+  if (accepted) {
+    gst_caps_unref(natural);
+    return TRUE;
+  }
+  GstCaps* any_size = gst_caps_copy(natural);
+  gst_structure_remove_fields(gst_caps_get_structure(any_size, 0), "width", "height", NULL);
+  GstCaps* peer = gst_pad_peer_query_caps(src, any_size);
+  gst_caps_unref(any_size);
+  gint w = 0, h = 0;
+  if (!gst_caps_is_empty(peer) && !gst_caps_is_any(peer)) {
+    peer = gst_caps_truncate(peer);
+    GstStructure* s = gst_caps_get_structure(peer, 0);
+    gst_structure_fixate_field_nearest_int(s, "width", g.width);
+    gst_structure_get_int(s, "width", &w);
+    if (w > 0) gst_structure_fixate_field_nearest_int(s, "height", int(double(g.height) * w / g.width + 0.5));
+    gst_structure_get_int(s, "height", &h);
+  }
+  stitch::OutputGeometry fitted;
+  GstCaps* fitted_caps = nullptr;
+  if (w > 0 && h > 0) {
+    fitted = stitch::plan_output(rig, w, h, settings.crop);
+    fitted_caps = panorama_caps(st, fitted.width, fitted.height);
+  }
+  const gboolean ok = fitted_caps && fitted.width == w && fitted.height == h &&
+                      gst_pad_peer_query_accept_caps(src, fitted_caps);
+  if (ok) {
+    GST_INFO_OBJECT(self, "downstream takes no %dx%d panorama: fitted into its %dx%d", g.width, g.height, w, h);
+    settings.output_width = w;
+    settings.output_height = h;
+    g = fitted;
+  } else {
+    gchar* theirs = gst_caps_to_string(peer);
+    GST_ELEMENT_ERROR(self, CORE, NEGOTIATION,
+                      ("Downstream takes neither the %dx%d panorama nor a size stitchblend can fit it into%s: put "
+                       "videoconvert ! videoscale after stitchblend, or set output-width/output-height",
+                       g.width, g.height,
+                       w > 0 && h > 0 && (w % 2 || h % 2) ? " (panoramas have even sizes)" : ""),
+                      ("downstream caps: %s", theirs));
+    g_free(theirs);
+  }
+  gst_caps_unref(peer);
+  gst_caps_unref(natural);
+  if (fitted_caps) gst_caps_unref(fitted_caps);
+  return ok;
+}
+
+/* Working memory of a panorama, estimated before anything is allocated: the pooled output
+ * frames, and per pixel of each view's rectangle its warp maps, warped copy and weight;
+ * multiband adds its float pyramids and seam finding its costs; pre-warped views are fused on
+ * the canvas, then resampled. Bytes per pixel measured on the CPU path (BENCHMARKS.md). */
+static guint64 estimate_memory(const stitch::Rig& rig, const stitch::OutputGeometry& g,
+                               const stitch::CompositorSettings& s, bool prewarped) {
+  const stitch::OutputGeometry blend_geometry = prewarped ? stitch::canvas_geometry(rig) : g;
+  guint64 view_pixels = 0;
+  for (const auto& v : stitch::place_views(rig, blend_geometry))
+    view_pixels += guint64(std::max(v.roi.width, 0)) * guint64(std::max(v.roi.height, 0));
+  const guint64 blend_pixels = guint64(blend_geometry.width) * guint64(blend_geometry.height);
+  guint64 per_view = 16, per_blend = 8;
+  if (s.blend == stitch::BlendMode::Multiband) {
+    per_view += 48;
+    per_blend += 48;
+    if (s.seam != stitch::SeamMode::None) per_view += 12;
+  }
+  return guint64(g.width) * guint64(g.height) * 4 * 3 + view_pixels * per_view + blend_pixels * per_blend;
+}
+
 /* Rebuilds the compositor when the rig or the settings changed; renegotiates the output. */
 static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, GstStitchWarpMeta* warped) {
   BlendState* st = self->state;
@@ -271,6 +375,7 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
   GST_OBJECT_LOCK(self);
   const bool settings_changed = st->settings_changed;
   const stitch::CompositorSettings settings = st->settings;
+  const guint memory_limit_mib = st->memory_limit_mib;
   st->settings_changed = false;
   GST_OBJECT_UNLOCK(self);
   if (st->compositor && meta->version == st->rig_version && !settings_changed &&
@@ -287,9 +392,34 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
   const bool device_memory = st->in_cuda || st->out_cuda;
   if (device_memory && settings.backend == stitch::Backend::Cpu)
     throw std::runtime_error("backend=cpu cannot read or write CUDA memory: put cudadownload around stitchblend, or use backend=auto");
+  const stitch::Rig& rig = **meta->rig;
+  if (!rig.calibrated()) throw stitch::RigError("the rig carries no calibration (homographies and canvas)");
+  /* The size first, then the memory: nothing is allocated for a panorama that cannot be. */
+  stitch::OutputGeometry planned = stitch::plan_output(rig, effective.output_width, effective.output_height, effective.crop);
+  if (!fit_downstream(self, rig, effective, planned)) return FALSE;
+  const guint64 bytes = estimate_memory(rig, planned, effective, warped != nullptr);
+  std::string too_big;
+  if (!stitch_check_frame_size("the panorama", planned.width, planned.height, bytes,
+                               stitch_memory_budget(memory_limit_mib), too_big)) {
+    /* the largest size of this aspect that fits */
+    double scale = std::min(1.0, std::min(double(STITCH_MAX_FRAME_SIDE - 1) / planned.width,
+                                          double(STITCH_MAX_FRAME_SIDE - 1) / planned.height));
+    const guint64 budget = stitch_memory_budget(memory_limit_mib);
+    if (bytes > budget) scale = std::min(scale, 0.95 * std::sqrt(double(budget) / double(bytes)));
+    const int w = std::max(2, int(planned.width * scale) / 2 * 2), h = std::max(2, int(planned.height * scale) / 2 * 2);
+    GST_ELEMENT_ERROR(self, STREAM, FAILED,
+                      ("stitchblend: %s: set a smaller output-width/output-height (e.g. output-width=%d "
+                       "output-height=%d)%s",
+                       too_big.c_str(), w, h, bytes > budget ? " or raise memory-limit" : ""),
+                      ("canvas %dx%d, output-width=%d output-height=%d", rig.canvas_width, rig.canvas_height,
+                       effective.output_width, effective.output_height));
+    return FALSE;
+  }
+  GST_INFO_OBJECT(self, "panorama %dx%d: estimated working memory %" G_GUINT64_FORMAT " MiB", planned.width,
+                  planned.height, bytes >> 20);
   st->compositor.make(st->cuda, [&]() {
     auto c = std::make_unique<stitch::Compositor>(device_memory ? stitch::Backend::Cuda : settings.backend);
-    c->prepare(**meta->rig, effective, input);
+    c->prepare(rig, effective, input);
     return c;
   });
   const stitch::Compositor& compositor = *st->compositor;
@@ -308,27 +438,21 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
   const stitch::OutputGeometry& g = compositor.geometry();
   st->rig_version = meta->version;
   if (g.width != GST_VIDEO_INFO_WIDTH(&st->out_info) || g.height != GST_VIDEO_INFO_HEIGHT(&st->out_info)) {
-    GstVideoInfo info = st->out_info;
-    gst_video_info_set_format(&info, GST_VIDEO_FORMAT_RGBA, g.width, g.height);
-    info.fps_n = st->out_info.fps_n;
-    info.fps_d = st->out_info.fps_d;
-    GstCaps* caps = gst_video_info_to_caps(&info);
-    if (st->out_cuda) gst_caps_set_features(caps, 0, gst_caps_features_new(STITCH_CAPS_FEATURE_CUDA_MEMORY, NULL));
+    GstCaps* caps = panorama_caps(st, g.width, g.height);
     GST_INFO_OBJECT(self, "panorama is %dx%d%s", g.width, g.height, st->out_cuda ? " in CUDA memory" : "");
     const gboolean ok = gst_base_transform_update_src_caps(GST_BASE_TRANSFORM(self), caps);
-    gst_caps_unref(caps);
-    if (!ok) {
+    if (!ok || !gst_video_info_from_caps(&st->out_info, caps)) {
+      gst_caps_unref(caps);
       GST_ELEMENT_ERROR(self, CORE, NEGOTIATION,
                         ("Downstream refused the %dx%d panorama (add videoscale/videoconvert, or "
                          "set output-width/output-height)", g.width, g.height),
                         (NULL));
       return FALSE;
     }
-    st->out_info = info;
+    gst_caps_unref(caps);
   }
   stitch_bundle_pool_clear(&st->pool);
-  GstCaps* caps = gst_video_info_to_caps(&st->out_info);
-  if (st->out_cuda) gst_caps_set_features(caps, 0, gst_caps_features_new(STITCH_CAPS_FEATURE_CUDA_MEMORY, NULL));
+  GstCaps* caps = panorama_caps(st, GST_VIDEO_INFO_WIDTH(&st->out_info), GST_VIDEO_INFO_HEIGHT(&st->out_info));
   std::string error;
   st->pool = stitch_bundle_pool_new(st->cuda, st->out_cuda,
                                     {{GST_VIDEO_INFO_WIDTH(&st->out_info), GST_VIDEO_INFO_HEIGHT(&st->out_info)}}, caps,
@@ -353,7 +477,8 @@ static GstFlowReturn gst_stitch_blend_prepare_output_buffer(GstBaseTransform* tr
     return GST_FLOW_ERROR;
   GstFlowReturn ret = stitch_bundle_pool_acquire(GST_ELEMENT(self), self->state->pool, outbuf);
   if (ret != GST_FLOW_OK) return ret;
-  gst_buffer_copy_into(*outbuf, input, GstBufferCopyFlags(GST_BUFFER_COPY_FLAGS | GST_BUFFER_COPY_TIMESTAMPS), 0, -1);
+  /* flags, timestamps and the metas that transform_meta keeps */
+  GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->copy_metadata(trans, input, *outbuf);
   return GST_FLOW_OK;
 }
 
@@ -410,9 +535,7 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
 static gboolean gst_stitch_blend_transform_meta(GstBaseTransform*, GstBuffer*, GstMeta* meta,
                                                 GstBuffer*) {
   /* Views, rig and bundle metas describe the input bundle, not the panorama. */
-  const GstMetaInfo* info = meta->info;
-  return !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string("stitch")) &&
-         !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string(GST_META_TAG_VIDEO_STR));
+  return stitch_meta_survives_new_views(meta);
 }
 
 static gboolean gst_stitch_blend_stop(GstBaseTransform* trans) {
@@ -437,6 +560,10 @@ static void gst_stitch_blend_set_property(GObject* object, guint prop_id, const 
       self->state->debug = g_value_get_flags(value);
       GST_OBJECT_UNLOCK(self);
       return; /* drawn per frame: no rebuild */
+    case PROP_MEMORY_LIMIT:
+      self->state->memory_limit_mib = g_value_get_uint(value);
+      GST_OBJECT_UNLOCK(self);
+      return; /* checked at the next rebuild */
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
   if ((prop_id == PROP_SEAM || prop_id == PROP_MODE) && s.seam != stitch::SeamMode::None &&
@@ -461,6 +588,7 @@ static void gst_stitch_blend_get_property(GObject* object, guint prop_id, GValue
     case PROP_BANDS: g_value_set_int(value, s.bands); break;
     case PROP_SEAM: g_value_set_enum(value, int(s.seam)); break;
     case PROP_DEBUG: g_value_set_flags(value, self->state->debug); break;
+    case PROP_MEMORY_LIMIT: g_value_set_uint(value, self->state->memory_limit_mib); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
   GST_OBJECT_UNLOCK(self);
@@ -478,6 +606,8 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
   GstBaseTransformClass* trans_class = GST_BASE_TRANSFORM_CLASS(klass);
   const GParamFlags rw = GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS);
+  /* a change while playing rebuilds the compositor at the next bundle (a new size renegotiates) */
+  const GParamFlags playing = GParamFlags(rw | GST_PARAM_MUTABLE_PLAYING);
 
   gobject_class->set_property = gst_stitch_blend_set_property;
   gobject_class->get_property = gst_stitch_blend_get_property;
@@ -485,45 +615,57 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
 
   g_object_class_install_property(gobject_class, PROP_OUTPUT_WIDTH,
       g_param_spec_int("output-width", "Output width",
-                       "Panorama width in pixels (0: from the canvas; height alone keeps the aspect)",
-                       0, 32766, 0, rw));
+                       "Panorama width in pixels (0: from the canvas; height alone keeps the aspect; both "
+                       "fit the panorama inside, centred). A downstream that fixes the size (a capsfilter) "
+                       "gets the panorama fitted the same way",
+                       0, 32766, 0, playing));
   g_object_class_install_property(gobject_class, PROP_OUTPUT_HEIGHT,
       g_param_spec_int("output-height", "Output height",
-                       "Panorama height in pixels (0: from the canvas; width alone keeps the aspect)",
-                       0, 32766, 0, rw));
+                       "Panorama height in pixels (0: from the canvas; width alone keeps the aspect). A size "
+                       "whose other side would exceed 32767 pixels, or the memory-limit, is refused before "
+                       "anything is allocated",
+                       0, 32766, 0, playing));
   g_object_class_install_property(gobject_class, PROP_CROP,
       g_param_spec_enum("crop", "Crop", "Which part of the canvas is output", crop_get_type(),
-                        int(DEFAULT_CROP), rw));
+                        int(DEFAULT_CROP), playing));
   g_object_class_install_property(gobject_class, PROP_BACKEND,
-      g_param_spec_enum("backend", "Backend", "Implementation of warp and blend",
-                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+      g_param_spec_enum("backend", "Backend",
+                        "Where warp and blend run: auto: on the GPU when a CUDA device opens, else on the CPU; "
+                        "cpu: on the CPU, in system memory; cuda: on the GPU, or an error when no device opens",
+                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), GParamFlags(rw | GST_PARAM_MUTABLE_READY)));
   g_object_class_install_property(gobject_class, PROP_MODE,
       g_param_spec_enum("mode", "Mode",
                         "How overlapping views are fused: the position-weighted mean, or multiband (Laplacian "
                         "pyramid) blending, which mixes coarse structure over a wide band and detail over a "
                         "narrow one",
-                        mode_get_type(), int(stitch::BlendMode::Weighted), rw));
+                        mode_get_type(), int(stitch::BlendMode::Weighted), playing));
   g_object_class_install_property(gobject_class, PROP_BANDS,
       g_param_spec_int("bands", "Bands",
                        "Pyramid levels of mode=multiband (fewer on small outputs: the coarsest level keeps "
                        "2 pixels); the widest band spreads over about 2^bands pixels",
-                       1, 10, stitch::MultibandBlender::kDefaultBands, rw));
+                       1, 10, stitch::MultibandBlender::kDefaultBands, playing));
   g_object_class_install_property(gobject_class, PROP_SEAM,
       g_param_spec_enum("seam", "Seam",
                         "Where mode=multiband cuts each overlap between two views: its middle, or the path "
                         "that crosses the least color difference, edges and motion, kept near the last "
                         "frame's path so that it does not jump",
-                        seam_get_type(), int(stitch::SeamMode::None), rw));
+                        seam_get_type(), int(stitch::SeamMode::None), playing));
   g_object_class_install_property(gobject_class, PROP_DEBUG,
       g_param_spec_flags("debug", "Debug view",
                          "Draws onto the panorama why it looks the way it does: each view's outline, the "
                          "overlaps, the seams, and what stitchflowwarp's flow did in each overlap (e.g. "
                          "debug=outlines+seams, debug=all). With CUDA memory the frame is drawn on the host.",
-                         debug_get_type(), 0, GParamFlags(rw | GST_PARAM_MUTABLE_PLAYING)));
+                         debug_get_type(), 0, GParamFlags(playing | GST_PARAM_CONTROLLABLE)));
+  g_object_class_install_property(gobject_class, PROP_MEMORY_LIMIT,
+      g_param_spec_uint("memory-limit", "Memory limit",
+                        "MiB of working memory a panorama may take (output frames, warp maps, weights, "
+                        "pyramids; estimated from the calibration before anything is allocated): a larger one "
+                        "is refused with an error naming its size (0: half the physical memory)",
+                        0, G_MAXUINT, 0, playing));
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);
-  gst_element_class_set_static_metadata(element_class, "Stitch blend", "Filter/Editor/Video",
+  gst_element_class_set_static_metadata(element_class, "Stitch blend", "Filter/Converter/Video",
       "Warps the views of a calibrated stitch bundle onto the canvas and fuses them into one "
       "panorama (position-weighted mean, or multiband with optional seam finding)",
       "gst-stitch developers");

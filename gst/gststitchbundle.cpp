@@ -1,5 +1,7 @@
 #include "gststitchbundle.h"
 
+#include <unistd.h>
+
 #include <cstring>
 
 #include "gststitchcuda.h"
@@ -327,4 +329,53 @@ GstStitchRigMeta* stitch_bundle_require_rig(GstElement* element, GstBuffer* buff
                      f ? GST_OBJECT_NAME(f) : GST_ELEMENT_NAME(element)),
                     (NULL));
   return NULL;
+}
+
+gboolean stitch_bundle_require_camera_views(GstElement* element, GstBuffer* buffer) {
+  if (!gst_buffer_get_stitch_warp_meta(buffer)) return TRUE;
+  GstElementFactory* f = gst_element_get_factory(element);
+  const gchar* name = f ? GST_OBJECT_NAME(f) : GST_ELEMENT_NAME(element);
+  if (g_strcmp0(name, "stitchflowwarp") == 0)
+    GST_ELEMENT_ERROR(element, CORE, NEGOTIATION,
+                      ("The bundle went through stitchflowwarp already: keep one stitchflowwarp (stitchsync ! "
+                       "stitchcalib ! stitchcolor ! stitchflowwarp ! stitchblend)"),
+                      ("the bundle carries a GstStitchWarpMeta"));
+  else
+    GST_ELEMENT_ERROR(element, CORE, NEGOTIATION,
+                      ("%s comes after stitchflowwarp, whose views are already warped onto the canvas: put %s "
+                       "before stitchflowwarp (stitchsync ! stitchcalib ! stitchcolor ! stitchflowwarp ! "
+                       "stitchblend)",
+                       name, name),
+                      ("the bundle carries a GstStitchWarpMeta"));
+  return FALSE;
+}
+
+gboolean stitch_meta_survives_new_views(GstMeta* meta) {
+  const GType api = meta->info->api;
+  return !gst_meta_api_type_has_tag(api, g_quark_from_static_string("stitch")) &&
+         !gst_meta_api_type_has_tag(api, g_quark_from_static_string(GST_META_TAG_VIDEO_STR)) &&
+         !gst_meta_api_type_has_tag(api, g_quark_from_static_string(GST_META_TAG_MEMORY_STR));
+}
+
+guint64 stitch_memory_budget(guint limit_mib) {
+  if (limit_mib > 0) return guint64(limit_mib) << 20;
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+  if (pages <= 0 || page <= 0) return guint64(8) << 30;  /* unknown: 8 GiB */
+  return guint64(pages) * guint64(page) / 2;
+}
+
+gboolean stitch_check_frame_size(const char* what, gint64 width, gint64 height, guint64 bytes, guint64 budget,
+                                 std::string& error) {
+  if (width > STITCH_MAX_FRAME_SIDE || height > STITCH_MAX_FRAME_SIDE) {
+    error = std::string(what) + " would be " + std::to_string(width) + "x" + std::to_string(height) +
+            ", beyond the " + std::to_string(STITCH_MAX_FRAME_SIDE) + "-pixel limit of video caps on a side";
+    return FALSE;
+  }
+  if (budget > 0 && bytes > budget) {
+    error = std::string(what) + " of " + std::to_string(width) + "x" + std::to_string(height) + " needs about " +
+            std::to_string((bytes + (1 << 20) - 1) >> 20) + " MiB of working memory, beyond the budget of " +
+            std::to_string(budget >> 20) + " MiB";
+    return FALSE;
+  }
+  return TRUE;
 }

@@ -146,6 +146,30 @@ gboolean stitch_bundle_accept_caps(GstElement* element, GstCaps* caps);
 /* The bundle's rig, or NULL after an element error telling to put stitchcalib before `element`. */
 GstStitchRigMeta* stitch_bundle_require_rig(GstElement* element, GstBuffer* buffer);
 
+/* For the stages that read camera frames (stitchcolor, stitchflowwarp): FALSE after an element
+ * error naming the fix when stitchflowwarp already warped the bundle's views onto the canvas
+ * (its GstStitchWarpMeta is the mark): they must come before stitchflowwarp. */
+gboolean stitch_bundle_require_camera_views(GstElement* element, GstBuffer* buffer);
+
+/* transform_meta of the elements whose output views are new pixels (stitchflowwarp: views
+ * warped onto the canvas; stitchblend: one panorama): TRUE for the metas that describe the
+ * frame as a whole (reference timestamps, timecodes, metas without tags, e.g. an
+ * application's), FALSE for those that describe the input views' layout or memory (tags
+ * "video", "memory": per-view GstVideoMeta, crop, regions of interest) and for the stitch metas,
+ * which the element attaches anew. */
+gboolean stitch_meta_survives_new_views(GstMeta* meta);
+
+/* Size limits, checked before anything is allocated. */
+#define STITCH_MAX_FRAME_SIDE 32767 /* video caps' width/height range, as in STITCH_BUNDLE_FIELDS */
+
+/* The memory budget in bytes for `limit_mib` (0: half the physical memory). */
+guint64 stitch_memory_budget(guint limit_mib);
+
+/* FALSE, with `error` naming the size and the limit, when a `what` of width x height would not
+ * fit in caps, or when `bytes` (its estimated working memory) exceed `budget`. */
+gboolean stitch_check_frame_size(const char* what, gint64 width, gint64 height, guint64 bytes, guint64 budget,
+                                 std::string& error);
+
 /* Runs `body`; a C++ exception becomes a GST_ELEMENT_ERROR naming `what`, never escaping
  * into GStreamer. Returns FALSE when an exception was caught. */
 template <typename F>

@@ -781,7 +781,7 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);
-  gst_element_class_set_static_metadata(element_class, "Stitch calibration", "Filter/Video",
+  gst_element_class_set_static_metadata(element_class, "Stitch calibration", "Filter/Analyzer/Video",
       "Attaches camera->canvas homographies to stitch bundles: from rough rig parameters refined "
       "by features, from a saved calibration, or from the images alone",
       "gst-stitch developers");

@@ -135,7 +135,7 @@ static GstFlowReturn gst_stitch_color_transform_ip(GstBaseTransform* trans, GstB
   GstStitchColor* self = GST_STITCH_COLOR(trans);
   ColorElementState* st = self->state;
   GstStitchRigMeta* meta = stitch_bundle_require_rig(GST_ELEMENT(self), buf);
-  if (!meta) return GST_FLOW_ERROR;
+  if (!meta || !stitch_bundle_require_camera_views(GST_ELEMENT(self), buf)) return GST_FLOW_ERROR;
   stitch::ColorOptions options;
   stitch::Backend backend;
   bool reset;
@@ -261,6 +261,9 @@ static void gst_stitch_color_class_init(GstStitchColorClass* klass) {
   GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
   GstBaseTransformClass* trans_class = GST_BASE_TRANSFORM_CLASS(klass);
   const GParamFlags rw = GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS);
+  /* read on every bundle: may change while playing; the numbers may follow a GstControlSource */
+  const GParamFlags per_frame = GParamFlags(rw | GST_PARAM_MUTABLE_PLAYING);
+  const GParamFlags controllable = GParamFlags(per_frame | GST_PARAM_CONTROLLABLE);
 
   gobject_class->set_property = gst_stitch_color_set_property;
   gobject_class->get_property = gst_stitch_color_get_property;
@@ -268,26 +271,29 @@ static void gst_stitch_color_class_init(GstStitchColorClass* klass) {
 
   g_object_class_install_property(gobject_class, PROP_METHOD,
       g_param_spec_enum("method", "Method", "Color transfer between the views", method_get_type(),
-                        int(DEFAULT_METHOD), rw));
+                        int(DEFAULT_METHOD), per_frame));
   g_object_class_install_property(gobject_class, PROP_PAIRING,
       g_param_spec_enum("pairing", "Pairing", "What the 2dm/3dm transfer is fitted against",
-                        pairing_get_type(), int(DEFAULT_PAIRING), rw));
+                        pairing_get_type(), int(DEFAULT_PAIRING), per_frame));
   g_object_class_install_property(gobject_class, PROP_WINDOW,
       g_param_spec_int("window", "Window", "Frames in the 3D-M fit and in the gain smoothing", 1, 30,
-                       DEFAULT_WINDOW, rw));
+                       DEFAULT_WINDOW, controllable));
   g_object_class_install_property(gobject_class, PROP_BALANCE,
       g_param_spec_boolean("balance", "Balance", "Online piecewise color balancing (paper eq. 5-7)",
-                           DEFAULT_BALANCE, rw));
+                           DEFAULT_BALANCE, per_frame));
   g_object_class_install_property(gobject_class, PROP_LAMBDA,
       g_param_spec_double("lambda", "Lambda", "Balance thresholds at lambda and 1 - lambda of the histogram",
-                          0.0, 0.45, DEFAULT_LAMBDA, rw));
+                          0.0, 0.45, DEFAULT_LAMBDA, controllable));
   g_object_class_install_property(gobject_class, PROP_SMOOTHING,
       g_param_spec_double("smoothing", "Smoothing",
                           "Temporal smoothing of the corrections: each frame moves (1 - smoothing) of "
-                          "the way to the new estimate (0 = the paper)", 0.0, 0.98, DEFAULT_SMOOTHING, rw));
+                          "the way to the new estimate (0 = the paper)", 0.0, 0.98, DEFAULT_SMOOTHING, controllable));
   g_object_class_install_property(gobject_class, PROP_BACKEND,
-      g_param_spec_enum("backend", "Backend", "Implementation of the per-frame color work",
-                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+      g_param_spec_enum("backend", "Backend",
+                        "Where the per-frame color work runs: auto: on the GPU when a CUDA device opens, else on "
+                        "the CPU; cpu: on the CPU (CUDA-memory bundles are mapped through host "
+                        "memory); cuda: on the GPU, or an error when no device opens",
+                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), GParamFlags(rw | GST_PARAM_MUTABLE_READY)));
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);

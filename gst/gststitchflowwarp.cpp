@@ -151,6 +151,13 @@ static void update_layout(GstStitchFlowWarp* self, GstStitchRigMeta* meta, stitc
   if (rig.cameras.size() > STITCH_MAX_VIEWS) throw std::invalid_argument("too many cameras");
   const stitch::OutputGeometry canvas = stitch::canvas_geometry(rig);
   const std::vector<stitch::ViewPlacement> views = stitch::place_views(rig, canvas);
+  /* refused before anything is allocated: 2 pooled bundles of warped views, the warper's maps */
+  guint64 pixels = 0;
+  for (const auto& v : views) pixels += guint64(std::max(v.roi.width, 0)) * guint64(std::max(v.roi.height, 0));
+  std::string too_big;
+  if (!stitch_check_frame_size("the canvas", canvas.width, canvas.height, pixels * 24, stitch_memory_budget(0), too_big))
+    throw std::runtime_error(too_big + ": leave stitchflowwarp out (stitchblend output-width/output-height then warps "
+                             "straight into a smaller panorama) or calibrate a smaller canvas");
   if (new_warper) {
     st->warper.make(st->cuda, [&]() { return make_warper(self, backend, st->cuda_memory); });
     st->warper_backend = backend;
@@ -188,7 +195,7 @@ static GstFlowReturn gst_stitch_flow_warp_prepare_output_buffer(GstBaseTransform
   GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(trans);
   FlowWarpElementState* st = self->state;
   GstStitchRigMeta* meta = stitch_bundle_require_rig(GST_ELEMENT(self), input);
-  if (!meta) return GST_FLOW_ERROR;
+  if (!meta || !stitch_bundle_require_camera_views(GST_ELEMENT(self), input)) return GST_FLOW_ERROR;
   stitch::Backend backend;
   {
     std::lock_guard<std::mutex> guard(st->lock);
@@ -199,7 +206,8 @@ static GstFlowReturn gst_stitch_flow_warp_prepare_output_buffer(GstBaseTransform
     return GST_FLOW_ERROR;
   GstFlowReturn ret = stitch_bundle_pool_acquire(GST_ELEMENT(self), st->pool, outbuf);
   if (ret != GST_FLOW_OK) return ret;
-  gst_buffer_copy_into(*outbuf, input, GstBufferCopyFlags(GST_BUFFER_COPY_FLAGS | GST_BUFFER_COPY_TIMESTAMPS), 0, -1);
+  /* flags, timestamps and the metas that transform_meta keeps */
+  GST_BASE_TRANSFORM_CLASS(gst_stitch_flow_warp_parent_class)->copy_metadata(trans, input, *outbuf);
 
   /* the views' GstVideoMetas come with the pooled bundle */
   GstStitchBundleMeta* in_bundle = gst_buffer_get_stitch_bundle_meta(input);
@@ -269,9 +277,7 @@ static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, Gst
 
 static gboolean gst_stitch_flow_warp_transform_meta(GstBaseTransform*, GstBuffer*, GstMeta* meta, GstBuffer*) {
   /* The views' metas describe the camera frames; prepare_output_buffer adds the new ones. */
-  const GstMetaInfo* info = meta->info;
-  return !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string("stitch")) &&
-         !gst_meta_api_type_has_tag(info->api, g_quark_from_static_string(GST_META_TAG_VIDEO_STR));
+  return stitch_meta_survives_new_views(meta);
 }
 
 static gboolean gst_stitch_flow_warp_sink_event(GstBaseTransform* trans, GstEvent* event) {
@@ -368,6 +374,9 @@ static void gst_stitch_flow_warp_class_init(GstStitchFlowWarpClass* klass) {
   GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
   GstBaseTransformClass* trans_class = GST_BASE_TRANSFORM_CLASS(klass);
   const GParamFlags rw = GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS);
+  /* read on every bundle: may change while playing; the numbers may follow a GstControlSource */
+  const GParamFlags per_frame = GParamFlags(rw | GST_PARAM_MUTABLE_PLAYING);
+  const GParamFlags controllable = GParamFlags(per_frame | GST_PARAM_CONTROLLABLE);
 
   gobject_class->set_property = gst_stitch_flow_warp_set_property;
   gobject_class->get_property = gst_stitch_flow_warp_get_property;
@@ -375,28 +384,28 @@ static void gst_stitch_flow_warp_class_init(GstStitchFlowWarpClass* klass) {
 
   g_object_class_install_property(gobject_class, PROP_FLOW,
       g_param_spec_boolean("flow", "Flow", "Local warping by optical flow in the overlaps "
-                           "(false: homography only)", DEFAULT_FLOW, rw));
+                           "(false: homography only)", DEFAULT_FLOW, per_frame));
   g_object_class_install_property(gobject_class, PROP_QUALITY,
       g_param_spec_enum("quality", "Quality", "Flow quality preset (resolution and iterations)",
-                        quality_get_type(), int(DEFAULT_QUALITY), rw));
+                        quality_get_type(), int(DEFAULT_QUALITY), per_frame));
   g_object_class_install_property(gobject_class, PROP_ALGORITHM,
       g_param_spec_enum("algorithm", "Algorithm", "Dense optical flow method",
-                        algorithm_get_type(), int(DEFAULT_ALGORITHM), rw));
+                        algorithm_get_type(), int(DEFAULT_ALGORITHM), per_frame));
   g_object_class_install_property(gobject_class, PROP_MARGIN,
       g_param_spec_int("margin", "Margin", "Pixels the overlap is widened by for the flow", 0, 512,
-                       DEFAULT_MARGIN, rw));
+                       DEFAULT_MARGIN, controllable));
   g_object_class_install_property(gobject_class, PROP_TEMPORAL_SMOOTHING,
       g_param_spec_double("temporal-smoothing", "Temporal smoothing",
                           "Weight of the previous frame's flow where neither view changed (static "
                           "scene); where the content moves the new flow is taken at once (0: every "
-                          "frame alone)", 0.0, 0.99, DEFAULT_TEMPORAL_SMOOTHING, rw));
+                          "frame alone)", 0.0, 0.99, DEFAULT_TEMPORAL_SMOOTHING, controllable));
   g_object_class_install_property(gobject_class, PROP_BACKEND,
       g_param_spec_enum("backend", "Backend", "Implementation of the warp and the flow",
-                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), GParamFlags(rw | GST_PARAM_MUTABLE_READY)));
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);
-  gst_element_class_set_static_metadata(element_class, "Stitch flow warp", "Filter/Effect/Video",
+  gst_element_class_set_static_metadata(element_class, "Stitch flow warp", "Filter/Converter/Video",
       "Pre-warps the views of a calibrated stitch bundle onto the canvas and aligns their "
       "overlaps with bidirectional dense optical flow",
       "gst-stitch developers");

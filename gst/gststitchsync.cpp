@@ -31,7 +31,8 @@
  *
  * ## Example launch lines
  * |[
- * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend ! videoconvert ! autovideosink \
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib rig-file=examples/testsrc_rig.json refine=none ! \
+ *   stitchblend ! videoconvert ! autovideosink \
  *   videotestsrc pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_0 \
  *   videotestsrc pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_1
  * ]|
@@ -43,7 +44,8 @@
  * Live cameras, one of which may fail: its region is filled by its neighbours meanwhile.
  * |[
  * gst-launch-1.0 stitchsync name=s latency=100000000 dropout=fill dropout-timeout=300000000 ! \
- *   stitchcalib ! stitchblend ! videoconvert ! autovideosink \
+ *   stitchcalib rig-file=examples/testsrc_rig.json refine=none ! stitchblend ! videoconvert ! \
+ *   autovideosink \
  *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_0 \
  *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_1
  * ]|
@@ -985,7 +987,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   gst_element_class_add_static_pad_template_with_gtype(element_class, &src_template,
                                                        GST_TYPE_AGGREGATOR_PAD);
   gst_element_class_set_static_metadata(
-      element_class, "Stitch synchronizer", "Filter/Editor/Video/Compositor",
+      element_class, "Stitch synchronizer", "Video/Combiner",
       "Synchronises N camera streams by running time into one multiview bundle per output frame",
       "gst-stitch developers");
 

@@ -6,12 +6,17 @@ launch lines) and what gst-inspect-1.0 shows of it from the registry (pads, prop
 their type, range or values, default and description, action signals) become one section.
 
   element_reference.py --write   regenerate docs/ELEMENTS.md
-  element_reference.py --check   fail when docs/ELEMENTS.md differs from what --write would write
+  element_reference.py --check   fail when docs/ELEMENTS.md differs from what --write would write,
+                                 or when a default it gives is not the one gst-inspect-1.0 shows
   element_reference.py --run     run every doc launch line, shortened: 4 panoramas (identity
-                                 eos-after behind the stitcher), fakesink for the screen,
-                                 files written to a temporary folder; lines needing elements this
-                                 machine lacks (nvh264dec, cudadownload without a GPU) are
-                                 skipped and listed. Fails on any error.
+                                 eos-after behind the last stitch element, which also counts
+                                 them), fakesink for the screen, files written to a temporary
+                                 folder; lines needing elements this machine lacks (nvh264dec,
+                                 cudadownload without a GPU) are skipped and listed. Fails on any
+                                 error, and on a line that makes no panorama.
+  element_reference.py --expect-no-panorama LINE
+                                 the test of the test: succeeds when --run would fail LINE for
+                                 making no panorama.
 Needs GST_PLUGIN_PATH at the built plugin (meson's test environment sets it) and gst-python
 (Debian's python3-gst-1.0).
 """
@@ -36,6 +41,7 @@ SOURCES = {"stitchsync": "gststitchsync.cpp", "stitchcalib": "gststitchcalib.cpp
            "stitchbin": "gststitchbin.cpp"}
 DOC = os.path.join(ROOT, "docs", "ELEMENTS.md")
 FRAMES = 4  # per input, when --run shortens a launch line
+COUNTER = "stitch_output"  # the identity --run puts behind the last stitch element
 
 
 def doc_block(element):
@@ -67,7 +73,7 @@ def value_text(v):
     if isinstance(v, Gst.Fraction):
         return "%d/%d" % (v.num, v.denom)
     if v is None:
-        return "(none)"
+        return "null"
     if hasattr(v, "value_nick"):
         return v.value_nick
     if hasattr(v, "first_value_nick"):  # flags
@@ -79,7 +85,7 @@ def property_rows(element):
     factory = Gst.ElementFactory.find(element)
     e = factory.create(None)
     base = set(p.name for p in GObject.ObjectClass.list_properties(Gst.Element)) | {"name", "parent"}
-    rows = []
+    rows, defaults = [], {}
     for p in sorted(e.list_properties(), key=lambda p: p.name):
         if p.name in base or p.owner_type.name in ("GstObject", "GstElement", "GstBin", "GstBaseTransform"):
             continue
@@ -92,16 +98,17 @@ def property_rows(element):
                                          if bin(k).count("1") == 1) + " (combined with +)"
         elif hasattr(p, "minimum") and hasattr(p, "maximum"):
             kind = "%s %s to %s" % (kind, value_text(p.minimum), value_text(p.maximum))
-        default = p.default_value
+        # What a new element holds, as gst-inspect-1.0 shows it (not the spec's default: a
+        # GstFraction spec has none that Python can read, and an element may start elsewhere).
+        default = e.get_property(p.name)
         if kind.startswith("enum"):
             default = p.enum_class.__enum_values__[int(default)].value_nick
         elif kind.startswith("flags"):
             default = "+".join(v.first_value_nick for k, v in sorted(p.flags_class.__flags_values__.items())
-                               if k and (int(default) & k) == k and bin(k).count("1") == 1) or "0"
-        elif isinstance(default, (bool, int, float, str)) or default is None:
+                               if k and (int(default) & k) == k and bin(k).count("1") == 1) or "(none)"
+        else:
             default = value_text(default)
-        else:  # e.g. a GstFraction: what a new element holds, as gst-inspect-1.0 shows it
-            default = value_text(e.get_property(p.name))
+        defaults[p.name] = default
         rows.append("| `%s` | %s | `%s` | %s |" % (p.name, kind, default, p.blurb.replace("|", "\\|")))
     pads = []
     for t in sorted(factory.get_static_pad_templates(), key=lambda t: t.name_template):
@@ -118,7 +125,50 @@ def property_rows(element):
         pads.append("| `%s` | %s, %s | `%s` |" % (t.name_template, "sink" if t.direction == Gst.PadDirection.SINK else "src",
                                                  presence, caps))
     signals = [GObject.signal_name(s) for s in GObject.signal_list_ids(type(e))]
+    property_rows.defaults[element] = defaults
     return factory, rows, pads, signals
+
+
+property_rows.defaults = {}  # element -> {property: default as documented}
+
+
+def inspect_defaults(element):
+    """{property: default} as gst-inspect-1.0 prints them."""
+    out = subprocess.run(["gst-inspect-1.0", element], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                         text=True).stdout
+    found, name = {}, None
+    for line in out.splitlines():
+        m = re.match(r"^  ([a-z][a-z0-9-]*)\s*: ", line)
+        if m:
+            name = m.group(1)
+        m = re.search(r"Default: (.*)$", line)
+        if m and name and name not in found:
+            v = m.group(1).strip()
+            q = re.search(r'"(.*)"$', v)  # enums and flags: 0, "auto"; strings: "text"
+            found[name] = q.group(1) if q else v
+    return found
+
+
+def same_default(documented, inspected):
+    if documented == inspected:
+        return True
+    try:
+        return abs(float(documented) - float(inspected)) <= 1e-9 * max(1.0, abs(float(documented)))
+    except ValueError:
+        return False
+
+
+def check_defaults():
+    """Differences between the documented defaults and gst-inspect-1.0's, as lines."""
+    bad = []
+    for e, documented in property_rows.defaults.items():
+        inspected = inspect_defaults(e)
+        for name, d in documented.items():
+            if name not in inspected:
+                bad.append("%s::%s: gst-inspect-1.0 shows no default" % (e, name))
+            elif not same_default(d, inspected[name]):
+                bad.append("%s::%s: documented %s, gst-inspect-1.0 shows %s" % (e, name, d, inspected[name]))
+    return bad
 
 
 def render():
@@ -170,13 +220,32 @@ def shortened(line, tmp):
             out[-1] = "fakesink"
         elif a == "videotestsrc":
             out.append("num-buffers=%d" % FRAMES)
-    # The stitcher (the line's first element) ends the stream after FRAMES panoramas.
-    first_link = out.index("!")
-    out[first_link:first_link] = ["!", "identity", "eos-after=%d" % (FRAMES + 1)]
+    # Behind the stitcher (the chain of stitch elements the line starts with), an identity counts
+    # what it outputs (-v prints each buffer) and ends the stream after FRAMES of them.
+    end, i = 0, 0
+    while i < len(out):  # elements of the first chain: NAME [prop=value ...] ! NAME ...
+        if out[i].startswith("stitch"):
+            end = i + 1
+            while end < len(out) and out[end] != "!" and "=" in out[end] and "." not in out[end].split("=")[0]:
+                end += 1
+            if end < len(out) and out[end] == "!":
+                i = end + 1
+                continue
+        break
+    out[end:end] = ["!", "identity", "name=" + COUNTER, "silent=false", "eos-after=%d" % (FRAMES + 1)]
     if "cudadownload" in out or "nvh264dec" in out:
         if not has_cuda_device():
             return None, "needs a CUDA device"
-    return ["gst-launch-1.0", "-e"] + out, None
+    return ["gst-launch-1.0", "-e", "-v"] + out, None
+
+
+def run_line(cmd):
+    """(ok, what it printed, panoramas made): ok when it ran without an error and made any."""
+    r = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=240)
+    lines = r.stdout.splitlines()
+    errors = [l for l in lines if l.startswith("ERROR")]
+    made = sum(1 for l in lines if (COUNTER + ": last-message = chain") in l)
+    return r.returncode == 0 and not errors and made > 0, r.stdout, made
 
 
 def has_cuda_device():
@@ -195,13 +264,13 @@ def run_all():
                     continue
                 ran += 1
                 t0 = time.time()
-                r = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                   timeout=240)
-                errors = [l for l in r.stdout.splitlines() if l.startswith("ERROR")]
-                status = "ok" if r.returncode == 0 and not errors else "FAILED"
-                print("%-6s %5.1f s  %s: %s" % (status, time.time() - t0, e, " ".join(cmd[2:])), flush=True)
-                if status != "ok":
-                    failures.append("%s: %s\n%s" % (e, " ".join(cmd), r.stdout[-2000:]))
+                ok, printed, made = run_line(cmd)
+                status = "ok" if ok else "FAILED"
+                print("%-6s %5.1f s  %d made  %s: %s" % (status, time.time() - t0, made, e, " ".join(cmd[3:])),
+                      flush=True)
+                if not ok:
+                    errors = [l for l in printed.splitlines() if l.startswith(("ERROR", "WARNING"))]
+                    failures.append("%s: %s\n%d made\n%s" % (e, " ".join(cmd), made, "\n".join(errors[-20:])))
     for s in skipped:
         print("skipped", s)
     print("%d launch lines ran, %d failed, %d skipped" % (ran, len(failures), len(skipped)))
@@ -216,15 +285,30 @@ def main():
     g.add_argument("--write", action="store_true")
     g.add_argument("--check", action="store_true")
     g.add_argument("--run", action="store_true")
+    g.add_argument("--expect-no-panorama", metavar="LINE")
     args = ap.parse_args()
     if args.run:
         return run_all()
+    if args.expect_no_panorama:
+        Gst.init(None)
+        with tempfile.TemporaryDirectory() as tmp:
+            cmd, why = shortened(args.expect_no_panorama, tmp)
+            if not cmd:
+                print("cannot run here:", why)
+                return 77
+            ok, _, made = run_line(cmd)
+        print("%s: %d made: %s" % (" ".join(cmd), made, "--run would pass it" if ok else "--run fails it, as it must"))
+        return 1 if ok else 0
     text = render()
     if args.write:
         open(DOC, "w").write(text)
         print("wrote", DOC)
         return 0
     current = open(DOC).read() if os.path.exists(DOC) else ""
+    bad = check_defaults()
+    if bad:
+        print("defaults differ from gst-inspect-1.0's:\n  " + "\n  ".join(bad), file=sys.stderr)
+        return 1
     if current != text:
         print("docs/ELEMENTS.md is stale: run scripts/element_reference.py --write (with GST_PLUGIN_PATH=build/gst)",
               file=sys.stderr)

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <opencv2/imgproc.hpp>
 
+#include "cuda_test.hpp"
 #include "image_compare.hpp"
 #include "ppm.hpp"
 #include "stitch/cv_interop.hpp"

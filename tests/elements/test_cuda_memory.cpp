@@ -19,6 +19,7 @@
 
 #include "../../gst/gststitchbundle.h"  // the bundle meta's layout only
 #include "gst_helpers.hpp"
+#include "cuda_test.hpp"
 #include "image_compare.hpp"
 #include "ppm.hpp"
 #include "stitch/backend.hpp"

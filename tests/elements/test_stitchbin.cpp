@@ -110,7 +110,7 @@ TEST(StitchBin, PropertiesReachTheChildren) {
   EXPECT_EQ(enum_nick(blend, "crop"), "auto");
   EXPECT_EQ(enum_nick(color, "method"), "gain");
   EXPECT_FALSE(flow_on);
-  EXPECT_EQ(enum_nick(calib, "features"), "orb");  // not proxied: through GstChildProxy
+  EXPECT_EQ(enum_nick(calib, "features"), "orb");  // through GstChildProxy
   for (GstElement* e : {blend, color, flow, calib, sync}) EXPECT_EQ(enum_nick(e, "backend"), "cpu");
   for (GstElement* e : {blend, color, flow, calib, sync}) gst_object_unref(e);
   gst_object_unref(bin);
@@ -133,4 +133,81 @@ TEST(StitchBin, StitchesRealCropsIntoThePanorama) {
   ASSERT_EQ(r.frames[0].rows, 480);
   // Consistent crops, color-corrected and flow-warped to no change, multiband-blended: the photo.
   EXPECT_GT(testdata::psnr_rgb(r.frames.back(), photo(cv::Rect(0, 200, 1040, 480))), 38.0);
+}
+
+// Issue 18: every property a user of the chain sets is the bin's, found from the children's
+// specs (a property a child gains appears with no code): same type, default and mutability.
+TEST(StitchBin, ExposesEveryChildPropertyWithItsFlags) {
+  gsttest::init();
+  GstElement* bin = gst_element_factory_make("stitchbin", NULL);
+  ASSERT_NE(bin, nullptr);
+  GObjectClass* bin_class = G_OBJECT_GET_CLASS(bin);
+  for (const char* name : {"dropout", "dropout-timeout", "force-live", "reference", "features", "latency",
+                           "memory-limit", "on-resize", "projection", "temporal-smoothing", "lambda"})
+    EXPECT_NE(g_object_class_find_property(bin_class, name), nullptr) << name;
+  const GParamFlags mutable_flags =
+      GParamFlags(GST_PARAM_MUTABLE_READY | GST_PARAM_MUTABLE_PAUSED | GST_PARAM_MUTABLE_PLAYING);
+  int checked = 0;
+  for (const char* child_name : {"sync", "calib", "color", "flowwarp", "blend"}) {
+    GstElement* child = gst_bin_get_by_name(GST_BIN(bin), child_name);
+    ASSERT_NE(child, nullptr) << child_name;
+    guint n = 0;
+    GParamSpec** specs = g_object_class_list_properties(G_OBJECT_GET_CLASS(child), &n);
+    for (guint i = 0; i < n; ++i) {
+      GParamSpec* c = specs[i];
+      if (c->owner_type != G_OBJECT_TYPE(child) || !(c->flags & G_PARAM_WRITABLE)) continue;
+      GParamSpec* b = g_object_class_find_property(bin_class, c->name);
+      ASSERT_NE(b, nullptr) << child_name << "::" << c->name << " is not the bin's";
+      EXPECT_EQ(b->value_type, c->value_type) << c->name;
+      if (g_strcmp0(c->name, "backend") != 0) {  // shared: the strictest child's
+        EXPECT_EQ(b->flags & mutable_flags, c->flags & mutable_flags) << c->name;
+        EXPECT_STREQ(g_param_spec_get_blurb(b), g_param_spec_get_blurb(c)) << c->name;
+      }
+      GValue bv = G_VALUE_INIT, cv = G_VALUE_INIT;
+      g_value_init(&bv, b->value_type);
+      g_value_init(&cv, c->value_type);
+      g_object_get_property(G_OBJECT(bin), c->name, &bv);
+      g_object_get_property(G_OBJECT(child), c->name, &cv);
+      EXPECT_EQ(gst_value_compare(&bv, &cv), GST_VALUE_EQUAL) << c->name;
+      g_value_unset(&bv);
+      g_value_unset(&cv);
+      ++checked;
+    }
+    g_free(specs);
+    gst_object_unref(child);
+  }
+  EXPECT_GT(checked, 35);
+  // per-frame properties stay changeable while playing
+  EXPECT_TRUE(g_object_class_find_property(bin_class, "debug")->flags & GST_PARAM_MUTABLE_PLAYING);
+  EXPECT_TRUE(g_object_class_find_property(bin_class, "smoothing")->flags & GST_PARAM_MUTABLE_PLAYING);
+  gst_object_unref(bin);
+}
+
+TEST(StitchBin, NewlyProxiedPropertiesReachTheChildren) {
+  gsttest::init();
+  GError* err = nullptr;
+  GstElement* pipe = gst_parse_launch(
+      "stitchbin name=s force-live=true dropout=fill dropout-timeout=123000000 reference=0 features=orb "
+      "memory-limit=100 ! fakesink",
+      &err);
+  ASSERT_NE(pipe, nullptr) << (err ? err->message : "");
+  GstElement* bin = gst_bin_get_by_name(GST_BIN(pipe), "s");
+  GstElement* sync = gst_bin_get_by_name(GST_BIN(bin), "sync");
+  GstElement* calib = gst_bin_get_by_name(GST_BIN(bin), "calib");
+  GstElement* blend = gst_bin_get_by_name(GST_BIN(bin), "blend");
+  gboolean live = FALSE;
+  guint64 timeout = 0;
+  gint reference = -1;
+  guint limit = 0;
+  g_object_get(sync, "force-live", &live, "dropout-timeout", &timeout, NULL);
+  g_object_get(calib, "reference", &reference, NULL);
+  g_object_get(blend, "memory-limit", &limit, NULL);
+  EXPECT_TRUE(live);
+  EXPECT_EQ(timeout, 123000000u);
+  EXPECT_EQ(reference, 0);
+  EXPECT_EQ(limit, 100u);
+  EXPECT_EQ(enum_nick(sync, "dropout"), "fill");
+  EXPECT_EQ(enum_nick(calib, "features"), "orb");
+  for (GstElement* e : {sync, calib, blend, bin}) gst_object_unref(e);
+  gst_object_unref(pipe);
 }

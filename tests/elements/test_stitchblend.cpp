@@ -2,6 +2,10 @@
 // bundle without calibration is a clear error.
 #include <gtest/gtest.h>
 
+#include <sys/resource.h>
+
+#include <chrono>
+#include <cstdlib>
 #include <opencv2/imgproc.hpp>
 
 #include "gst_helpers.hpp"
@@ -81,4 +85,191 @@ TEST(StitchBlend, AcceptsOnlyBundles) {
   gst_object_unref(bus);
   gst_element_set_state(p, GST_STATE_NULL);
   gst_object_unref(p);
+}
+
+// Issue 18: output-height=32766 asks for a panorama ~66 000 px wide (beyond caps' 32767): it used
+// to allocate its maps until the OOM killer came (24 GB). Now it is refused before anything is
+// allocated, with the size and the limit named. Run in a child process with 6 GiB of address
+// space: 0 when the refusal came, fast, with the process still small.
+static int refuse_oversized_output() {
+  rlimit limit{};
+  limit.rlim_cur = limit.rlim_max = rlim_t(6) << 30;
+  setrlimit(RLIMIT_AS, &limit);
+  Scene s = scene();
+  gsttest::RunResult r;
+  const auto t0 = std::chrono::steady_clock::now();
+  gsttest::run_pipeline("stitchsync name=s backend=cpu ! stitchcalib load-file=" + s.calib +
+                            " ! stitchblend backend=cpu output-height=32766 ! appsink name=out sync=false" +
+                            gsttest::appsrc_inputs(2),
+                        s.views, 2, r);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  rusage use{};
+  getrusage(RUSAGE_SELF, &use);
+  const bool ok = r.error_contains("beyond the 32767-pixel limit") && r.error_contains("output-height=") &&
+                  r.frames.empty() && seconds < 20 && use.ru_maxrss < 2 * 1024 * 1024;  // KiB
+  fprintf(stderr, "%s; %.1f s, peak %ld KiB\n", r.errors.empty() ? "no error" : r.errors[0].c_str(), seconds,
+          long(use.ru_maxrss));
+  return ok ? 0 : 1;
+}
+
+TEST(StitchBlendDeathTest, OversizedOutputIsRefusedUpFront) {
+  GTEST_FLAG_SET(death_test_style, "threadsafe");
+  EXPECT_EXIT(std::exit(refuse_oversized_output()), ::testing::ExitedWithCode(0), "");
+}
+
+// A panorama within caps but beyond memory-limit is refused too, naming the budget.
+TEST(StitchBlend, BeyondTheMemoryLimitIsRefused) {
+  Scene s = scene();
+  gsttest::RunResult r;
+  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
+                            " ! stitchblend memory-limit=8 ! appsink name=out sync=false" + gsttest::appsrc_inputs(2),
+                        s.views, 2, r);
+  EXPECT_TRUE(r.error_contains("beyond the budget of 8 MiB")) << (r.errors.empty() ? "no error" : r.errors[0]);
+  EXPECT_TRUE(r.frames.empty());
+}
+
+// `stitchblend ! video/x-raw,width=640,height=360`: the panorama (1040x480) is fitted inside,
+// centred, at its own aspect (640x296 between black bars), as output-width + output-height do.
+TEST(StitchBlend, DownstreamFixedSizeGetsThePanoramaFitted) {
+  Scene s = scene();
+  gsttest::RunResult r;
+  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
+                            " ! stitchblend ! video/x-raw,width=640,height=360 ! appsink name=out sync=false" +
+                            gsttest::appsrc_inputs(2),
+                        s.views, 2, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_EQ(r.frames.size(), 2u);
+  const cv::Mat& pano = r.frames[0];
+  ASSERT_EQ(pano.cols, 640);
+  ASSERT_EQ(pano.rows, 360);
+  // letterboxed: black bars above and below, the scene in between
+  cv::Mat rgb;
+  cv::cvtColor(pano, rgb, cv::COLOR_RGBA2GRAY);
+  EXPECT_EQ(cv::countNonZero(rgb.row(5)), 0);
+  EXPECT_EQ(cv::countNonZero(rgb.row(354)), 0);
+  EXPECT_GT(cv::countNonZero(rgb.row(180)), 600);
+  cv::Mat expected;
+  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(640, 295), 0, 0, cv::INTER_AREA);
+  const int top = (360 - 295) / 2;
+  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, 640, 280)), expected(cv::Rect(0, 4, 640, 280))), 22.0);
+  // the same as asking for the size
+  gsttest::RunResult asked;
+  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
+                            " ! stitchblend output-width=640 output-height=360 ! appsink name=out sync=false" +
+                            gsttest::appsrc_inputs(2),
+                        s.views, 1, asked);
+  ASSERT_EQ(asked.frames.size(), 1u);
+  EXPECT_EQ(cv::norm(asked.frames[0], pano, cv::NORM_INF), 0.0);
+}
+
+// A size that cannot be met (odd: panoramas have even sizes) fails with stitchblend's own message.
+TEST(StitchBlend, DownstreamSizeItCannotMakeIsAClearError) {
+  Scene s = scene();
+  gsttest::RunResult r;
+  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
+                            " ! stitchblend ! video/x-raw,width=641,height=361 ! appsink name=out sync=false" +
+                            gsttest::appsrc_inputs(2),
+                        s.views, 2, r);
+  EXPECT_TRUE(r.error_contains("Downstream takes neither the 1040x480 panorama"))
+      << (r.errors.empty() ? "no error" : r.errors[0]);
+  EXPECT_TRUE(r.error_contains("even sizes")) << (r.errors.empty() ? "no error" : r.errors[0]);
+}
+
+namespace {
+
+// An application's meta with no tags: it describes the frame as a whole, so it must survive.
+struct AppMeta {
+  GstMeta meta;
+  gint value;
+};
+
+GType app_meta_api_get_type() {
+  static GType type = 0;
+  static const gchar* tags[] = {NULL};
+  if (g_once_init_enter(&type)) g_once_init_leave(&type, gst_meta_api_type_register("TestAppMetaAPI", tags));
+  return type;
+}
+
+const GstMetaInfo* app_meta_info();
+
+gboolean app_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*, GQuark type, gpointer) {
+  if (!GST_META_TRANSFORM_IS_COPY(type)) return FALSE;
+  auto* m = reinterpret_cast<AppMeta*>(gst_buffer_add_meta(dest, app_meta_info(), NULL));
+  m->value = reinterpret_cast<AppMeta*>(meta)->value;
+  return TRUE;
+}
+
+const GstMetaInfo* app_meta_info() {
+  static const GstMetaInfo* info = NULL;
+  if (g_once_init_enter(&info))
+    g_once_init_leave(&info, gst_meta_register(app_meta_api_get_type(), "TestAppMeta", sizeof(AppMeta),
+                                               [](GstMeta*, gpointer, GstBuffer*) -> gboolean { return TRUE; }, NULL,
+                                               app_meta_transform));
+  return info;
+}
+
+struct MetaCounts {
+  int buffers = 0, with_reference = 0, with_app = 0, video_metas = 0;
+};
+
+
+// Adds both metas to every bundle leaving stitchcalib.
+GstPadProbeReturn add_metas(GstPad*, GstPadProbeInfo* info, gpointer) {
+  GstBuffer* b = gst_buffer_make_writable(GST_PAD_PROBE_INFO_BUFFER(info));
+  GstCaps* ref = gst_caps_new_empty_simple("timestamp/x-test");
+  gst_buffer_add_reference_timestamp_meta(b, ref, GST_BUFFER_PTS(b) + 42, GST_CLOCK_TIME_NONE);
+  gst_caps_unref(ref);
+  reinterpret_cast<AppMeta*>(gst_buffer_add_meta(b, app_meta_info(), NULL))->value = 7;
+  GST_PAD_PROBE_INFO_DATA(info) = b;
+  return GST_PAD_PROBE_OK;
+}
+
+GstPadProbeReturn count_metas(GstPad*, GstPadProbeInfo* info, gpointer data) {
+  auto* c = static_cast<MetaCounts*>(data);
+  GstBuffer* b = GST_PAD_PROBE_INFO_BUFFER(info);
+  c->buffers++;
+  GstReferenceTimestampMeta* ref = gst_buffer_get_reference_timestamp_meta(b, NULL);
+  if (ref && ref->timestamp == GST_BUFFER_PTS(b) + 42) c->with_reference++;
+  auto* app = reinterpret_cast<AppMeta*>(gst_buffer_get_meta(b, app_meta_api_get_type()));
+  if (app && app->value == 7) c->with_app++;
+  gpointer state = NULL;
+  while (GstMeta* m = gst_buffer_iterate_meta_filtered(b, &state, GST_VIDEO_META_API_TYPE)) {
+    const GstVideoMeta* vm = reinterpret_cast<GstVideoMeta*>(m);
+    if (vm->width != 1040 || vm->height != 480) c->video_metas++;  // a view's, not the panorama's
+  }
+  return GST_PAD_PROBE_OK;
+}
+
+}  // namespace
+
+MetaCounts meta_counts;  // of the run in progress
+
+// Metas that describe the frame (reference timestamps, an application's) pass through
+// stitchflowwarp and stitchblend; those describing the views (one GstVideoMeta per view) do not.
+TEST(StitchBlend, FrameMetasPassThroughFlowWarpAndBlend) {
+  Scene s = scene();
+  for (const std::string middle : {"", "stitchcolor ! stitchflowwarp ! "}) {
+    meta_counts = MetaCounts();
+    gsttest::RunResult r;
+    gsttest::run_pipeline(
+        "stitchsync name=s ! stitchcalib name=calib load-file=" + s.calib + " ! " + middle +
+            "stitchblend ! appsink name=out sync=false" + gsttest::appsrc_inputs(2),
+        s.views, 3, r, nullptr, [](GstElement* pipe, int frame) {
+          if (frame != 0) return;
+          GstElement* calib = gst_bin_get_by_name(GST_BIN(pipe), "calib");
+          GstElement* out = gst_bin_get_by_name(GST_BIN(pipe), "out");
+          GstPad* src = gst_element_get_static_pad(calib, "src");
+          GstPad* sink = gst_element_get_static_pad(out, "sink");
+          gst_pad_add_probe(src, GST_PAD_PROBE_TYPE_BUFFER, add_metas, NULL, NULL);
+          gst_pad_add_probe(sink, GST_PAD_PROBE_TYPE_BUFFER, count_metas, &meta_counts, NULL);
+          for (GstObject* o : {GST_OBJECT(src), GST_OBJECT(sink), GST_OBJECT(calib), GST_OBJECT(out)})
+            gst_object_unref(o);
+        });
+    ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+    ASSERT_EQ(r.frames.size(), 3u) << middle;
+    EXPECT_EQ(meta_counts.buffers, 3) << middle;
+    EXPECT_EQ(meta_counts.with_reference, 3) << middle;
+    EXPECT_EQ(meta_counts.with_app, 3) << middle;
+    EXPECT_EQ(meta_counts.video_metas, 0) << middle;
+  }
 }

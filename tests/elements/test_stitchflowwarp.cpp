@@ -132,3 +132,21 @@ TEST(StitchFlowWarp, PropertiesRoundTrip) {
   EXPECT_EQ(algorithm, 1);
   gst_object_unref(e);
 }
+
+// Guard rails (issue 18): stages after stitchflowwarp that need camera frames refuse, naming the fix.
+TEST(StitchFlowWarp, StagesThatNeedCameraFramesRefuseToComeAfterIt) {
+  Scene s = scene(0);
+  gsttest::RunResult color_after;
+  gsttest::run_pipeline(chain(s, "stitchflowwarp ! stitchcolor ! "), s.views, 2, color_after);
+  EXPECT_TRUE(color_after.error_contains("put stitchcolor before stitchflowwarp"))
+      << (color_after.errors.empty() ? "no error" : color_after.errors[0]);
+  EXPECT_TRUE(color_after.frames.empty());
+  gsttest::RunResult twice;
+  gsttest::run_pipeline(chain(s, "stitchflowwarp ! stitchflowwarp ! "), s.views, 2, twice);
+  EXPECT_TRUE(twice.error_contains("keep one stitchflowwarp")) << (twice.errors.empty() ? "no error" : twice.errors[0]);
+  // the right order runs
+  gsttest::RunResult right;
+  gsttest::run_pipeline(chain(s, "stitchcolor ! stitchflowwarp ! "), s.views, 2, right);
+  EXPECT_TRUE(right.errors.empty()) << right.errors[0];
+  EXPECT_EQ(right.frames.size(), 2u);
+}
