@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 
 namespace stitch::sync {
@@ -327,6 +328,60 @@ std::vector<Estimate> TimeAligner::estimate() {
     }
   }
   return out;
+}
+
+}  // namespace stitch::sync
+
+namespace stitch::sync {
+
+OffsetTracker::OffsetTracker(int n_views, AlignSettings settings)
+    : aligner_(n_views, settings), settings_(settings), signals_(std::size_t(std::max(n_views, 1))),
+      current_(signals_.size()), announced_(signals_.size()), warned_(signals_.size(), false) {}
+
+void OffsetTracker::reset() {
+  aligner_.reset();
+  for (auto& s : signals_) s.reset();
+  last_estimate_ = first_t_ = newest_t_ = -1;
+}
+
+void OffsetTracker::add_frame(int view, int64_t t_ns, const uint8_t* data, int width, int height, std::size_t pitch,
+                              int bytes_per_pixel, int channel) {
+  if (view < 0 || view >= views()) return;
+  aligner_.add_sample(view, t_ns, signals_[std::size_t(view)].update(data, width, height, pitch, bytes_per_pixel, channel));
+  if (view == 0) {
+    if (first_t_ < 0) first_t_ = t_ns;
+    newest_t_ = std::max(newest_t_, t_ns);
+  }
+}
+
+bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& no_signal) {
+  no_signal.clear();
+  if (newest_t_ < 0 || (last_estimate_ >= 0 && newest_t_ - last_estimate_ < 1000000000)) return false;
+  last_estimate_ = newest_t_;
+  current_ = aligner_.estimate();
+  bool changed = false;
+  const double window_ns = settings_.window_s * 1e9;
+  for (std::size_t v = 1; v < current_.size(); ++v) {
+    const Estimate &e = current_[v], &a = announced_[v];
+    if (e.valid != a.valid || std::llabs(e.offset_ns - a.offset_ns) > 2000000 ||
+        std::fabs(e.confidence - a.confidence) > 0.1 || std::fabs(e.rate - a.rate) > 1e-4)
+      changed = true;
+    if (!e.valid && !warned_[v] && double(newest_t_ - first_t_) >= window_ns) {
+      warned_[v] = true;
+      no_signal.push_back(int(v));
+    }
+    if (e.valid) warned_[v] = false;
+  }
+  if (!announced_[0].valid && current_[0].valid) changed = true;  // the first estimate
+  if (changed) announced_ = current_;
+  estimates = current_;
+  return changed;
+}
+
+int64_t OffsetTracker::offset_at(int view, int64_t t_ns) const {
+  if (view <= 0 || view >= int(current_.size()) || !current_[std::size_t(view)].valid) return 0;
+  const Estimate& e = current_[std::size_t(view)];
+  return e.base_offset_ns + int64_t(std::llround((e.rate - 1.0) * double(t_ns)));
 }
 
 }  // namespace stitch::sync

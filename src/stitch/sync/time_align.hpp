@@ -103,3 +103,35 @@ class TimeAligner {
 };
 
 }  // namespace stitch::sync
+
+namespace stitch::sync {
+
+// What an element runs with time-alignment=auto: per-view frame signals, an estimate once per
+// second of view 0's time, the offsets to apply, and when to tell the application.
+class OffsetTracker {
+ public:
+  explicit OffsetTracker(int n_views, AlignSettings settings = {});
+  int views() const { return aligner_.views(); }
+  // A new frame of `view` at its uncorrected running time (8-bit plane as FrameSignal reads it).
+  void add_frame(int view, int64_t t_ns, const uint8_t* data, int width, int height, std::size_t pitch,
+                 int bytes_per_pixel, int channel);
+  // Re-estimates when a second has passed since the last estimate; true when the estimates
+  // moved enough to be announced again (or for the first time). `no_signal` turns true once,
+  // when a view still has nothing to align on after a whole window.
+  bool update(std::vector<Estimate>& estimates, std::vector<int>& no_signal);
+  // The offset (ns) to add to `view`'s running time at its uncorrected time t_ns (drift
+  // included); 0 while the view has no valid estimate.
+  int64_t offset_at(int view, int64_t t_ns) const;
+  const std::vector<Estimate>& current() const { return current_; }
+  void reset();
+
+ private:
+  TimeAligner aligner_;
+  AlignSettings settings_;
+  std::vector<FrameSignal> signals_;
+  std::vector<Estimate> current_, announced_;
+  std::vector<bool> warned_;
+  int64_t last_estimate_ = -1, first_t_ = -1, newest_t_ = -1;
+};
+
+}  // namespace stitch::sync
