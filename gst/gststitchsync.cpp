@@ -69,11 +69,23 @@
 #include "gststitchbundle.h"
 #include "gststitchcuda.h"
 #include "stitch/convert/convert.hpp"
+#include "stitch/rig/rig.hpp"
+#include "stitch/sync/policy.hpp"
+#include "stitch/sync/time_align.hpp"
 
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_sync_debug);
 #define GST_CAT_DEFAULT gst_stitch_sync_debug
 
-enum { PROP_0, PROP_FRAMERATE, PROP_INPUT_EOS, PROP_BACKEND, PROP_DROPOUT, PROP_DROPOUT_TIMEOUT };
+enum {
+  PROP_0,
+  PROP_FRAMERATE,
+  PROP_INPUT_EOS,
+  PROP_BACKEND,
+  PROP_DROPOUT,
+  PROP_DROPOUT_TIMEOUT,
+  PROP_TIME_ALIGNMENT,
+  PROP_LOAD_FILE
+};
 
 #define DEFAULT_FRAMERATE_N 0
 #define DEFAULT_FRAMERATE_D 1
@@ -81,25 +93,42 @@ enum { PROP_0, PROP_FRAMERATE, PROP_INPUT_EOS, PROP_BACKEND, PROP_DROPOUT, PROP_
 #define DEFAULT_BACKEND stitch::Backend::Auto
 #define DEFAULT_DROPOUT GST_STITCH_SYNC_DROPOUT_FREEZE
 #define DEFAULT_DROPOUT_TIMEOUT (500 * GST_MSECOND)
+#define DEFAULT_TIME_ALIGNMENT GST_STITCH_SYNC_TIME_ALIGNMENT_NONE
+/* at most one QoS message per input per second (each carries the running totals) */
+#define QOS_INTERVAL GST_SECOND
+
+/* Per-input state, on the pad object itself (GstStitchSyncPad::st): it lives exactly as long as
+ * the pad, so a released pad's state goes with it. Guarded by StitchSyncState::lock. */
+struct SyncPadState {
+  /* Last real frame, reused while a live camera is late. */
+  /* system-memory bundles: the view's memory, held alive */
+  GstBuffer* buffer = nullptr;
+  gint width = 0, height = 0, stride = 0;
+  gsize offset = 0;
+  /* CUDA-memory bundles: the input frame, converted again when repeated */
+  GstBuffer* frame = nullptr;
+  GstVideoInfo frame_info;
+  /* dropout bookkeeping (stitch::sync::update_dropout) */
+  stitch::sync::DropoutTrack track;
+  /* end (running time) of the newest frame taken in, to drop frames from the past (QoS) */
+  GstClockTime newest_end = GST_CLOCK_TIME_NONE;
+  guint64 processed = 0, late = 0;
+  stitch::sync::RateLimit qos{gint64(QOS_INTERVAL)};
+  /* time alignment: ns added to the segment's running time by us, the file's value, the
+   * newest frame whose signal was taken */
+  gint64 applied_ns = 0;
+  gint64 file_offset_ns = 0;
+  GstBuffer* signal_of = nullptr;
+
+  void release() {
+    gst_clear_buffer(&buffer);
+    gst_clear_buffer(&frame);
+    signal_of = nullptr;
+  }
+};
 
 struct StitchSyncState {
-  /* Last real frame of each pad, reused while a live camera is late. */
-  struct Last {
-    /* system-memory bundles: the view's memory, held alive */
-    GstBuffer* buffer = nullptr;
-    gint width = 0, height = 0, stride = 0;
-    gsize offset = 0;
-    /* CUDA-memory bundles: the input frame, converted again when repeated */
-    GstBuffer* frame = nullptr;
-    GstVideoInfo frame_info;
-    /* dropout bookkeeping: announced once when the camera goes, once when it is back */
-    bool dropped = false;
-    /* end (running time) of the newest frame taken in, to drop frames from the past (QoS) */
-    GstClockTime newest_end = GST_CLOCK_TIME_NONE;
-    guint64 processed = 0, late = 0;
-  };
-  std::mutex lock;  // guards `last` against pad release from the application thread
-  std::map<GstPad*, Last> last;
+  std::mutex lock;  // guards the pads' SyncPadState and what follows
   /* CUDA-memory bundles (aggregate thread; the pads read out_cuda) */
   std::atomic<bool> out_cuda{false};
   StitchCudaContext cuda;
@@ -109,19 +138,22 @@ struct StitchSyncState {
   /* QoS messages for frames dropped in clip, posted from aggregate_frames (clip runs under the
    * element's object lock, which posting takes) */
   std::vector<GstMessage*> pending_qos;
+  /* start-up: running time of the first bundle, monotonic time the first aggregate came */
+  GstClockTime started = GST_CLOCK_TIME_NONE;
+  gint64 first_ready_us = -1;
+  /* time-alignment=auto (aggregate thread) */
+  std::unique_ptr<stitch::sync::OffsetTracker> tracker;
 
-  static void release(Last& l) {
-    gst_clear_buffer(&l.buffer);
-    gst_clear_buffer(&l.frame);
-  }
-  void clear_last() {
-    for (auto& kv : last) release(kv.second);
-    last.clear();
-  }
-  void clear() {
-    clear_last();
+  void clear_run() {
     for (GstMessage* m : pending_qos) gst_message_unref(m);
     pending_qos.clear();
+    started = GST_CLOCK_TIME_NONE;
+    first_ready_us = -1;
+    if (tracker) tracker->reset();
+  }
+  void clear() {
+    clear_run();
+    tracker.reset();
     converter.reset();
     stitch_bundle_pool_clear(&pool);
     pool_sizes.clear();
@@ -136,6 +168,8 @@ struct _GstStitchSync {
   stitch::Backend backend;
   GstStitchSyncDropout dropout;
   GstClockTime dropout_timeout;
+  GstStitchSyncTimeAlignment time_alignment;
+  gchar* load_file;
   /* state */
   StitchSyncState* state;
 };
@@ -149,6 +183,7 @@ GST_ELEMENT_REGISTER_DEFINE(stitchsync, "stitchsync", GST_RANK_NONE, GST_TYPE_ST
  * converter and are uploaded as RGBA. */
 typedef struct {
   GstVideoAggregatorConvertPad parent;
+  SyncPadState* st;
 } GstStitchSyncPad;
 typedef struct {
   GstVideoAggregatorConvertPadClass parent_class;
@@ -188,11 +223,22 @@ static gboolean gst_stitch_sync_pad_prepare_frame(GstVideoAggregatorPad* pad, Gs
   return TRUE;
 }
 
+static void gst_stitch_sync_pad_finalize(GObject* object) {
+  GstStitchSyncPad* pad = reinterpret_cast<GstStitchSyncPad*>(object);
+  pad->st->release();
+  delete pad->st;
+  G_OBJECT_CLASS(gst_stitch_sync_pad_parent_class)->finalize(object);
+}
+
 static void gst_stitch_sync_pad_class_init(GstStitchSyncPadClass* klass) {
+  G_OBJECT_CLASS(klass)->finalize = gst_stitch_sync_pad_finalize;
   GST_VIDEO_AGGREGATOR_PAD_CLASS(klass)->prepare_frame = GST_DEBUG_FUNCPTR(gst_stitch_sync_pad_prepare_frame);
 }
 
-static void gst_stitch_sync_pad_init(GstStitchSyncPad*) {}
+static void gst_stitch_sync_pad_init(GstStitchSyncPad* pad) { pad->st = new SyncPadState(); }
+
+/* The pad's own state (every sink pad of stitchsync is a GstStitchSyncPad). */
+static SyncPadState* pad_state(gpointer pad) { return reinterpret_cast<GstStitchSyncPad*>(pad)->st; }
 
 #define GST_TYPE_STITCH_SYNC_INPUT_EOS (gst_stitch_sync_input_eos_get_type())
 static GType gst_stitch_sync_input_eos_get_type(void) {
@@ -217,6 +263,22 @@ static GType gst_stitch_sync_dropout_get_type(void) {
       {0, NULL, NULL}};
   if (g_once_init_enter(&type)) {
     GType t = g_enum_register_static("GstStitchSyncDropout", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+#define GST_TYPE_STITCH_SYNC_TIME_ALIGNMENT (gst_stitch_sync_time_alignment_get_type())
+static GType gst_stitch_sync_time_alignment_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {GST_STITCH_SYNC_TIME_ALIGNMENT_NONE, "Pair frames by running time (plus the pads' and load-file's offsets)",
+       "none"},
+      {GST_STITCH_SYNC_TIME_ALIGNMENT_AUTO, "Estimate each input's offset and clock rate from what the cameras see",
+       "auto"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchSyncTimeAlignment", values);
     g_once_init_leave(&type, t);
   }
   return type;
@@ -247,41 +309,42 @@ static bool offer_cuda(GstStitchSync* self) {
   return stitch_cuda_memory_offered(backend);
 }
 
-/* Sink pads sorted by the number in their name: view i is the i-th. */
-static std::vector<GstVideoAggregatorPad*> sorted_pads(GstStitchSync* self) {
-  std::vector<std::pair<guint, GstVideoAggregatorPad*>> pads;
-  GST_OBJECT_LOCK(self);
-  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) {
-    const gchar* name = GST_PAD_NAME(l->data);
-    guint idx = 0;
-    if (name && g_str_has_prefix(name, "sink_")) idx = guint(g_ascii_strtoull(name + 5, NULL, 10));
-    pads.emplace_back(idx, GST_VIDEO_AGGREGATOR_PAD(l->data));
+/* Sink pads sorted by the number in their name: view i is the i-th. Each is held by a reference
+ * for as long as the list lives, so that a pad released meanwhile (and its state) stays valid. */
+struct SortedPads {
+  std::vector<GstVideoAggregatorPad*> pads;
+  explicit SortedPads(GstStitchSync* self) {
+    std::vector<std::pair<guint, GstVideoAggregatorPad*>> named;
+    GST_OBJECT_LOCK(self);
+    for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) {
+      const gchar* name = GST_PAD_NAME(l->data);
+      guint idx = 0;
+      if (name && g_str_has_prefix(name, "sink_")) idx = guint(g_ascii_strtoull(name + 5, NULL, 10));
+      named.emplace_back(idx, GST_VIDEO_AGGREGATOR_PAD(gst_object_ref(l->data)));
+    }
+    GST_OBJECT_UNLOCK(self);
+    std::sort(named.begin(), named.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    for (auto& p : named) pads.push_back(p.second);
   }
-  GST_OBJECT_UNLOCK(self);
-  std::sort(pads.begin(), pads.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
-  std::vector<GstVideoAggregatorPad*> out;
-  for (auto& p : pads) out.push_back(p.second);
-  return out;
+  ~SortedPads() {
+    for (GstVideoAggregatorPad* p : pads) gst_object_unref(p);
+  }
+  SortedPads(const SortedPads&) = delete;
+  SortedPads& operator=(const SortedPads&) = delete;
+};
+
+static bool is_negotiated(GstVideoAggregatorPad* p) {
+  return p->info.finfo && GST_VIDEO_INFO_FORMAT(&p->info) != GST_VIDEO_FORMAT_UNKNOWN;
 }
 
-static gint count_negotiated(const std::vector<GstVideoAggregatorPad*>& pads) {
-  gint n = 0;
-  for (GstVideoAggregatorPad* p : pads)
-    if (p->info.finfo && GST_VIDEO_INFO_FORMAT(&p->info) != GST_VIDEO_FORMAT_UNKNOWN) ++n;
-  return n;
-}
-
-/* Inputs are still being linked (decodebin pads appear late) until at least two are negotiated
- * and the bundle's view count matches the pads. */
-static bool bundle_ready(GstVideoAggregator* vagg, const std::vector<GstVideoAggregatorPad*>& pads) {
-  return count_negotiated(pads) >= 2 && GST_VIDEO_INFO_VIEWS(&vagg->info) == gint(pads.size());
-}
+/* Views in a bundle: one per input, at least two (bundles have 2 to 16 views: with a single
+ * input left, after the others were released, the second view is marked missing). */
+static guint bundle_views(const std::vector<GstVideoAggregatorPad*>& pads) { return guint(MAX(pads.size(), 2)); }
 
 /* A pad's view size: its frames', or the bundle's while it has no caps. */
 static std::array<int, 2> view_size(GstVideoAggregator* vagg, GstVideoAggregatorPad* pad) {
-  gint w = pad->info.finfo ? GST_VIDEO_INFO_WIDTH(&pad->info) : 0;
-  gint h = pad->info.finfo ? GST_VIDEO_INFO_HEIGHT(&pad->info) : 0;
+  gint w = pad && pad->info.finfo ? GST_VIDEO_INFO_WIDTH(&pad->info) : 0;
+  gint h = pad && pad->info.finfo ? GST_VIDEO_INFO_HEIGHT(&pad->info) : 0;
   if (w <= 0 || h <= 0) {
     w = GST_VIDEO_INFO_WIDTH(&vagg->info);
     h = GST_VIDEO_INFO_HEIGHT(&vagg->info);
@@ -292,10 +355,15 @@ static std::array<int, 2> view_size(GstVideoAggregator* vagg, GstVideoAggregator
 static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTemplate* templ,
                                                const gchar* name, const GstCaps* caps) {
   GstStitchSync* self = GST_STITCH_SYNC(element);
-  if (element->numsinkpads >= STITCH_MAX_VIEWS) {
-    /* A warning, not an error: one camera too many must not stop the others. */
-    GST_ELEMENT_WARNING(self, CORE, PAD, ("stitchsync takes at most %d inputs", STITCH_MAX_VIEWS),
-                        ("refused request for pad %s", name ? name : "(any)"));
+  GST_OBJECT_LOCK(self);
+  const guint n = element->numsinkpads;
+  GST_OBJECT_UNLOCK(self);
+  if (n >= STITCH_MAX_VIEWS) {
+    /* A warning on the bus, not an error: one camera too many must not stop the others. */
+    GST_ELEMENT_WARNING(self, CORE, PAD,
+                        ("stitchsync takes at most %d inputs: the request for %s is refused (release a pad first)",
+                         STITCH_MAX_VIEWS, name ? name : "another sink pad"),
+                        (NULL));
     return NULL;
   }
   /* Repeating an ended input is done here, not with the pads' repeat-after-eos, which
@@ -306,14 +374,14 @@ static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTempla
 static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
   GstStitchSync* self = GST_STITCH_SYNC(element);
   {
+    /* the frames it holds go now; its state object goes with the pad's last reference (the
+     * aggregate thread may hold one for the bundle it is making) */
     std::lock_guard<std::mutex> guard(self->state->lock);
-    auto it = self->state->last.find(pad);
-    if (it != self->state->last.end()) {
-      StitchSyncState::release(it->second);
-      self->state->last.erase(it);
-    }
+    pad_state(pad)->release();
   }
   GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->release_pad(element, pad);
+  /* the view count changes: renegotiate the bundle */
+  gst_pad_mark_reconfigure(GST_AGGREGATOR_SRC_PAD(self));
 }
 
 /* A frame that ends before the newest one this pad already took in comes from the past: the
@@ -330,58 +398,74 @@ static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad
   GST_OBJECT_UNLOCK(pad);
   if (!GST_CLOCK_TIME_IS_VALID(end_rt)) return buf;
   std::lock_guard<std::mutex> guard(self->state->lock);
-  StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
+  SyncPadState& last = *pad_state(pad);
   if (!GST_CLOCK_TIME_IS_VALID(last.newest_end) || end_rt >= last.newest_end) {
     last.newest_end = end_rt;
     last.processed++;
     return buf;
   }
   GST_DEBUG_OBJECT(pad, "frame ending at %" GST_TIME_FORMAT " is from the past; dropped", GST_TIME_ARGS(end_rt));
-  GstMessage* qos = gst_message_new_qos(GST_OBJECT(pad), FALSE, start_rt, stream_time, pts,
-                                        GST_BUFFER_DURATION(buf));
-  gst_message_set_qos_stats(qos, GST_FORMAT_BUFFERS, last.processed, ++last.late);
-  self->state->pending_qos.push_back(qos);
+  ++last.late;
+  /* rate-limited: a camera whose clock went back would otherwise post one per frame */
+  if (last.qos.allow(g_get_monotonic_time() * 1000)) {
+    GstMessage* qos = gst_message_new_qos(GST_OBJECT(pad), FALSE, start_rt, stream_time, pts, GST_BUFFER_DURATION(buf));
+    gst_message_set_qos_stats(qos, GST_FORMAT_BUFFERS, last.processed, last.late);
+    self->state->pending_qos.push_back(qos);
+  }
   gst_buffer_unref(buf);
   return NULL;
 }
 
+/* Why input caps are refused (NULL: accepted): the CAPS handler and accept-caps both ask this,
+ * so that accept-caps never accepts what the CAPS handler then refuses. */
+static const char* caps_refusal(GstCaps* caps) {
+  GstVideoInfo info;
+  if (!caps || !gst_caps_is_fixed(caps) || !gst_video_info_from_caps(&info, caps))
+    return "caps are not raw video stitchsync can read";
+  if (GST_VIDEO_INFO_IS_INTERLACED(&info)) return "is interlaced; add a deinterlace element before stitchsync";
+  if (GST_VIDEO_INFO_MULTIVIEW_MODE(&info) != GST_VIDEO_MULTIVIEW_MODE_NONE &&
+      GST_VIDEO_INFO_MULTIVIEW_MODE(&info) != GST_VIDEO_MULTIVIEW_MODE_MONO)
+    return "carries multiview (stereo) video; stitchsync takes one camera per input";
+  return NULL;
+}
+
+/* Time alignment: `target` ns added to the pad's running time from now on (its segment is
+ * shifted by the change; aggregate thread or pad's object lock holder). */
+static void apply_time_offset(GstAggregatorPad* pad, SyncPadState& st, gint64 target) {
+  if (target == st.applied_ns) return;
+  GST_OBJECT_LOCK(pad);
+  if (pad->segment.format == GST_FORMAT_TIME)
+    gst_segment_offset_running_time(&pad->segment, GST_FORMAT_TIME, target - st.applied_ns);
+  GST_OBJECT_UNLOCK(pad);
+  st.applied_ns = target;
+}
+
 static gboolean gst_stitch_sync_sink_event(GstAggregator* agg, GstAggregatorPad* pad,
                                            GstEvent* event) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
   if (GST_EVENT_TYPE(event) == GST_EVENT_SEGMENT || GST_EVENT_TYPE(event) == GST_EVENT_STREAM_START) {
     /* a new segment or a restarted camera: its running times start afresh */
-    std::lock_guard<std::mutex> guard(GST_STITCH_SYNC(agg)->state->lock);
-    auto it = GST_STITCH_SYNC(agg)->state->last.find(GST_PAD(pad));
-    if (it != GST_STITCH_SYNC(agg)->state->last.end()) it->second.newest_end = GST_CLOCK_TIME_NONE;
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    pad_state(pad)->newest_end = GST_CLOCK_TIME_NONE;
   }
   if (GST_EVENT_TYPE(event) == GST_EVENT_CAPS) {
     GstCaps* caps = NULL;
     gst_event_parse_caps(event, &caps);
-    GstVideoInfo info;
-    if (!gst_video_info_from_caps(&info, caps)) {
-      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
-                        ("Input %s: caps are not raw video stitchsync can read", GST_PAD_NAME(pad)),
-                        ("caps: %" GST_PTR_FORMAT, caps));
+    if (const char* why = caps_refusal(caps)) {
+      GST_ELEMENT_ERROR(agg, STREAM, FORMAT, ("Input %s %s", GST_PAD_NAME(pad), why), ("caps: %" GST_PTR_FORMAT, caps));
       gst_event_unref(event);
       return FALSE;
     }
-    if (GST_VIDEO_INFO_IS_INTERLACED(&info)) {
-      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
-                        ("Input %s is interlaced; add a deinterlace element before stitchsync",
-                         GST_PAD_NAME(pad)),
-                        ("caps: %" GST_PTR_FORMAT, caps));
-      gst_event_unref(event);
-      return FALSE;
-    }
-    if (GST_VIDEO_INFO_MULTIVIEW_MODE(&info) != GST_VIDEO_MULTIVIEW_MODE_NONE &&
-        GST_VIDEO_INFO_MULTIVIEW_MODE(&info) != GST_VIDEO_MULTIVIEW_MODE_MONO) {
-      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
-                        ("Input %s carries multiview (stereo) video; stitchsync takes one camera "
-                         "per input",
-                         GST_PAD_NAME(pad)),
-                        ("caps: %" GST_PTR_FORMAT, caps));
-      gst_event_unref(event);
-      return FALSE;
-    }
+  }
+  if (GST_EVENT_TYPE(event) == GST_EVENT_SEGMENT) {
+    /* the base class copies the segment: the time offset we add goes on top of the new one */
+    const gboolean ret = GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->sink_event(agg, pad, event);
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    SyncPadState& st = *pad_state(pad);
+    const gint64 target = st.applied_ns;
+    st.applied_ns = 0;
+    apply_time_offset(pad, st, target);
+    return ret;
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->sink_event(agg, pad, event);
 }
@@ -413,7 +497,12 @@ static gboolean gst_stitch_sync_sink_query(GstAggregator* agg, GstAggregatorPad*
       GstCaps* caps = NULL;
       gst_query_parse_accept_caps(query, &caps);
       GstCaps* accepted = input_caps(self, GST_PAD(pad));
-      gst_query_set_accept_caps_result(query, gst_caps_can_intersect(caps, accepted));
+      const char* why = gst_caps_can_intersect(caps, accepted) ? caps_refusal(caps) : "caps are not raw video";
+      gst_query_set_accept_caps_result(query, why == NULL);
+      /* fixed caps refused for what they are: the CAPS event that follows would be refused with
+       * only a debug line, so the reason goes on the bus here */
+      if (why && gst_caps_is_fixed(caps) && gst_caps_can_intersect(caps, accepted))
+        GST_ELEMENT_ERROR(agg, STREAM, FORMAT, ("Input %s %s", GST_PAD_NAME(pad), why), ("caps: %" GST_PTR_FORMAT, caps));
       gst_caps_unref(accepted);
       return TRUE;
     }
@@ -459,7 +548,8 @@ static GstCaps* gst_stitch_sync_update_caps(GstVideoAggregator* vagg, GstCaps* c
 
 static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* caps) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
-  auto pads = sorted_pads(self);
+  SortedPads sorted(self);
+  const auto& pads = sorted.pads;
   gint width = 0, height = 0, n = 0;
   gdouble best_fps = -1;
   gint best_n = 0, best_d = 1;
@@ -501,8 +591,8 @@ static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* cap
   gst_structure_fixate_field_nearest_int(s, "width", width);
   gst_structure_fixate_field_nearest_int(s, "height", height);
   gst_structure_fixate_field_nearest_fraction(s, "framerate", best_n, best_d);
-  gst_structure_set(s, "views", G_TYPE_INT, MAX(gint(pads.size()), 2), "pixel-aspect-ratio", GST_TYPE_FRACTION, 1,
-                    1, NULL);
+  gst_structure_set(s, "views", G_TYPE_INT, gint(bundle_views(pads)), "pixel-aspect-ratio", GST_TYPE_FRACTION, 1, 1,
+                    NULL);
   return gst_caps_fixate(caps);
 }
 
@@ -526,13 +616,15 @@ static gboolean gst_stitch_sync_negotiated_src_caps(GstAggregator* agg, GstCaps*
 static GstFlowReturn gst_stitch_sync_create_output_buffer(GstVideoAggregator* vagg, GstBuffer** outbuf) {
   GstStitchSync* self = GST_STITCH_SYNC(vagg);
   StitchSyncState* st = self->state;
-  const auto pads = sorted_pads(self);
-  if (!st->out_cuda || !bundle_ready(vagg, pads)) {
+  SortedPads sorted(self);
+  const auto& pads = sorted.pads;
+  const guint n = bundle_views(pads);
+  if (!st->out_cuda || guint(GST_VIDEO_INFO_VIEWS(&vagg->info)) != n) {
     *outbuf = gst_buffer_new();
     return GST_FLOW_OK;
   }
   std::vector<std::array<int, 2>> sizes;
-  for (GstVideoAggregatorPad* pad : pads) sizes.push_back(view_size(vagg, pad));
+  for (guint i = 0; i < n; ++i) sizes.push_back(view_size(vagg, i < pads.size() ? pads[i] : NULL));
   if (!st->pool || sizes != st->pool_sizes) {
     stitch_bundle_pool_clear(&st->pool);
     GstCaps* caps = gst_pad_get_current_caps(GST_AGGREGATOR_SRC_PAD(vagg));
@@ -550,9 +642,10 @@ static GstFlowReturn gst_stitch_sync_create_output_buffer(GstVideoAggregator* va
 }
 
 /* Appends one view: shares the frame's memory when it is a single block of system memory,
- * copies otherwise (CUDA memory is read through host memory: this bundle is in system memory). */
-static void append_view(GstBuffer* bundle, guint id, GstBuffer* src, gsize src_offset, gint width,
-                        gint height, gint stride) {
+ * copies otherwise (CUDA memory is read through host memory: this bundle is in system memory).
+ * FALSE when memory cannot be had or mapped. */
+static gboolean append_view(GstBuffer* bundle, guint id, GstBuffer* src, gsize src_offset, gint width, gint height,
+                            gint stride) {
   const gsize bundle_offset = gst_buffer_get_size(bundle);
   gsize offset[GST_VIDEO_MAX_PLANES] = {0};
   gint strides[GST_VIDEO_MAX_PLANES] = {0};
@@ -563,34 +656,47 @@ static void append_view(GstBuffer* bundle, guint id, GstBuffer* src, gsize src_o
   } else {
     const gsize row = gsize(width) * 4;
     GstMemory* mem = gst_allocator_alloc(NULL, row * height, NULL);
+    if (!mem) return FALSE;
     GstMapInfo dst, in;
-    gst_memory_map(mem, &dst, GST_MAP_WRITE);
-    gst_buffer_map(src, &in, GST_MAP_READ);
-    for (gint y = 0; y < height; ++y)
-      memcpy(dst.data + y * row, in.data + src_offset + gsize(y) * stride, row);
+    if (!gst_memory_map(mem, &dst, GST_MAP_WRITE)) {
+      gst_memory_unref(mem);
+      return FALSE;
+    }
+    if (!gst_buffer_map(src, &in, GST_MAP_READ)) {
+      gst_memory_unmap(mem, &dst);
+      gst_memory_unref(mem);
+      return FALSE;
+    }
+    for (gint y = 0; y < height; ++y) memcpy(dst.data + y * row, in.data + src_offset + gsize(y) * stride, row);
     gst_buffer_unmap(src, &in);
     gst_memory_unmap(mem, &dst);
     gst_buffer_append_memory(bundle, mem);
     offset[0] = bundle_offset;
     strides[0] = gint(row);
   }
-  GstVideoMeta* vm = gst_buffer_add_video_meta_full(bundle, GST_VIDEO_FRAME_FLAG_NONE,
-                                                    GST_VIDEO_FORMAT_RGBA, width, height, 1,
-                                                    offset, strides);
+  GstVideoMeta* vm = gst_buffer_add_video_meta_full(bundle, GST_VIDEO_FRAME_FLAG_NONE, GST_VIDEO_FORMAT_RGBA, width,
+                                                    height, 1, offset, strides);
+  if (!vm) return FALSE;
   vm->id = gint(id);
+  return TRUE;
 }
 
-static void append_black_view(GstBuffer* bundle, guint id, gint width, gint height) {
+static gboolean append_black_view(GstBuffer* bundle, guint id, gint width, gint height) {
   const gsize size = gsize(width) * 4 * height;
   GstMemory* mem = gst_allocator_alloc(NULL, size, NULL);
+  if (!mem) return FALSE;
   GstMapInfo map;
-  gst_memory_map(mem, &map, GST_MAP_WRITE);
+  if (!gst_memory_map(mem, &map, GST_MAP_WRITE)) {
+    gst_memory_unref(mem);
+    return FALSE;
+  }
   memset(map.data, 0, size);
   gst_memory_unmap(mem, &map);
   GstBuffer* tmp = gst_buffer_new();
   gst_buffer_append_memory(tmp, mem);
-  append_view(bundle, id, tmp, 0, width, height, width * 4);
+  const gboolean ok = append_view(bundle, id, tmp, 0, width, height, width * 4);
   gst_buffer_unref(tmp);
+  return ok;
 }
 
 /* The core's description of a mapped input frame (a format converts_on_device takes). */
@@ -625,46 +731,49 @@ static stitch::FrameView frame_view(const GstVideoFrame* frame) {
   return v;
 }
 
-/* System memory: views reference the inputs' memory (zero-copy for single-block frames). */
-static guint64 bundle_in_system_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                                       GstBuffer* outbuf, guint64 left_out) {
+/* System memory: views reference the inputs' memory (zero-copy for single-block frames). `pads`
+ * holds NULL for a view without an input (a single input left). FALSE after an element error. */
+static gboolean bundle_in_system_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
+                                        GstBuffer* outbuf, guint64 left_out, guint64& missing) {
   GstVideoAggregator* vagg = GST_VIDEO_AGGREGATOR(self);
-  guint64 missing = 0;
-  guint id = 0;
-  for (GstVideoAggregatorPad* pad : pads) {
-    GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
-    StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
-    if (left_out >> id & 1) {
-      /* dropped out with dropout=fill: black, marked missing, the last frame kept */
+  for (guint id = 0; id < pads.size(); ++id) {
+    GstVideoAggregatorPad* pad = pads[id];
+    GstVideoFrame* frame = pad ? gst_video_aggregator_pad_get_prepared_frame(pad) : NULL;
+    SyncPadState* last = pad ? pad_state(pad) : NULL;
+    gboolean ok = TRUE;
+    if (!pad || (left_out >> id & 1) || (!frame && !last->buffer)) {
+      /* no input, dropped out with dropout=fill, or never had a frame: black, marked missing
+       * so that stitchblend leaves it out (the last frame is kept) */
       const auto size = view_size(vagg, pad);
-      append_black_view(outbuf, id, size[0], size[1]);
+      ok = append_black_view(outbuf, id, size[0], size[1]);
       missing |= guint64(1) << id;
     } else if (frame) {
-      append_view(outbuf, id, frame->buffer, GST_VIDEO_FRAME_PLANE_OFFSET(frame, 0),
-                  GST_VIDEO_FRAME_WIDTH(frame), GST_VIDEO_FRAME_HEIGHT(frame),
-                  GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
-      /* Keep only what the bundle already references: the view's memory. */
-      GstBuffer* keep = gst_buffer_new();
-      gst_buffer_append_memory(keep, gst_buffer_get_memory(outbuf, id));
-      gst_clear_buffer(&last.buffer);
-      last.buffer = keep;
-      GstVideoMeta* vm = gst_buffer_get_video_meta_id(outbuf, gint(id));
-      last.width = gint(vm->width);
-      last.height = gint(vm->height);
-      last.stride = vm->stride[0];
-      last.offset = vm->offset[0] - (gst_buffer_get_size(outbuf) - gst_buffer_get_size(keep));
-    } else if (last.buffer) {
-      /* a live camera that is late or gone: freeze its last frame */
-      append_view(outbuf, id, last.buffer, last.offset, last.width, last.height, last.stride);
+      ok = append_view(outbuf, id, frame->buffer, GST_VIDEO_FRAME_PLANE_OFFSET(frame, 0), GST_VIDEO_FRAME_WIDTH(frame),
+                       GST_VIDEO_FRAME_HEIGHT(frame), GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
+      if (ok) {
+        /* Keep only what the bundle already references: the view's memory. */
+        GstBuffer* keep = gst_buffer_new();
+        gst_buffer_append_memory(keep, gst_buffer_get_memory(outbuf, id));
+        gst_clear_buffer(&last->buffer);
+        last->buffer = keep;
+        GstVideoMeta* vm = gst_buffer_get_video_meta_id(outbuf, gint(id));
+        last->width = gint(vm->width);
+        last->height = gint(vm->height);
+        last->stride = vm->stride[0];
+        last->offset = vm->offset[0] - (gst_buffer_get_size(outbuf) - gst_buffer_get_size(keep));
+      }
     } else {
-      /* never had a frame: black, and marked missing so stitchblend leaves it out */
-      const auto size = view_size(vagg, pad);
-      append_black_view(outbuf, id, size[0], size[1]);
-      missing |= guint64(1) << id;
+      /* a live camera that is late or gone: freeze its last frame */
+      ok = append_view(outbuf, id, last->buffer, last->offset, last->width, last->height, last->stride);
     }
-    ++id;
+    if (!ok) {
+      GST_ELEMENT_ERROR(self, RESOURCE, NO_SPACE_LEFT,
+                        ("Cannot allocate or map the view of %s (view %u)", pad ? GST_PAD_NAME(pad) : "no input", id),
+                        (NULL));
+      return FALSE;
+    }
   }
-  return missing;
+  return TRUE;
 }
 
 /* CUDA memory: every view of the pooled bundle is written on the device from its input frame
@@ -672,7 +781,7 @@ static guint64 bundle_in_system_memory(GstStitchSync* self, const std::vector<Gs
 static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
                                       GstBuffer* outbuf, guint64 left_out, guint64& missing) {
   StitchSyncState* st = self->state;
-  const guint n = guint(pads.size());
+  const guint n = guint(pads.size());  // NULL entries: views without an input
   StitchBundleMapping out;
   std::string error;
   if (!out.map(outbuf, n, GST_MAP_WRITE, error, &st->cuda)) {
@@ -688,8 +797,13 @@ static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<Gst
       for (guint id = 0; id < n; ++id) {
         GstVideoAggregatorPad* pad = pads[id];
         const stitch::ImageView& view = out.views()[id];
+        if (!pad) {
+          converter.clear(view);
+          missing |= guint64(1) << id;
+          continue;
+        }
         GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
-        StitchSyncState::Last& last = st->last[GST_PAD(pad)];
+        SyncPadState& last = *pad_state(pad);
         if (left_out >> id & 1) {
           converter.clear(view);
           missing |= guint64(1) << id;
@@ -723,10 +837,11 @@ static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<Gst
   return ok;
 }
 
-/* Dropouts. A camera has dropped out when it ended (EOS) or when its newest frame ended more
- * than dropout-timeout before the output time: a stalled camera (live inputs: the aggregator's
- * latency timeout brings the output here without it; a timestamp jump looks the same until the
- * frames catch up). It rejoins with its next fresh frame. */
+/* Dropouts (policy: stitch::sync::update_dropout). A camera has dropped out when it ended, when
+ * it stalled (its newest frame ended more than dropout-timeout before the output time with
+ * nothing queued after it; live inputs: the aggregator's latency timeout brings the output here
+ * without it), or when it never delivered for dropout-timeout after the first bundle. A later
+ * frame already queued is a gap in the timestamps (VFR, a file with holes), not a dropout. */
 struct DropoutChange {
   std::string pad;
   guint view;
@@ -749,34 +864,33 @@ static GstClockTime current_frame_end(GstVideoAggregatorPad* pad) {
   return rt;
 }
 
-/* Updates every pad's dropout state (state lock held); returns the views to leave out. */
+static gint64 as_time(GstClockTime t) { return GST_CLOCK_TIME_IS_VALID(t) ? gint64(t) : stitch::sync::kNoTime; }
+
+static stitch::sync::InputFacts input_facts(GstVideoAggregatorPad* pad) {
+  stitch::sync::InputFacts f;
+  f.negotiated = is_negotiated(pad);
+  f.has_frame = gst_video_aggregator_pad_get_prepared_frame(pad) != NULL;
+  f.queued = gst_aggregator_pad_has_buffer(GST_AGGREGATOR_PAD(pad));
+  f.eos = gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
+  if (f.has_frame) f.frame_end = as_time(current_frame_end(pad));
+  return f;
+}
+
+/* Updates every pad's dropout state from its facts (gathered before the state lock: asking the
+ * base class whether a buffer is queued clips it, which takes that lock); returns the views to
+ * leave out. */
 static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                              GstBuffer* outbuf, GstStitchSyncDropout mode, GstClockTime timeout,
-                              std::vector<DropoutChange>& changes) {
-  GstAggregator* agg = GST_AGGREGATOR(self);
-  GST_OBJECT_LOCK(agg->srcpad);
-  const GstClockTime now =
-      gst_segment_to_running_time(&GST_AGGREGATOR_PAD(agg->srcpad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(outbuf));
-  GST_OBJECT_UNLOCK(agg->srcpad);
+                              const std::vector<stitch::sync::InputFacts>& facts, GstClockTime now,
+                              GstStitchSyncDropout mode, GstClockTime timeout, std::vector<DropoutChange>& changes) {
   guint64 left_out = 0;
-  for (guint id = 0; id < pads.size(); ++id) {
-    GstVideoAggregatorPad* pad = pads[id];
-    StitchSyncState::Last& last = self->state->last[GST_PAD(pad)];
-    const bool had_frame = last.buffer || last.frame || last.dropped;
+  for (guint id = 0; id < pads.size() && id < facts.size(); ++id) {
+    if (!pads[id]) continue;
+    SyncPadState& st = *pad_state(pads[id]);
     std::string reason;
-    if (!gst_video_aggregator_pad_get_prepared_frame(pad)) {
-      if (had_frame) reason = gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad)) ? "it ended" : "it stopped sending frames";
-    } else if (GST_CLOCK_TIME_IS_VALID(now)) {
-      const GstClockTime end = current_frame_end(pad);
-      if (GST_CLOCK_TIME_IS_VALID(end) && now > end && now - end > timeout)
-        reason = "no frame for " + std::to_string((now - end) / GST_MSECOND) + " ms";
-    }
-    const bool out = !reason.empty();
-    if (out != last.dropped) {
-      last.dropped = out;
-      changes.push_back({GST_PAD_NAME(pad), id, out, reason, mode});
-    }
-    if (out && mode == GST_STITCH_SYNC_DROPOUT_FILL) left_out |= guint64(1) << id;
+    if (stitch::sync::update_dropout(st.track, facts[id], as_time(now), as_time(self->state->started),
+                                     gint64(timeout), reason))
+      changes.push_back({GST_PAD_NAME(pads[id]), id, st.track.dropped, reason, mode});
+    if (st.track.dropped && mode == GST_STITCH_SYNC_DROPOUT_FILL) left_out |= guint64(1) << id;
   }
   return left_out;
 }
@@ -797,57 +911,196 @@ static void post_dropout_change(GstStitchSync* self, const DropoutChange& c) {
   gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
 }
 
+/* Time alignment. The pads' offsets from load-file, then (time-alignment=auto) from the
+ * tracker, fed one motion signal per new input frame at its uncorrected running time. Returns
+ * the message to post when the estimates moved (state lock held). */
+static GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, bool automatic,
+                                  std::vector<guint>& no_signal) {
+  StitchSyncState* st = self->state;
+  guint n = 0;
+  while (n < pads.size() && pads[n]) ++n;
+  if (!automatic) {
+    st->tracker.reset();
+    for (guint v = 0; v < n; ++v) apply_time_offset(GST_AGGREGATOR_PAD(pads[v]), *pad_state(pads[v]), pad_state(pads[v])->file_offset_ns);
+    return NULL;
+  }
+  if (!st->tracker || st->tracker->views() != int(n)) st->tracker = std::make_unique<stitch::sync::OffsetTracker>(int(n));
+  for (guint v = 0; v < n; ++v) {
+    GstVideoAggregatorPad* pad = pads[v];
+    SyncPadState& ps = *pad_state(pad);
+    GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
+    if (frame && frame->buffer != ps.signal_of && !(frame->map[0].flags & STITCH_MAP_CUDA && STITCH_MAP_CUDA != 0)) {
+      ps.signal_of = frame->buffer;  // identity only, never dereferenced
+      GST_OBJECT_LOCK(pad);
+      const GstClockTime rt =
+          gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(frame->buffer));
+      GST_OBJECT_UNLOCK(pad);
+      const GstVideoFormat f = GST_VIDEO_FRAME_FORMAT(frame);
+      const bool luma = f == GST_VIDEO_FORMAT_NV12 || f == GST_VIDEO_FORMAT_I420;  // the Y plane; else RGBA-like
+      if (GST_CLOCK_TIME_IS_VALID(rt))
+        st->tracker->add_frame(int(v), gint64(rt) - ps.applied_ns, static_cast<const uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(frame, 0)),
+                               GST_VIDEO_FRAME_WIDTH(frame), GST_VIDEO_FRAME_HEIGHT(frame),
+                               std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0)), luma ? 1 : 4, luma ? 0 : 1);
+    }
+  }
+  std::vector<stitch::sync::Estimate> est;
+  std::vector<int> quiet;
+  const bool changed = st->tracker->update(est, quiet);
+  for (int v : quiet) no_signal.push_back(guint(v));
+  for (guint v = 0; v < n; ++v) {
+    SyncPadState& ps = *pad_state(pads[v]);
+    const auto& cur = st->tracker->current();
+    const bool valid = v < cur.size() && cur[v].valid;
+    /* the estimate is measured on the uncorrected times: it replaces the file's value */
+    GstBuffer* buf = gst_video_aggregator_pad_get_current_buffer(pads[v]);
+    GstClockTime rt = GST_CLOCK_TIME_NONE;
+    if (buf && GST_BUFFER_PTS_IS_VALID(buf)) {
+      GST_OBJECT_LOCK(pads[v]);
+      rt = gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pads[v])->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(buf));
+      GST_OBJECT_UNLOCK(pads[v]);
+    }
+    const gint64 raw = GST_CLOCK_TIME_IS_VALID(rt) ? gint64(rt) - ps.applied_ns : 0;
+    apply_time_offset(GST_AGGREGATOR_PAD(pads[v]), ps, valid ? st->tracker->offset_at(int(v), raw) : ps.file_offset_ns);
+  }
+  if (!changed) return NULL;
+  GstStructure* s = gst_structure_new_empty("stitchsync-time-offsets");
+  for (guint v = 0; v < n && v < est.size(); ++v) {
+    gchar* k = g_strdup_printf("offset-%u", v);
+    gst_structure_set(s, k, G_TYPE_INT64, est[v].valid ? gint64(est[v].offset_ns) : gint64(0), NULL);
+    g_free(k);
+    k = g_strdup_printf("confidence-%u", v);
+    gst_structure_set(s, k, G_TYPE_DOUBLE, est[v].confidence, NULL);
+    g_free(k);
+    k = g_strdup_printf("rate-%u", v);
+    gst_structure_set(s, k, G_TYPE_DOUBLE, est[v].valid ? est[v].rate : 1.0, NULL);
+    g_free(k);
+  }
+  return s;
+}
+
+/* The calibration file's per-camera time offsets (stitchcalib's rig JSON, "time_offset_ns"),
+ * read at the first bundle. FALSE after an element error. */
+static gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads) {
+  GST_OBJECT_LOCK(self);
+  const std::string path = self->load_file ? self->load_file : "";
+  GST_OBJECT_UNLOCK(self);
+  if (path.empty()) return TRUE;
+  try {
+    const stitch::Rig rig = stitch::rig_load(path);
+    for (guint v = 0; v < pads.size() && v < rig.cameras.size(); ++v)
+      if (pads[v]) pad_state(pads[v])->file_offset_ns = rig.cameras[v].time_offset_ns.value_or(0);
+  } catch (const std::exception& e) {
+    GST_ELEMENT_ERROR(self, RESOURCE, READ, ("Cannot read the time offsets of %s: %s", path.c_str(), e.what()), (NULL));
+    return FALSE;
+  }
+  return TRUE;
+}
+
+/* Before the first bundle (stitch::sync::may_start): every requested pad negotiated, or
+ * dropout-timeout since the first inputs were ready; never a single input. */
+static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
+                                     GstClockTime now, GstClockTime timeout) {
+  StitchSyncState* st = self->state;
+  if (GST_CLOCK_TIME_IS_VALID(st->started)) return GST_FLOW_OK;
+  if (st->first_ready_us < 0) st->first_ready_us = g_get_monotonic_time();
+  std::vector<stitch::sync::InputFacts> facts;
+  for (GstVideoAggregatorPad* p : pads) facts.push_back(input_facts(p));
+  switch (stitch::sync::may_start(facts, (g_get_monotonic_time() - st->first_ready_us) * 1000, gint64(timeout))) {
+    case stitch::sync::StartDecision::Wait:
+      g_usleep(2000);
+      return GST_AGGREGATOR_FLOW_NEED_DATA;
+    case stitch::sync::StartDecision::TooFew:
+      GST_ELEMENT_ERROR(self, CORE, PAD,
+                        ("stitchsync needs at least two cameras; only %s is linked", GST_PAD_NAME(pads[0])),
+                        ("link more inputs to stitchsync's sink_%%u pads, or use the camera without stitching"));
+      return GST_FLOW_ERROR;
+    case stitch::sync::StartDecision::Go: break;
+  }
+  if (!load_time_offsets(self, pads)) return GST_FLOW_ERROR;
+  st->started = now;
+  return GST_FLOW_OK;
+}
+
 static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, GstBuffer* outbuf) {
   GstStitchSync* self = GST_STITCH_SYNC(vagg);
-  auto pads = sorted_pads(self);
-  /* Wait for the inputs instead of sending bundles with a view count about to change. An input
-   * can get its caps between create_output_buffer and here: a CUDA bundle made for fewer views
-   * is not used either. */
-  if (!bundle_ready(vagg, pads) || (self->state->out_cuda && gst_buffer_n_memory(outbuf) != pads.size())) {
-    g_usleep(2000);
+  StitchSyncState* st = self->state;
+  SortedPads sorted(self);
+  std::vector<GstVideoAggregatorPad*> pads = sorted.pads;
+  if (pads.empty()) return GST_AGGREGATOR_FLOW_NEED_DATA;
+  GST_OBJECT_LOCK(self);
+  const GstStitchSyncDropout mode = self->dropout;
+  const GstClockTime timeout = self->dropout_timeout;
+  const GstStitchSyncInputEos input_eos = self->input_eos;
+  const bool automatic = self->time_alignment == GST_STITCH_SYNC_TIME_ALIGNMENT_AUTO;
+  GST_OBJECT_UNLOCK(self);
+  GstAggregator* agg = GST_AGGREGATOR(self);
+  GST_OBJECT_LOCK(agg->srcpad);
+  const GstClockTime now =
+      gst_segment_to_running_time(&GST_AGGREGATOR_PAD(agg->srcpad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(outbuf));
+  GST_OBJECT_UNLOCK(agg->srcpad);
+  {
+    const GstFlowReturn ret = wait_for_inputs(self, pads, now, timeout);
+    if (ret != GST_FLOW_OK) return ret;
+  }
+  /* The view count follows the pads: a pad requested or released while playing renegotiates
+   * the bundle (a pad without caps yet is a missing view), it never holds the output. */
+  const guint n = bundle_views(pads);
+  if (guint(GST_VIDEO_INFO_VIEWS(&vagg->info)) != n || (st->out_cuda && gst_buffer_n_memory(outbuf) != n)) {
+    gst_pad_mark_reconfigure(GST_AGGREGATOR_SRC_PAD(self));
+    g_usleep(1000);
     return GST_AGGREGATOR_FLOW_NEED_DATA;
   }
+  bool all_ended = true;
   for (GstVideoAggregatorPad* pad : pads) {
-    if (!gst_video_aggregator_pad_get_prepared_frame(pad) && gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad)) &&
-        self->input_eos == GST_STITCH_SYNC_INPUT_EOS_END_STREAM) {
+    const bool ended = !gst_video_aggregator_pad_get_prepared_frame(pad) && gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
+    if (ended && input_eos == GST_STITCH_SYNC_INPUT_EOS_END_STREAM) {
       GST_INFO_OBJECT(self, "%s ended; ending the stream (input-eos=end-stream)", GST_PAD_NAME(pad));
       return GST_FLOW_EOS;
     }
+    all_ended = all_ended && ended;
   }
   /* Every input ended: the base class ends the stream itself only when it does not aggregate on
    * a timeout (live inputs, force-live), where it would repeat the end forever. */
-  bool all_ended = true;
-  for (GstVideoAggregatorPad* pad : pads)
-    all_ended = all_ended && !gst_video_aggregator_pad_get_prepared_frame(pad) &&
-                gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
   if (all_ended) {
     GST_INFO_OBJECT(self, "every input ended; ending the stream");
     return GST_FLOW_EOS;
   }
+  std::vector<stitch::sync::InputFacts> facts;
+  for (GstVideoAggregatorPad* pad : pads) facts.push_back(input_facts(pad));
+  while (pads.size() < n) pads.push_back(NULL);  // a single input left: the second view is missing
   std::vector<DropoutChange> changes;
   std::vector<GstMessage*> qos;
+  std::vector<guint> no_signal;
+  GstStructure* offsets = NULL;
   guint64 missing = 0;
-  GST_OBJECT_LOCK(self);
-  const GstStitchSyncDropout mode = self->dropout;
-  const GstClockTime timeout = self->dropout_timeout;
-  GST_OBJECT_UNLOCK(self);
   {
-    std::lock_guard<std::mutex> guard(self->state->lock);
-    qos.swap(self->state->pending_qos);
-    const guint64 left_out = track_dropouts(self, pads, outbuf, mode, timeout, changes);
-    if (self->state->out_cuda) {
-      if (!bundle_in_cuda_memory(self, pads, outbuf, left_out, missing)) {
-        for (GstMessage* m : qos) gst_message_unref(m);
-        return GST_FLOW_ERROR;
-      }
-    } else {
-      missing = bundle_in_system_memory(self, pads, outbuf, left_out);
+    std::lock_guard<std::mutex> guard(st->lock);
+    qos.swap(st->pending_qos);
+    offsets = align_inputs(self, pads, automatic, no_signal);
+    const guint64 left_out = track_dropouts(self, pads, facts, now, mode, timeout, changes);
+    const gboolean ok = st->out_cuda ? bundle_in_cuda_memory(self, pads, outbuf, left_out, missing)
+                                     : bundle_in_system_memory(self, pads, outbuf, left_out, missing);
+    if (!ok) {
+      for (GstMessage* m : qos) gst_message_unref(m);
+      if (offsets) gst_structure_free(offsets);
+      return GST_FLOW_ERROR;
     }
   }
   /* posted without the state lock: bus sync handlers may call back into the element */
   for (GstMessage* m : qos) gst_element_post_message(GST_ELEMENT(self), m);
   for (const DropoutChange& c : changes) post_dropout_change(self, c);
-  gst_buffer_add_stitch_bundle_meta(outbuf, guint(pads.size()), missing);
+  for (guint v : no_signal)
+    GST_ELEMENT_WARNING(self, STREAM, FAILED,
+                        ("time-alignment=auto: %s (view %u) shows no motion in common with view 0 to align on; its "
+                         "offset stays %s",
+                         GST_PAD_NAME(pads[v]), v, pad_state(pads[v])->file_offset_ns ? "load-file's" : "0"),
+                        (NULL));
+  if (offsets) {
+    /* the application hears it on the bus; stitchcalib downstream can save it with the rig */
+    gst_pad_push_event(GST_AGGREGATOR_SRC_PAD(self), gst_event_new_custom(GST_EVENT_CUSTOM_DOWNSTREAM, gst_structure_copy(offsets)));
+    gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), offsets));
+  }
+  gst_buffer_add_stitch_bundle_meta(outbuf, n, missing);
   return GST_FLOW_OK;
 }
 
@@ -856,6 +1109,14 @@ static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
   {
     std::lock_guard<std::mutex> guard(self->state->lock);
     self->state->clear();
+    SortedPads sorted(self);
+    for (GstVideoAggregatorPad* p : sorted.pads) {
+      SyncPadState& ps = *pad_state(p);
+      ps.release();
+      ps.track = {};
+      ps.newest_end = GST_CLOCK_TIME_NONE;
+      ps.applied_ns = 0;  // the segments go with the stop
+    }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->stop(agg);
 }
@@ -864,7 +1125,12 @@ static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
   {
     std::lock_guard<std::mutex> guard(self->state->lock);
-    self->state->clear_last();
+    self->state->clear_run();
+    SortedPads sorted(self);
+    for (GstVideoAggregatorPad* p : sorted.pads) {
+      pad_state(p)->release();
+      pad_state(p)->track = {};
+    }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);
 }
@@ -879,7 +1145,22 @@ static void gst_stitch_sync_set_property(GObject* object, guint prop_id, const G
       self->fps_d = gst_value_get_fraction_denominator(value);
       GST_OBJECT_UNLOCK(self);
       break;
-    case PROP_INPUT_EOS: self->input_eos = GstStitchSyncInputEos(g_value_get_enum(value)); break;
+    case PROP_INPUT_EOS:
+      GST_OBJECT_LOCK(self);
+      self->input_eos = GstStitchSyncInputEos(g_value_get_enum(value));
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_TIME_ALIGNMENT:
+      GST_OBJECT_LOCK(self);
+      self->time_alignment = GstStitchSyncTimeAlignment(g_value_get_enum(value));
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_LOAD_FILE:
+      GST_OBJECT_LOCK(self);
+      g_free(self->load_file);
+      self->load_file = g_value_dup_string(value);
+      GST_OBJECT_UNLOCK(self);
+      break;
     case PROP_DROPOUT:
       GST_OBJECT_LOCK(self);
       self->dropout = GstStitchSyncDropout(g_value_get_enum(value));
@@ -910,7 +1191,21 @@ static void gst_stitch_sync_get_property(GObject* object, guint prop_id, GValue*
       gst_value_set_fraction(value, self->fps_n, self->fps_d);
       GST_OBJECT_UNLOCK(self);
       break;
-    case PROP_INPUT_EOS: g_value_set_enum(value, self->input_eos); break;
+    case PROP_INPUT_EOS:
+      GST_OBJECT_LOCK(self);
+      g_value_set_enum(value, self->input_eos);
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_TIME_ALIGNMENT:
+      GST_OBJECT_LOCK(self);
+      g_value_set_enum(value, self->time_alignment);
+      GST_OBJECT_UNLOCK(self);
+      break;
+    case PROP_LOAD_FILE:
+      GST_OBJECT_LOCK(self);
+      g_value_set_string(value, self->load_file);
+      GST_OBJECT_UNLOCK(self);
+      break;
     case PROP_DROPOUT:
       GST_OBJECT_LOCK(self);
       g_value_set_enum(value, self->dropout);
@@ -934,6 +1229,7 @@ static void gst_stitch_sync_finalize(GObject* object) {
   GstStitchSync* self = GST_STITCH_SYNC(object);
   self->state->clear();
   delete self->state;
+  g_free(self->load_file);
   G_OBJECT_CLASS(gst_stitch_sync_parent_class)->finalize(object);
 }
 
@@ -982,6 +1278,20 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
                         GST_TYPE_STITCH_BACKEND, int(DEFAULT_BACKEND),
                         GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS)));
 
+  g_object_class_install_property(
+      gobject_class, PROP_TIME_ALIGNMENT,
+      g_param_spec_enum("time-alignment", "Time alignment",
+                        "none: frames are paired by running time (plus each pad's offset and load-file's); auto: "
+                        "each input's offset to sink_0 and its clock rate are estimated from the motion the cameras "
+                        "see, applied, and posted as stitchsync-time-offsets messages",
+                        GST_TYPE_STITCH_SYNC_TIME_ALIGNMENT, DEFAULT_TIME_ALIGNMENT,
+                        GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS | GST_PARAM_MUTABLE_PLAYING)));
+  g_object_class_install_property(
+      gobject_class, PROP_LOAD_FILE,
+      g_param_spec_string("load-file", "Load file",
+                          "Calibration JSON (stitchcalib's) whose cameras' time_offset_ns are added to the inputs' "
+                          "running times (view i = camera i); with time-alignment=auto, until the first estimate",
+                          NULL, GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS | GST_PARAM_MUTABLE_READY)));
   gst_element_class_add_static_pad_template_with_gtype(element_class, &sink_template,
                                                        gst_stitch_sync_pad_get_type());
   gst_element_class_add_static_pad_template_with_gtype(element_class, &src_template,
@@ -1008,6 +1318,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
 
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_SYNC_INPUT_EOS, GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_SYNC_DROPOUT, GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(GST_TYPE_STITCH_SYNC_TIME_ALIGNMENT, GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(gst_stitch_sync_pad_get_type(), GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_sync_debug, "stitchsync", 0, "stitch synchronizer");
 }
@@ -1019,5 +1330,7 @@ static void gst_stitch_sync_init(GstStitchSync* self) {
   self->backend = DEFAULT_BACKEND;
   self->dropout = DEFAULT_DROPOUT;
   self->dropout_timeout = DEFAULT_DROPOUT_TIMEOUT;
+  self->time_alignment = DEFAULT_TIME_ALIGNMENT;
+  self->load_file = NULL;
   self->state = new StitchSyncState();
 }

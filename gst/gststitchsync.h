@@ -15,5 +15,10 @@ typedef enum {
   GST_STITCH_SYNC_DROPOUT_FILL = 1,
 } GstStitchSyncDropout;
 
+typedef enum {
+  GST_STITCH_SYNC_TIME_ALIGNMENT_NONE = 0,
+  GST_STITCH_SYNC_TIME_ALIGNMENT_AUTO = 1,
+} GstStitchSyncTimeAlignment;
+
 GST_ELEMENT_REGISTER_DECLARE(stitchsync);
 G_END_DECLS

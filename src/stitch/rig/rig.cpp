@@ -83,6 +83,12 @@ Camera camera_from_json(const json& j, int index) {
     if (!problem.empty()) fail(where, "degenerate homography: " + problem);
     c.homography = H;
   }
+  // time alignment (stitchsync): an optional integer number of ns, within a day
+  if (auto it = j.find("time_offset_ns"); it != j.end()) {
+    if (!it->is_number_integer() || std::fabs(it->get<double>()) > 86400e9)
+      fail(where, "\"time_offset_ns\" must be an integer number of ns within a day");
+    c.time_offset_ns = it->get<int64_t>();
+  }
   return c;
 }
 
@@ -222,6 +228,7 @@ std::string rig_to_json_string(const Rig& rig) {
       for (int k = 0; k < 9; ++k) h.push_back((*c.homography)(k / 3, k % 3));
       cj["homography"] = h;
     }
+    if (c.time_offset_ns) cj["time_offset_ns"] = *c.time_offset_ns;
     j["cameras"].push_back(cj);
   }
   return j.dump(2);

@@ -30,6 +30,9 @@ struct Camera {
   double yaw_deg = 0, pitch_deg = 0, roll_deg = 0;
   std::optional<Eigen::Vector3d> t;          // metres, optional
   std::optional<Eigen::Matrix3d> homography; // camera pixel -> canvas pixel
+  // Time alignment (stitchsync): ns added to this camera's running time so that its frames
+  // line up with camera 0's (GstPad offset semantics); absent when never measured.
+  std::optional<int64_t> time_offset_ns;
 
   Eigen::Matrix3d K() const;
   Eigen::Matrix3d R() const;  // camera -> rig rotation

@@ -1,0 +1,138 @@
+// Time alignment on real clips (issue 18): decodes each camera of a clip (cv::VideoCapture),
+// trims cameras by given numbers of frames at the start (as if started later), and reports the
+// offsets and confidences the aligner finds, a synchronised run (no trim), a simulated 0.5% clock
+// rate difference, and the CPU cost of `time-alignment=auto` per frame (thumbnail signal) and per
+// estimate.
+//
+//   stitch-bench-sync DIR CAM0.mp4 CAM1.mp4 [CAM2.mp4 ...] [--trim N1,N2,...]
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "stitch/sync/time_align.hpp"
+
+using stitch::sync::Estimate;
+using stitch::sync::FrameSignal;
+using stitch::sync::TimeAligner;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// Runs the aligner on the signals, view v starting at frame trim[v]; frames at 1/fps of each
+// camera's clock, the clock of view v running `rate[v]` times as fast as view 0's.
+std::vector<Estimate> align(const std::vector<std::vector<std::vector<double>>>& sig, const std::vector<int>& trim, double fps,
+                            const std::vector<double>& rate, double& estimate_ms, int& estimates) {
+  TimeAligner a(int(sig.size()));
+  std::size_t longest = 0;
+  for (const auto& s : sig) longest = std::max(longest, s.size());
+  std::vector<Estimate> e;
+  estimate_ms = 0;
+  estimates = 0;
+  for (std::size_t f = 0; f < longest; ++f) {
+    for (std::size_t v = 0; v < sig.size(); ++v) {
+      const std::size_t src = f + std::size_t(trim[v]);
+      if (src >= sig[v].size()) continue;
+      a.add_sample(int(v), int64_t(double(f) / fps * 1e9 * rate[v]), sig[v][src]);
+    }
+    if (f % std::size_t(fps) == 0 || f + 1 == longest) {  // the element estimates once a second
+      const auto t0 = Clock::now();
+      e = a.estimate();
+      estimate_ms += ms_since(t0);
+      ++estimates;
+    }
+  }
+  return e;
+}
+
+void print(const char* label, const std::vector<Estimate>& e, const std::vector<int>& trim, double fps) {
+  std::printf("%s\n", label);
+  for (std::size_t v = 1; v < e.size(); ++v) {
+    const double frames = e[v].offset_ns / 1e9 * fps;
+    const double want = trim[v] - trim[0];
+    std::printf("  view %zu: offset %+8.2f ms = %+6.2f frames (expected %+d, error %+5.2f) confidence %.2f rate %.5f%s\n",
+                v, e[v].offset_ns / 1e6, frames, int(want), frames - want, e[v].confidence, e[v].rate,
+                e[v].valid ? "" : "  (no signal)");
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 4) {
+    std::fprintf(stderr, "usage: %s DIR CAM0.mp4 CAM1.mp4 [...] [--trim N1,N2,...]\n", argv[0]);
+    return 2;
+  }
+  const std::string dir = argv[1];
+  std::vector<std::string> cams;
+  std::vector<int> trim;
+  for (int i = 2; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--trim" && i + 1 < argc) {
+      std::stringstream ss(argv[++i]);
+      std::string item;
+      trim.push_back(0);
+      while (std::getline(ss, item, ',')) trim.push_back(std::atoi(item.c_str()));
+    } else {
+      cams.push_back(a);
+    }
+  }
+  if (trim.empty()) {
+    trim.push_back(0);
+    for (std::size_t v = 1; v < cams.size(); ++v) trim.push_back(int(4 + 7 * v));
+  }
+  trim.resize(cams.size(), 0);
+  std::vector<std::vector<std::vector<double>>> sig(cams.size());
+  double fps = 30, signal_ms = 0;
+  long frames = 0;
+  int width = 0, height = 0;
+  for (std::size_t v = 0; v < cams.size(); ++v) {
+    cv::VideoCapture cap(dir + "/" + cams[v]);
+    if (!cap.isOpened()) {
+      std::fprintf(stderr, "cannot open %s/%s\n", dir.c_str(), cams[v].c_str());
+      return 1;
+    }
+    if (v == 0 && cap.get(cv::CAP_PROP_FPS) > 1) fps = cap.get(cv::CAP_PROP_FPS);
+    FrameSignal fs;
+    cv::Mat frame, rgba;
+    while (cap.read(frame)) {
+      cv::cvtColor(frame, rgba, cv::COLOR_BGR2RGBA);  // what stitchsync's system-memory views hold
+      width = rgba.cols;
+      height = rgba.rows;
+      const auto t0 = Clock::now();
+      sig[v].push_back(fs.update(rgba.data, rgba.cols, rgba.rows, rgba.step, 4, 1));
+      signal_ms += ms_since(t0);
+      ++frames;
+    }
+  }
+  std::printf("%s: %zu cameras, %dx%d, %.2f fps, %zu frames in camera 0\n", dir.c_str(), cams.size(), width, height,
+              fps, sig[0].size());
+  const std::vector<double> same(cams.size(), 1.0);
+  double est_ms = 0;
+  int n_est = 0;
+  std::vector<int> zero(cams.size(), 0);
+  auto e = align(sig, zero, fps, same, est_ms, n_est);
+  print("synchronised (no trim):", e, zero, fps);
+  std::vector<Estimate> base = e;
+  e = align(sig, trim, fps, same, est_ms, n_est);
+  std::printf("trimmed:");
+  for (int t : trim) std::printf(" %d", t);
+  std::printf(" frames (errors are relative to the untrimmed run's offsets)\n");
+  for (std::size_t v = 1; v < e.size(); ++v) {
+    const double got = (e[v].offset_ns - base[v].offset_ns) / 1e9 * fps;
+    std::printf("  view %zu: offset change %+6.2f frames (expected %+d, error %+5.2f) confidence %.2f%s\n", v, got,
+                trim[v], got - trim[v], e[v].confidence, e[v].valid ? "" : "  (no signal)");
+  }
+  std::printf("cost: thumbnail signal %.3f ms per frame (%dx%d RGBA), estimate %.3f ms each (%d views, %d estimates, "
+              "one per second of video)\n",
+              signal_ms / double(frames), width, height, est_ms / std::max(1, n_est), int(cams.size()), n_est);
+  return 0;
+}

@@ -1,0 +1,56 @@
+#include "stitch/sync/policy.hpp"
+
+namespace stitch::sync {
+
+namespace {
+
+std::string ms(int64_t ns) { return std::to_string(ns / 1000000) + " ms"; }
+
+}  // namespace
+
+bool update_dropout(DropoutTrack& track, const InputFacts& in, int64_t now, int64_t started, int64_t timeout,
+                    std::string& reason) {
+  reason.clear();
+  if (in.has_frame) track.ever_had_frame = true;
+  if (!in.has_frame) {
+    if (in.eos) {
+      reason = "it ended";
+    } else if (track.ever_had_frame) {
+      if (!in.queued) reason = "it stopped sending frames";
+    } else if (now != kNoTime && started != kNoTime && now >= started && now - started > timeout) {
+      reason = in.negotiated ? "no frame since the start (" + ms(now - started) + ")"
+                             : "it never started (no caps after " + ms(now - started) + ")";
+    }
+  } else if (!in.queued && now != kNoTime && in.frame_end != kNoTime && now > in.frame_end &&
+             now - in.frame_end > timeout) {
+    reason = "no frame for " + ms(now - in.frame_end);
+  }
+  const bool out = !reason.empty();
+  if (out == track.dropped) return false;
+  track.dropped = out;
+  return true;
+}
+
+StartDecision may_start(const std::vector<InputFacts>& inputs, int64_t waited, int64_t timeout) {
+  int negotiated = 0;
+  for (const InputFacts& in : inputs) negotiated += in.negotiated ? 1 : 0;
+  const bool all = negotiated == int(inputs.size());
+  const bool expired = waited != kNoTime && waited >= timeout;
+  if (inputs.size() < 2) return expired ? StartDecision::TooFew : StartDecision::Wait;
+  if (all) return StartDecision::Go;
+  if (!expired) return StartDecision::Wait;
+  return negotiated >= 1 ? StartDecision::Go : StartDecision::Wait;
+}
+
+bool RateLimit::allow(int64_t now, uint64_t* held_back) {
+  if (last_ != kNoTime && now >= last_ && now - last_ < interval_) {
+    ++suppressed_;
+    return false;
+  }
+  if (held_back) *held_back = suppressed_;
+  last_ = now;
+  suppressed_ = 0;
+  return true;
+}
+
+}  // namespace stitch::sync

@@ -1,0 +1,64 @@
+// Start-up and dropout policy of stitchsync, without GStreamer: when the first bundle may go
+// out, and when a camera has dropped out or is back. The element gathers each input's facts at
+// an output time (InputFacts), keeps one DropoutTrack per input (on the pad), and turns the
+// decisions into bus messages.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace stitch::sync {
+
+constexpr int64_t kNoTime = -1;
+
+// What the element knows of one input when it makes an output at running time `now`.
+struct InputFacts {
+  bool negotiated = false;  // the input has caps
+  bool has_frame = false;   // a frame covers (or precedes) this output
+  bool queued = false;      // a later frame already waits: a timestamp gap, not a stall
+  bool eos = false;         // the input ended
+  int64_t frame_end = kNoTime;  // running time at which its current frame ends
+};
+
+struct DropoutTrack {
+  bool dropped = false;
+  bool ever_had_frame = false;
+};
+
+// Updates `track` at output running time `now`; `started` is the running time of the first
+// bundle (when the other cameras started). Returns true when the camera dropped out or came
+// back, with `reason` saying why it is out (empty when it is back).
+//  * an input that ended: "it ended";
+//  * an input that had frames and has none now: "it stopped sending frames";
+//  * an input that never delivered: out once `timeout` has passed since `started`;
+//  * an input whose newest frame ended more than `timeout` before `now` with nothing queued
+//    after it (a stalled camera). A later frame already waiting is a gap in the timestamps
+//    (variable frame rate, a file with holes): never a dropout.
+bool update_dropout(DropoutTrack& track, const InputFacts& in, int64_t now, int64_t started, int64_t timeout,
+                    std::string& reason);
+
+enum class StartDecision {
+  Wait,     // an input is still negotiating: hold the first bundle
+  Go,       // bundle now (inputs still without caps are left out until they start)
+  TooFew,   // fewer than two inputs after the wait: an error, never a hang
+};
+
+// Before the first bundle: waits until every requested input has caps, or `timeout` has
+// passed since the first input was ready (`waited`).
+StartDecision may_start(const std::vector<InputFacts>& inputs, int64_t waited, int64_t timeout);
+
+// Rate limit for repeated messages (QoS): at most one per `interval` of `now` (any clock, ns).
+// When one is let through, `held_back` says how many were held back since the previous one.
+class RateLimit {
+ public:
+  explicit RateLimit(int64_t interval) : interval_(interval) {}
+  bool allow(int64_t now, uint64_t* held_back = nullptr);
+
+ private:
+  int64_t interval_;
+  int64_t last_ = kNoTime;
+  uint64_t suppressed_ = 0;
+};
+
+}  // namespace stitch::sync

@@ -1,0 +1,387 @@
+#include "stitch/sync/time_align.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <limits>
+
+namespace stitch::sync {
+
+namespace {
+
+constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+
+// x minus its moving average over `half` samples each side (NaN entries ignored and kept).
+std::vector<double> high_pass(const std::vector<double>& x, int half) {
+  std::vector<double> out(x.size(), kNan);
+  const int n = int(x.size());
+  double sum = 0;
+  int count = 0, lo = 0, hi = 0;  // window [lo, hi)
+  for (int i = 0; i < n; ++i) {
+    while (hi < n && hi <= i + half) {
+      if (!std::isnan(x[std::size_t(hi)])) {
+        sum += x[std::size_t(hi)];
+        ++count;
+      }
+      ++hi;
+    }
+    while (lo < i - half) {
+      if (!std::isnan(x[std::size_t(lo)])) {
+        sum -= x[std::size_t(lo)];
+        --count;
+      }
+      ++lo;
+    }
+    if (!std::isnan(x[std::size_t(i)]) && count > 0) out[std::size_t(i)] = x[std::size_t(i)] - sum / count;
+  }
+  return out;
+}
+
+}  // namespace
+
+std::vector<double> FrameSignal::update(const uint8_t* data, int width, int height, std::size_t pitch,
+                                       int bytes_per_pixel, int channel) {
+  std::vector<double> strips(kStrips, 0.0);
+  cur_.assign(std::size_t(kThumbW) * kThumbH, 0.f);
+  if (!data || width <= 0 || height <= 0) return strips;
+  // box average of each thumbnail cell, sampled on a sparse lattice (at most 4x4 per cell)
+  for (int ty = 0; ty < kThumbH; ++ty) {
+    const int y0 = ty * height / kThumbH, y1 = std::max(y0 + 1, (ty + 1) * height / kThumbH);
+    const int sy = std::max(1, (y1 - y0) / 4);
+    for (int tx = 0; tx < kThumbW; ++tx) {
+      const int x0 = tx * width / kThumbW, x1 = std::max(x0 + 1, (tx + 1) * width / kThumbW);
+      const int sx = std::max(1, (x1 - x0) / 4);
+      double sum = 0;
+      int n = 0;
+      for (int y = y0; y < y1 && y < height; y += sy) {
+        const uint8_t* row = data + std::size_t(y) * pitch + channel;
+        for (int x = x0; x < x1 && x < width; x += sx) {
+          sum += row[std::size_t(x) * std::size_t(bytes_per_pixel)];
+          ++n;
+        }
+      }
+      cur_[std::size_t(ty) * kThumbW + tx] = n ? float(sum / n) : 0.f;
+    }
+  }
+  if (prev_.size() == cur_.size()) {
+    constexpr int per_strip = kThumbW / kStrips;
+    for (int ty = 0; ty < kThumbH; ++ty)
+      for (int tx = 0; tx < kThumbW; ++tx) {
+        const std::size_t i = std::size_t(ty) * kThumbW + tx;
+        strips[std::size_t(tx / per_strip)] += std::fabs(cur_[i] - prev_[i]);
+      }
+    for (double& v : strips) v /= double(per_strip * kThumbH);
+  }
+  prev_.swap(cur_);
+  return strips;
+}
+
+TimeAligner::TimeAligner(int n_views, AlignSettings settings)
+    : settings_(settings), signals_(std::size_t(std::max(n_views, 1))), drift_(signals_.size()) {
+  keep_s_ = std::max(settings_.window_s, settings_.drift_window_s) + 2 * settings_.max_offset_s + 5.0;
+}
+
+void TimeAligner::reset() {
+  for (auto& s : signals_) s.clear();
+  for (auto& d : drift_) d.clear();
+  have_origin_ = false;
+}
+
+void TimeAligner::add_sample(int view, int64_t t_ns, const std::vector<double>& value) {
+  if (view < 0 || view >= views() || value.empty()) return;
+  for (double v : value)
+    if (!std::isfinite(v)) return;
+  auto& s = signals_[std::size_t(view)];
+  if (!s.empty() && s.back().v.size() != value.size()) s.clear();
+  const double t = double(t_ns) * 1e-9;
+  if (!s.empty() && t <= s.back().t) {
+    if (t < s.back().t - 1.0) s.clear();  // a jump back (a new segment): start over
+    else return;
+  }
+  s.push_back({t, value});
+  while (s.size() > 2 && s.front().t < t - keep_s_) s.pop_front();
+  if (view == 0 && !have_origin_) {
+    drift_origin_ = t;
+    have_origin_ = true;
+  }
+  if (view == 0) {
+    for (int v = 1; v < views(); ++v) measure_windows(v);
+  } else {
+    measure_windows(view);
+  }
+}
+
+// Offsets of the drift windows that both views have passed (by the largest offset searched),
+// measured once each while their signals are still kept.
+void TimeAligner::measure_windows(int v) {
+  if (!have_origin_ || signals_[0].empty() || signals_[std::size_t(v)].empty()) return;
+  const double W = settings_.drift_window_s, M = settings_.max_offset_s;
+  auto& meas = drift_[std::size_t(v)];
+  while (true) {
+    const double w0 = drift_origin_ + double(meas.size()) * W, w1 = w0 + W;
+    if (w1 + M > signals_[0].back().t || w1 + M > signals_[std::size_t(v)].back().t) break;
+    double off = 0, conf = 0;
+    if (!correlate(0, v, w0, w1, off, conf)) conf = 0;
+    meas.push_back({0.5 * (w0 + w1) - off, off, conf});
+  }
+}
+
+double TimeAligner::step_s() const {
+  if (settings_.step_s > 0) return settings_.step_s;
+  const auto& s = signals_[0];
+  if (s.size() < 3) return 1.0 / 30;
+  std::vector<double> d;
+  for (std::size_t i = 1; i < s.size(); ++i) d.push_back(s[i].t - s[i - 1].t);
+  std::nth_element(d.begin(), d.begin() + long(d.size() / 2), d.end());
+  return std::clamp(d[d.size() / 2], 1e-3, 0.5);
+}
+
+// View `view`'s signal at times from + k*step + shift, linearly interpolated; NaN where it has
+// no samples on both sides (or the gap between them is longer than 3 steps).
+std::vector<double> TimeAligner::resample(int view, int channel, double from_s, double to_s, double step) const {
+  const auto& s = signals_[std::size_t(view)];
+  const int n = std::max(0, int(std::floor((to_s - from_s) / step)));
+  std::vector<double> out(std::size_t(n), kNan);
+  std::size_t j = 0;
+  for (int k = 0; k < n; ++k) {
+    const double t = from_s + k * step;
+    while (j + 1 < s.size() && s[j + 1].t <= t) ++j;
+    if (j + 1 >= s.size() || s[j].t > t) continue;
+    const double dt = s[j + 1].t - s[j].t;
+    if (dt <= 0 || dt > 3 * step + 1e-9) continue;
+    const double a = (t - s[j].t) / dt;
+    out[std::size_t(k)] = s[j].v[std::size_t(channel)] * (1 - a) + s[j + 1].v[std::size_t(channel)] * a;
+  }
+  return out;
+}
+
+namespace {
+
+struct Peak {
+  double lag = 0;          // grid steps, sub-step
+  double confidence = 0;   // peak correlation times its distinctness
+  bool ok = false;
+};
+
+// Normalised cross-correlation of A with B shifted by L = -lag_max..lag_max (B[k + lag_max - L]
+// pairs with A[k]), its peak refined by a parabola, and how far it stands above the strongest
+// other local maximum outside its lobe.
+Peak ncc_peak(const std::vector<double>& A, const std::vector<double>& B, int lag_max, int min_pairs, int half) {
+  Peak p;
+  const int n = int(A.size());
+  std::vector<double> r(std::size_t(2 * lag_max + 1), kNan);
+  for (int L = -lag_max; L <= lag_max; ++L) {
+    double sab = 0, saa = 0, sbb = 0, sa = 0, sb = 0;
+    int m = 0;
+    for (int k = 0; k < n; ++k) {
+      const std::size_t j = std::size_t(k + lag_max - L);
+      if (j >= B.size()) continue;
+      const double x = A[std::size_t(k)], y = B[j];
+      if (std::isnan(x) || std::isnan(y)) continue;
+      sab += x * y;
+      saa += x * x;
+      sbb += y * y;
+      sa += x;
+      sb += y;
+      ++m;
+    }
+    if (m < min_pairs) continue;
+    const double cov = sab - sa * sb / m, va = saa - sa * sa / m, vb = sbb - sb * sb / m;
+    if (va <= 1e-12 || vb <= 1e-12) continue;
+    r[std::size_t(L + lag_max)] = cov / std::sqrt(va * vb);
+  }
+  int best = -1;
+  for (int i = 0; i < int(r.size()); ++i)
+    if (!std::isnan(r[std::size_t(i)]) && (best < 0 || r[std::size_t(i)] > r[std::size_t(best)])) best = i;
+  if (best < 0) return p;
+  const double peak = r[std::size_t(best)];
+  double sub = 0;
+  if (best > 0 && best + 1 < int(r.size()) && !std::isnan(r[std::size_t(best - 1)]) &&
+      !std::isnan(r[std::size_t(best + 1)])) {
+    const double ym = r[std::size_t(best - 1)], yp = r[std::size_t(best + 1)];
+    const double den = ym - 2 * peak + yp;
+    if (den < 0) sub = std::clamp(0.5 * (ym - yp) / den, -0.5, 0.5);
+  }
+  int lo = best, hi = best;
+  while (lo > 0 && !std::isnan(r[std::size_t(lo - 1)]) && r[std::size_t(lo - 1)] > 0.5 * peak && best - lo < 2 * half) --lo;
+  while (hi + 1 < int(r.size()) && !std::isnan(r[std::size_t(hi + 1)]) && r[std::size_t(hi + 1)] > 0.5 * peak &&
+         hi - best < 2 * half)
+    ++hi;
+  lo = std::min(lo, best - 2);
+  hi = std::max(hi, best + 2);
+  double second = 0;
+  for (int i = 0; i < int(r.size()); ++i) {
+    if (i >= lo && i <= hi) continue;
+    const double y = r[std::size_t(i)];
+    if (std::isnan(y)) continue;
+    const bool left_ok = i == 0 || std::isnan(r[std::size_t(i - 1)]) || y >= r[std::size_t(i - 1)];
+    const bool right_ok = i + 1 == int(r.size()) || std::isnan(r[std::size_t(i + 1)]) || y >= r[std::size_t(i + 1)];
+    if (left_ok && right_ok) second = std::max(second, y);
+  }
+  p.lag = best - lag_max + sub;
+  p.confidence = std::clamp(peak, 0.0, 1.0) * std::clamp((peak - second) / 0.2, 0.0, 1.0);
+  p.ok = true;
+  return p;
+}
+
+// A channel that barely changes (sensor noise of a static scene, < 0.05 grey levels rms after
+// the high-pass) has nothing to align on.
+bool has_signal(const std::vector<double>& x, int min_pairs) {
+  double ss = 0;
+  int n = 0;
+  for (double v : x)
+    if (!std::isnan(v)) ss += v * v, ++n;
+  return n >= min_pairs && ss / n >= 0.0025;
+}
+
+}  // namespace
+
+bool TimeAligner::correlate(int a, int b, double from_s, double to_s, double& offset_s, double& confidence) const {
+  offset_s = 0;
+  confidence = 0;
+  if (signals_[std::size_t(a)].empty() || signals_[std::size_t(b)].empty()) return false;
+  const double h = step_s();
+  const int lag_max = std::max(1, int(std::ceil(settings_.max_offset_s / h)));
+  const int half = std::max(2, int(std::lround(0.5 / h)));  // high-pass: half a second each side
+  const int min_pairs = int(settings_.min_signal_s / h);
+  const int ca = int(signals_[std::size_t(a)].back().v.size()), cb = int(signals_[std::size_t(b)].back().v.size());
+  std::vector<std::vector<double>> As, Bs;
+  for (int c = 0; c < ca; ++c) As.push_back(high_pass(resample(a, c, from_s, to_s, h), half));
+  // b at times t - offset for offset = L*h: B[k + lag_max - L] = b(from + k h - L h)
+  for (int c = 0; c < cb; ++c)
+    Bs.push_back(high_pass(resample(b, c, from_s - lag_max * h, to_s + lag_max * h + h, h), half));
+  // Every pair of channels (strips): those in the overlap see the same events at once; the best
+  // pair decides, and pairs that agree with it within a step back it up.
+  std::vector<Peak> peaks;
+  for (int i = 0; i < ca; ++i) {
+    if (!has_signal(As[std::size_t(i)], min_pairs)) continue;
+    for (int j = 0; j < cb; ++j) {
+      if (!has_signal(Bs[std::size_t(j)], min_pairs)) continue;
+      const Peak p = ncc_peak(As[std::size_t(i)], Bs[std::size_t(j)], lag_max, min_pairs, half);
+      if (p.ok) peaks.push_back(p);
+    }
+  }
+  if (peaks.empty()) return false;
+  const Peak* best = &peaks[0];
+  for (const Peak& p : peaks)
+    if (p.confidence > best->confidence) best = &p;
+  double sw = 0, sl = 0;
+  for (const Peak& p : peaks)
+    if (std::fabs(p.lag - best->lag) <= 1.0 && p.confidence >= 0.5 * best->confidence) {
+      sw += p.confidence;
+      sl += p.confidence * p.lag;
+    }
+  offset_s = (sw > 0 ? sl / sw : best->lag) * h;
+  // many pairs: the best of many noise peaks is higher than one; ask more of a single pair
+  const double noise_floor = peaks.size() > 1 ? 0.1 : 0.0;
+  confidence = std::clamp((best->confidence - noise_floor) / (1.0 - noise_floor), 0.0, 1.0);
+  return true;
+}
+
+std::vector<Estimate> TimeAligner::estimate() {
+  std::vector<Estimate> out(signals_.size());
+  if (signals_[0].size() < 2) return out;
+  const double t_end = signals_[0].back().t;
+  const double t_from = std::max(signals_[0].front().t, t_end - settings_.window_s);
+  out[0].valid = true;
+  out[0].confidence = 1;
+  for (int v = 1; v < views(); ++v) {
+    Estimate& e = out[std::size_t(v)];
+    if (signals_[std::size_t(v)].size() < 2) continue;
+    const auto& meas = drift_[std::size_t(v)];
+    const double W = settings_.drift_window_s;
+    double off = 0, conf = 0;
+    const bool ok = correlate(0, v, t_from, t_end, off, conf);
+    e.confidence = ok ? conf : 0;
+    e.valid = ok && conf >= settings_.min_confidence;
+    if (!e.valid) continue;
+    e.offset_ns = int64_t(std::llround(off * 1e9));
+    e.base_offset_ns = e.offset_ns;
+    // drift: a weighted line through the windows' offsets, once they span long enough
+    double sw = 0, st = 0, so = 0, stt = 0, sto = 0, t_min = 1e300, t_max = -1e300;
+    int good = 0;
+    for (const Measurement& m : meas) {
+      if (m.confidence < settings_.min_confidence) continue;
+      const double w = m.confidence;
+      sw += w;
+      st += w * m.t_b;
+      so += w * m.offset;
+      stt += w * m.t_b * m.t_b;
+      sto += w * m.t_b * m.offset;
+      t_min = std::min(t_min, m.t_b);
+      t_max = std::max(t_max, m.t_b);
+      ++good;
+    }
+    if (good >= 3 && t_max - t_min >= settings_.min_drift_span_s - W) {
+      const double den = sw * stt - st * st;
+      if (den > 0) {
+        const double slope = (sw * sto - st * so) / den;
+        const double icpt = (so - slope * st) / sw;
+        // only a drift that moved the offset by more than half a step over the span counts
+        if (std::fabs(slope) * (t_max - t_min) > 0.5 * step_s()) {
+          e.rate = 1.0 + slope;
+          const double t_b_now = signals_[std::size_t(v)].back().t;
+          e.offset_ns = int64_t(std::llround((icpt + slope * t_b_now) * 1e9));
+          e.base_offset_ns = int64_t(std::llround(icpt * 1e9));
+        }
+      }
+    }
+  }
+  return out;
+}
+
+}  // namespace stitch::sync
+
+namespace stitch::sync {
+
+OffsetTracker::OffsetTracker(int n_views, AlignSettings settings)
+    : aligner_(n_views, settings), settings_(settings), signals_(std::size_t(std::max(n_views, 1))),
+      current_(signals_.size()), announced_(signals_.size()), warned_(signals_.size(), false) {}
+
+void OffsetTracker::reset() {
+  aligner_.reset();
+  for (auto& s : signals_) s.reset();
+  last_estimate_ = first_t_ = newest_t_ = -1;
+}
+
+void OffsetTracker::add_frame(int view, int64_t t_ns, const uint8_t* data, int width, int height, std::size_t pitch,
+                              int bytes_per_pixel, int channel) {
+  if (view < 0 || view >= views()) return;
+  aligner_.add_sample(view, t_ns, signals_[std::size_t(view)].update(data, width, height, pitch, bytes_per_pixel, channel));
+  if (view == 0) {
+    if (first_t_ < 0) first_t_ = t_ns;
+    newest_t_ = std::max(newest_t_, t_ns);
+  }
+}
+
+bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& no_signal) {
+  no_signal.clear();
+  if (newest_t_ < 0 || (last_estimate_ >= 0 && newest_t_ - last_estimate_ < 1000000000)) return false;
+  last_estimate_ = newest_t_;
+  current_ = aligner_.estimate();
+  bool changed = false;
+  const double window_ns = settings_.window_s * 1e9;
+  for (std::size_t v = 1; v < current_.size(); ++v) {
+    const Estimate &e = current_[v], &a = announced_[v];
+    if (e.valid != a.valid || std::llabs(e.offset_ns - a.offset_ns) > 2000000 ||
+        std::fabs(e.confidence - a.confidence) > 0.1 || std::fabs(e.rate - a.rate) > 1e-4)
+      changed = true;
+    if (!e.valid && !warned_[v] && double(newest_t_ - first_t_) >= window_ns) {
+      warned_[v] = true;
+      no_signal.push_back(int(v));
+    }
+    if (e.valid) warned_[v] = false;
+  }
+  if (!announced_[0].valid && current_[0].valid) changed = true;  // the first estimate
+  if (changed) announced_ = current_;
+  estimates = current_;
+  return changed;
+}
+
+int64_t OffsetTracker::offset_at(int view, int64_t t_ns) const {
+  if (view <= 0 || view >= int(current_.size()) || !current_[std::size_t(view)].valid) return 0;
+  const Estimate& e = current_[std::size_t(view)];
+  return e.base_offset_ns + int64_t(std::llround((e.rate - 1.0) * double(t_ns)));
+}
+
+}  // namespace stitch::sync
