@@ -711,8 +711,22 @@ HeldSet held_points(const std::vector<PairData>& pairs) {
 // The homography model from a rough planar rig with homographies: each camera, outward from the
 // reference along the largest overlaps, corrected by a homography (or the paper's skew-scale)
 // fitted to feature matches in the widened overlaps with its already-placed neighbours.
+// The features of a whole view that fall inside a mask (what detecting inside it would find,
+// short of the detector's cap).
+Features masked(const Features& f, const cv::Mat& mask) {
+  Features out;
+  for (std::size_t k = 0; k < f.keypoints.size(); ++k) {
+    const int x = int(std::lround(f.keypoints[k].pt.x)), y = int(std::lround(f.keypoints[k].pt.y));
+    if (x < 0 || y < 0 || x >= mask.cols || y >= mask.rows || !mask.at<uchar>(y, x)) continue;
+    out.keypoints.push_back(f.keypoints[k]);
+    out.descriptors.push_back(f.descriptors.row(int(k)));
+  }
+  return out;
+}
+
+// `feats`: the views' features when already detected (reused inside the overlaps).
 void refine_homography_chain(CalibrationResult& res, const std::vector<std::vector<ImageView>>& sets,
-                             const CalibrationOptions& o, const HeldSet& held) {
+                             const CalibrationOptions& o, const HeldSet& held, const FeatureSets* feats = nullptr) {
   Rig& rig = res.rig;
   const int n = int(rig.cameras.size());
   const std::vector<OverlapEdge> edges = overlap_edges(rig);
@@ -725,8 +739,9 @@ void refine_homography_chain(CalibrationResult& res, const std::vector<std::vect
 
   // gray[set][camera]: matches are pooled over the sets (several instants of a static rig).
   std::vector<std::vector<cv::Mat>> gray(sets.size(), std::vector<cv::Mat>(n));
-  for (std::size_t t = 0; t < sets.size(); ++t)
-    for (int i = 0; i < n; ++i) gray[t][i] = to_gray(sets[t][i]);
+  if (!feats)
+    for (std::size_t t = 0; t < sets.size(); ++t)
+      for (int i = 0; i < n; ++i) gray[t][i] = to_gray(sets[t][i]);
   std::vector<bool> placed(n, false);
   placed[rig.reference] = true;
   for (const auto& [cam, parent] : max_spanning_order(n, rig.reference, edges)) {
@@ -746,9 +761,9 @@ void refine_homography_chain(CalibrationResult& res, const std::vector<std::vect
       box.width += 2 * m;
       box.height += 2 * m;
       const cv::Mat mask_c = camera_mask(rig.cameras[cam], box), mask_n = camera_mask(rig.cameras[nb], box);
-      for (const auto& g : gray) {
-        Features fc = detect(g[cam], mask_c, o);
-        Features fn = detect(g[nb], mask_n, o);
+      for (std::size_t t = 0; t < gray.size(); ++t) {
+        const Features fc = feats ? masked((*feats)[t][cam], mask_c) : detect(gray[t][cam], mask_c, o);
+        const Features fn = feats ? masked((*feats)[t][nb], mask_n) : detect(gray[t][nb], mask_n, o);
         for (const auto& mt : match(fc, fn, o.features)) {
           const cv::Point2f& pc = fc.keypoints[mt.queryIdx].pt;
           const cv::Point2f& pn = fn.keypoints[mt.trainIdx].pt;
@@ -985,7 +1000,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   bool chain_done = false;
   if (model != CameraModel::Rotation) {
     chain.rig = start;
-    refine_homography_chain(chain, sets, o, held_points(pairs));
+    refine_homography_chain(chain, sets, o, held_points(pairs), &feats);
     chain_done = true;
     if (chain.refined_cameras > 0) res.homography_heldout_px = residuals(chain.rig, pairs, false, true).rms_px;
   }
