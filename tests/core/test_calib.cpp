@@ -166,7 +166,9 @@ TEST_F(CalibOnRealPhoto, EveryFeatureTypeRefinesAndSiftIsMostAccurate) {
     CalibrationOptions o;
     o.features = f;
     CalibrationResult r = calibrate_from_rig(rough, frames, o);
-    EXPECT_EQ(r.refined_cameras, 1) << feature_name(f);
+    // ORB's noisy keypoints leave the two models level on the held-out matches: the rotation
+    // model (which refines both cameras) may win.
+    EXPECT_GE(r.refined_cameras, 1) << feature_name(f);
     err[f] = mean_corner_error(r.rig, p.truth);
     std::printf("feature %-5s corner error %.3f px (rough %.1f px)\n", feature_name(f), err[f], rough_err);
     EXPECT_LT(err[f], rough_err / 2) << feature_name(f);

@@ -36,6 +36,7 @@ struct Problem {
   Layout layout;
   std::vector<std::array<int, 2>> cams;         // per match
   std::vector<Eigen::Vector2d> pa, pb;
+  std::vector<double> w;
 
   Model model(const Eigen::VectorXd& x) const {
     Model m;
@@ -64,8 +65,8 @@ struct Problem {
       const int a = cams[k][0], b = cams[k][1];
       const Eigen::Vector3d ra = m.R[a] * (m.K[a].inverse() * Eigen::Vector3d(pa[k].x(), pa[k].y(), 1));
       const Eigen::Vector3d rb = m.R[b] * (m.K[b].inverse() * Eigen::Vector3d(pb[k].x(), pb[k].y(), 1));
-      f.segment<2>(4 * k) = project(m.K[b], m.R[b], ra) - pb[k];
-      f.segment<2>(4 * k + 2) = project(m.K[a], m.R[a], rb) - pa[k];
+      f.segment<2>(4 * k) = w[k] * (project(m.K[b], m.R[b], ra) - pb[k]);
+      f.segment<2>(4 * k + 2) = w[k] * (project(m.K[a], m.R[a], rb) - pa[k]);
     }
   }
 };
@@ -119,6 +120,7 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
       p.cams.push_back({m.a, m.b});
       p.pa.push_back(m.pa[k]);
       p.pb.push_back(m.pb[k]);
+      p.w.push_back(k < m.weight.size() ? m.weight[k] : 1.0);
     }
   if (p.pa.empty()) return rep;
   Eigen::VectorXd x = Eigen::VectorXd::Zero(p.layout.size());
@@ -139,11 +141,13 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     kept.cams.clear();
     kept.pa.clear();
     kept.pb.clear();
+    kept.w.clear();
     for (std::size_t k = 0; k < p.pa.size(); ++k) {
-      if (f.segment<4>(4 * k).norm() > o.outlier_px * std::sqrt(2.0)) continue;
+      if (f.segment<4>(4 * k).norm() > o.outlier_px * std::sqrt(2.0) * p.w[k]) continue;
       kept.cams.push_back(p.cams[k]);
       kept.pa.push_back(p.pa[k]);
       kept.pb.push_back(p.pb[k]);
+      kept.w.push_back(p.w[k]);
     }
     rep.dropped = int(p.pa.size() - kept.pa.size());
     if (kept.pa.size() < 8) break;

@@ -13,6 +13,7 @@ namespace stitch {
 struct PairMatches {
   int a = -1, b = -1;
   std::vector<Eigen::Vector2d> pa, pb;  // the same scene point in camera a and camera b (pixels)
+  std::vector<double> weight;           // per match (1 / its localisation uncertainty); empty: all 1
 };
 
 struct BundleAdjustOptions {

@@ -3,6 +3,7 @@
 // Runs rarely (start-up, on request), on the CPU with OpenCV's features2d.
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,15 @@ enum class Refinement {
 
 enum class FeatureType { Sift, Orb, Akaze };
 
+// How the cameras relate. Rotation: every camera turns about one centre (K and R per camera,
+// refined jointly by bundle adjustment; exact for any rig whose cameras share a centre, and
+// it extrapolates correctly beyond the overlaps). Homography: a free 8-parameter homography
+// per camera, chained from the reference (a planar scene seen by translating cameras: a
+// document, a wall, a top-down view). Auto: both are fitted and the one that explains held-out
+// matches better wins (rotation unless the homography is clearly better); non-planar
+// projections always use the rotation model.
+enum class CameraModel { Auto, Rotation, Homography };
+
 struct CalibrationOptions {
   Refinement refinement = Refinement::Homography;
   FeatureType features = FeatureType::Sift;
@@ -27,26 +37,52 @@ struct CalibrationOptions {
   double ransac_threshold_px = 3.0;
   int max_features = 4000;         // per image and overlap
   double feature_megapixels = 1.0; // larger frames are downscaled for detection
-  // Refine every camera's rotation and focal length jointly on all pairwise matches (bundle
-  // adjustment) instead of chaining pairwise corrections; always on for non-planar rigs.
+  // Planar canvases: which camera model (see CameraModel). Non-planar rigs: always rotation.
+  CameraModel model = CameraModel::Auto;
+  // Older switch, kept for compatibility: true forces CameraModel::Rotation.
   bool bundle_adjust = false;
-  bool wave_correct = true;        // non-planar rigs: level the horizon after the adjustment
+  bool wave_correct = true;        // rotation model: level the horizon after the adjustment
+  // The canvas projection. calibrate_from_rig: unset keeps the rough rig's; set, it replaces
+  // it (homographies and canvas of the rough rig are then dropped). calibrate_from_images:
+  // unset chooses from the estimated field of view (plane while the views fit, cylindrical
+  // for wide rigs and 360-degree rings, spherical for rigs that also look up or down).
+  std::optional<Projection> projection;
+  // A held-out match is kept out of both fits and judges them (every holdout_every-th).
+  int holdout_every = 5;
 };
+
+const char* camera_model_name(CameraModel m);
 
 struct PairReport {
   int camera = -1, neighbour = -1;
   int matches = 0, inliers = 0;
-  double rms_px = 0;      // residual of the inliers after the fit, canvas pixels
+  double rms_px = 0;      // residual of the chosen model, camera pixels (held-out matches when
+                          // there are enough, else the fitted ones); 0 when not measured
   bool accepted = false;
   std::string note;
+};
+
+struct CameraReport {
+  int camera = -1;
+  int neighbours = 0;     // cameras it has accepted matches with
+  int matches = 0;        // accepted matches with them (fitted + held out)
+  double rms_px = -1;     // the chosen model's residual over its pairs, camera pixels; -1: none
 };
 
 struct CalibrationResult {
   Rig rig;                         // calibrated: homographies (planar) or K, R + canvas
   std::vector<PairReport> pairs;
+  std::vector<CameraReport> cameras;  // one per camera
   std::vector<std::string> warnings;
   int refined_cameras = 0;         // cameras whose homography the features corrected
   double ba_rms_before_px = -1, ba_rms_after_px = -1;  // bundle adjustment, when it ran
+  // The model used and the evidence: the one-way rms transfer error (camera pixels) of each
+  // model on the held-out matches; -1 when that model was not fitted or nothing was held out.
+  CameraModel model = CameraModel::Homography;
+  double rotation_heldout_px = -1, homography_heldout_px = -1;
+  int heldout_matches = 0;
+  bool projection_chosen = false;  // the projection was chosen from the field of view
+  double hfov_deg = 0, vfov_deg = 0;  // rotation model: field of view the rig covers
 };
 
 // `rough` needs camera parameters (a cylindrical or spherical rig: K and R, refined by bundle
@@ -61,8 +97,12 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageVi
 CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<std::vector<ImageView>>& sets,
                                      const CalibrationOptions& options);
 
-// No rig: pairwise homographies from features, chained to `reference` (-1: middle camera)
-// along the strongest matches. Throws RigError when a camera matches no other.
+// No rig: features matched between every pair of cameras (the pad order does not matter),
+// focal lengths from the pairwise homographies, rotations along the maximum spanning tree of
+// the match graph, bundle adjustment over every pair (a 360-degree ring closes on itself),
+// wave correction; the homography chain is fitted too and the held-out matches choose (see
+// CameraModel). `reference` -1: the rig's centre (the camera of median heading; the
+// match-graph centre for the homography model). Throws RigError when a camera matches no other.
 CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, int reference,
                                         const CalibrationOptions& options);
 
@@ -72,6 +112,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
 
 struct AlignmentReport {
   double median_px = -1;   // over all pairs' matches; -1 when nothing could be matched
+  double p90_px = -1;      // 90th percentile of the same distances
   int matches = 0;
   std::vector<double> pair_median_px;  // per overlapping pair (i, i+k) in discovery order
 };
