@@ -151,11 +151,12 @@ static void update_layout(GstStitchFlowWarp* self, GstStitchRigMeta* meta, stitc
   if (rig.cameras.size() > STITCH_MAX_VIEWS) throw std::invalid_argument("too many cameras");
   const stitch::OutputGeometry canvas = stitch::canvas_geometry(rig);
   const std::vector<stitch::ViewPlacement> views = stitch::place_views(rig, canvas);
-  /* refused before anything is allocated: 2 pooled bundles of warped views, the warper's maps */
+  /* refused before anything is allocated; per canvas pixel of a view: 2 pooled bundles of warped
+   * views (8 bytes), the warper's maps and flow buffers (conservatively 40 more) */
   guint64 pixels = 0;
   for (const auto& v : views) pixels += guint64(std::max(v.roi.width, 0)) * guint64(std::max(v.roi.height, 0));
   std::string too_big;
-  if (!stitch_check_frame_size("the canvas", canvas.width, canvas.height, pixels * 24, stitch_memory_budget(0), too_big))
+  if (!stitch_check_frame_size("the canvas", canvas.width, canvas.height, pixels * 48, stitch_memory_budget(0), too_big))
     throw std::runtime_error(too_big + ": leave stitchflowwarp out (stitchblend output-width/output-height then warps "
                              "straight into a smaller panorama) or calibrate a smaller canvas");
   if (new_warper) {

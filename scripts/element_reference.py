@@ -98,6 +98,20 @@ def property_rows(element):
                                          if bin(k).count("1") == 1) + " (combined with +)"
         elif hasattr(p, "minimum") and hasattr(p, "maximum"):
             kind = "%s %s to %s" % (kind, value_text(p.minimum), value_text(p.maximum))
+        # When it may change, as gst-inspect-1.0 says (flags)
+        when = []
+        if p.flags & GObject.ParamFlags.CONSTRUCT_ONLY:
+            when.append("construct-only")
+        elif p.flags & Gst.PARAM_MUTABLE_PLAYING:
+            when.append("changeable while playing")
+        elif p.flags & Gst.PARAM_MUTABLE_PAUSED:
+            when.append("changeable up to PAUSED")
+        elif p.flags & Gst.PARAM_MUTABLE_READY:
+            when.append("changeable up to READY")
+        if p.flags & Gst.PARAM_CONTROLLABLE:
+            when.append("controllable")
+        if when:
+            kind += " (%s)" % ", ".join(when)
         # What a new element holds, as gst-inspect-1.0 shows it (not the spec's default: a
         # GstFraction spec has none that Python can read, and an element may start elsewhere).
         default = e.get_property(p.name)
@@ -181,7 +195,9 @@ def render():
              "what `gst-inspect-1.0` shows of it (a test fails when this file is stale; another runs every "
              "launch line below, shortened). Run the launch lines from the repository root with "
              "`export GST_PLUGIN_PATH=$PWD/build/gst`. Pads list their system-memory caps; in a build with "
-             "CUDA every pad also takes the same in `video/x-raw(memory:CUDAMemory)`.\n",
+             "CUDA every pad also takes the same in `video/x-raw(memory:CUDAMemory)`. A property's type says "
+             "when it may change (no mention: before the element starts) and whether a GstControlSource may "
+             "drive it; its default is what a new element holds, as gst-inspect-1.0 shows it.\n",
              "\n".join("- [`%s`](#%s)" % (e, e) for e in ELEMENTS) + "\n"]
     for e in ELEMENTS:
         text, _ = doc_block(e)

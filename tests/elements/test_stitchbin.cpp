@@ -211,3 +211,50 @@ TEST(StitchBin, NewlyProxiedPropertiesReachTheChildren) {
   for (GstElement* e : {sync, calib, blend, bin}) gst_object_unref(e);
   gst_object_unref(pipe);
 }
+
+// Issue 18: properties read on every frame may change while playing (the numbers may follow a
+// GstControlSource on the element), the backend only before the memory is negotiated; each
+// element's klass says what it does.
+TEST(StitchElements, PerFramePropertiesAndKlassSayWhatTheElementsDo) {
+  gsttest::init();
+  struct Expect {
+    const char* element;
+    const char* property;
+    GParamFlags flags;
+  };
+  const GParamFlags playing = GParamFlags(GST_PARAM_MUTABLE_PLAYING);
+  const GParamFlags controllable = GParamFlags(GST_PARAM_MUTABLE_PLAYING | GST_PARAM_CONTROLLABLE);
+  const GParamFlags ready = GParamFlags(GST_PARAM_MUTABLE_READY);
+  for (const Expect& e : std::vector<Expect>{{"stitchcolor", "method", playing},
+                                              {"stitchcolor", "smoothing", controllable},
+                                              {"stitchcolor", "lambda", controllable},
+                                              {"stitchcolor", "backend", ready},
+                                              {"stitchflowwarp", "flow", playing},
+                                              {"stitchflowwarp", "temporal-smoothing", controllable},
+                                              {"stitchflowwarp", "backend", ready},
+                                              {"stitchblend", "debug", controllable},
+                                              {"stitchblend", "output-width", playing},
+                                              {"stitchblend", "mode", playing},
+                                              {"stitchblend", "backend", ready}}) {
+    GstElementFactory* f = gst_element_factory_find(e.element);
+    ASSERT_NE(f, nullptr) << e.element;
+    GstPluginFeature* loaded = gst_plugin_feature_load(GST_PLUGIN_FEATURE(f));
+    GObjectClass* klass = G_OBJECT_CLASS(g_type_class_ref(gst_element_factory_get_element_type(GST_ELEMENT_FACTORY(loaded))));
+    GParamSpec* spec = g_object_class_find_property(klass, e.property);
+    ASSERT_NE(spec, nullptr) << e.element << "::" << e.property;
+    EXPECT_EQ(spec->flags & e.flags, e.flags) << e.element << "::" << e.property;
+    g_type_class_unref(klass);
+    gst_object_unref(loaded);
+    gst_object_unref(f);
+  }
+  const std::vector<std::pair<const char*, const char*>> klasses = {
+      {"stitchsync", "Video/Combiner"},          {"stitchcalib", "Filter/Analyzer/Video"},
+      {"stitchcolor", "Filter/Effect/Video"},    {"stitchflowwarp", "Filter/Converter/Video"},
+      {"stitchblend", "Filter/Converter/Video"}, {"stitchbin", "Video/Combiner"}};
+  for (const auto& [element, klass] : klasses) {
+    GstElementFactory* f = gst_element_factory_find(element);
+    ASSERT_NE(f, nullptr) << element;
+    EXPECT_STREQ(gst_element_factory_get_metadata(f, GST_ELEMENT_METADATA_KLASS), klass) << element;
+    gst_object_unref(f);
+  }
+}

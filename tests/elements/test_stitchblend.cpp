@@ -33,6 +33,12 @@ Scene scene() {
   return s;
 }
 
+// The calibrated chain: stitchsync ! stitchcalib (the exact calibration) ! `stages` ! appsink.
+std::string chain(const Scene& s, const std::string& stages, const std::string& sync = "stitchsync name=s") {
+  return sync + " ! stitchcalib name=calib load-file=" + s.calib + " ! " + stages + " ! appsink name=out sync=false" +
+         gsttest::appsrc_inputs(2);
+}
+
 }  // namespace
 
 TEST(StitchBlend, PanoramaReproducesTheScene) {
@@ -98,9 +104,7 @@ static int refuse_oversized_output() {
   Scene s = scene();
   gsttest::RunResult r;
   const auto t0 = std::chrono::steady_clock::now();
-  gsttest::run_pipeline("stitchsync name=s backend=cpu ! stitchcalib load-file=" + s.calib +
-                            " ! stitchblend backend=cpu output-height=32766 ! appsink name=out sync=false" +
-                            gsttest::appsrc_inputs(2),
+  gsttest::run_pipeline(chain(s, "stitchblend backend=cpu output-height=32766", "stitchsync name=s backend=cpu"),
                         s.views, 2, r);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   rusage use{};
@@ -121,8 +125,7 @@ TEST(StitchBlendDeathTest, OversizedOutputIsRefusedUpFront) {
 TEST(StitchBlend, BeyondTheMemoryLimitIsRefused) {
   Scene s = scene();
   gsttest::RunResult r;
-  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
-                            " ! stitchblend memory-limit=8 ! appsink name=out sync=false" + gsttest::appsrc_inputs(2),
+  gsttest::run_pipeline(chain(s, "stitchblend memory-limit=8"),
                         s.views, 2, r);
   EXPECT_TRUE(r.error_contains("beyond the budget of 8 MiB")) << (r.errors.empty() ? "no error" : r.errors[0]);
   EXPECT_TRUE(r.frames.empty());
@@ -133,9 +136,7 @@ TEST(StitchBlend, BeyondTheMemoryLimitIsRefused) {
 TEST(StitchBlend, DownstreamFixedSizeGetsThePanoramaFitted) {
   Scene s = scene();
   gsttest::RunResult r;
-  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
-                            " ! stitchblend ! video/x-raw,width=640,height=360 ! appsink name=out sync=false" +
-                            gsttest::appsrc_inputs(2),
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=640,height=360"),
                         s.views, 2, r);
   ASSERT_TRUE(r.errors.empty()) << r.errors[0];
   ASSERT_EQ(r.frames.size(), 2u);
@@ -154,9 +155,7 @@ TEST(StitchBlend, DownstreamFixedSizeGetsThePanoramaFitted) {
   EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, 640, 280)), expected(cv::Rect(0, 4, 640, 280))), 22.0);
   // the same as asking for the size
   gsttest::RunResult asked;
-  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
-                            " ! stitchblend output-width=640 output-height=360 ! appsink name=out sync=false" +
-                            gsttest::appsrc_inputs(2),
+  gsttest::run_pipeline(chain(s, "stitchblend output-width=640 output-height=360"),
                         s.views, 1, asked);
   ASSERT_EQ(asked.frames.size(), 1u);
   EXPECT_EQ(cv::norm(asked.frames[0], pano, cv::NORM_INF), 0.0);
@@ -166,9 +165,7 @@ TEST(StitchBlend, DownstreamFixedSizeGetsThePanoramaFitted) {
 TEST(StitchBlend, DownstreamSizeItCannotMakeIsAClearError) {
   Scene s = scene();
   gsttest::RunResult r;
-  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
-                            " ! stitchblend ! video/x-raw,width=641,height=361 ! appsink name=out sync=false" +
-                            gsttest::appsrc_inputs(2),
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=641,height=361"),
                         s.views, 2, r);
   EXPECT_TRUE(r.error_contains("Downstream takes neither the 1040x480 panorama"))
       << (r.errors.empty() ? "no error" : r.errors[0]);
@@ -252,8 +249,7 @@ TEST(StitchBlend, FrameMetasPassThroughFlowWarpAndBlend) {
     meta_counts = MetaCounts();
     gsttest::RunResult r;
     gsttest::run_pipeline(
-        "stitchsync name=s ! stitchcalib name=calib load-file=" + s.calib + " ! " + middle +
-            "stitchblend ! appsink name=out sync=false" + gsttest::appsrc_inputs(2),
+        chain(s, middle + "stitchblend"),
         s.views, 3, r, nullptr, [](GstElement* pipe, int frame) {
           if (frame != 0) return;
           GstElement* calib = gst_bin_get_by_name(GST_BIN(pipe), "calib");

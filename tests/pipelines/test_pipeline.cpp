@@ -527,7 +527,7 @@ TEST(Ring, SixCamerasAroundStitchOnACylinder) {
   std::filesystem::remove(calib_file);
   const std::string desc = "stitchsync name=s ! stitchcalib calibration-frames=1 projection=cylindrical rig-file=\"" +
                            dir + "/rig_rough.json\" save-file=\"" + calib_file +
-                           "\" ! stitchflowwarp ! stitchcolor ! stitchblend name=blend ! fakesink sync=false" +
+                           "\" ! stitchcolor ! stitchflowwarp ! stitchblend name=blend ! fakesink sync=false" +
                            inputs_avi(dir, 6);
   const PipelineRun run = run_to_eos(desc, kPipelineTimeoutS);
   ASSERT_RAN_TO_EOS(run);
