@@ -958,6 +958,13 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     if (!have_all) rig_compute_rough_homographies(start);
     else rig_layout_canvas(start);
   }
+  if (model == CameraModel::Homography) {
+    // Nothing to compare: the chain alone, on features detected inside the overlaps.
+    res.rig = start;
+    refine_homography_chain(res, sets, o, {});
+    res.model = CameraModel::Homography;
+    return res;
+  }
   // Matches of every pair that the start says may overlap, checked against it.
   const FeatureSets feats = detect_all(sets, n, o);
   std::vector<PairData> pairs;
@@ -1030,7 +1037,8 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       res.rig = rot.rig;
       res.ba_rms_before_px = rot.ba.rms_before_px;
       res.ba_rms_after_px = rot.ba.rms_after_px;
-      for (int i = 0; i < n; ++i) res.refined_cameras += matched[i];
+      // A planar canvas is the reference camera's image plane: its own mapping never changes.
+      for (int i = 0; i < n; ++i) res.refined_cameras += matched[i] && !(rough.planar() && i == rough.reference);
     } else {
       res.rig = rough;
       res.ba_rms_before_px = rot.ba.rms_before_px;
@@ -1237,7 +1245,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     res.projection_chosen = false;
     rig_layout_canvas(res.rig);
   }
-  res.refined_cameras = n;
+  res.refined_cameras = res.rig.planar() ? n - 1 : n;  // the plane is the reference's image plane
   fill_reports(res, pairs, use_rotation);
   return res;
 }
