@@ -1044,10 +1044,23 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       res.ba_rms_before_px = rot.ba.rms_before_px;
       res.ba_rms_after_px = rot.ba.rms_after_px;
     }
-    for (int i = 0; i < n; ++i)
-      if (!matched[i])
+    for (int i = 0; i < n; ++i) {
+      if (matched[i]) continue;
+      // Matches that the rough rig puts elsewhere: most likely the cameras are in another order.
+      const PairData* elsewhere = nullptr;
+      for (const auto& p : pairs)
+        if ((p.a == i || p.b == i) && p.inliers >= o.min_inliers && (!elsewhere || p.inliers > elsewhere->inliers))
+          elsewhere = &p;
+      if (elsewhere)
+        res.warnings.push_back("camera " + std::to_string(i) + ": its view matches camera " +
+                               std::to_string(elsewhere->a == i ? elsewhere->b : elsewhere->a) + " (" +
+                               std::to_string(elsewhere->inliers) +
+                               " matches) but not where the rough rig puts them (are the cameras in the rig's "
+                               "order?); keeping its rough rotation and focal length");
+      else
         res.warnings.push_back("camera " + std::to_string(i) + ": no feature matches with any other camera; "
                                "keeping its rough rotation and focal length");
+    }
     finish_rotation_rig(res.rig, o, true);
     const std::vector<std::string> warnings = res.warnings;
     fill_reports(res, pairs, true);
