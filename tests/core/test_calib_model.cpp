@@ -327,3 +327,18 @@ TEST(CalibBadInput, CameraThatOverlapsNobodyKeepsItsRoughPoseWithAWarning) {
   EXPECT_NEAR(r.rig.cameras[2].fx, rough.cameras[2].fx, 1e-9);
   EXPECT_TRUE(r.rig.calibrated());
 }
+
+TEST(CalibBadInput, CamerasInAnotherOrderThanTheRigKeepTheRoughRigAndSaySo) {
+  RotatingScene s = rotating_scene(3, 40, 480, 360);
+  std::swap(s.frames[0], s.frames[1]);  // pads 0 and 1 swapped against the rig file
+  const Rig rough = rough_of(s.truth);
+  auto views = views_of(s.frames);
+  const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+  bool order = false;
+  for (const auto& w : r.warnings) {
+    std::printf("warning: %s\n", w.c_str());
+    order |= w.find("order") != std::string::npos && w.find("camera ") != std::string::npos;
+  }
+  EXPECT_TRUE(order);
+  EXPECT_TRUE(r.rig.calibrated());
+}

@@ -958,6 +958,13 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     if (!have_all) rig_compute_rough_homographies(start);
     else rig_layout_canvas(start);
   }
+  if (model == CameraModel::Homography) {
+    // Nothing to compare: the chain alone, on features detected inside the overlaps.
+    res.rig = start;
+    refine_homography_chain(res, sets, o, {});
+    res.model = CameraModel::Homography;
+    return res;
+  }
   // Matches of every pair that the start says may overlap, checked against it.
   const FeatureSets feats = detect_all(sets, n, o);
   std::vector<PairData> pairs;
@@ -1030,16 +1037,30 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       res.rig = rot.rig;
       res.ba_rms_before_px = rot.ba.rms_before_px;
       res.ba_rms_after_px = rot.ba.rms_after_px;
-      for (int i = 0; i < n; ++i) res.refined_cameras += matched[i];
+      // A planar canvas is the reference camera's image plane: its own mapping never changes.
+      for (int i = 0; i < n; ++i) res.refined_cameras += matched[i] && !(rough.planar() && i == rough.reference);
     } else {
       res.rig = rough;
       res.ba_rms_before_px = rot.ba.rms_before_px;
       res.ba_rms_after_px = rot.ba.rms_after_px;
     }
-    for (int i = 0; i < n; ++i)
-      if (!matched[i])
+    for (int i = 0; i < n; ++i) {
+      if (matched[i]) continue;
+      // Matches that the rough rig puts elsewhere: most likely the cameras are in another order.
+      const PairData* elsewhere = nullptr;
+      for (const auto& p : pairs)
+        if ((p.a == i || p.b == i) && p.inliers >= o.min_inliers && (!elsewhere || p.inliers > elsewhere->inliers))
+          elsewhere = &p;
+      if (elsewhere)
+        res.warnings.push_back("camera " + std::to_string(i) + ": its view matches camera " +
+                               std::to_string(elsewhere->a == i ? elsewhere->b : elsewhere->a) + " (" +
+                               std::to_string(elsewhere->inliers) +
+                               " matches) but not where the rough rig puts them (are the cameras in the rig's "
+                               "order?); keeping its rough rotation and focal length");
+      else
         res.warnings.push_back("camera " + std::to_string(i) + ": no feature matches with any other camera; "
                                "keeping its rough rotation and focal length");
+    }
     finish_rotation_rig(res.rig, o, true);
     const std::vector<std::string> warnings = res.warnings;
     fill_reports(res, pairs, true);
@@ -1237,7 +1258,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     res.projection_chosen = false;
     rig_layout_canvas(res.rig);
   }
-  res.refined_cameras = n;
+  res.refined_cameras = res.rig.planar() ? n - 1 : n;  // the plane is the reference's image plane
   fill_reports(res, pairs, use_rotation);
   return res;
 }

@@ -57,7 +57,8 @@ struct PairReport {
   int camera = -1, neighbour = -1;
   int matches = 0, inliers = 0;
   double rms_px = 0;      // residual of the chosen model, camera pixels (held-out matches when
-                          // there are enough, else the fitted ones); 0 when not measured
+                          // there are enough, else the fitted ones); 0 when not measured. With
+                          // the homography model forced: the chain's fit residual, canvas pixels
   bool accepted = false;
   std::string note;
 };
@@ -74,7 +75,8 @@ struct CalibrationResult {
   std::vector<PairReport> pairs;
   std::vector<CameraReport> cameras;  // one per camera
   std::vector<std::string> warnings;
-  int refined_cameras = 0;         // cameras whose homography the features corrected
+  int refined_cameras = 0;         // cameras whose mapping the features corrected (a planar
+                                   // canvas's reference camera never counts: it is the plane)
   double ba_rms_before_px = -1, ba_rms_after_px = -1;  // bundle adjustment, when it ran
   // The model used and the evidence: the one-way rms transfer error (camera pixels) of each
   // model on the held-out matches; -1 when that model was not fitted or nothing was held out.
