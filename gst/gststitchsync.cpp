@@ -62,6 +62,7 @@
 #include <cstring>
 #include <map>
 #include <mutex>
+#include <set>
 #include <vector>
 
 #include "gststitchbundle.h"
@@ -141,6 +142,10 @@ struct StitchSyncState {
   gint64 first_ready_us = -1;
   /* time-alignment=auto (aggregate thread) */
   std::unique_ptr<stitch::sync::OffsetTracker> tracker;
+  /* pads requested and released before the element started: gst_parse_launch does that for
+   * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
+   * bundle waits for them too (guarded by the element's object lock) */
+  std::set<std::string> expected;
 
   void clear_run() {
     for (GstMessage* m : pending_qos) gst_message_unref(m);
@@ -377,6 +382,10 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
     std::lock_guard<std::mutex> guard(self->state->lock);
     pad_state(pad)->release();
   }
+  GST_OBJECT_LOCK(self);
+  if (GST_STATE(self) <= GST_STATE_READY && GST_STATE_PENDING(self) <= GST_STATE_READY)
+    self->state->expected.insert(GST_PAD_NAME(pad));
+  GST_OBJECT_UNLOCK(self);
   GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->release_pad(element, pad);
   /* the view count changes: renegotiate the bundle */
   gst_pad_mark_reconfigure(GST_AGGREGATOR_SRC_PAD(self));
@@ -589,8 +598,17 @@ static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* cap
   gst_structure_fixate_field_nearest_int(s, "width", width);
   gst_structure_fixate_field_nearest_int(s, "height", height);
   gst_structure_fixate_field_nearest_fraction(s, "framerate", best_n, best_d);
-  gst_structure_set(s, "views", G_TYPE_INT, gint(bundle_views(pads)), "pixel-aspect-ratio", GST_TYPE_FRACTION, 1, 1,
-                    NULL);
+  /* before the first bundle, pads still to be linked (see `expected`) count too */
+  guint to_come = 0;
+  GST_OBJECT_LOCK(self);
+  for (const std::string& name : self->state->expected) {
+    bool present = false;
+    for (GstVideoAggregatorPad* p : pads) present = present || name == GST_PAD_NAME(p);
+    to_come += present ? 0 : 1;
+  }
+  GST_OBJECT_UNLOCK(self);
+  gst_structure_set(s, "views", G_TYPE_INT, gint(MIN(bundle_views(pads) + to_come, STITCH_MAX_VIEWS)),
+                    "pixel-aspect-ratio", GST_TYPE_FRACTION, 1, 1, NULL);
   return gst_caps_fixate(caps);
 }
 
@@ -1003,19 +1021,32 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
   if (st->first_ready_us < 0) st->first_ready_us = g_get_monotonic_time();
   std::vector<stitch::sync::InputFacts> facts;
   for (GstVideoAggregatorPad* p : pads) facts.push_back(input_facts(p));
+  GST_OBJECT_LOCK(self);
+  for (const std::string& name : st->expected) {
+    bool present = false;
+    for (GstVideoAggregatorPad* p : pads) present = present || name == GST_PAD_NAME(p);
+    if (!present) facts.push_back({});  // still to be linked: not negotiated
+  }
+  GST_OBJECT_UNLOCK(self);
   switch (stitch::sync::may_start(facts, (g_get_monotonic_time() - st->first_ready_us) * 1000, gint64(timeout))) {
     case stitch::sync::StartDecision::Wait:
       g_usleep(2000);
       return GST_AGGREGATOR_FLOW_NEED_DATA;
     case stitch::sync::StartDecision::TooFew:
       GST_ELEMENT_ERROR(self, CORE, PAD,
-                        ("stitchsync needs at least two cameras; only %s is linked", GST_PAD_NAME(pads[0])),
+                        ("stitchsync needs at least two cameras; only %s is linked", pads.empty() ? "one input" : GST_PAD_NAME(pads[0])),
                         ("link more inputs to stitchsync's sink_%%u pads, or use the camera without stitching"));
       return GST_FLOW_ERROR;
     case stitch::sync::StartDecision::Go: break;
   }
   if (!load_time_offsets(self, pads)) return GST_FLOW_ERROR;
-  st->started = now;
+  GST_OBJECT_LOCK(self);
+  st->expected.clear();
+  GST_OBJECT_UNLOCK(self);
+  /* the others started when the first of them was ready: a camera still silent after
+   * dropout-timeout from then is out */
+  const GstClockTime waited = GstClockTime(g_get_monotonic_time() - st->first_ready_us) * 1000;
+  st->started = GST_CLOCK_TIME_IS_VALID(now) ? now - MIN(now, waited) : now;
   return GST_FLOW_OK;
 }
 
