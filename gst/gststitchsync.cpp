@@ -117,12 +117,12 @@ struct SyncPadState {
    * newest frame whose signal was taken */
   gint64 applied_ns = 0;
   gint64 file_offset_ns = 0;
-  GstBuffer* signal_of = nullptr;
+  GstClockTime signal_pts = GST_CLOCK_TIME_NONE;
 
   void release() {
     gst_clear_buffer(&buffer);
     gst_clear_buffer(&frame);
-    signal_of = nullptr;
+    signal_pts = GST_CLOCK_TIME_NONE;
   }
 };
 
@@ -945,8 +945,9 @@ static GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVide
     GstVideoAggregatorPad* pad = pads[v];
     SyncPadState& ps = *pad_state(pad);
     GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
-    if (frame && frame->buffer != ps.signal_of && !(frame->map[0].flags & STITCH_MAP_CUDA && STITCH_MAP_CUDA != 0)) {
-      ps.signal_of = frame->buffer;  // identity only, never dereferenced
+    if (frame && GST_BUFFER_PTS(frame->buffer) != ps.signal_pts &&
+        !(STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA))) {
+      ps.signal_pts = GST_BUFFER_PTS(frame->buffer);
       GST_OBJECT_LOCK(pad);
       const GstClockTime rt =
           gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(frame->buffer));
