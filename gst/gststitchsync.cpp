@@ -18,16 +18,47 @@
  * Other formats are converted on the CPU before the upload. Without a GPU everything stays in
  * system memory and is converted by GStreamer's video converter.
  *
- * Cameras fail. One that ends (EOS) or stalls (its newest frame ended more than
- * `dropout-timeout` before the output time) drops out without stopping the panorama: a warning
- * names it, an element message `stitchsync-dropout` (pad, view, dropped, reason) is posted, and
- * `dropout=freeze` keeps its region on its last frame while `dropout=fill` marks the view
- * missing so that stitchblend fills the region from its neighbours. With its next fresh frame
- * (a stalled camera that resumes, a new segment after a reconnect) it rejoins, with an info
- * message and a `stitchsync-dropout` message with dropped=false. Live inputs are aggregated on
- * the `latency` timeout, so a stalled live camera is seen; file inputs that may stall need
- * `force-live=true`. A frame that ends before one its input already delivered comes from the
- * past and is dropped with a QoS message.
+ * Cameras fail. One that ends (EOS), stalls (its newest frame ended more than
+ * `dropout-timeout` before the output time with nothing queued after it), or never delivers
+ * anything (for `dropout-timeout` after the others started) drops out without stopping the
+ * panorama: a warning names it, an element message `stitchsync-dropout` (pad, view, dropped,
+ * reason) is posted, and `dropout=freeze` keeps its region on its last frame while
+ * `dropout=fill` marks the view missing so that stitchblend fills the region from its
+ * neighbours. With its next fresh frame (a stalled camera that resumes, a new segment after a
+ * reconnect, a dead camera that starts) it rejoins, with an info message and a
+ * `stitchsync-dropout` message with dropped=false. A later frame already waiting is a gap in the
+ * timestamps (variable frame rate, a file with holes), never a dropout. Live inputs are
+ * aggregated on the `latency` timeout, so a stalled or dead live camera is seen; non-live inputs
+ * that may stall need `force-live=true` (GstAggregator waits for every non-live input). A frame
+ * that ends before one its input already delivered comes from the past and is dropped with a
+ * QoS message (at most one per input per second, carrying the totals).
+ *
+ * Start-up: the first bundle waits until every requested sink pad has caps (and the pads that
+ * `gst-launch`/`gst_parse_launch` link late, `decodebin ! s.sink_2`, exist), or
+ * `dropout-timeout`: the camera count never changes because a decoder was slow. A single input is
+ * an error ("needs at least two cameras"), never a pipeline stuck in PREROLLING; at most 16
+ * inputs, a 17th request is refused with a warning on the bus. Pads may be requested and released
+ * while playing: the bundle's view count follows the pads (a new pad is a missing view until it
+ * negotiates; one input left gives two views, the second missing).
+ *
+ * Time alignment: cameras not started together (phones, action cameras, separate recorders)
+ * are lined up by `time-alignment=auto`: each input's offset to sink_0 is estimated from the
+ * motion the cameras see (per-frame motion energy in vertical strips of each view, normalised
+ * cross-correlation between views over the newest 20 s, sub-frame by a parabola through the
+ * peak), refined every second, and applied with GstPad offset semantics (the value in ns added
+ * to that input's running time). Clock drift is a straight line through the offsets measured
+ * over consecutive 20 s windows, refitted from all of them each time. Each change is posted as
+ * an element message `stitchsync-time-offsets` with `offset-N` (gint64 ns, relative to view 0),
+ * `confidence-N` (0..1) and `rate-N` (seconds of view 0 per second of view N) for every view N,
+ * and sent downstream as a custom event of the same structure (for stitchcalib to save). A view
+ * with nothing to align on (a static scene) keeps offset 0 with a warning. `load-file` applies
+ * the `time_offset_ns` saved per camera in a calibration JSON; offsets set by hand with
+ * gst_pad_set_offset() on the sink pads add to either.
+ *
+ * The sink pads inherit GstVideoAggregatorPad's properties. `zorder` has no effect (views are
+ * ordered by pad number), nor have `repeat-after-eos` (see `input-eos`) and
+ * `max-last-buffer-repeat` (see `dropout-timeout`); `converter-config` applies to inputs
+ * converted in system memory.
  *
  * ## Example launch lines
  * |[
