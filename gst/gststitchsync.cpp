@@ -18,16 +18,47 @@
  * Other formats are converted on the CPU before the upload. Without a GPU everything stays in
  * system memory and is converted by GStreamer's video converter.
  *
- * Cameras fail. One that ends (EOS) or stalls (its newest frame ended more than
- * `dropout-timeout` before the output time) drops out without stopping the panorama: a warning
- * names it, an element message `stitchsync-dropout` (pad, view, dropped, reason) is posted, and
- * `dropout=freeze` keeps its region on its last frame while `dropout=fill` marks the view
- * missing so that stitchblend fills the region from its neighbours. With its next fresh frame
- * (a stalled camera that resumes, a new segment after a reconnect) it rejoins, with an info
- * message and a `stitchsync-dropout` message with dropped=false. Live inputs are aggregated on
- * the `latency` timeout, so a stalled live camera is seen; file inputs that may stall need
- * `force-live=true`. A frame that ends before one its input already delivered comes from the
- * past and is dropped with a QoS message.
+ * Cameras fail. One that ends (EOS), stalls (its newest frame ended more than
+ * `dropout-timeout` before the output time with nothing queued after it), or never delivers
+ * anything (for `dropout-timeout` after the others started) drops out without stopping the
+ * panorama: a warning names it, an element message `stitchsync-dropout` (pad, view, dropped,
+ * reason) is posted, and `dropout=freeze` keeps its region on its last frame while
+ * `dropout=fill` marks the view missing so that stitchblend fills the region from its
+ * neighbours. With its next fresh frame (a stalled camera that resumes, a new segment after a
+ * reconnect, a dead camera that starts) it rejoins, with an info message and a
+ * `stitchsync-dropout` message with dropped=false. A later frame already waiting is a gap in the
+ * timestamps (variable frame rate, a file with holes), never a dropout. Live inputs are
+ * aggregated on the `latency` timeout, so a stalled or dead live camera is seen; non-live inputs
+ * that may stall need `force-live=true` (GstAggregator waits for every non-live input). A frame
+ * that ends before one its input already delivered comes from the past and is dropped with a
+ * QoS message (at most one per input per second, carrying the totals).
+ *
+ * Start-up: the first bundle waits until every requested sink pad has caps (and the pads that
+ * `gst-launch`/`gst_parse_launch` link late, `decodebin ! s.sink_2`, exist), or
+ * `dropout-timeout`: the camera count never changes because a decoder was slow. A single input is
+ * an error ("needs at least two cameras"), never a pipeline stuck in PREROLLING; at most 16
+ * inputs, a 17th request is refused with a warning on the bus. Pads may be requested and released
+ * while playing: the bundle's view count follows the pads (a new pad is a missing view until it
+ * negotiates; one input left gives two views, the second missing).
+ *
+ * Time alignment: cameras not started together (phones, action cameras, separate recorders)
+ * are lined up by `time-alignment=auto`: each input's offset to sink_0 is estimated from the
+ * motion the cameras see (per-frame motion energy in vertical strips of each view, normalised
+ * cross-correlation between views over the newest 20 s, sub-frame by a parabola through the
+ * peak), refined every second, and applied with GstPad offset semantics (the value in ns added
+ * to that input's running time). Clock drift is a straight line through the offsets measured
+ * over consecutive 20 s windows, refitted from all of them each time. Each change is posted as
+ * an element message `stitchsync-time-offsets` with `offset-N` (gint64 ns, relative to view 0),
+ * `confidence-N` (0..1) and `rate-N` (seconds of view 0 per second of view N) for every view N,
+ * and sent downstream as a custom event of the same structure (for stitchcalib to save). A view
+ * with nothing to align on (a static scene) keeps offset 0 with a warning. `load-file` applies
+ * the `time_offset_ns` saved per camera in a calibration JSON; offsets set by hand with
+ * gst_pad_set_offset() on the sink pads add to either.
+ *
+ * The sink pads inherit GstVideoAggregatorPad's properties. `zorder` has no effect (views are
+ * ordered by pad number), nor have `repeat-after-eos` (see `input-eos`) and
+ * `max-last-buffer-repeat` (see `dropout-timeout`); `converter-config` applies to inputs
+ * converted in system memory.
  *
  * ## Example launch lines
  * |[
@@ -64,6 +95,7 @@
 #include <cstring>
 #include <map>
 #include <mutex>
+#include <set>
 #include <vector>
 
 #include "gststitchbundle.h"
@@ -118,12 +150,12 @@ struct SyncPadState {
    * newest frame whose signal was taken */
   gint64 applied_ns = 0;
   gint64 file_offset_ns = 0;
-  GstBuffer* signal_of = nullptr;
+  GstClockTime signal_pts = GST_CLOCK_TIME_NONE;
 
   void release() {
     gst_clear_buffer(&buffer);
     gst_clear_buffer(&frame);
-    signal_of = nullptr;
+    signal_pts = GST_CLOCK_TIME_NONE;
   }
 };
 
@@ -143,6 +175,10 @@ struct StitchSyncState {
   gint64 first_ready_us = -1;
   /* time-alignment=auto (aggregate thread) */
   std::unique_ptr<stitch::sync::OffsetTracker> tracker;
+  /* pads requested and released before the element started: gst_parse_launch does that for
+   * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
+   * bundle waits for them too (guarded by the element's object lock) */
+  std::set<std::string> expected;
 
   void clear_run() {
     for (GstMessage* m : pending_qos) gst_message_unref(m);
@@ -379,6 +415,10 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
     std::lock_guard<std::mutex> guard(self->state->lock);
     pad_state(pad)->release();
   }
+  GST_OBJECT_LOCK(self);
+  if (GST_STATE(self) <= GST_STATE_READY && GST_STATE_PENDING(self) <= GST_STATE_READY)
+    self->state->expected.insert(GST_PAD_NAME(pad));
+  GST_OBJECT_UNLOCK(self);
   GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->release_pad(element, pad);
   /* the view count changes: renegotiate the bundle */
   gst_pad_mark_reconfigure(GST_AGGREGATOR_SRC_PAD(self));
@@ -591,8 +631,17 @@ static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* cap
   gst_structure_fixate_field_nearest_int(s, "width", width);
   gst_structure_fixate_field_nearest_int(s, "height", height);
   gst_structure_fixate_field_nearest_fraction(s, "framerate", best_n, best_d);
-  gst_structure_set(s, "views", G_TYPE_INT, gint(bundle_views(pads)), "pixel-aspect-ratio", GST_TYPE_FRACTION, 1, 1,
-                    NULL);
+  /* before the first bundle, pads still to be linked (see `expected`) count too */
+  guint to_come = 0;
+  GST_OBJECT_LOCK(self);
+  for (const std::string& name : self->state->expected) {
+    bool present = false;
+    for (GstVideoAggregatorPad* p : pads) present = present || name == GST_PAD_NAME(p);
+    to_come += present ? 0 : 1;
+  }
+  GST_OBJECT_UNLOCK(self);
+  gst_structure_set(s, "views", G_TYPE_INT, gint(MIN(bundle_views(pads) + to_come, STITCH_MAX_VIEWS)),
+                    "pixel-aspect-ratio", GST_TYPE_FRACTION, 1, 1, NULL);
   return gst_caps_fixate(caps);
 }
 
@@ -929,8 +978,9 @@ static GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVide
     GstVideoAggregatorPad* pad = pads[v];
     SyncPadState& ps = *pad_state(pad);
     GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
-    if (frame && frame->buffer != ps.signal_of && !(frame->map[0].flags & STITCH_MAP_CUDA && STITCH_MAP_CUDA != 0)) {
-      ps.signal_of = frame->buffer;  // identity only, never dereferenced
+    if (frame && GST_BUFFER_PTS(frame->buffer) != ps.signal_pts &&
+        !(STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA))) {
+      ps.signal_pts = GST_BUFFER_PTS(frame->buffer);
       GST_OBJECT_LOCK(pad);
       const GstClockTime rt =
           gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(frame->buffer));
@@ -1005,19 +1055,32 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
   if (st->first_ready_us < 0) st->first_ready_us = g_get_monotonic_time();
   std::vector<stitch::sync::InputFacts> facts;
   for (GstVideoAggregatorPad* p : pads) facts.push_back(input_facts(p));
+  GST_OBJECT_LOCK(self);
+  for (const std::string& name : st->expected) {
+    bool present = false;
+    for (GstVideoAggregatorPad* p : pads) present = present || name == GST_PAD_NAME(p);
+    if (!present) facts.push_back({});  // still to be linked: not negotiated
+  }
+  GST_OBJECT_UNLOCK(self);
   switch (stitch::sync::may_start(facts, (g_get_monotonic_time() - st->first_ready_us) * 1000, gint64(timeout))) {
     case stitch::sync::StartDecision::Wait:
       g_usleep(2000);
       return GST_AGGREGATOR_FLOW_NEED_DATA;
     case stitch::sync::StartDecision::TooFew:
       GST_ELEMENT_ERROR(self, CORE, PAD,
-                        ("stitchsync needs at least two cameras; only %s is linked", GST_PAD_NAME(pads[0])),
+                        ("stitchsync needs at least two cameras; only %s is linked", pads.empty() ? "one input" : GST_PAD_NAME(pads[0])),
                         ("link more inputs to stitchsync's sink_%%u pads, or use the camera without stitching"));
       return GST_FLOW_ERROR;
     case stitch::sync::StartDecision::Go: break;
   }
   if (!load_time_offsets(self, pads)) return GST_FLOW_ERROR;
-  st->started = now;
+  GST_OBJECT_LOCK(self);
+  st->expected.clear();
+  GST_OBJECT_UNLOCK(self);
+  /* the others started when the first of them was ready: a camera still silent after
+   * dropout-timeout from then is out */
+  const GstClockTime waited = GstClockTime(g_get_monotonic_time() - st->first_ready_us) * 1000;
+  st->started = GST_CLOCK_TIME_IS_VALID(now) ? now - MIN(now, waited) : now;
   return GST_FLOW_OK;
 }
 

@@ -10,7 +10,9 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
+#include <random>
 #include <string>
 #include <thread>
 #include <vector>
@@ -647,6 +649,14 @@ TEST_F(StitchSyncTest, SeventeenthPadRefused) {
   EXPECT_EQ(extra, nullptr);
   if (extra) pads.push_back(extra);
   EXPECT_EQ(int(element->numsinkpads), 16);
+  // the reason is on the bus, not only in the debug log
+  GstMessage* m = gst_bus_timed_pop_filtered(bus, GST_SECOND, GST_MESSAGE_WARNING);
+  ASSERT_NE(m, nullptr) << "no warning on the bus for the refused pad";
+  GError* err = nullptr;
+  gst_message_parse_warning(m, &err, nullptr);
+  EXPECT_NE(std::string(err->message).find("at most 16 inputs"), std::string::npos) << err->message;
+  g_error_free(err);
+  gst_message_unref(m);
   // Freeing one slot lets a new request through.
   gst_element_release_request_pad(element, pads.back());
   gst_object_unref(pads.back());
@@ -889,6 +899,177 @@ TEST_F(StitchSyncTest, BackendCudaWithoutDeviceIsAClearError) {
   EXPECT_TRUE(outputs.empty());
   const auto [message, debug] = pop_error(5.0);
   EXPECT_NE(message.find("backend=cuda"), std::string::npos) << message << " | " << debug;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Time alignment (issue 18).
+
+// Uniform RGBA frames whose brightness follows a scene of random flashes; camera `input` shows
+// scene frame f + start[input] as its frame f.
+std::vector<guint8> flash_frame(int scene_frame) {
+  static const std::vector<guint32> scene = []() {
+    std::mt19937 rng(42);
+    std::vector<guint32> v(4000);
+    for (auto& x : v) x = rng();
+    return v;
+  }();
+  const guint32 h = scene[std::size_t(scene_frame) % scene.size()];
+  const bool flash = h % 9 == 0;
+  const guint8 v = guint8(flash ? 200 : 60 + (h >> 8) % 8);
+  std::vector<guint8> px(gsize(kWidth) * kHeight * 4, v);
+  for (gsize i = 3; i < px.size(); i += 4) px[i] = 255;
+  return px;
+}
+
+class StitchSyncAlign : public StitchSyncTest {
+ protected:
+  // Pushes `frames` frames of each camera (camera i starts `start[i]` scene frames late), the
+  // frame's pixels from `pixels(scene frame)`; collects every output and the offsets messages.
+  std::vector<GstStructure*> offsets;
+  std::vector<std::string> warnings;
+  void TearDown() override {
+    for (GstStructure* s : offsets) gst_structure_free(s);
+    StitchSyncTest::TearDown();
+  }
+  void play(const std::vector<int>& start, int frames, std::vector<guint8> (*pixels)(int)) {
+    attach(int(start.size()));
+    std::vector<Input> in(start.size());
+    for (std::size_t i = 0; i < start.size(); ++i) {
+      in[i] = rgba_input(rgba_caps(30), {});
+      in[i].frames = frames_at(30, frames);
+    }
+    // frame_bytes is per input, not per frame: push by hand instead of run()
+    for (std::size_t i = 0; i < in.size(); ++i) gst_harness_set_src_caps_str(harnesses[i], in[i].caps.c_str());
+    std::vector<std::thread> pushers;
+    for (std::size_t i = 0; i < in.size(); ++i)
+      pushers.emplace_back([h = harnesses[i], &input = in[i], s = start[i], pixels]() {
+        for (const Frame& f : input.frames) {
+          const std::vector<guint8> px = pixels(f.number + s);
+          GstBuffer* b = gst_buffer_new_allocate(nullptr, px.size(), nullptr);
+          gst_buffer_fill(b, 0, px.data(), px.size());
+          GST_BUFFER_PTS(b) = f.pts;
+          GST_BUFFER_DURATION(b) = f.duration;
+          if (gst_harness_push(h, b) != GST_FLOW_OK) break;
+        }
+        gst_harness_push_event(h, gst_event_new_eos());
+      });
+    const gint64 deadline = g_get_monotonic_time() + 60 * G_TIME_SPAN_SECOND;
+    while (!got_eos && g_get_monotonic_time() < deadline) {
+      while (GstBuffer* b = gst_harness_try_pull(harnesses[0])) outputs.push_back(b);
+      while (GstEvent* e = gst_harness_try_pull_event(harnesses[0])) {
+        if (GST_EVENT_TYPE(e) == GST_EVENT_EOS) got_eos = true;
+        gst_event_unref(e);
+      }
+      while (GstMessage* m = gst_bus_pop(bus)) {
+        const GstStructure* st = gst_message_get_structure(m);
+        if (GST_MESSAGE_TYPE(m) == GST_MESSAGE_ELEMENT && st && gst_structure_has_name(st, "stitchsync-time-offsets"))
+          offsets.push_back(gst_structure_copy(st));
+        if (GST_MESSAGE_TYPE(m) == GST_MESSAGE_WARNING) {
+          GError* e = nullptr;
+          gst_message_parse_warning(m, &e, nullptr);
+          warnings.push_back(e->message);
+          g_error_free(e);
+        }
+        gst_message_unref(m);
+      }
+      if (!got_eos) g_usleep(1000);
+    }
+    while (GstBuffer* b = gst_harness_try_pull(harnesses[0])) outputs.push_back(b);
+    gst_element_set_state(element, GST_STATE_NULL);
+    for (auto& t : pushers) t.join();
+  }
+};
+
+// Camera 1 started 7 frames after camera 0: time-alignment=auto finds +7 frames, says so on the
+// bus with its confidence and rate, and the bundles then pair the same instants.
+TEST_F(StitchSyncAlign, AutoFindsAndAppliesALateStart) {
+  gst_util_set_object_arg(G_OBJECT(element), "time-alignment", "auto");
+  play({0, 7}, 360, flash_frame);
+  ASSERT_TRUE(got_eos);
+  ASSERT_FALSE(offsets.empty()) << "no stitchsync-time-offsets message";
+  const GstStructure* last = offsets.back();
+  gint64 off0 = -1, off1 = 0;
+  gdouble conf1 = 0, rate1 = 0;
+  ASSERT_TRUE(gst_structure_get_int64(last, "offset-0", &off0));
+  ASSERT_TRUE(gst_structure_get_int64(last, "offset-1", &off1));
+  ASSERT_TRUE(gst_structure_get_double(last, "confidence-1", &conf1));
+  ASSERT_TRUE(gst_structure_get_double(last, "rate-1", &rate1));
+  EXPECT_EQ(off0, 0);
+  EXPECT_NEAR(double(off1) / 1e9 * 30, 7.0, 0.5);
+  EXPECT_GT(conf1, 0.5);
+  EXPECT_NEAR(rate1, 1.0, 1e-3);
+  // applied: in the last seconds both views show the same scene frame (the same brightness)
+  ASSERT_GT(outputs.size(), 300u);
+  int same = 0, compared = 0;
+  for (std::size_t k = outputs.size() - 90; k < outputs.size() - 10; ++k) {
+    const View a = read_view(outputs[k], 0), b = read_view(outputs[k], 1);
+    ++compared;
+    same += a.first[0] == b.first[0] ? 1 : 0;
+  }
+  EXPECT_GE(same, compared - 2) << "the views still show different instants";
+}
+
+// A static scene: nothing to align on. Confidence says so, the offset stays 0, and a warning
+// names the pad.
+std::vector<guint8> still_frame(int) {
+  std::vector<guint8> px(gsize(kWidth) * kHeight * 4, 90);
+  return px;
+}
+
+TEST_F(StitchSyncAlign, StaticSceneKeepsZeroWithAWarning) {
+  gst_util_set_object_arg(G_OBJECT(element), "time-alignment", "auto");
+  play({0, 5}, 660, still_frame);
+  ASSERT_TRUE(got_eos);
+  ASSERT_FALSE(offsets.empty());
+  gint64 off1 = -1;
+  gdouble conf1 = 1;
+  gst_structure_get_int64(offsets.back(), "offset-1", &off1);
+  gst_structure_get_double(offsets.back(), "confidence-1", &conf1);
+  EXPECT_EQ(off1, 0);
+  EXPECT_LT(conf1, 0.3);
+  bool warned = false;
+  for (const auto& w : warnings) warned = warned || (w.find("sink_1") != std::string::npos && w.find("no motion") != std::string::npos);
+  EXPECT_TRUE(warned) << (warnings.empty() ? "no warning" : warnings[0]);
+}
+
+// time-alignment=none (the default) with a calibration file whose camera 1 carries
+// time_offset_ns: the offset is applied (camera 1 two frames later), and an offset set by hand
+// on a pad adds to it.
+TEST_F(StitchSyncTest, LoadFileTimeOffsetAndPadOffset) {
+  GValue v = G_VALUE_INIT;
+  g_value_init(&v, G_TYPE_STRING);
+  GParamSpec* ps = g_object_class_find_property(G_OBJECT_GET_CLASS(element), "time-alignment");
+  ASSERT_NE(ps, nullptr);
+  gint mode = -1;
+  g_object_get(element, "time-alignment", &mode, NULL);
+  EXPECT_STREQ(g_enum_get_value(G_PARAM_SPEC_ENUM(ps)->enum_class, mode)->value_nick, "none");
+  g_value_unset(&v);
+  const std::string path = std::string(g_get_tmp_dir()) + "/stitchsync_offsets.json";
+  {
+    FILE* f = std::fopen(path.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs("{\"format\": \"stitch-rig\", \"version\": 1, \"cameras\": ["
+               "{\"width\": 64, \"height\": 48, \"fx\": 60},"
+               "{\"width\": 64, \"height\": 48, \"fx\": 60, \"time_offset_ns\": 66666667},"
+               "{\"width\": 64, \"height\": 48, \"fx\": 60}]}", f);
+    std::fclose(f);
+  }
+  g_object_set(element, "load-file", path.c_str(), NULL);
+  attach(3);
+  // camera 2: one frame by hand (GstPad offset on its sink pad)
+  GstPad* p2 = gst_element_get_static_pad(element, "sink_2");
+  gst_pad_set_offset(p2, 33333334);
+  gst_object_unref(p2);
+  std::vector<Input> in(3);
+  for (auto& i : in) i = rgba_input(rgba_caps(30), frames_at(30, 20));
+  run(in);
+  ASSERT_TRUE(got_eos);
+  ASSERT_GE(outputs.size(), 10u);
+  for (std::size_t k = 4; k < 10; ++k) {
+    EXPECT_EQ(decode_frame(read_view(outputs[k], 0), 0), int(k)) << k;
+    EXPECT_EQ(decode_frame(read_view(outputs[k], 1), 1), int(k) - 2) << k;
+    EXPECT_EQ(decode_frame(read_view(outputs[k], 2), 2), int(k) - 1) << k;
+  }
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 #include <gst/video/video.h>
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <functional>
 #include <opencv2/imgproc.hpp>
 #include <string>
@@ -28,6 +29,7 @@ GstClockTime frame_time(int f) { return gst_util_uint64_scale(guint64(f), GST_SE
 struct Push {
   int frame;
   cv::Mat image;
+  int pause_ms = 0;  // wall-clock wait before pushing it (a camera that stalls)
 };
 
 // Uniform RGBA image whose red channel codes (input, frame): decoded back from the bundles.
@@ -166,6 +168,7 @@ void run_pipeline(const std::string& description, const std::vector<std::vector<
           g_object_set(a, "caps", caps, NULL);
           gst_caps_unref(caps);
         }
+        if (p.pause_ms > 0) g_usleep(gulong(p.pause_ms) * 1000);
         GstBuffer* b = gst_buffer_new_allocate(nullptr, p.image.total() * 4, nullptr);
         gst_buffer_fill(b, 0, p.image.data, p.image.total() * 4);
         GST_BUFFER_PTS(b) = frame_time(p.frame);
@@ -190,6 +193,11 @@ void run_pipeline(const std::string& description, const std::vector<std::vector<
     }
   }
   EXPECT_TRUE(eos || !run.errors.empty()) << "neither EOS nor an error within " << timeout_s << " s";
+  // what reached the sink before an error still counts
+  while (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 0)) {
+    read_sample(s, run);
+    gst_sample_unref(s);
+  }
   gst_element_set_state(pipe, GST_STATE_NULL);
   for (auto& t : pushers) t.join();
   while (GstMessage* m = gst_bus_pop(bus)) {
@@ -220,18 +228,14 @@ std::string bundles(const std::string& sync_props, int n) {
 
 }  // namespace
 
-// A camera whose timestamps jump 1 s ahead (it stalled, then came back): the panorama goes on
-// at every output time, the camera drops out after dropout-timeout with a warning naming it,
-// its view is left out (fill) or frozen (freeze) meanwhile, and it rejoins with its next frame.
-class Dropout : public ::testing::TestWithParam<bool> {};
-
-TEST_P(Dropout, TimestampJumpDropsOutAndRejoins) {
-  const bool fill = GetParam();
+// A file camera whose timestamps jump 1 s ahead (a hole in the file, variable frame rate): its
+// later frames are already queued, so it never "dropped out": no warning, no message, its last
+// frame shows through the hole and it goes on with the frames after it.
+TEST(FileGaps, TimestampHoleIsNotADropout) {
   std::vector<std::vector<Push>> in = {coded_frames(0, 0, 59), coded_frames(1, 0, 9)};
   for (const Push& p : coded_frames(1, 40, 59)) in[1].push_back(p);
   Collected run;
-  run_pipeline(bundles(std::string("dropout=") + (fill ? "fill" : "freeze") + " dropout-timeout=250000000", 2), in,
-               run);
+  run_pipeline(bundles("dropout=fill dropout-timeout=250000000", 2), in, run);
   ASSERT_TRUE(run.errors.empty()) << run.errors[0];
   ASSERT_EQ(run.outputs.size(), 60u);
   for (int k = 0; k < 60; ++k) {
@@ -239,40 +243,34 @@ TEST_P(Dropout, TimestampJumpDropsOutAndRejoins) {
     const Output& o = run.outputs[std::size_t(k)];
     EXPECT_EQ(o.pts, frame_time(k));
     EXPECT_EQ(frame_of(o.view_pixel[0], 0), k);
-    const bool left_out = o.missing & 2;
-    if (k <= 16) {  // frame 9 ends at 333 ms: dropped out once the output is 250 ms past that
-      EXPECT_FALSE(left_out);
-      EXPECT_EQ(frame_of(o.view_pixel[1], 1), std::min(k, 9));
-    } else if (k >= 18 && k < 40) {
-      EXPECT_EQ(left_out, fill);
-      if (fill) {
-        EXPECT_EQ(o.view_pixel[1], cv::Vec4b(0, 0, 0, 0));
-      } else {
-        EXPECT_EQ(frame_of(o.view_pixel[1], 1), 9);
-      }
-    } else if (k >= 40) {
-      EXPECT_FALSE(left_out) << "did not rejoin";
-      EXPECT_EQ(frame_of(o.view_pixel[1], 1), k);
-    }
+    EXPECT_FALSE(o.missing & 2);
+    EXPECT_EQ(frame_of(o.view_pixel[1], 1), k < 40 ? std::min(k, 9) : k);
   }
-  EXPECT_TRUE(run.warned("sink_1", fill ? "filled by its neighbours" : "frozen"));
-  ASSERT_EQ(run.dropouts.size(), 2u);
-  gboolean dropped = FALSE;
-  guint view = 9;
-  EXPECT_STREQ(gst_structure_get_string(run.dropouts[0], "pad"), "sink_1");
-  EXPECT_TRUE(gst_structure_get_uint(run.dropouts[0], "view", &view));
-  EXPECT_EQ(view, 1u);
-  EXPECT_TRUE(gst_structure_get_boolean(run.dropouts[0], "dropped", &dropped));
-  EXPECT_TRUE(dropped);
-  EXPECT_TRUE(gst_structure_get_boolean(run.dropouts[1], "dropped", &dropped));
-  EXPECT_FALSE(dropped);
+  EXPECT_TRUE(run.dropouts.empty());
+  EXPECT_FALSE(run.warned("dropped out"));
 }
+
+// Variable frame rate files (frame durations from 10 to 200 ms): never dropped out.
+TEST(FileGaps, VariableFrameRateIsNotADropout) {
+  std::vector<std::vector<Push>> in = {coded_frames(0, 0, 59), {}};
+  for (int f = 0; f < 58; f += 1 + (f * 7) % 6) in[1].push_back({f, coded(1, f)});
+  in[1].push_back({59, coded(1, 59)});
+  Collected run;
+  run_pipeline(bundles("dropout-timeout=100000000", 2), in, run);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  EXPECT_EQ(run.outputs.size(), 60u);
+  EXPECT_TRUE(run.dropouts.empty());
+  EXPECT_FALSE(run.warned("dropped out"));
+}
+
+class Dropout : public ::testing::TestWithParam<bool> {};
 
 // File inputs that may stall: force-live aggregates on the clock, the stalled camera drops out
 // and rejoins, and the stream still ends when every input has ended.
 TEST(ForceLive, StallingFileInputDropsOutAndTheStreamEnds) {
   std::vector<std::vector<Push>> in = {coded_frames(0, 0, 59), coded_frames(1, 0, 9)};
   for (const Push& p : coded_frames(1, 40, 59)) in[1].push_back(p);
+  in[1][10].pause_ms = 1000;  // the camera stalls: nothing arrives for a second
   Collected run;
   run_pipeline(bundles("force-live=true latency=50000000 dropout=fill dropout-timeout=250000000", 2), in, run, 10);
   ASSERT_TRUE(run.errors.empty()) << run.errors[0];
@@ -745,4 +743,212 @@ TEST(Properties, DropoutAndResizeDefaults) {
   EXPECT_EQ(nick(calib, "on-resize"), "error");
   gst_object_unref(sync);
   gst_object_unref(calib);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Start-up (issue 18): a camera dead from the start, late-linking decodebin pads, one input,
+// live inputs without a framerate.
+
+namespace {
+
+// Pulls samples and messages for `ms` of wall-clock time; `on_tick(t_ms)` runs each round.
+void collect_for(GstElement* pipe, GstElement* sink, int ms, Collected& run,
+                 const std::function<void(gint64)>& on_tick = nullptr) {
+  GstBus* bus = gst_element_get_bus(pipe);
+  const gint64 start = g_get_monotonic_time();
+  while (g_get_monotonic_time() - start < gint64(ms) * 1000 && run.errors.empty()) {
+    if (on_tick) on_tick((g_get_monotonic_time() - start) / 1000);
+    if (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 10 * GST_MSECOND)) {
+      read_sample(s, run);
+      gst_sample_unref(s);
+    }
+    while (GstMessage* m = gst_bus_pop(bus)) {
+      read_message(m, run);
+      gst_message_unref(m);
+    }
+  }
+  gst_object_unref(bus);
+}
+
+const char* kLiveCam = "video/x-raw,format=RGBA,width=32,height=24,framerate=30/1";
+
+}  // namespace
+
+// Two live cameras run, the third never delivers anything (a valve drops all it would send):
+// the panorama starts within dropout-timeout, the warning names the dead pad, its view is left
+// out; when it starts it joins.
+TEST(StartUp, DeadCameraAtStartIsLeftOutNamedAndJoinsLater) {
+  gsttest::init();
+  const std::string desc = std::string("stitchsync name=s latency=40000000 dropout=fill dropout-timeout=300000000 ! "
+                                       "appsink name=out sync=false "
+                                       "videotestsrc is-live=true pattern=red ! ") + kLiveCam + " ! s.sink_0 "
+                           "videotestsrc is-live=true pattern=green ! " + kLiveCam + " ! s.sink_1 "
+                           "videotestsrc is-live=true pattern=blue ! " + kLiveCam + " ! valve name=dead drop=true ! s.sink_2";
+  GstElement* pipe = gst_parse_launch(desc.c_str(), nullptr);
+  ASSERT_NE(pipe, nullptr);
+  GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
+  GstElement* dead = gst_bin_get_by_name(GST_BIN(pipe), "dead");
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  Collected run;
+  gint64 first_output_ms = -1;
+  collect_for(pipe, sink, 2500, run, [&](gint64 t) {
+    if (first_output_ms < 0 && !run.outputs.empty()) first_output_ms = t;
+    if (t > 1500) g_object_set(dead, "drop", FALSE, NULL);  // the camera comes alive after 1.5 s
+  });
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_object_unref(dead);
+  gst_object_unref(sink);
+  gst_object_unref(pipe);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  ASSERT_GT(run.outputs.size(), 30u);
+  EXPECT_GE(first_output_ms, 0);
+  EXPECT_LT(first_output_ms, 300 + 400) << "the panorama waited for the dead camera";
+  EXPECT_TRUE(run.warned("sink_2", "dropped out")) << (run.warnings.empty() ? "no warning" : run.warnings[0]);
+  ASSERT_GE(run.dropouts.size(), 1u);
+  EXPECT_STREQ(gst_structure_get_string(run.dropouts[0], "pad"), "sink_2");
+  EXPECT_EQ(run.outputs[run.outputs.size() / 3].view_pixel.size(), 3u) << "the camera count changed";
+  EXPECT_TRUE(run.outputs[run.outputs.size() / 3].missing & 4);
+  gboolean dropped = TRUE;
+  gst_structure_get_boolean(run.dropouts.back(), "dropped", &dropped);
+  EXPECT_FALSE(dropped) << "the camera did not join when it started";
+  EXPECT_FALSE(run.outputs.back().missing & 4);
+}
+
+// gst_parse_launch links `decodebin ! s.sink_N` when decodebin exposes its pad, one decoder at a
+// time: the first bundle must still hold every camera (it waited for the pads to be linked).
+TEST(StartUp, LateLinkingDecodebinsNeverChangeTheCameraCount) {
+  gsttest::init();
+  const std::string clips = testdata::repo_path("data/limlight_2cam_apartment/");
+  const std::string desc = "stitchsync name=s ! appsink name=out sync=false max-buffers=1 "
+                           "filesrc location=" + clips + "left.mp4 ! decodebin ! s.sink_0 "
+                           "filesrc location=" + clips + "right.mp4 ! decodebin ! s.sink_1 "
+                           "filesrc location=" + clips + "left.mp4 ! decodebin ! queue ! s.sink_2";
+  for (int run_no = 0; run_no < 50; ++run_no) {
+    SCOPED_TRACE("run " + std::to_string(run_no));
+    GstElement* pipe = gst_parse_launch(desc.c_str(), nullptr);
+    ASSERT_NE(pipe, nullptr);
+    GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
+    gst_element_set_state(pipe, GST_STATE_PLAYING);
+    GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 20 * GST_SECOND);
+    ASSERT_NE(s, nullptr) << "no bundle";
+    gint views = 0;
+    gst_structure_get_int(gst_caps_get_structure(gst_sample_get_caps(s), 0), "views", &views);
+    const GstStitchBundleMeta* bm = bundle_meta(gst_sample_get_buffer(s));
+    EXPECT_EQ(views, 3);
+    ASSERT_NE(bm, nullptr);
+    EXPECT_EQ(bm->n_views, 3u);
+    EXPECT_EQ(bm->missing_mask, 0u);
+    gst_sample_unref(s);
+    gst_element_set_state(pipe, GST_STATE_NULL);
+    gst_object_unref(sink);
+    gst_object_unref(pipe);
+    if (HasFailure()) break;
+  }
+}
+
+// One input: a clear error on the bus, never a pipeline stuck in PREROLLING.
+TEST(StartUp, SingleInputIsAClearError) {
+  Collected run;
+  run_pipeline(bundles("dropout-timeout=200000000", 1), {coded_frames(0, 0, 29)}, run, 10);
+  EXPECT_TRUE(run.failed("needs at least two cameras", "sink_0")) << (run.errors.empty() ? "no error" : run.errors[0]);
+  EXPECT_TRUE(run.outputs.empty());
+}
+
+// Live inputs without a framerate and force-live: no GStreamer-CRITICAL (denominator 0, latency).
+TEST(StartUp, LiveInputsWithoutFramerateNoCriticals) {
+  gsttest::init();
+  static int criticals = 0;
+  criticals = 0;
+  const guint handler = g_log_set_handler(
+      "GStreamer", GLogLevelFlags(G_LOG_LEVEL_CRITICAL | G_LOG_LEVEL_WARNING),
+      [](const gchar*, GLogLevelFlags, const gchar* message, gpointer) {
+        ++criticals;
+        std::fprintf(stderr, "%s\n", message);
+      },
+      nullptr);
+  const std::string caps = "video/x-raw,format=RGBA,width=32,height=24,framerate=0/1";
+  const std::string desc = "stitchsync name=s force-live=true latency=40000000 ! appsink name=out sync=false "
+                           "appsrc name=a0 is-live=true format=time do-timestamp=true caps=\"" + caps + "\" ! s.sink_0 "
+                           "appsrc name=a1 is-live=true format=time do-timestamp=true caps=\"" + caps + "\" ! s.sink_1";
+  GstElement* pipe = gst_parse_launch(desc.c_str(), nullptr);
+  ASSERT_NE(pipe, nullptr);
+  GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
+  GstElement* a[2] = {gst_bin_get_by_name(GST_BIN(pipe), "a0"), gst_bin_get_by_name(GST_BIN(pipe), "a1")};
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  Collected run;
+  int pushed = 0;
+  collect_for(pipe, sink, 1200, run, [&](gint64 t) {
+    while (pushed < t / 40) {
+      for (int i = 0; i < 2; ++i) {
+        const cv::Mat m = coded(i, pushed % 90);
+        GstBuffer* b = gst_buffer_new_allocate(nullptr, m.total() * 4, nullptr);
+        gst_buffer_fill(b, 0, m.data, m.total() * 4);
+        gst_app_src_push_buffer(GST_APP_SRC(a[i]), b);
+      }
+      ++pushed;
+    }
+  });
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  for (GstElement* e : a) gst_object_unref(e);
+  gst_object_unref(sink);
+  gst_object_unref(pipe);
+  g_log_remove_handler("GStreamer", handler);
+  EXPECT_EQ(criticals, 0);
+  EXPECT_TRUE(run.errors.empty()) << run.errors[0];
+  EXPECT_GT(run.outputs.size(), 5u);
+}
+
+// Pads requested while playing (a camera reconnecting) never stall the output, not even while
+// they have no caps; releasing pads down to one does not stall either.
+TEST(PadsWhilePlaying, RequestAndReleaseNeverStall) {
+  gsttest::init();
+  const std::string desc = std::string("stitchsync name=s latency=40000000 ! appsink name=out sync=false "
+                                       "videotestsrc is-live=true pattern=red ! ") + kLiveCam + " ! s.sink_0 "
+                           "videotestsrc name=cam1 is-live=true pattern=green ! " + kLiveCam + " ! s.sink_1";
+  GstElement* pipe = gst_parse_launch(desc.c_str(), nullptr);
+  ASSERT_NE(pipe, nullptr);
+  GstElement* sync = gst_bin_get_by_name(GST_BIN(pipe), "s");
+  GstElement* cam1 = gst_bin_get_by_name(GST_BIN(pipe), "cam1");
+  GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  Collected run;
+  GstPad* extra = nullptr;
+  std::size_t at_request = 0, at_release = 0, at_single = 0;
+  collect_for(pipe, sink, 2400, run, [&](gint64 t) {
+    if (t > 600 && !extra && !at_request) {  // a third camera that never negotiates
+      extra = gst_element_request_pad_simple(sync, "sink_%u");
+      at_request = run.outputs.size() + 1;
+    } else if (t > 1200 && extra) {
+      gst_element_release_request_pad(sync, extra);
+      gst_object_unref(extra);
+      extra = nullptr;
+      at_release = run.outputs.size() + 1;
+    } else if (t > 1800 && !at_single) {  // down to one camera: its source stops, its pad goes
+      gst_element_set_locked_state(cam1, TRUE);
+      gst_element_set_state(cam1, GST_STATE_NULL);
+      GstPad* p1 = gst_element_get_static_pad(sync, "sink_1");
+      GstPad* peer = gst_pad_get_peer(p1);
+      gst_pad_unlink(peer, p1);
+      gst_element_release_request_pad(sync, p1);
+      gst_object_unref(p1);
+      gst_object_unref(peer);
+      at_single = run.outputs.size() + 1;
+    }
+  });
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_object_unref(cam1);
+  gst_object_unref(sync);
+  gst_object_unref(sink);
+  gst_object_unref(pipe);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  ASSERT_GT(at_single, 0u);
+  // output kept coming after each change, each bundle one frame after the last
+  EXPECT_GT(run.outputs.size(), at_single + 10) << "stalled after going down to one camera";
+  EXPECT_GT(at_release, at_request + 10) << "stalled while the new pad had no caps";
+  for (std::size_t k = 1; k < run.outputs.size(); ++k)
+    EXPECT_NEAR(double(run.outputs[k].pts - run.outputs[k - 1].pts), double(frame_time(1)), 1.0) << k;
+  EXPECT_EQ(run.outputs[(at_request + at_release) / 2].view_pixel.size(), 3u);
+  EXPECT_TRUE(run.outputs[(at_request + at_release) / 2].missing & 4);
+  EXPECT_EQ(run.outputs.back().view_pixel.size(), 2u);
+  EXPECT_TRUE(run.outputs.back().missing & 2);
 }

@@ -169,6 +169,8 @@ struct Peak {
 Peak ncc_peak(const std::vector<double>& A, const std::vector<double>& B, int lag_max, int min_pairs, int half) {
   Peak p;
   const int n = int(A.size());
+  int n_valid = 0;
+  for (double v : A) n_valid += std::isnan(v) ? 0 : 1;
   std::vector<double> r(std::size_t(2 * lag_max + 1), kNan);
   for (int L = -lag_max; L <= lag_max; ++L) {
     double sab = 0, saa = 0, sbb = 0, sa = 0, sb = 0;
@@ -185,7 +187,9 @@ Peak ncc_peak(const std::vector<double>& A, const std::vector<double>& B, int la
       sb += y;
       ++m;
     }
-    if (m < min_pairs) continue;
+    // lags that pair less than half the window are left out: a few seconds of overlap at the
+    // edge of the search correlate high by chance
+    if (m < std::max(min_pairs, n_valid / 2)) continue;
     const double cov = sab - sa * sb / m, va = saa - sa * sa / m, vb = sbb - sb * sb / m;
     if (va <= 1e-12 || vb <= 1e-12) continue;
     r[std::size_t(L + lag_max)] = cov / std::sqrt(va * vb);
