@@ -353,7 +353,9 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
     p.held.push_back(every >= 2 && kept % every == every / 2);
     ++kept;
   }
-  if (kept < o.min_inliers) {
+  // Small views give few matches: a pair whose inliers are most of its matches counts too
+  // (OpenCV's confidence test, inliers > 8 + 0.3 matches).
+  if (kept < o.min_inliers && !(kept >= 10 && kept > 8 + 0.3 * p.matches)) {
     p.note = predicted ? "too few matches that agree with the rough rig (" + std::to_string(kept) + ")"
                        : "too few consistent matches (" + std::to_string(kept) + ", need " +
                              std::to_string(o.min_inliers) + ")";
@@ -1206,7 +1208,9 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   // fitted matches, chained from the match graph's centre along the strongest matches.
   Rig hrig;
   bool have_h = false;
-  if (projection == Projection::Plane && model != CameraModel::Rotation) {
+  // Fitted also when the field of view asked for a curved canvas: a rig that the rotation model
+  // explains clearly worse (lens distortion, translating cameras) is better off on a plane.
+  if ((!o.projection || *o.projection == Projection::Plane) && model != CameraModel::Rotation) {
     hrig.reference = reference >= 0 ? reference : graph_centre(n, pairs);
     for (int i = 0; i < n; ++i) {
       Camera c;
@@ -1245,6 +1249,19 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
                  res.hfov_deg, res.vfov_deg);
   bool use_rotation = rot.ok && (!have_h || model == CameraModel::Rotation ||
                                  !homography_wins(res.rotation_heldout_px, res.homography_heldout_px));
+  if (!use_rotation) {
+    try {
+      res.model = CameraModel::Homography;
+      res.rig = hrig;
+      res.projection_chosen = false;
+      rig_layout_canvas(res.rig);
+    } catch (const RigError& e) {
+      if (!rot.ok) throw;
+      res.warnings.push_back(std::string("the homography model fits better but gives no usable plane canvas (") +
+                             e.what() + "): using the rotation model");
+      use_rotation = true;
+    }
+  }
   if (use_rotation) {
     res.model = CameraModel::Rotation;
     res.rig = rot.rig;
@@ -1252,11 +1269,6 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     res.ba_rms_before_px = rot.ba.rms_before_px;
     res.ba_rms_after_px = rot.ba.rms_after_px;
     finish_rotation_rig(res.rig, o, false);
-  } else {
-    res.model = CameraModel::Homography;
-    res.rig = hrig;
-    res.projection_chosen = false;
-    rig_layout_canvas(res.rig);
   }
   res.refined_cameras = res.rig.planar() ? n - 1 : n;  // the plane is the reference's image plane
   fill_reports(res, pairs, use_rotation);
