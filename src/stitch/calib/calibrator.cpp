@@ -3,8 +3,6 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -1023,9 +1021,6 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     if (chain.refined_cameras > 0) res.homography_heldout_px = residuals(chain.rig, pairs, false, true).rms_px;
   }
 
-  if (std::getenv("STITCH_CALIB_DEBUG"))
-    std::fprintf(stderr, "calib: rotation held-out %.3f (ba %.3f -> %.3f), homography %.3f, %d held\n",
-                 res.rotation_heldout_px, rot.ba.rms_before_px, rot.ba.rms_after_px, res.homography_heldout_px, held);
   bool use_rotation;
   if (model == CameraModel::Rotation) use_rotation = true;
   else if (model == CameraModel::Homography) use_rotation = false;
@@ -1122,10 +1117,6 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b)
       pairs.push_back(match_pair(feats, a, b, o, nullptr, 0));
-  if (std::getenv("STITCH_CALIB_DEBUG"))
-    for (const auto& p : pairs)
-      std::fprintf(stderr, "pair %d-%d: %d matches, %d inliers, %zu kept, ok %d %s\n", p.a, p.b, p.matches, p.inliers,
-                   p.pa.size(), int(p.ok), p.note.c_str());
   // Every camera must hang on the match graph.
   {
     std::vector<bool> reach(n, false);
@@ -1174,11 +1165,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
       Rig r = r0;
       for (auto& c : r.cameras) c.fx = c.fy = f_px > 0 ? f_px : c.width / (2 * std::tan(hfov_deg * kPi / 360));
       rotations_from_pairs(r, pairs);
-      RotationFit fit = adjust(r, pairs);
-      if (std::getenv("STITCH_CALIB_DEBUG"))
-        std::fprintf(stderr, "start f %.1f: ba %.3f -> %.3f ok %d\n", r.cameras[0].fx, fit.ba.rms_before_px,
-                     fit.ba.rms_after_px, int(fit.ok));
-      return fit;
+      return adjust(r, pairs);
     };
     const std::vector<double> fs = focal_estimates(r0, pairs);
     if (!fs.empty()) rot = start_with(0, median_of(fs));
@@ -1243,10 +1230,6 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     have_h = true;
     res.homography_heldout_px = residuals(hrig, pairs, false, true).rms_px;
   }
-  if (std::getenv("STITCH_CALIB_DEBUG"))
-    std::fprintf(stderr, "calib images: rotation held-out %.3f (ba %.3f -> %.3f), homography %.3f, %d held, fov %.1f x %.1f\n",
-                 res.rotation_heldout_px, rot.ba.rms_before_px, rot.ba.rms_after_px, res.homography_heldout_px, held,
-                 res.hfov_deg, res.vfov_deg);
   bool use_rotation = rot.ok && (!have_h || model == CameraModel::Rotation ||
                                  !homography_wins(res.rotation_heldout_px, res.homography_heldout_px));
   if (!use_rotation) {
