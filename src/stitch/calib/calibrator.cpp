@@ -3,8 +3,6 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -353,7 +351,9 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
     p.held.push_back(every >= 2 && kept % every == every / 2);
     ++kept;
   }
-  if (kept < o.min_inliers) {
+  // Small views give few matches: a pair whose inliers are most of its matches counts too
+  // (OpenCV's confidence test, inliers > 8 + 0.3 matches).
+  if (kept < o.min_inliers && !(kept >= 10 && kept > 8 + 0.3 * p.matches)) {
     p.note = predicted ? "too few matches that agree with the rough rig (" + std::to_string(kept) + ")"
                        : "too few consistent matches (" + std::to_string(kept) + ", need " +
                              std::to_string(o.min_inliers) + ")";
@@ -1021,9 +1021,6 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     if (chain.refined_cameras > 0) res.homography_heldout_px = residuals(chain.rig, pairs, false, true).rms_px;
   }
 
-  if (std::getenv("STITCH_CALIB_DEBUG"))
-    std::fprintf(stderr, "calib: rotation held-out %.3f (ba %.3f -> %.3f), homography %.3f, %d held\n",
-                 res.rotation_heldout_px, rot.ba.rms_before_px, rot.ba.rms_after_px, res.homography_heldout_px, held);
   bool use_rotation;
   if (model == CameraModel::Rotation) use_rotation = true;
   else if (model == CameraModel::Homography) use_rotation = false;
@@ -1120,10 +1117,6 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b)
       pairs.push_back(match_pair(feats, a, b, o, nullptr, 0));
-  if (std::getenv("STITCH_CALIB_DEBUG"))
-    for (const auto& p : pairs)
-      std::fprintf(stderr, "pair %d-%d: %d matches, %d inliers, %zu kept, ok %d %s\n", p.a, p.b, p.matches, p.inliers,
-                   p.pa.size(), int(p.ok), p.note.c_str());
   // Every camera must hang on the match graph.
   {
     std::vector<bool> reach(n, false);
@@ -1172,11 +1165,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
       Rig r = r0;
       for (auto& c : r.cameras) c.fx = c.fy = f_px > 0 ? f_px : c.width / (2 * std::tan(hfov_deg * kPi / 360));
       rotations_from_pairs(r, pairs);
-      RotationFit fit = adjust(r, pairs);
-      if (std::getenv("STITCH_CALIB_DEBUG"))
-        std::fprintf(stderr, "start f %.1f: ba %.3f -> %.3f ok %d\n", r.cameras[0].fx, fit.ba.rms_before_px,
-                     fit.ba.rms_after_px, int(fit.ok));
-      return fit;
+      return adjust(r, pairs);
     };
     const std::vector<double> fs = focal_estimates(r0, pairs);
     if (!fs.empty()) rot = start_with(0, median_of(fs));
@@ -1206,7 +1195,9 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   // fitted matches, chained from the match graph's centre along the strongest matches.
   Rig hrig;
   bool have_h = false;
-  if (projection == Projection::Plane && model != CameraModel::Rotation) {
+  // Fitted also when the field of view asked for a curved canvas: a rig that the rotation model
+  // explains clearly worse (lens distortion, translating cameras) is better off on a plane.
+  if ((!o.projection || *o.projection == Projection::Plane) && model != CameraModel::Rotation) {
     hrig.reference = reference >= 0 ? reference : graph_centre(n, pairs);
     for (int i = 0; i < n; ++i) {
       Camera c;
@@ -1239,12 +1230,21 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     have_h = true;
     res.homography_heldout_px = residuals(hrig, pairs, false, true).rms_px;
   }
-  if (std::getenv("STITCH_CALIB_DEBUG"))
-    std::fprintf(stderr, "calib images: rotation held-out %.3f (ba %.3f -> %.3f), homography %.3f, %d held, fov %.1f x %.1f\n",
-                 res.rotation_heldout_px, rot.ba.rms_before_px, rot.ba.rms_after_px, res.homography_heldout_px, held,
-                 res.hfov_deg, res.vfov_deg);
   bool use_rotation = rot.ok && (!have_h || model == CameraModel::Rotation ||
                                  !homography_wins(res.rotation_heldout_px, res.homography_heldout_px));
+  if (!use_rotation) {
+    try {
+      res.model = CameraModel::Homography;
+      res.rig = hrig;
+      res.projection_chosen = false;
+      rig_layout_canvas(res.rig);
+    } catch (const RigError& e) {
+      if (!rot.ok) throw;
+      res.warnings.push_back(std::string("the homography model fits better but gives no usable plane canvas (") +
+                             e.what() + "): using the rotation model");
+      use_rotation = true;
+    }
+  }
   if (use_rotation) {
     res.model = CameraModel::Rotation;
     res.rig = rot.rig;
@@ -1252,11 +1252,6 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     res.ba_rms_before_px = rot.ba.rms_before_px;
     res.ba_rms_after_px = rot.ba.rms_after_px;
     finish_rotation_rig(res.rig, o, false);
-  } else {
-    res.model = CameraModel::Homography;
-    res.rig = hrig;
-    res.projection_chosen = false;
-    rig_layout_canvas(res.rig);
   }
   res.refined_cameras = res.rig.planar() ? n - 1 : n;  // the plane is the reference's image plane
   fill_reports(res, pairs, use_rotation);
