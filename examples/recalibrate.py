@@ -90,7 +90,16 @@ def main():
     pipeline.get_by_name("tap").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, on_frame)
 
     def on_message(_bus, msg):
-        if msg.type == Gst.MessageType.ELEMENT and msg.get_structure().get_name() == "stitchcalib":
+        if msg.type == Gst.MessageType.ELEMENT and msg.get_structure().get_name() == "stitchcalib-rejected":
+            # a pooled refinement or a recalibration that did not beat the current calibration
+            s = msg.get_structure()
+            state["settled"] |= s.get_value("source") == "pooled"
+            state["recalibrated"] |= state["asked"] and s.get_value("source") == "recalibration"
+            print("%s kept out: %.2f px against the current %.2f px" % (
+                s.get_value("source"), s.get_value("alignment-px"), s.get_value("previous-px")), flush=True)
+            if done():
+                GLib.idle_add(loop.quit)
+        elif msg.type == Gst.MessageType.ELEMENT and msg.get_structure().get_name() == "stitchcalib":
             s = msg.get_structure()
             state["calibrations"].append(s.get_value("version"))
             # settled: no pooled refinement of the first frames is still to come

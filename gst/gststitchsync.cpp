@@ -31,9 +31,10 @@
  *
  * ## Example launch lines
  * |[
- * gst-launch-1.0 stitchsync name=s ! stitchcalib ! stitchblend ! videoconvert ! autovideosink \
- *   videotestsrc pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_0 \
- *   videotestsrc pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_1
+ * gst-launch-1.0 stitchsync name=s ! stitchcalib rig-file=examples/limlight_rig.json refine=none ! \
+ *   stitchblend ! videoconvert ! autovideosink \
+ *   videotestsrc pattern=ball ! video/x-raw,width=720,height=404 ! s.sink_0 \
+ *   videotestsrc pattern=ball ! video/x-raw,width=720,height=404 ! s.sink_1
  * ]|
  * |[
  * gst-launch-1.0 stitchsync name=s framerate=30/1 input-eos=end-stream ! fakesink \
@@ -43,9 +44,9 @@
  * Live cameras, one of which may fail: its region is filled by its neighbours meanwhile.
  * |[
  * gst-launch-1.0 stitchsync name=s latency=100000000 dropout=fill dropout-timeout=300000000 ! \
- *   stitchcalib ! stitchblend ! videoconvert ! autovideosink \
- *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_0 \
- *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=320,height=240 ! s.sink_1
+ *   stitchcalib rig-file=examples/limlight_rig.json refine=none ! stitchblend ! videoconvert ! autovideosink \
+ *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=720,height=404 ! s.sink_0 \
+ *   videotestsrc is-live=true pattern=ball ! video/x-raw,width=720,height=404 ! s.sink_1
  * ]|
  * GPU decoding to a GPU panorama (the frames never return to the host in between):
  * |[
