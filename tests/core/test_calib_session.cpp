@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/calib/calib_session.hpp"
+#include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "test_data.hpp"
 
@@ -24,14 +25,7 @@ std::vector<cv::Mat> crops(int n = 2, int shift = 400) {
   return v;
 }
 
-ImageView view_of(const cv::Mat& m) {
-  ImageView v;
-  v.data = m.data;
-  v.pitch = m.step;
-  v.width = m.cols;
-  v.height = m.rows;
-  return v;
-}
+ImageView view_of(cv::Mat m) { return as_view(m); }  // a header sharing the pixels
 
 std::vector<ImageView> views_of(const std::vector<cv::Mat>& m) {
   std::vector<ImageView> v;

@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 
 namespace stitch {
@@ -68,7 +69,7 @@ FrameQuality assess_frame(const ImageView& v) {
     q.verdict = FrameVerdict::Featureless;
     return q;
   }
-  const cv::Mat rgba(v.height, v.width, CV_8UC4, v.data, v.pitch);
+  const cv::Mat rgba = as_mat(v);
   const double s = std::min(1.0, 320.0 / std::max(v.width, 1));
   cv::Mat small, grey;
   if (s < 1.0) cv::resize(rgba, small, cv::Size(), s, s, cv::INTER_AREA);
@@ -182,20 +183,13 @@ const char* job_kind_name(JobKind k) {
 
 std::vector<ImageView> FrameSet::views() const {
   std::vector<ImageView> v;
-  for (const auto& m : images) {
-    ImageView iv;
-    iv.data = m.data;
-    iv.pitch = m.step;
-    iv.width = m.cols;
-    iv.height = m.rows;
-    v.push_back(iv);
-  }
+  for (cv::Mat m : images) v.push_back(as_view(m));  // a header sharing the pixels
   return v;
 }
 
 FrameSet FrameSet::copy_of(const std::vector<ImageView>& views) {
   FrameSet set;
-  for (const auto& v : views) set.images.push_back(cv::Mat(v.height, v.width, CV_8UC4, v.data, v.pitch).clone());
+  for (const auto& v : views) set.images.push_back(as_mat(v).clone());
   return set;
 }
 
