@@ -1,7 +1,6 @@
 #!/usr/bin/env python3
 # Old vs new stitchcalib: NULL during a calibration, a bus sync handler touching properties,
 # a camera dark for its first 5 s. Usage: GST_PLUGIN_PATH=build/gst python3 bench/calib_threads.py data/photos/boat1_1600.jpg
-# a camera dark for its first 5 s. Usage: GST_PLUGIN_PATH=<plugin dir> python3 threads.py
 import sys, time, threading, cv2, numpy as np, gi
 gi.require_version("Gst", "1.0"); gi.require_version("GstApp", "1.0")
 from gi.repository import Gst, GstApp

@@ -10,13 +10,13 @@ usage: recalibrate.py [--headless] [--frames N] [--recalibrate-after K] [--calib
                       VIDEO VIDEO [VIDEO...]
   --frames N              stop after N panoramas (default: the clips' length)
   --recalibrate-after K   send ourselves SIGUSR1 after K panoramas, once stitchcalib's pooled
-                          refinement of the first frames is in (it takes no request while
-                          busy); what CI does
+                          refinement of the first frames is in (or kept out); what CI does
   --calibration-frames C  stitchcalib's pooling of the first frames (default 5; 1: none, the
                           first calibration is final)
   GST_PLUGIN_PATH must reach the stitch plugin (build/gst).
 Exits 0 when the pipeline ran without error and, with --recalibrate-after, a recalibration
-was posted after the signal; 1 otherwise.
+was posted after the signal (installed, or kept out because it did not beat the current one:
+stitchcalib-rejected); 1 otherwise.
 """
 import argparse
 import os

@@ -368,3 +368,30 @@ TEST(CalibSession, LoadedCalibrationThatDoesNotFitWarnsNamingTheCameras) {
     for (const auto& e : feed(ok, f, crops(2, 400))) fine.push_back(e);
   EXPECT_EQ(count(fine, SessionEvent::Type::Warning), 0);
 }
+
+// recalibrate-interval counts running time that has passed, not timestamps: a seek back (the
+// timestamps start again) does not stop it.
+TEST(CalibSession, IntervalCountsRunningTimeAcrossASeekBack) {
+  SessionConfig c = quick();
+  c.recalibrate_interval_s = 1;
+  c.calibration_window_s = 0.1;
+  CalibSession s;
+  s.set_config(c);
+  const auto frames = crops(2);
+  feed(s, 0, frames);
+  ASSERT_TRUE(s.current());
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {640, 480}};
+  std::shared_ptr<CalibJob> job;
+  for (int f = 1; f <= 24 && !job; ++f) {  // 0.8 s
+    fr.time_s = f / 30.0;
+    job = s.on_frame(fr, views_of(frames));
+  }
+  EXPECT_FALSE(job);
+  for (int f = 0; f <= 20 && !job; ++f) {  // the timestamps restart at 0 (a flushing seek back)
+    fr.time_s = f / 30.0;
+    job = s.on_frame(fr, views_of(frames));
+  }
+  ASSERT_TRUE(job) << "the interval stopped after the seek back";
+  EXPECT_EQ(job->kind, JobKind::Recalibration);
+}
