@@ -395,3 +395,29 @@ TEST(CalibSession, IntervalCountsRunningTimeAcrossASeekBack) {
   ASSERT_TRUE(job) << "the interval stopped after the seek back";
   EXPECT_EQ(job->kind, JobKind::Recalibration);
 }
+
+// Uncalibrated (a dark camera) when the resolution changes: the rough rig is adapted to the
+// new sizes, not kept for the old ones.
+TEST(CalibSession, RoughRigFollowsASizeChangeBeforeTheFirstCalibration) {
+  const std::string path = testdata::temp_dir() + "/rough_sizes.json";
+  Rig rough = testdata::shifted_rig(2, 640, 480, 400);
+  for (auto& cam : rough.cameras) cam.homography.reset();
+  rough.canvas_width = rough.canvas_height = 0;
+  for (auto& cam : rough.cameras) cam.fx = cam.fy = 600;
+  rig_save(rough, path);
+  SessionConfig c = quick();
+  c.rig_file = path;
+  CalibSession s;
+  s.set_config(c);
+  feed(s, 0, {black(), black()});
+  EXPECT_FALSE(s.current());
+  cv::Mat small;
+  cv::resize(crops(1)[0], small, cv::Size(320, 240));
+  CalibSession::Frame fr;
+  fr.time_s = 0.1;
+  fr.sizes = {{320, 240}, {320, 240}};
+  auto job = s.on_frame(fr, views_of({small, small}));
+  ASSERT_TRUE(job);
+  ASSERT_TRUE(job->rough);
+  EXPECT_EQ(job->rough->cameras[0].width, 320);
+}

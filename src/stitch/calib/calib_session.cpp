@@ -450,7 +450,7 @@ bool CalibSession::load_rough() {
     rough_.reset();
     return true;
   }
-  if (rough_ && rough_from_ == s.rig_file) return true;
+  if (rough_ && rough_from_ == s.rig_file && rough_sizes_ == sizes_) return true;
   try {
     rough_ = rig_load(s.rig_file);
   } catch (const std::exception& e) {
@@ -458,6 +458,7 @@ bool CalibSession::load_rough() {
     return false;
   }
   rough_from_ = s.rig_file;
+  rough_sizes_ = sizes_;
   if (rough_->cameras.size() != sizes_.size()) {
     fail("rig-file \"" + s.rig_file + "\" describes " + std::to_string(rough_->cameras.size()) + " cameras but " +
          std::to_string(sizes_.size()) + " streams are connected");

@@ -206,6 +206,7 @@ class CalibSession {
   std::shared_ptr<const Rig> current_;
   std::optional<Rig> rough_;
   std::string rough_from_;
+  std::vector<std::array<int, 2>> rough_sizes_;  // the view sizes rough_ was adapted to
   std::vector<std::array<int, 2>> sizes_;
   int panorama_w_ = 0, panorama_h_ = 0;  // kept over recalibrations
   std::uint64_t version_ = 0;
