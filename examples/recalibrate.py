@@ -10,13 +10,13 @@ usage: recalibrate.py [--headless] [--frames N] [--recalibrate-after K] [--calib
                       VIDEO VIDEO [VIDEO...]
   --frames N              stop after N panoramas (default: the clips' length)
   --recalibrate-after K   send ourselves SIGUSR1 after K panoramas, once stitchcalib's pooled
-                          refinement of the first frames is in (it takes no request while
-                          busy); what CI does
+                          refinement of the first frames is in (or kept out); what CI does
   --calibration-frames C  stitchcalib's pooling of the first frames (default 5; 1: none, the
                           first calibration is final)
   GST_PLUGIN_PATH must reach the stitch plugin (build/gst).
 Exits 0 when the pipeline ran without error and, with --recalibrate-after, a recalibration
-was posted after the signal; 1 otherwise.
+was posted after the signal (installed, or kept out because it did not beat the current one:
+stitchcalib-rejected); 1 otherwise.
 """
 import argparse
 import os
@@ -90,7 +90,16 @@ def main():
     pipeline.get_by_name("tap").get_static_pad("src").add_probe(Gst.PadProbeType.BUFFER, on_frame)
 
     def on_message(_bus, msg):
-        if msg.type == Gst.MessageType.ELEMENT and msg.get_structure().get_name() == "stitchcalib":
+        if msg.type == Gst.MessageType.ELEMENT and msg.get_structure().get_name() == "stitchcalib-rejected":
+            # a pooled refinement or a recalibration that did not beat the current calibration
+            s = msg.get_structure()
+            state["settled"] |= s.get_value("source") == "pooled"
+            state["recalibrated"] |= state["asked"] and s.get_value("source") == "recalibration"
+            print("%s kept out: %.2f px against the current %.2f px" % (
+                s.get_value("source"), s.get_value("alignment-px"), s.get_value("previous-px")), flush=True)
+            if done():
+                GLib.idle_add(loop.quit)
+        elif msg.type == Gst.MessageType.ELEMENT and msg.get_structure().get_name() == "stitchcalib":
             s = msg.get_structure()
             state["calibrations"].append(s.get_value("version"))
             # settled: no pooled refinement of the first frames is still to come

@@ -105,6 +105,7 @@ struct BlendState {
   /* state (streaming thread) */
   StitchCudaOwned<stitch::Compositor> compositor;
   guint64 rig_version = G_MAXUINT64;
+  std::vector<std::array<int, 2>> camera_sizes; /* of the rig the compositor was made for */
   GstVideoInfo out_info;
   GstBufferPool* pool = nullptr;
   bool in_cuda = false;   /* negotiated bundles in CUDA memory */
@@ -383,9 +384,13 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     return TRUE;
 
   stitch::CompositorSettings effective = settings;
-  if (st->compositor && !settings_changed) {
+  std::vector<std::array<int, 2>> camera_sizes;
+  for (const auto& c : (*meta->rig)->cameras) camera_sizes.push_back({c.width, c.height});
+  if (st->compositor && !settings_changed && camera_sizes == st->camera_sizes) {
     /* A recalibration keeps the panorama size: encoders and muxers downstream rarely accept
-     * a new resolution mid-stream. The new canvas is fitted into the same frame. */
+     * a new resolution mid-stream. The new canvas is fitted into the same frame (stitchcalib
+     * already fits it, so that its canvas stays the panorama size). Other cameras (one left,
+     * or changed resolution) were calibrated from scratch: their canvas is the panorama. */
     effective.output_width = st->compositor->geometry().width;
     effective.output_height = st->compositor->geometry().height;
   }
@@ -437,6 +442,7 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
   }
   const stitch::OutputGeometry& g = compositor.geometry();
   st->rig_version = meta->version;
+  st->camera_sizes = camera_sizes;
   if (g.width != GST_VIDEO_INFO_WIDTH(&st->out_info) || g.height != GST_VIDEO_INFO_HEIGHT(&st->out_info)) {
     GstCaps* caps = panorama_caps(st, g.width, g.height);
     GST_INFO_OBJECT(self, "panorama is %dx%d%s", g.width, g.height, st->out_cuda ? " in CUDA memory" : "");

@@ -20,23 +20,49 @@
  * rotations and focal lengths, then `wave-correct` levels the horizon. `bundle-adjust=true`
  * does the same for a planar rig (a rotating one) instead of chaining pairwise corrections.
  *
- * It calibrates on the first bundle, then pools the matches of the first `calibration-frames`
- * frames (every 5th) into a refined calibration that replaces it (moving people and noise
- * average out on a static rig). It recalibrates when the `recalibrate` action signal is emitted,
- * and every `recalibrate-interval` seconds if set; later calibrations run in a worker thread
- * while the stream goes on with the previous geometry. Every result is posted as an element
- * message named `stitchcalib` and written to `save-file` when set. When matching fails the
- * last good calibration (or the rough one) is kept and a warning is posted.
+ * The policy (src/stitch/calib/calib_session.hpp) over a whole stream:
  *
- * Bundles that come before the first calibration (a camera not delivering yet, calibration
- * attempts that failed) are dropped, each with a QoS message.
+ * - Frames are picked by quality: a bundle with a dark, torn (a broken keyframe: two pictures
+ *   in one), blurred or featureless view is not calibrated on (a rig-file's rough geometry
+ *   needs no features, only no dark or torn view).
+ * - The first usable bundle is calibrated at once (the stream waits for it: nothing can be
+ *   output before). Then `calibration-frames` good bundles, the best of each stretch of
+ *   `calibration-window` seconds, are pooled into a new calibration, judged against the first
+ *   on held-out bundles of the same window by independent matches: it replaces the first only
+ *   when it aligns them clearly better, so the geometry never flips between equals.
+ * - `recalibrate` (action signal), `recalibrate-interval` (running time) and the optional drift
+ *   watch (`drift-threshold`: a check every 5 s, two bad checks in a row recalibrate) open such a
+ *   window again; the result must beat the current calibration on held-out frames, or it is
+ *   reported in a `stitchcalib-rejected` message and kept out. A recalibration keeps the
+ *   panorama size: its canvas is fitted into the current one.
+ * - Until a calibration exists, bundles are dropped, a `stitchcalib-pending` message
+ *   (`reason`, naming the cameras that hold it up, and `waited-s`) is posted at most once a
+ *   second, and QoS messages are rate-limited (the first drop, at most one a second, and the
+ *   total before the first bundle passes). After `calibration-timeout` seconds of running time
+ *   it stops with an error; a stream that ends before any calibration is an error.
+ * - A `load-file` is checked against the images once: a warning names the cameras it does not
+ *   fit.
  *
- * An input that changes resolution mid-stream is calibrated again from that frame on, with a
- * warning naming the camera and both sizes (`on-resize=recalibrate`), or stops the stream with
- * an error (`on-resize=error`). Flushes (seeks) keep the calibration: the rig has not moved.
+ * Every installed calibration is posted as an element message named `stitchcalib`: `version`,
+ * `source` (file, rig, images, pooled, recalibration), `canvas-width`/`-height`, `rms-px` (root
+ * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
+ * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
+ * `previous-px` (the calibration it replaced, same frames), `fit-rms-px`, `inliers`, ... It is
+ * written to `save-file` when set. The canvas is always the panorama size (even sizes, as
+ * stitchblend outputs them, and fitted into the current panorama on recalibration).
  *
- * Bundles in CUDA memory pass through untouched: only the frames a calibration reads (the
- * first ones, the pooled ones, a recalibration's) are mapped through host memory.
+ * Calibration runs in a worker thread that holds no lock of the element: results are picked up
+ * by the streaming thread, messages are posted outside every lock, properties never wait for a
+ * calibration, and a state change to READY (or a flush) releases the streaming thread and
+ * cancels the worker between its stages.
+ *
+ * An input that changes resolution mid-stream (or a camera that leaves) is calibrated again
+ * from scratch (the rig-file or the images, never the old geometry), with a warning naming the
+ * camera and both sizes (`on-resize=recalibrate`), or stops the stream with an error
+ * (`on-resize=error`). Flushes (seeks) keep the calibration: the rig has not moved.
+ *
+ * Bundles in CUDA memory pass through untouched: only the frames the calibration policy reads
+ * (quality checks and calibrations) are mapped through host memory.
  *
  * ## Example launch lines
  * |[
@@ -66,14 +92,13 @@
 #include <gst/video/video.h>
 
 #include <atomic>
+#include <condition_variable>
 #include <mutex>
-#include <opencv2/core.hpp>
-#include <optional>
 #include <thread>
 
 #include "gststitchbundle.h"
 #include "gststitchcuda.h"
-#include "stitch/calib/calibrator.hpp"
+#include "stitch/calib/calib_session.hpp"
 
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_calib_debug);
 #define GST_CAT_DEFAULT gst_stitch_calib_debug
@@ -95,6 +120,9 @@ enum {
   PROP_PROJECTION,
   PROP_BUNDLE_ADJUST,
   PROP_WAVE_CORRECT,
+  PROP_CALIBRATION_WINDOW,
+  PROP_CALIBRATION_TIMEOUT,
+  PROP_DRIFT_THRESHOLD,
 };
 
 typedef enum { ON_RESIZE_RECALIBRATE = 0, ON_RESIZE_ERROR = 1 } OnResize;
@@ -108,72 +136,57 @@ static guint signals[LAST_SIGNAL];
 #define DEFAULT_OVERLAP_MARGIN 0.15
 #define DEFAULT_REFERENCE -1
 #define DEFAULT_CALIBRATION_FRAMES 5
-#define POOL_SPACING_FRAMES 5
-#define MAX_FIRST_ATTEMPTS 10
-#define FRAMES_BETWEEN_ATTEMPTS 15
+#define DEFAULT_CALIBRATION_WINDOW 2.0
+#define DEFAULT_CALIBRATION_TIMEOUT 30.0
+#define DEFAULT_DRIFT_THRESHOLD 0.0
+#define PROJECTION_UNSET -1
 
-/* Deep copies of one bundle's views, for calibrations that outlive the buffer. */
-struct FrameSet {
-  std::vector<cv::Mat> storage;
-  std::vector<stitch::ImageView> views;
+/* One calibration job in a worker thread. The worker owns its inputs and this channel (shared):
+ * it never touches the element, which may be gone before it finishes. */
+struct WorkerChannel {
+  std::atomic<bool> cancel{false};
+  std::atomic<bool> done{false};
+  std::mutex m;  // only for the condition variable: never held while computing
+  std::condition_variable cv;
+  stitch::CalibOutcome outcome;  // written before `done`
 };
 
+/* Live workers: the plugin's static teardown (process exit) waits a little for them. */
+static std::mutex workers_lock;
+static std::condition_variable workers_cv;
+static int workers_alive = 0;
+static struct WorkersAtExit {
+  ~WorkersAtExit() {
+    std::unique_lock<std::mutex> g(workers_lock);
+    workers_cv.wait_for(g, std::chrono::seconds(10), [] { return workers_alive == 0; });
+  }
+} workers_at_exit;
+
 struct CalibSettings {
-  std::string rig_file, load_file, save_file;
-  stitch::CalibrationOptions options;
-  double interval_s = DEFAULT_INTERVAL;
-  int reference = DEFAULT_REFERENCE;
-  int calibration_frames = DEFAULT_CALIBRATION_FRAMES;
+  stitch::SessionConfig config;
   stitch::Backend backend = stitch::Backend::Auto;
   OnResize on_resize = ON_RESIZE_RECALIBRATE;
-  std::optional<stitch::Projection> projection;  // unset: the rig-file's
 };
 
 struct CalibState {
-  std::mutex lock;  // guards everything below and the settings
+  /* Guards `settings` only, for copies: never held while calibrating, waiting or posting. */
+  std::mutex settings_lock;
   CalibSettings settings;
-  std::shared_ptr<const stitch::Rig> current;
-  std::optional<stitch::Rig> rough;  // from rig-file, loaded once per start
-  std::vector<std::array<int, 2>> sizes;  // the view sizes `current` was made for
-  /* bundles passed and dropped (no calibration yet), for the QoS messages */
-  std::atomic<guint64> passed{0}, dropped{0};
-  guint64 version = 0;
-  int failed_attempts = 0;
-  guint64 frames_since_attempt = 0;
-  GstClockTime last_calibration_pts = GST_CLOCK_TIME_NONE;
   std::atomic<bool> recalibrate_requested{false};
-  /* pooling the first frames of a static rig */
-  std::vector<FrameSet> pool;
-  guint64 frames_seen = 0;
-  bool pooling = false;
-  /* worker */
-  std::thread worker;
-  std::atomic<bool> worker_busy{false};
-  std::optional<stitch::CalibrationResult> finished;
-  std::string finished_label;  // what the running worker computes: "pooled" or "recalibration"
-  std::string worker_error;
+  /* Flushing or stopping: a streaming thread waiting for the first calibration returns. */
+  std::atomic<bool> unblock{false};
+  /* Streaming thread only (start/stop run when it does not). */
+  stitch::CalibSession session;
+  std::shared_ptr<WorkerChannel> worker;
+  gint64 started_us = 0;
+  GstClockTime drop_running = GST_CLOCK_TIME_NONE, drop_stream = GST_CLOCK_TIME_NONE, drop_pts = GST_CLOCK_TIME_NONE,
+               drop_duration = GST_CLOCK_TIME_NONE;
   /* shared with the neighbours; calibration itself reads views through host memory */
   StitchCudaContext cuda;
 
-  void join() {
-    if (worker.joinable()) worker.join();
-    worker_busy = false;
-  }
-  void reset() {
-    join();
-    current.reset();
-    rough.reset();
-    finished.reset();
-    worker_error.clear();
-    failed_attempts = 0;
-    frames_since_attempt = 0;
-    pool.clear();
-    frames_seen = 0;
-    pooling = false;
-    last_calibration_pts = GST_CLOCK_TIME_NONE;
-    sizes.clear();
-    passed = 0;
-    dropped = 0;
+  void cancel_worker() {
+    if (worker) worker->cancel = true;
+    worker.reset();
   }
 };
 
@@ -213,39 +226,6 @@ static GType on_resize_get_type(void) {
   return type;
 }
 
-/* A camera whose frames changed size since the calibration: recalibrate (dropping every
- * calibration in flight) or stop, by on-resize. FALSE after the error. */
-static gboolean handle_resize(GstStitchCalib* self, const std::vector<std::array<int, 2>>& sizes) {
-  CalibState* st = self->state;
-  std::unique_lock<std::mutex> guard(st->lock);
-  if (!st->current || st->sizes.empty() || st->sizes == sizes) return TRUE;
-  std::string what;
-  for (std::size_t i = 0; i < sizes.size() && i < st->sizes.size(); ++i)
-    if (sizes[i] != st->sizes[i])
-      what += (what.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " " +
-              std::to_string(st->sizes[i][0]) + "x" + std::to_string(st->sizes[i][1]) + " -> " +
-              std::to_string(sizes[i][0]) + "x" + std::to_string(sizes[i][1]);
-  if (sizes.size() != st->sizes.size())
-    what = std::to_string(st->sizes.size()) + " -> " + std::to_string(sizes.size()) + " cameras";
-  if (st->settings.on_resize == ON_RESIZE_ERROR) {
-    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
-                      ("Input resolution changed mid-stream (%s) and on-resize=error", what.c_str()), (NULL));
-    return FALSE;
-  }
-  GST_ELEMENT_WARNING(self, STREAM, FORMAT, ("Input resolution changed mid-stream (%s); recalibrating", what.c_str()),
-                      (NULL));
-  /* the worker takes the lock when it finishes: join it without */
-  guard.unlock();
-  st->join();
-  guard.lock();
-  const guint64 version = st->version, passed = st->passed, dropped = st->dropped;
-  st->reset();
-  st->version = version;
-  st->passed = passed;
-  st->dropped = dropped;
-  return TRUE;
-}
-
 static GType features_get_type(void) {
   static GType type = 0;
   static const GEnumValue values[] = {{int(stitch::FeatureType::Sift), "SIFT", "sift"},
@@ -262,6 +242,7 @@ static GType features_get_type(void) {
 static GType projection_get_type(void) {
   static GType type = 0;
   static const GEnumValue values[] = {
+      {PROJECTION_UNSET, "Unset: the rig-file's \"projection\" (plane without a rig-file)", "unset"},
       {int(stitch::Projection::Plane), "The reference camera's image plane (homographies)", "plane"},
       {int(stitch::Projection::Cylindrical), "Cylinder about the rig's vertical axis", "cylindrical"},
       {int(stitch::Projection::Spherical), "Sphere, equirectangular", "spherical"},
@@ -278,235 +259,170 @@ static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
 static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
     "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 
-static void post_result(GstStitchCalib* self, const stitch::CalibrationResult& r, guint64 version,
-                        const char* source) {
-  double rms = 0;
-  int inliers = 0, accepted = 0;
-  for (const auto& p : r.pairs) {
-    inliers += p.inliers;
-    if (p.accepted) {
-      rms += p.rms_px;
-      ++accepted;
-    }
+static GValue double_array(const std::vector<double>& values) {
+  GValue array = G_VALUE_INIT;
+  gst_value_array_init(&array, guint(values.size()));
+  for (double v : values) {
+    GValue item = G_VALUE_INIT;
+    g_value_init(&item, G_TYPE_DOUBLE);
+    g_value_set_double(&item, v);
+    gst_value_array_append_and_take_value(&array, &item);
   }
+  return array;
+}
+
+static GstStructure* report_structure(const char* name, const stitch::CalibReport& r) {
+  const stitch::Rig& rig = *r.rig;
+  const double rms = r.residuals.rms_px >= 0 ? r.residuals.rms_px : r.fit_rms_px;
   GstStructure* s = gst_structure_new(
-      "stitchcalib", "version", G_TYPE_UINT64, version, "source", G_TYPE_STRING, source,
-      "cameras", G_TYPE_INT, int(r.rig.cameras.size()), "refined-cameras", G_TYPE_INT,
-      r.refined_cameras, "inliers", G_TYPE_INT, inliers, "rms-px", G_TYPE_DOUBLE,
-      accepted ? rms / accepted : 0.0, "canvas-width", G_TYPE_INT, r.rig.canvas_width,
-      "canvas-height", G_TYPE_INT, r.rig.canvas_height, "warnings", G_TYPE_INT,
-      int(r.warnings.size()), "projection", G_TYPE_STRING, r.rig.projection.c_str(), "canvas-wrap",
-      G_TYPE_BOOLEAN, gboolean(r.rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_after_px, NULL);
-  gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
+      name, "version", G_TYPE_UINT64, guint64(r.version), "source", G_TYPE_STRING, r.source.c_str(), "cameras",
+      G_TYPE_INT, int(rig.cameras.size()), "refined-cameras", G_TYPE_INT, r.refined_cameras, "inliers", G_TYPE_INT,
+      r.inliers, "rms-px", G_TYPE_DOUBLE, rms, "alignment-px", G_TYPE_DOUBLE, r.residuals.median_px, "fit-rms-px",
+      G_TYPE_DOUBLE, r.fit_rms_px, "residual-matches", G_TYPE_INT, r.residuals.matches, "residual-source",
+      G_TYPE_STRING, r.residual_source.c_str(), "previous-px", G_TYPE_DOUBLE, r.previous_px, "canvas-width",
+      G_TYPE_INT, rig.canvas_width, "canvas-height", G_TYPE_INT, rig.canvas_height, "warnings", G_TYPE_INT,
+      r.warnings, "projection", G_TYPE_STRING, rig.projection.c_str(), "canvas-wrap", G_TYPE_BOOLEAN,
+      gboolean(rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_px, NULL);
+  GValue cams = double_array(r.residuals.camera_px);
+  gst_structure_take_value(s, "camera-px", &cams);
+  return s;
 }
 
-static FrameSet clone_views(const std::vector<stitch::ImageView>& views) {
-  FrameSet set;
-  for (const auto& v : views) {
-    cv::Mat m = cv::Mat(v.height, v.width, CV_8UC4, v.data, v.pitch).clone();
-    set.storage.push_back(m);
-    stitch::ImageView c;
-    c.data = m.data;
-    c.pitch = m.step;
-    c.width = m.cols;
-    c.height = m.rows;
-    set.views.push_back(c);
-  }
-  return set;
-}
-
-/* The estimation itself: pure core calls, may run in the worker thread. */
-static stitch::CalibrationResult run_calibration(
-    const CalibSettings& s, const std::optional<stitch::Rig>& rough,
-    const std::shared_ptr<const stitch::Rig>& previous,
-    const std::vector<std::vector<stitch::ImageView>>& frames) {
-  if (rough) {
-    stitch::Rig start = *rough;
-    if (s.reference >= 0) start.reference = s.reference;
-    if (s.projection && start.projection != stitch::projection_name(*s.projection)) {
-      /* Another canvas: what the file computed for its own one does not apply. */
-      start.projection = stitch::projection_name(*s.projection);
-      for (auto& c : start.cameras) c.homography.reset();
-      start.canvas_width = start.canvas_height = 0;
-      start.canvas_scale = 0;
-    }
-    return stitch::calibrate_from_rig(start, frames, s.options);
-  }
-  if (s.projection && *s.projection != stitch::Projection::Plane)
-    throw stitch::RigError(std::string("projection=") + stitch::projection_name(*s.projection) +
-                           " needs rough focal lengths and rotations: give a rig-file");
-  if (previous) {
-    /* re-calibration without a rig: refine the previous geometry with features */
-    return stitch::calibrate_from_rig(*previous, frames, s.options);
-  }
-  return stitch::calibrate_from_images(frames, s.reference, s.options);
-}
-
-/* Installs a new calibration (streaming thread, state lock held). */
-static void install(GstStitchCalib* self, stitch::CalibrationResult& r, const char* source) {
+/* Posts what the session says; the caller holds no lock. FALSE when it reported an error. */
+static gboolean post_events(GstStitchCalib* self) {
   CalibState* st = self->state;
-  for (const auto& w : r.warnings)
-    GST_ELEMENT_WARNING(self, STREAM, FAILED, ("Calibration: %s", w.c_str()), (NULL));
-  st->current = std::make_shared<const stitch::Rig>(r.rig);
-  st->version++;
-  if (!st->settings.save_file.empty()) {
-    try {
-      stitch::rig_save(*st->current, st->settings.save_file);
-    } catch (const std::exception& e) {
-      GST_ELEMENT_WARNING(self, RESOURCE, WRITE, ("%s", e.what()), (NULL));
+  gboolean ok = TRUE;
+  for (const stitch::SessionEvent& e : st->session.take_events()) {
+    switch (e.type) {
+      case stitch::SessionEvent::Type::Installed:
+        GST_INFO_OBJECT(self, "calibration %" G_GUINT64_FORMAT " from %s: canvas %dx%d, alignment %.2f px",
+                        guint64(e.report.version), e.report.source.c_str(), e.report.rig->canvas_width,
+                        e.report.rig->canvas_height, e.report.residuals.median_px);
+        gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self),
+                                                                           report_structure("stitchcalib", e.report)));
+        break;
+      case stitch::SessionEvent::Type::Rejected: {
+        GST_INFO_OBJECT(self, "%s kept out: %.2f px against the current %.2f px", e.report.source.c_str(),
+                        e.report.residuals.median_px, e.report.previous_px);
+        gst_element_post_message(GST_ELEMENT(self),
+                                 gst_message_new_element(GST_OBJECT(self), report_structure("stitchcalib-rejected", e.report)));
+        break;
+      }
+      case stitch::SessionEvent::Type::Pending:
+        gst_element_post_message(
+            GST_ELEMENT(self),
+            gst_message_new_element(GST_OBJECT(self), gst_structure_new("stitchcalib-pending", "reason", G_TYPE_STRING,
+                                                                        e.text.c_str(), "waited-s", G_TYPE_DOUBLE,
+                                                                        e.waited_s, NULL)));
+        break;
+      case stitch::SessionEvent::Type::Qos: {
+        GstMessage* qos = gst_message_new_qos(GST_OBJECT(self), FALSE, st->drop_running, st->drop_stream, st->drop_pts,
+                                              st->drop_duration);
+        gst_message_set_qos_stats(qos, GST_FORMAT_BUFFERS, e.processed, e.dropped);
+        gst_element_post_message(GST_ELEMENT(self), qos);
+        break;
+      }
+      case stitch::SessionEvent::Type::Warning:
+        GST_ELEMENT_WARNING(self, STREAM, FAILED, ("%s", e.text.c_str()), (NULL));
+        break;
+      case stitch::SessionEvent::Type::Error:
+        GST_ELEMENT_ERROR(self, STREAM, FAILED, ("%s", e.text.c_str()), (NULL));
+        ok = FALSE;
+        break;
     }
   }
-  GST_INFO_OBJECT(self, "calibration %" G_GUINT64_FORMAT " from %s: canvas %dx%d, %d refined",
-                  st->version, source, r.rig.canvas_width, r.rig.canvas_height, r.refined_cameras);
-  post_result(self, r, st->version, source);
+  return ok;
 }
 
-/* First calibration (or retry): synchronous so the first output is already calibrated. */
-static gboolean calibrate_now(GstStitchCalib* self, const std::vector<stitch::ImageView>& views,
-                              const std::vector<std::array<int, 2>>& sizes) {
-  CalibState* st = self->state;
-  const CalibSettings& s = st->settings;
-  if (!s.load_file.empty()) {
-    stitch::Rig rig;
-    try {
-      rig = stitch::rig_load(s.load_file);
-    } catch (const std::exception& e) {
-      GST_ELEMENT_ERROR(self, RESOURCE, READ, ("%s", e.what()), (NULL));
-      return FALSE;
-    }
-    if (s.projection && rig.projection != stitch::projection_name(*s.projection))
-      GST_ELEMENT_WARNING(self, RESOURCE, READ,
-                          ("load-file \"%s\" holds a %s calibration; projection=%s applies to "
-                           "estimation only, the file is used as is",
-                           s.load_file.c_str(), rig.projection.c_str(), stitch::projection_name(*s.projection)),
-                          (NULL));
-    if (!rig.calibrated()) {
-      GST_ELEMENT_ERROR(self, RESOURCE, READ,
-                        ("load-file \"%s\" holds no calibration (a planar rig needs a "
-                         "\"homography\" per camera and a \"canvas\", a non-planar one a \"canvas\" "
-                         "with \"scale\"); use rig-file for rough "
-                         "parameters",
-                         s.load_file.c_str()),
-                        (NULL));
-      return FALSE;
-    }
-    if (rig.cameras.size() != sizes.size()) {
-      GST_ELEMENT_ERROR(self, STREAM, WRONG_TYPE,
-                        ("load-file \"%s\" describes %d cameras but %d streams are connected",
-                         s.load_file.c_str(), int(rig.cameras.size()), int(sizes.size())),
-                        (NULL));
-      return FALSE;
-    }
-    if (stitch::rig_adapt_to_sizes(rig, sizes))
-      GST_ELEMENT_WARNING(self, STREAM, FORMAT,
-                          ("The calibration was made for other frame sizes; it was scaled to the "
-                           "streams"),
-                          (NULL));
-    try {
-      stitch::rig_layout_canvas(rig);
-    } catch (const std::exception& e) {
-      GST_ELEMENT_ERROR(self, STREAM, FAILED, ("load-file: %s", e.what()), (NULL));
-      return FALSE;
-    }
-    stitch::CalibrationResult r;
-    r.rig = rig;
-    install(self, r, "file");
-    return TRUE;
-  }
-  if (s.rig_file.empty() && !st->current &&
-      ((s.projection && *s.projection != stitch::Projection::Plane) || s.options.bundle_adjust)) {
-    GST_ELEMENT_ERROR(self, RESOURCE, NOT_FOUND,
-                      ("%s needs rough focal lengths and rotations: set rig-file",
-                       s.options.bundle_adjust ? "bundle-adjust=true" : "a cylindrical or spherical projection"),
-                      (NULL));
-    return FALSE;
-  }
-  if (!s.rig_file.empty() && !st->rough) {
-    try {
-      st->rough = stitch::rig_load(s.rig_file);
-    } catch (const std::exception& e) {
-      GST_ELEMENT_ERROR(self, RESOURCE, READ, ("%s", e.what()), (NULL));
-      return FALSE;
-    }
-    if (st->rough->cameras.size() != sizes.size()) {
-      GST_ELEMENT_ERROR(self, STREAM, WRONG_TYPE,
-                        ("rig-file \"%s\" describes %d cameras but %d streams are connected",
-                         s.rig_file.c_str(), int(st->rough->cameras.size()), int(sizes.size())),
-                        (NULL));
-      return FALSE;
-    }
-    if (stitch::rig_adapt_to_sizes(*st->rough, sizes))
-      GST_ELEMENT_WARNING(self, STREAM, FORMAT,
-                          ("rig-file camera sizes differ from the streams; intrinsics were scaled"),
-                          (NULL));
+static void start_worker(CalibState* st, std::shared_ptr<stitch::CalibJob> job) {
+  auto ch = std::make_shared<WorkerChannel>();
+  {
+    std::lock_guard<std::mutex> g(workers_lock);
+    ++workers_alive;
   }
   try {
-    stitch::CalibrationResult r = run_calibration(s, st->rough, st->current, {views});
-    install(self, r, st->rough ? "rig" : "images");
-    return TRUE;
-  } catch (const stitch::RigError& e) {
-    if (st->rough) {
-      /* Degenerate rough geometry cannot be repaired by features. */
-      GST_ELEMENT_ERROR(self, STREAM, FAILED, ("Calibration failed: %s", e.what()), (NULL));
-      return FALSE;
-    }
-    st->failed_attempts++;
-    if (st->failed_attempts >= MAX_FIRST_ATTEMPTS) {
-      GST_ELEMENT_ERROR(self, STREAM, FAILED,
-                        ("Could not calibrate from the images after %d attempts: %s",
-                         st->failed_attempts, e.what()),
-                        (NULL));
-      return FALSE;
-    }
-    GST_ELEMENT_WARNING(self, STREAM, FAILED,
-                        ("Calibration attempt %d failed (%s); dropping frames and retrying",
-                         st->failed_attempts, e.what()),
-                        (NULL));
-    return TRUE;
+    std::thread([ch, job]() {
+      stitch::CalibOutcome o;
+      try {
+        o = stitch::run_calib_job(*job, ch->cancel);
+      } catch (const std::exception& e) {
+        o = stitch::CalibOutcome();
+        o.error = e.what();
+      } catch (...) {
+        o = stitch::CalibOutcome();
+        o.error = "unknown exception in the calibration";
+      }
+      o.kind = job->kind;
+      o.serial = job->serial;
+      {
+        std::lock_guard<std::mutex> g(ch->m);
+        ch->outcome = std::move(o);
+        ch->done = true;
+      }
+      ch->cv.notify_all();
+      std::lock_guard<std::mutex> g(workers_lock);
+      --workers_alive;
+      workers_cv.notify_all();
+    }).detach();
+  } catch (...) {
+    std::lock_guard<std::mutex> g(workers_lock);
+    --workers_alive;
+    throw;
   }
+  st->worker = ch;
 }
 
-static void start_worker(GstStitchCalib* self, std::shared_ptr<std::vector<FrameSet>> sets) {
-  CalibState* st = self->state;
-  st->join();
-  std::vector<std::vector<stitch::ImageView>> frames;
-  for (const auto& set : *sets) frames.push_back(set.views);
-  CalibSettings settings = st->settings;
-  std::optional<stitch::Rig> rough = st->rough;
-  std::shared_ptr<const stitch::Rig> previous = st->current;
-  /* The first pooled refinement starts again from the rough rig or from the images. */
-  if (st->pooling) previous.reset();
-  st->finished_label = st->pooling ? "pooled" : "recalibration";
-  st->worker_busy = true;
-  st->worker = std::thread([st, sets, frames, settings, rough, previous]() {
-    std::optional<stitch::CalibrationResult> result;
-    std::string error;
-    try {
-      result = run_calibration(settings, rough, previous, frames);
-    } catch (const std::exception& e) {
-      error = e.what();
-    }
-    std::lock_guard<std::mutex> guard(st->lock);
-    st->finished = std::move(result);
-    st->worker_error = error;
-    st->worker_busy = false;
-  });
+/* Hands a finished job's outcome to the session, without waiting. */
+static void collect_outcome(CalibState* st) {
+  if (!st->worker || !st->worker->done.load()) return;
+  std::shared_ptr<WorkerChannel> ch = std::move(st->worker);
+  st->worker.reset();
+  st->session.on_outcome(ch->outcome);
 }
 
-/* A bundle dropped because there is no calibration yet: announced with a QoS message. */
-static GstFlowReturn drop_with_qos(GstStitchCalib* self, GstBuffer* buf) {
+/* The first calibration: nothing can be output before it, so the streaming thread waits for the
+ * worker (holding no lock), and gives up as soon as the element flushes or stops. */
+static gboolean wait_for_worker(CalibState* st) {
+  std::shared_ptr<WorkerChannel> ch = st->worker;
+  std::unique_lock<std::mutex> g(ch->m);
+  while (!ch->done.load()) {
+    if (st->unblock.load()) return FALSE;
+    ch->cv.wait_for(g, std::chrono::milliseconds(20));
+  }
+  return TRUE;
+}
+
+static double running_time_s(GstStitchCalib* self, GstBuffer* buf) {
   GstBaseTransform* trans = GST_BASE_TRANSFORM(self);
   const GstClockTime pts = GST_BUFFER_PTS(buf);
-  GstClockTime running_time = GST_CLOCK_TIME_NONE, stream_time = GST_CLOCK_TIME_NONE;
   if (trans->segment.format == GST_FORMAT_TIME && GST_CLOCK_TIME_IS_VALID(pts)) {
-    running_time = gst_segment_to_running_time(&trans->segment, GST_FORMAT_TIME, pts);
-    stream_time = gst_segment_to_stream_time(&trans->segment, GST_FORMAT_TIME, pts);
+    const GstClockTime rt = gst_segment_to_running_time(&trans->segment, GST_FORMAT_TIME, pts);
+    if (GST_CLOCK_TIME_IS_VALID(rt)) return double(rt) / GST_SECOND;
   }
-  GstMessage* qos = gst_message_new_qos(GST_OBJECT(self), FALSE, running_time, stream_time, pts,
-                                        GST_BUFFER_DURATION(buf));
-  gst_message_set_qos_stats(qos, GST_FORMAT_BUFFERS, self->state->passed, ++self->state->dropped);
-  gst_element_post_message(GST_ELEMENT(self), qos);
-  return GST_BASE_TRANSFORM_FLOW_DROPPED;
+  /* no timestamps: wall time since start */
+  return double(g_get_monotonic_time() - self->state->started_us) / G_USEC_PER_SEC;
+}
+
+static void note_drop(GstStitchCalib* self, GstBuffer* buf) {
+  GstBaseTransform* trans = GST_BASE_TRANSFORM(self);
+  CalibState* st = self->state;
+  st->drop_pts = GST_BUFFER_PTS(buf);
+  st->drop_duration = GST_BUFFER_DURATION(buf);
+  st->drop_running = st->drop_stream = GST_CLOCK_TIME_NONE;
+  if (trans->segment.format == GST_FORMAT_TIME && GST_CLOCK_TIME_IS_VALID(st->drop_pts)) {
+    st->drop_running = gst_segment_to_running_time(&trans->segment, GST_FORMAT_TIME, st->drop_pts);
+    st->drop_stream = gst_segment_to_stream_time(&trans->segment, GST_FORMAT_TIME, st->drop_pts);
+  }
+}
+
+static void snapshot_settings(CalibState* st) {
+  stitch::SessionConfig config;
+  {
+    std::lock_guard<std::mutex> g(st->settings_lock);
+    config = st->settings.config;
+    config.resize_is_error = st->settings.on_resize == ON_RESIZE_ERROR;
+  }
+  st->session.set_config(config);
 }
 
 static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstBuffer* buf) {
@@ -516,108 +432,99 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   const guint n_views = stitch_bundle_caps_views(caps);
   if (caps) gst_caps_unref(caps);
 
-  std::vector<std::array<int, 2>> sizes;
+  stitch::CalibSession::Frame frame;
   std::string error;
-  if (!stitch_bundle_view_sizes(buf, n_views, sizes, error)) {
+  if (!stitch_bundle_view_sizes(buf, n_views, frame.sizes, error)) {
     GST_ELEMENT_ERROR(self, STREAM, FORMAT, ("Bad bundle: %s", error.c_str()), (NULL));
     return GST_FLOW_ERROR;
   }
-  if (!handle_resize(self, sizes)) return GST_FLOW_ERROR;
   const GstStitchBundleMeta* bundle = gst_buffer_get_stitch_bundle_meta(buf);
-  const guint64 missing = bundle ? bundle->missing_mask : 0;
-  for (guint i = 0; i < n_views; ++i) {
-    if ((missing >> i & 1) && !st->current) {
-      /* a camera has not delivered yet: wait, calibrating on black would fail */
-      GST_DEBUG_OBJECT(self, "view %u missing; waiting before calibrating", i);
-      return drop_with_qos(self, buf);
-    }
-  }
-  /* Pixels are read only on the frames that calibrate (rarely): CUDA-memory views then come
-   * to the host through gst-cuda for that frame only; every other bundle passes untouched. */
-  StitchBundleMapping mapping;
-  bool mapped = false;
-  auto frames = [&]() -> const std::vector<stitch::ImageView>& {
-    if (!mapped && !mapping.map(buf, n_views, GST_MAP_READ, error)) throw std::runtime_error("bad bundle: " + error);
-    mapped = true;
-    return mapping.views();
-  };
+  frame.missing_mask = bundle ? bundle->missing_mask : 0;
+  frame.time_s = running_time_s(self, buf);
+  snapshot_settings(st);
+  if (st->recalibrate_requested.exchange(false)) st->session.request_recalibration();
 
-  std::unique_lock<std::mutex> guard(st->lock);
-  gboolean ok = TRUE;
+  bool flushing = false;
   const gboolean guarded = stitch_guard(GST_ELEMENT(self), "stitchcalib", [&]() {
-    if (!st->current) {
-      if (st->failed_attempts > 0 && ++st->frames_since_attempt < FRAMES_BETWEEN_ATTEMPTS) return;
-      st->frames_since_attempt = 0;
-      static const std::vector<stitch::ImageView> no_frames;  // a saved calibration needs no pixels
-      ok = calibrate_now(self, st->settings.load_file.empty() ? frames() : no_frames, sizes);
-      st->last_calibration_pts = GST_BUFFER_PTS(buf);
-      if (ok && st->current) st->sizes = sizes;
-      if (ok && st->current && st->settings.load_file.empty() && st->settings.calibration_frames > 1) {
-        st->pooling = true;
-        st->frames_seen = 0;
-        st->pool.push_back(clone_views(frames()));
-      }
-      return;
+    collect_outcome(st);
+    /* Pixels are read only on the bundles the session wants (quality checks and calibrations):
+     * CUDA-memory views then come to the host through gst-cuda; every other bundle passes untouched. */
+    StitchBundleMapping mapping;
+    std::vector<stitch::ImageView> views;
+    if (st->session.wants_pixels(frame)) {
+      if (!mapping.map(buf, n_views, GST_MAP_READ, error)) throw std::runtime_error("bad bundle: " + error);
+      views = mapping.views();
     }
-    if (st->pooling && !st->worker_busy) {
-      if (++st->frames_seen % POOL_SPACING_FRAMES == 0)
-        st->pool.push_back(clone_views(frames()));
-      if (int(st->pool.size()) >= st->settings.calibration_frames) {
-        auto sets = std::make_shared<std::vector<FrameSet>>(std::move(st->pool));
-        st->pool.clear();
-        start_worker(self, sets);
-        st->pooling = false;
+    std::shared_ptr<stitch::CalibJob> job = st->session.on_frame(frame, views);
+    if (job) start_worker(st, job);
+    if (!st->session.current() && st->worker && !st->session.failed()) {
+      if (!wait_for_worker(st)) {
+        flushing = true;
         return;
       }
-    }
-    if (st->finished || !st->worker_error.empty()) {
-      st->join();
-      if (st->finished) {
-        install(self, *st->finished, st->finished_label.c_str());
-      } else {
-        GST_ELEMENT_WARNING(self, STREAM, FAILED,
-                            ("Recalibration failed (%s); keeping the last good calibration",
-                             st->worker_error.c_str()),
-                            (NULL));
-      }
-      st->finished.reset();
-      st->worker_error.clear();
-    }
-    bool due = st->recalibrate_requested.exchange(false);
-    const GstClockTime pts = GST_BUFFER_PTS(buf);
-    if (st->settings.interval_s > 0 && GST_CLOCK_TIME_IS_VALID(pts) &&
-        GST_CLOCK_TIME_IS_VALID(st->last_calibration_pts) &&
-        pts >= st->last_calibration_pts + GstClockTime(st->settings.interval_s * GST_SECOND))
-      due = true;
-    if (due && !st->worker_busy && st->settings.load_file.empty()) {
-      st->last_calibration_pts = pts;
-      auto sets = std::make_shared<std::vector<FrameSet>>();
-      sets->push_back(clone_views(frames()));
-      start_worker(self, sets);
+      collect_outcome(st);
     }
   });
-  if (!guarded || !ok) return GST_FLOW_ERROR;
-  if (!st->current) {
-    guard.unlock();  // posting may call back into the element
-    return drop_with_qos(self, buf);
+  if (!guarded) return GST_FLOW_ERROR;
+  if (!post_events(self)) return GST_FLOW_ERROR;
+  if (flushing) return GST_FLOW_FLUSHING;
+  std::shared_ptr<const stitch::Rig> rig = st->session.current();
+  if (!rig) {
+    note_drop(self, buf);
+    st->session.bundle_dropped();
+    post_events(self);
+    return GST_BASE_TRANSFORM_FLOW_DROPPED;
   }
-  gst_buffer_add_stitch_rig_meta(buf, st->current, st->version);
-  st->passed++;
+  gst_buffer_add_stitch_rig_meta(buf, rig, st->session.version());
+  st->session.bundle_passed();
+  post_events(self);
   return GST_FLOW_OK;
 }
 
-static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
+static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* event) {
   GstStitchCalib* self = GST_STITCH_CALIB(trans);
-  std::lock_guard<std::mutex> guard(self->state->lock);
-  self->state->reset();
+  CalibState* st = self->state;
+  switch (GST_EVENT_TYPE(event)) {
+    case GST_EVENT_FLUSH_START: st->unblock = true; break;
+    case GST_EVENT_FLUSH_STOP: st->unblock = false; break;
+    case GST_EVENT_EOS:
+      /* Serialized: the streaming thread owns the session here. A calibration in flight is
+       * finished first (a flush or a stop still releases the wait), so that its result is
+       * announced and saved. */
+      snapshot_settings(st);
+      if (st->worker && wait_for_worker(st)) collect_outcome(st);
+      st->session.on_eos();
+      post_events(self);
+      break;
+    default: break;
+  }
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_calib_parent_class)->sink_event(trans, event);
+}
+
+static GstStateChangeReturn gst_stitch_calib_change_state(GstElement* element, GstStateChange transition) {
+  GstStitchCalib* self = GST_STITCH_CALIB(element);
+  /* Before the pads deactivate (they wait for the streaming thread): release a streaming thread
+   * that waits for a calibration. stop() then cancels the worker. */
+  if (transition == GST_STATE_CHANGE_PAUSED_TO_READY) self->state->unblock = true;
+  if (transition == GST_STATE_CHANGE_READY_TO_PAUSED) self->state->unblock = false;
+  return GST_ELEMENT_CLASS(gst_stitch_calib_parent_class)->change_state(element, transition);
+}
+
+static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
+  CalibState* st = GST_STITCH_CALIB(trans)->state;
+  st->cancel_worker();
+  st->session.reset();
+  st->started_us = g_get_monotonic_time();
+  st->unblock = false;
   return TRUE;
 }
 
 static gboolean gst_stitch_calib_stop(GstBaseTransform* trans) {
-  GstStitchCalib* self = GST_STITCH_CALIB(trans);
-  self->state->join();
-  std::lock_guard<std::mutex> guard(self->state->lock);
-  self->state->reset();
+  /* The streaming thread has stopped: cancel the worker (it ends at its next stage boundary,
+   * on its own) and forget everything. Nothing waits for it. */
+  CalibState* st = GST_STITCH_CALIB(trans)->state;
+  st->cancel_worker();
+  st->session.reset();
   return TRUE;
 }
 
@@ -627,10 +534,16 @@ static gboolean gst_stitch_calib_set_caps(GstBaseTransform* trans, GstCaps* inca
   return !stitch_caps_are_cuda_memory(incaps) || self->state->cuda.ensure(GST_ELEMENT(self));
 }
 
-static GstCaps* gst_stitch_calib_transform_caps(GstBaseTransform*, GstPadDirection, GstCaps* caps, GstCaps* filter) {
-  /* In place, both sides in the same memory. CUDA memory whatever the backend: the bundles
-   * pass untouched and feature matching runs on the CPU in every mode. */
-  return stitch_caps_same_memory(caps, filter, stitch_cuda_memory_possible());
+static GstCaps* gst_stitch_calib_transform_caps(GstBaseTransform* trans, GstPadDirection, GstCaps* caps, GstCaps* filter) {
+  /* In place, both sides in the same memory. CUDA memory unless backend=cpu: the bundles pass
+   * untouched and feature matching runs on the CPU in every mode. */
+  CalibState* st = GST_STITCH_CALIB(trans)->state;
+  stitch::Backend backend;
+  {
+    std::lock_guard<std::mutex> g(st->settings_lock);
+    backend = st->settings.backend;
+  }
+  return stitch_caps_same_memory(caps, filter, stitch_cuda_memory_offered(backend));
 }
 
 static void gst_stitch_calib_set_context(GstElement* element, GstContext* context) {
@@ -655,24 +568,33 @@ static void set_string(std::string& dst, const GValue* value) {
 static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const GValue* value,
                                           GParamSpec* pspec) {
   GstStitchCalib* self = GST_STITCH_CALIB(object);
-  std::lock_guard<std::mutex> guard(self->state->lock);
+  std::lock_guard<std::mutex> guard(self->state->settings_lock);
   CalibSettings& s = self->state->settings;
+  stitch::SessionConfig& c = s.config;
   switch (prop_id) {
-    case PROP_RIG_FILE: set_string(s.rig_file, value); self->state->rough.reset(); break;
-    case PROP_LOAD_FILE: set_string(s.load_file, value); break;
-    case PROP_SAVE_FILE: set_string(s.save_file, value); break;
-    case PROP_REFINE: s.options.refinement = stitch::Refinement(g_value_get_enum(value)); break;
-    case PROP_FEATURES: s.options.features = stitch::FeatureType(g_value_get_enum(value)); break;
-    case PROP_RECALIBRATE_INTERVAL: s.interval_s = g_value_get_double(value); break;
-    case PROP_MIN_INLIERS: s.options.min_inliers = g_value_get_int(value); break;
-    case PROP_OVERLAP_MARGIN: s.options.overlap_margin = g_value_get_double(value); break;
-    case PROP_REFERENCE: s.reference = g_value_get_int(value); break;
-    case PROP_CALIBRATION_FRAMES: s.calibration_frames = g_value_get_int(value); break;
+    case PROP_RIG_FILE: set_string(c.rig_file, value); break;
+    case PROP_LOAD_FILE: set_string(c.load_file, value); break;
+    case PROP_SAVE_FILE: set_string(c.save_file, value); break;
+    case PROP_REFINE: c.options.refinement = stitch::Refinement(g_value_get_enum(value)); break;
+    case PROP_FEATURES: c.options.features = stitch::FeatureType(g_value_get_enum(value)); break;
+    case PROP_RECALIBRATE_INTERVAL: c.recalibrate_interval_s = g_value_get_double(value); break;
+    case PROP_MIN_INLIERS: c.options.min_inliers = g_value_get_int(value); break;
+    case PROP_OVERLAP_MARGIN: c.options.overlap_margin = g_value_get_double(value); break;
+    case PROP_REFERENCE: c.reference = g_value_get_int(value); break;
+    case PROP_CALIBRATION_FRAMES: c.calibration_frames = g_value_get_int(value); break;
     case PROP_BACKEND: s.backend = stitch::Backend(g_value_get_enum(value)); break;
     case PROP_ON_RESIZE: s.on_resize = OnResize(g_value_get_enum(value)); break;
-    case PROP_PROJECTION: s.projection = stitch::Projection(g_value_get_enum(value)); break;
-    case PROP_BUNDLE_ADJUST: s.options.bundle_adjust = g_value_get_boolean(value); break;
-    case PROP_WAVE_CORRECT: s.options.wave_correct = g_value_get_boolean(value); break;
+    case PROP_PROJECTION: {
+      const int p = g_value_get_enum(value);
+      if (p == PROJECTION_UNSET) c.projection.reset();
+      else c.projection = stitch::Projection(p);
+      break;
+    }
+    case PROP_BUNDLE_ADJUST: c.options.bundle_adjust = g_value_get_boolean(value); break;
+    case PROP_WAVE_CORRECT: c.options.wave_correct = g_value_get_boolean(value); break;
+    case PROP_CALIBRATION_WINDOW: c.calibration_window_s = g_value_get_double(value); break;
+    case PROP_CALIBRATION_TIMEOUT: c.calibration_timeout_s = g_value_get_double(value); break;
+    case PROP_DRIFT_THRESHOLD: c.drift_threshold_px = g_value_get_double(value); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -680,31 +602,35 @@ static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const 
 static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue* value,
                                           GParamSpec* pspec) {
   GstStitchCalib* self = GST_STITCH_CALIB(object);
-  std::lock_guard<std::mutex> guard(self->state->lock);
+  std::lock_guard<std::mutex> guard(self->state->settings_lock);
   const CalibSettings& s = self->state->settings;
+  const stitch::SessionConfig& c = s.config;
   switch (prop_id) {
-    case PROP_RIG_FILE: g_value_set_string(value, s.rig_file.empty() ? NULL : s.rig_file.c_str()); break;
-    case PROP_LOAD_FILE: g_value_set_string(value, s.load_file.empty() ? NULL : s.load_file.c_str()); break;
-    case PROP_SAVE_FILE: g_value_set_string(value, s.save_file.empty() ? NULL : s.save_file.c_str()); break;
-    case PROP_REFINE: g_value_set_enum(value, int(s.options.refinement)); break;
-    case PROP_FEATURES: g_value_set_enum(value, int(s.options.features)); break;
-    case PROP_RECALIBRATE_INTERVAL: g_value_set_double(value, s.interval_s); break;
-    case PROP_MIN_INLIERS: g_value_set_int(value, s.options.min_inliers); break;
-    case PROP_OVERLAP_MARGIN: g_value_set_double(value, s.options.overlap_margin); break;
-    case PROP_REFERENCE: g_value_set_int(value, s.reference); break;
-    case PROP_CALIBRATION_FRAMES: g_value_set_int(value, s.calibration_frames); break;
+    case PROP_RIG_FILE: g_value_set_string(value, c.rig_file.empty() ? NULL : c.rig_file.c_str()); break;
+    case PROP_LOAD_FILE: g_value_set_string(value, c.load_file.empty() ? NULL : c.load_file.c_str()); break;
+    case PROP_SAVE_FILE: g_value_set_string(value, c.save_file.empty() ? NULL : c.save_file.c_str()); break;
+    case PROP_REFINE: g_value_set_enum(value, int(c.options.refinement)); break;
+    case PROP_FEATURES: g_value_set_enum(value, int(c.options.features)); break;
+    case PROP_RECALIBRATE_INTERVAL: g_value_set_double(value, c.recalibrate_interval_s); break;
+    case PROP_MIN_INLIERS: g_value_set_int(value, c.options.min_inliers); break;
+    case PROP_OVERLAP_MARGIN: g_value_set_double(value, c.options.overlap_margin); break;
+    case PROP_REFERENCE: g_value_set_int(value, c.reference); break;
+    case PROP_CALIBRATION_FRAMES: g_value_set_int(value, c.calibration_frames); break;
     case PROP_BACKEND: g_value_set_enum(value, int(s.backend)); break;
     case PROP_ON_RESIZE: g_value_set_enum(value, int(s.on_resize)); break;
-    case PROP_PROJECTION: g_value_set_enum(value, int(s.projection.value_or(stitch::Projection::Plane))); break;
-    case PROP_BUNDLE_ADJUST: g_value_set_boolean(value, s.options.bundle_adjust); break;
-    case PROP_WAVE_CORRECT: g_value_set_boolean(value, s.options.wave_correct); break;
+    case PROP_PROJECTION: g_value_set_enum(value, c.projection ? int(*c.projection) : PROJECTION_UNSET); break;
+    case PROP_BUNDLE_ADJUST: g_value_set_boolean(value, c.options.bundle_adjust); break;
+    case PROP_WAVE_CORRECT: g_value_set_boolean(value, c.options.wave_correct); break;
+    case PROP_CALIBRATION_WINDOW: g_value_set_double(value, c.calibration_window_s); break;
+    case PROP_CALIBRATION_TIMEOUT: g_value_set_double(value, c.calibration_timeout_s); break;
+    case PROP_DRIFT_THRESHOLD: g_value_set_double(value, c.drift_threshold_px); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
 
 static void gst_stitch_calib_finalize(GObject* object) {
   GstStitchCalib* self = GST_STITCH_CALIB(object);
-  self->state->join();
+  self->state->cancel_worker();  // the worker owns what it reads: nothing to wait for
   delete self->state;
   G_OBJECT_CLASS(gst_stitch_calib_parent_class)->finalize(object);
 }
@@ -714,66 +640,92 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
   GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
   GstBaseTransformClass* trans_class = GST_BASE_TRANSFORM_CLASS(klass);
   const GParamFlags rw = GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS);
+  /* read at every bundle (or at the next calibration): they may change while playing */
+  const GParamFlags live = GParamFlags(rw | GST_PARAM_MUTABLE_PLAYING);
 
   gobject_class->set_property = gst_stitch_calib_set_property;
   gobject_class->get_property = gst_stitch_calib_get_property;
   gobject_class->finalize = gst_stitch_calib_finalize;
 
   g_object_class_install_property(gobject_class, PROP_RIG_FILE,
-      g_param_spec_string("rig-file", "Rig file", "Rough camera parameters (stitch-rig JSON)", NULL, rw));
+      g_param_spec_string("rig-file", "Rig file",
+                          "Rough camera parameters (stitch-rig JSON); read again at the next calibration when changed",
+                          NULL, live));
   g_object_class_install_property(gobject_class, PROP_LOAD_FILE,
-      g_param_spec_string("load-file", "Load file", "Saved calibration to use as is (no estimation)", NULL, rw));
+      g_param_spec_string("load-file", "Load file",
+                          "Saved calibration to use as is (no estimation); it is checked against the images "
+                          "and a warning names the cameras it does not fit", NULL, GParamFlags(rw | GST_PARAM_MUTABLE_READY)));
   g_object_class_install_property(gobject_class, PROP_SAVE_FILE,
-      g_param_spec_string("save-file", "Save file", "Write the calibration here whenever it changes", NULL, rw));
+      g_param_spec_string("save-file", "Save file",
+                          "Write the calibration here whenever it changes (its canvas is the panorama size)", NULL, live));
   g_object_class_install_property(gobject_class, PROP_REFINE,
       g_param_spec_enum("refine", "Refine", "How features refine the rough homographies",
-                        refine_get_type(), int(DEFAULT_REFINE), rw));
+                        refine_get_type(), int(DEFAULT_REFINE), live));
   g_object_class_install_property(gobject_class, PROP_FEATURES,
       g_param_spec_enum("features", "Features", "Feature detector for matching",
-                        features_get_type(), int(DEFAULT_FEATURES), rw));
+                        features_get_type(), int(DEFAULT_FEATURES), live));
   g_object_class_install_property(gobject_class, PROP_RECALIBRATE_INTERVAL,
       g_param_spec_double("recalibrate-interval", "Recalibrate interval",
-                          "Recalibrate every this many seconds of stream time (0 = only at start "
-                          "and on request)", 0, G_MAXDOUBLE, DEFAULT_INTERVAL, rw));
+                          "Recalibrate every this many seconds of running time (0 = only at start "
+                          "and on request); the result replaces the current calibration only when it "
+                          "aligns held-out frames better", 0, G_MAXDOUBLE, DEFAULT_INTERVAL, live));
   g_object_class_install_property(gobject_class, PROP_MIN_INLIERS,
       g_param_spec_int("min-inliers", "Minimum inliers",
                        "Fewer RANSAC inliers keep the previous homography of that camera", 4,
-                       100000, DEFAULT_MIN_INLIERS, rw));
+                       100000, DEFAULT_MIN_INLIERS, live));
   g_object_class_install_property(gobject_class, PROP_OVERLAP_MARGIN,
       g_param_spec_double("overlap-margin", "Overlap margin",
                           "Widen each overlap by this fraction of the view width before matching",
-                          0, 2, DEFAULT_OVERLAP_MARGIN, rw));
+                          0, 2, DEFAULT_OVERLAP_MARGIN, live));
   g_object_class_install_property(gobject_class, PROP_REFERENCE,
       g_param_spec_int("reference", "Reference camera",
                        "Camera whose image plane is the canvas (-1: the rig's, or the middle one)",
-                       -1, STITCH_MAX_VIEWS - 1, DEFAULT_REFERENCE, rw));
+                       -1, STITCH_MAX_VIEWS - 1, DEFAULT_REFERENCE, live));
   g_object_class_install_property(gobject_class, PROP_CALIBRATION_FRAMES,
       g_param_spec_int("calibration-frames", "Calibration frames",
-                       "Pool the matches of this many of the first frames (every 5th) into a "
-                       "refined calibration that replaces the first-frame one (1 = first frame only)",
-                       1, 100, DEFAULT_CALIBRATION_FRAMES, rw));
+                       "Pool the matches of this many good frames, spread over calibration-window, into a "
+                       "calibration that replaces the first-frame one when it aligns held-out frames better "
+                       "(1 = first frame only); recalibrations pool as many",
+                       1, 100, DEFAULT_CALIBRATION_FRAMES, live));
+  g_object_class_install_property(gobject_class, PROP_CALIBRATION_WINDOW,
+      g_param_spec_double("calibration-window", "Calibration window",
+                          "Seconds of running time over which the pooled and held-out frames of a "
+                          "calibration are picked (the best of each stretch: sharp, textured, not dark or torn)",
+                          0, 600, DEFAULT_CALIBRATION_WINDOW, live));
+  g_object_class_install_property(gobject_class, PROP_CALIBRATION_TIMEOUT,
+      g_param_spec_double("calibration-timeout", "Calibration timeout",
+                          "Keep trying to calibrate for this many seconds of running time, posting "
+                          "stitchcalib-pending messages, then stop with an error (0 = keep trying); a stream "
+                          "that ends uncalibrated is an error", 0, G_MAXDOUBLE, DEFAULT_CALIBRATION_TIMEOUT, live));
+  g_object_class_install_property(gobject_class, PROP_DRIFT_THRESHOLD,
+      g_param_spec_double("drift-threshold", "Drift threshold",
+                          "Drift watch: every 5 s, measure the alignment on a fresh frame; two checks in a row "
+                          "above this many pixels (and above twice the calibration's own) recalibrate "
+                          "(0 = off)", 0, 1000, DEFAULT_DRIFT_THRESHOLD, live));
   g_object_class_install_property(gobject_class, PROP_BACKEND,
       g_param_spec_enum("backend", "Backend",
-                        "Feature matching runs on the CPU in every mode (it runs rarely)",
-                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), rw));
+                        "Which memory the bundles may travel in: cpu takes system memory only; auto and cuda "
+                        "also take CUDA memory, passed through untouched (only the frames a calibration "
+                        "reads are copied to the host). Feature matching always runs on the CPU",
+                        GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), GParamFlags(rw | GST_PARAM_MUTABLE_READY)));
   g_object_class_install_property(gobject_class, PROP_ON_RESIZE,
       g_param_spec_enum("on-resize", "On resize",
-                        "An input that changes resolution mid-stream: calibrate again for the new "
-                        "sizes (with a warning), or stop with an error",
-                        on_resize_get_type(), ON_RESIZE_RECALIBRATE, rw));
+                        "An input that changes resolution mid-stream (or a camera that leaves): calibrate "
+                        "again from scratch for the new sizes (with a warning), or stop with an error",
+                        on_resize_get_type(), ON_RESIZE_RECALIBRATE, live));
   g_object_class_install_property(gobject_class, PROP_PROJECTION,
       g_param_spec_enum("projection", "Projection",
                         "Canvas projection (unset: the rig-file's \"projection\"); cylindrical and "
                         "spherical need a rig-file and may wrap around 360 degrees",
-                        projection_get_type(), int(stitch::Projection::Plane), rw));
+                        projection_get_type(), PROJECTION_UNSET, live));
   g_object_class_install_property(gobject_class, PROP_BUNDLE_ADJUST,
       g_param_spec_boolean("bundle-adjust", "Bundle adjust",
                            "Planar rigs: refine all rotations and focal lengths jointly on every "
                            "pair's matches instead of chaining pairwise corrections (needs a "
-                           "rig-file; non-planar rigs always do)", FALSE, rw));
+                           "rig-file; non-planar rigs always do)", FALSE, live));
   g_object_class_install_property(gobject_class, PROP_WAVE_CORRECT,
       g_param_spec_boolean("wave-correct", "Wave correct",
-                           "Non-planar rigs: level the horizon after the bundle adjustment", TRUE, rw));
+                           "Non-planar rigs: level the horizon after the bundle adjustment", TRUE, live));
 
   signals[SIGNAL_RECALIBRATE] = g_signal_new_class_handler(
       "recalibrate", G_TYPE_FROM_CLASS(klass), GSignalFlags(G_SIGNAL_RUN_LAST | G_SIGNAL_ACTION),
@@ -792,7 +744,9 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
   trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_calib_set_caps);
   trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_calib_transform_caps);
   trans_class->query = GST_DEBUG_FUNCPTR(gst_stitch_calib_query);
+  trans_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_calib_sink_event);
   element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_calib_set_context);
+  element_class->change_state = GST_DEBUG_FUNCPTR(gst_stitch_calib_change_state);
   trans_class->passthrough_on_same_caps = FALSE;
 
   gst_type_mark_as_plugin_api(refine_get_type(), GstPluginAPIFlags(0));
@@ -805,9 +759,14 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
 
 static void gst_stitch_calib_init(GstStitchCalib* self) {
   self->state = new CalibState();
-  self->state->settings.options.refinement = DEFAULT_REFINE;
-  self->state->settings.options.features = DEFAULT_FEATURES;
-  self->state->settings.options.min_inliers = DEFAULT_MIN_INLIERS;
-  self->state->settings.options.overlap_margin = DEFAULT_OVERLAP_MARGIN;
+  stitch::SessionConfig& c = self->state->settings.config;
+  c.options.refinement = DEFAULT_REFINE;
+  c.options.features = DEFAULT_FEATURES;
+  c.options.min_inliers = DEFAULT_MIN_INLIERS;
+  c.options.overlap_margin = DEFAULT_OVERLAP_MARGIN;
+  c.calibration_frames = DEFAULT_CALIBRATION_FRAMES;
+  c.calibration_window_s = DEFAULT_CALIBRATION_WINDOW;
+  c.calibration_timeout_s = DEFAULT_CALIBRATION_TIMEOUT;
+  c.drift_threshold_px = DEFAULT_DRIFT_THRESHOLD;
   gst_base_transform_set_in_place(GST_BASE_TRANSFORM(self), TRUE);
 }

@@ -4,6 +4,7 @@
 #include <gst/gst.h>
 #include <gst/video/video.h>
 
+#include <functional>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -39,11 +40,13 @@ inline void init() {
 }
 
 // `description` must name appsrc elements a0..a{n-1} and may end in "appsink name=out".
-// Every appsrc gets `frames[i]` (RGBA) pushed `count` times at 30 fps, then EOS.
-inline void run_pipeline(const std::string& description, const std::vector<cv::Mat>& views, int count,
-                         RunResult& res, GstElement** keep = nullptr,
-                         void (*on_frame)(GstElement*, int) = nullptr) {
+// Appsrc i gets frames(f)[i] (RGBA) for f = 0..count-1 at 30 fps, then EOS; `on_frame` runs
+// before each frame is pushed (signals, pacing, a bus sync handler).
+inline void run_pipeline_frames(const std::string& description, const std::function<std::vector<cv::Mat>(int)>& frames,
+                                int count, RunResult& res, GstElement** keep = nullptr,
+                                const std::function<void(GstElement*, int)>& on_frame = {}) {
   init();
+  const std::vector<cv::Mat> views = frames(0);
   GError* err = nullptr;
   GstElement* pipe = gst_parse_launch(description.c_str(), &err);
   if (!pipe) {
@@ -95,8 +98,9 @@ inline void run_pipeline(const std::string& description, const std::vector<cv::M
   };
   for (int f = 0; f < count && res.errors.empty(); ++f) {
     if (on_frame) on_frame(pipe, f);
+    const std::vector<cv::Mat> now = f == 0 ? views : frames(f);
     for (std::size_t i = 0; i < srcs.size(); ++i) {
-      const cv::Mat& v = views[i];
+      const cv::Mat& v = now[i];
       GstBuffer* b = gst_buffer_new_allocate(nullptr, v.total() * 4, nullptr);
       gst_buffer_fill(b, 0, v.data, v.total() * 4);
       GST_BUFFER_PTS(b) = gst_util_uint64_scale(f, GST_SECOND, 30);
@@ -135,6 +139,15 @@ inline void run_pipeline(const std::string& description, const std::vector<cv::M
   if (sink) gst_object_unref(sink);
   if (keep) *keep = pipe;
   else gst_object_unref(pipe);
+}
+
+// Every appsrc gets `views[i]` (RGBA) pushed `count` times at 30 fps, then EOS.
+inline void run_pipeline(const std::string& description, const std::vector<cv::Mat>& views, int count,
+                         RunResult& res, GstElement** keep = nullptr,
+                         void (*on_frame)(GstElement*, int) = nullptr) {
+  std::function<void(GstElement*, int)> cb;
+  if (on_frame) cb = on_frame;
+  run_pipeline_frames(description, [&](int) { return views; }, count, res, keep, cb);
 }
 
 inline std::string appsrc_inputs(int n) {

@@ -4,6 +4,7 @@
 
 #include <Eigen/Dense>
 #include <fstream>
+#include <opencv2/imgproc.hpp>
 
 #include "gst_helpers.hpp"
 #include "stitch/rig/rig.hpp"
@@ -113,25 +114,299 @@ TEST(StitchCalib, CalibratesFromImagesAlone) {
   EXPECT_NEAR(r.frames[0].cols, 1440, 4);
 }
 
-TEST(StitchCalib, RecalibrateSignalProducesANewVersion) {
-  const std::string rig = write_file("rough2.json", rough_rig(2));
+// Crops of the photo with camera i at x = shift * i (a rig whose cameras are `shift` px apart).
+std::vector<cv::Mat> crops_apart(int n, int shift) {
+  cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  std::vector<cv::Mat> v;
+  for (int i = 0; i < n; ++i) v.push_back(photo(cv::Rect(shift * i, 200, 640, 480)).clone());
+  return v;
+}
+
+GstElement* calib_of(GstElement* pipe) { return gst_bin_get_by_name(GST_BIN(pipe), "c"); }
+
+void emit_recalibrate(GstElement* pipe) {
+  GstElement* c = calib_of(pipe);
+  g_signal_emit_by_name(c, "recalibrate");
+  gst_object_unref(c);
+}
+
+int count_messages(const gsttest::RunResult& r, const char* name) {
+  int n = 0;
+  for (auto* s : r.element_messages) n += gst_structure_has_name(s, name);
+  return n;
+}
+
+// The rig moved (camera 1 now 360 px from camera 0 instead of 400): `recalibrate` collects a
+// window of frames, the new calibration beats the old one on held-out frames and is installed,
+// in the same panorama size, and the saved file describes the video exactly.
+TEST(StitchCalib, RecalibrationAfterTheRigMovedIsInstalled) {
+  const std::string saved = testdata::temp_dir() + "/moved.json";
+  static const auto before = crops_apart(2, 400), after = crops_apart(2, 360);
   gsttest::RunResult r;
-  gsttest::run_pipeline(chain("rig-file=" + rig, 2), crops(2), 40, r, nullptr, [](GstElement* pipe, int f) {
-    if (f == 5) {
-      GstElement* c = gst_bin_get_by_name(GST_BIN(pipe), "c");
-      g_signal_emit_by_name(c, "recalibrate");
-      gst_object_unref(c);
-    }
-    // Pace the stream so the worker finishes while frames still flow (live-camera-like).
-    if (f >= 5) g_usleep(30000);
-  });
+  gsttest::run_pipeline_frames(
+      chain("calibration-frames=1 calibration-window=0.2 save-file=" + saved, 2),
+      [](int f) { return f < 5 ? before : after; }, 40, r, nullptr, [](GstElement* pipe, int f) {
+        if (f == 1) g_usleep(3000000);  // the first calibration is done: no backlog in the queues
+        if (f == 10) emit_recalibrate(pipe);
+        if (f >= 5) g_usleep(40000);  // live-camera pace: the worker finishes while frames flow
+      });
   ASSERT_TRUE(r.errors.empty()) << r.errors[0];
   const GstStructure* second = calib_message(r, 1);
-  ASSERT_NE(second, nullptr) << "no second calibration message";
+  ASSERT_NE(second, nullptr) << "no second calibration";
   guint64 version = 0;
   gst_structure_get_uint64(second, "version", &version);
   EXPECT_EQ(version, 2u);
+  EXPECT_STREQ(gst_structure_get_string(second, "source"), "recalibration");
+  double previous = 0, now = 0;
+  gst_structure_get_double(second, "previous-px", &previous);
+  gst_structure_get_double(second, "alignment-px", &now);
+  EXPECT_GT(previous, 10);
+  EXPECT_LT(now, 1.5);
   EXPECT_EQ(r.frames.size(), 40u);
+  // The canvas is the panorama: after the recalibration too.
+  const Rig out = rig_load(saved);
+  ASSERT_FALSE(r.frames.empty());
+  EXPECT_EQ(out.canvas_width, r.frames.back().cols);
+  EXPECT_EQ(out.canvas_height, r.frames.back().rows);
+  EXPECT_LT(corner_error_vs_shift(out, 1, 360), 1.5);
+}
+
+// A static rig: the recalibration cannot clearly beat the current calibration, so it is
+// reported (stitchcalib-rejected) and kept out: the geometry never flips between equals.
+TEST(StitchCalib, RecalibrationThatDoesNotBeatTheCurrentIsKeptOut) {
+  const std::string rig = write_file("rough2.json", rough_rig(2));
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain("rig-file=" + rig + " calibration-frames=1 calibration-window=0.2", 2), crops(2), 40, r,
+                        nullptr, [](GstElement* pipe, int f) {
+                          if (f == 5) emit_recalibrate(pipe);
+                          if (f >= 5) g_usleep(40000);
+                        });
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  EXPECT_EQ(count_messages(r, "stitchcalib"), 1);
+  EXPECT_EQ(count_messages(r, "stitchcalib-rejected"), 1);
+  EXPECT_EQ(r.frames.size(), 40u);
+}
+
+// `recalibrate` at every frame of the pooling window: requests merge into one window, nothing
+// blocks, the stream flows to the end.
+TEST(StitchCalib, RecalibrateAtEveryFrameOfThePoolingWindow) {
+  const std::string rig = write_file("rough2e.json", rough_rig(2));
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain("rig-file=" + rig + " calibration-frames=3 calibration-window=0.5", 2), crops(2), 60, r,
+                        nullptr, [](GstElement* pipe, int) {
+                          emit_recalibrate(pipe);
+                          g_usleep(10000);
+                        });
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  EXPECT_TRUE(r.eos);
+  EXPECT_EQ(r.frames.size(), 60u);
+}
+
+// An application whose bus sync handler reads and sets stitchcalib properties on every
+// stitchcalib message (posted from the streaming thread): no deadlock.
+TEST(StitchCalib, BusSyncHandlerReadsAndSetsProperties) {
+  static int handled;
+  handled = 0;
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain("calibration-frames=2 calibration-window=0.2", 2), crops(2), 20, r, nullptr,
+                        [](GstElement* pipe, int f) {
+                          if (f != 0) return;
+                          GstBus* bus = gst_element_get_bus(pipe);
+                          gst_bus_set_sync_handler(
+                              bus,
+                              [](GstBus*, GstMessage* m, gpointer) -> GstBusSyncReply {
+                                const GstStructure* s = gst_message_get_structure(m);
+                                if (GST_MESSAGE_TYPE(m) == GST_MESSAGE_ELEMENT && s &&
+                                    g_str_has_prefix(gst_structure_get_name(s), "stitchcalib")) {
+                                  GstElement* c = GST_ELEMENT(GST_MESSAGE_SRC(m));
+                                  gint frames = 0;
+                                  gchar* rig = nullptr;
+                                  g_object_get(c, "calibration-frames", &frames, "rig-file", &rig, NULL);
+                                  g_free(rig);
+                                  g_object_set(c, "recalibrate-interval", 0.0, "min-inliers", 20, NULL);
+                                  ++handled;
+                                }
+                                return GST_BUS_PASS;
+                              },
+                              nullptr, nullptr);
+                          gst_object_unref(bus);
+                        });
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  EXPECT_GE(handled, 1);
+  EXPECT_EQ(r.frames.size(), 20u);
+}
+
+// set_state(NULL) while the first calibration runs (large views, seconds of work) returns at
+// once: the waiting streaming thread is released and the worker cancelled, never joined.
+TEST(StitchCalib, NullDuringACalibrationReturnsPromptly) {
+  gsttest::init();
+  cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  cv::Mat big;
+  cv::resize(photo, big, cv::Size(3200, 2132));
+  std::vector<cv::Mat> views;
+  for (int i = 0; i < 3; ++i) views.push_back(big(cv::Rect(700 * i, 0, 1800, 2132)).clone());
+  GstElement* pipe = gst_parse_launch(chain("", 3).c_str(), nullptr);
+  ASSERT_NE(pipe, nullptr);
+  std::vector<GstElement*> srcs;
+  for (int i = 0; i < 3; ++i) {
+    GstElement* a = gst_bin_get_by_name(GST_BIN(pipe), ("a" + std::to_string(i)).c_str());
+    GstCaps* caps = gst_caps_new_simple("video/x-raw", "format", G_TYPE_STRING, "RGBA", "width", G_TYPE_INT, 1800,
+                                        "height", G_TYPE_INT, 2132, "framerate", GST_TYPE_FRACTION, 30, 1, NULL);
+    g_object_set(a, "caps", caps, "format", GST_FORMAT_TIME, NULL);
+    gst_caps_unref(caps);
+    srcs.push_back(a);
+  }
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  for (int i = 0; i < 3; ++i) {
+    GstBuffer* b = gst_buffer_new_allocate(nullptr, views[std::size_t(i)].total() * 4, nullptr);
+    gst_buffer_fill(b, 0, views[std::size_t(i)].data, views[std::size_t(i)].total() * 4);
+    GST_BUFFER_PTS(b) = 0;
+    GST_BUFFER_DURATION(b) = GST_SECOND / 30;
+    gst_app_src_push_buffer(GST_APP_SRC(srcs[std::size_t(i)]), b);
+    gst_object_unref(srcs[std::size_t(i)]);
+  }
+  g_usleep(400000);  // the calibration is under way
+  GstBus* bus = gst_element_get_bus(pipe);
+  bool calibrated = false;
+  while (GstMessage* m = gst_bus_pop_filtered(bus, GST_MESSAGE_ELEMENT)) {
+    calibrated |= gst_structure_has_name(gst_message_get_structure(m), "stitchcalib");
+    gst_message_unref(m);
+  }
+  gst_object_unref(bus);
+  const gint64 t0 = g_get_monotonic_time();
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  const double took = double(g_get_monotonic_time() - t0) / G_USEC_PER_SEC;
+  gst_object_unref(pipe);
+  EXPECT_FALSE(calibrated) << "the calibration finished before NULL: the test proves nothing";
+  EXPECT_LT(took, 0.3);
+}
+
+TEST(StitchCalib, MessageCarriesPerCameraResiduals) {
+  const std::string rig = write_file("rough3r.json", rough_rig(3));
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain("rig-file=" + rig, 3), crops(), 2, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  const GstStructure* m = calib_message(r);
+  ASSERT_NE(m, nullptr);
+  double rms = 0;
+  gst_structure_get_double(m, "rms-px", &rms);
+  EXPECT_GT(rms, 0.0);
+  EXPECT_LT(rms, 1.5);
+  const GValue* cams = gst_structure_get_value(m, "camera-px");
+  ASSERT_NE(cams, nullptr);
+  ASSERT_EQ(gst_value_array_get_size(cams), 3u);
+  for (guint i = 0; i < 3; ++i) {
+    const double px = g_value_get_double(gst_value_array_get_value(cams, i));
+    EXPECT_GE(px, 0.0) << i;
+    EXPECT_LT(px, 1.5) << i;
+  }
+}
+
+// A loaded calibration with an odd canvas: stitchblend rounds the panorama to even sizes, so
+// stitchcalib pads the canvas the same way: the message and the saved file equal the video.
+TEST(StitchCalib, OddLoadedCanvasEqualsTheEvenPanorama) {
+  const Rig rig = testdata::shifted_rig(2, 640, 480, 401);
+  ASSERT_EQ(rig.canvas_width, 1041);
+  const std::string path = testdata::temp_dir() + "/odd.json", saved = testdata::temp_dir() + "/odd_saved.json";
+  rig_save(rig, path);
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain("load-file=" + path + " save-file=" + saved, 2), crops_apart(2, 401), 2, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_FALSE(r.frames.empty());
+  const Rig out = rig_load(saved);
+  EXPECT_EQ(out.canvas_width, r.frames[0].cols);
+  EXPECT_EQ(out.canvas_height, r.frames[0].rows);
+  EXPECT_EQ(out.canvas_width, 1042);
+}
+
+TEST(StitchCalib, ShortStillInputsThatNeverCalibrateAreAnError) {
+  std::vector<cv::Mat> views = crops(3);
+  views[1] = cv::Mat(480, 640, CV_8UC4, cv::Scalar(0, 0, 0, 255));
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain("", 3), views, 5, r);
+  ASSERT_FALSE(r.errors.empty()) << "no error: an empty output with exit 0";
+  EXPECT_TRUE(r.error_contains("Could not calibrate before the stream ended")) << r.errors[0];
+  EXPECT_TRUE(r.error_contains("camera 1 is dark")) << r.errors[0];  // the right camera
+  EXPECT_TRUE(r.frames.empty());
+}
+
+TEST(StitchCalib, PropertiesReadPerFrameAreMutableWhilePlaying) {
+  gsttest::init();
+  GstElement* c = gst_element_factory_make("stitchcalib", nullptr);
+  ASSERT_NE(c, nullptr);
+  for (const char* name : {"recalibrate-interval", "calibration-timeout", "drift-threshold", "save-file", "on-resize"}) {
+    GParamSpec* p = g_object_class_find_property(G_OBJECT_GET_CLASS(c), name);
+    ASSERT_NE(p, nullptr) << name;
+    EXPECT_TRUE(p->flags & GST_PARAM_MUTABLE_PLAYING) << name;
+  }
+  // Unset projection reads back as unset, not "plane".
+  gint projection = 0;
+  g_object_get(c, "projection", &projection, NULL);
+  GEnumValue* v = g_enum_get_value(G_ENUM_CLASS(g_type_class_peek(
+                                       G_PARAM_SPEC_VALUE_TYPE(g_object_class_find_property(G_OBJECT_GET_CLASS(c), "projection")))),
+                                   projection);
+  ASSERT_NE(v, nullptr);
+  EXPECT_STREQ(v->value_nick, "unset");
+  const char* blurb = g_param_spec_get_blurb(g_object_class_find_property(G_OBJECT_GET_CLASS(c), "backend"));
+  EXPECT_EQ(std::string(blurb).find("no effect"), std::string::npos);
+  gst_object_unref(c);
+}
+
+// A camera leaves (its stitchsync pad is released): the two that stay are calibrated from
+// scratch, as well as a fresh start with two cameras, and the panorama follows the new canvas.
+TEST(StitchCalib, RecalibrationAfterAPadReleaseMatchesAFreshOne) {
+  const std::string saved = testdata::temp_dir() + "/released.json";
+  gsttest::RunResult released, fresh;
+  gsttest::run_pipeline_frames(
+      chain("calibration-frames=1 save-file=" + saved, 3), [](int) { return crops(3); }, 30, released, nullptr,
+      [](GstElement* pipe, int f) {
+        if (f == 1) g_usleep(2000000);  // calibrated on three cameras, no backlog
+        if (f != 8) return;
+        g_usleep(300000);
+        GstElement* sync = gst_bin_get_by_name(GST_BIN(pipe), "s");
+        GstElement* a2 = gst_bin_get_by_name(GST_BIN(pipe), "a2");
+        GstPad* sink2 = gst_element_get_static_pad(sync, "sink_2");
+        GstPad* peer = gst_pad_get_peer(sink2);
+        GstElement* queue = gst_pad_get_parent_element(peer);
+        // Release first (it flushes the pad: a push blocked in it returns), then stop the branch.
+        gst_element_release_request_pad(sync, sink2);
+        gst_element_set_locked_state(a2, TRUE);
+        gst_element_set_locked_state(queue, TRUE);
+        EXPECT_EQ(gst_element_set_state(a2, GST_STATE_NULL), GST_STATE_CHANGE_SUCCESS);
+        EXPECT_EQ(gst_element_set_state(queue, GST_STATE_NULL), GST_STATE_CHANGE_SUCCESS);
+        gst_bin_remove_many(GST_BIN(pipe), a2, queue, NULL);
+        gst_object_unref(peer);
+        gst_object_unref(queue);
+        gst_object_unref(sink2);
+        gst_object_unref(a2);
+        gst_object_unref(sync);
+      });
+  gsttest::run_pipeline(chain("calibration-frames=1", 2), crops(2), 4, fresh);
+  ASSERT_TRUE(released.errors.empty()) << released.errors[0];
+  ASSERT_TRUE(fresh.errors.empty()) << fresh.errors[0];
+  const GstStructure* after = calib_message(released, 1);
+  ASSERT_NE(after, nullptr) << "no recalibration after the release";
+  const GstStructure* ref = calib_message(fresh, 0);
+  ASSERT_NE(ref, nullptr);
+  int cameras = 0, w = 0, h = 0, fw = 0, fh = 0;
+  gst_structure_get_int(after, "cameras", &cameras);
+  gst_structure_get_int(after, "canvas-width", &w);
+  gst_structure_get_int(after, "canvas-height", &h);
+  gst_structure_get_int(ref, "canvas-width", &fw);
+  gst_structure_get_int(ref, "canvas-height", &fh);
+  EXPECT_EQ(cameras, 2);
+  EXPECT_NEAR(w, fw, 4);
+  EXPECT_NEAR(h, fh, 4);
+  double px = -1, fresh_px = -1;
+  gst_structure_get_double(after, "alignment-px", &px);
+  gst_structure_get_double(ref, "alignment-px", &fresh_px);
+  EXPECT_LT(px, fresh_px + 0.5);
+  ASSERT_FALSE(released.frames.empty());
+  EXPECT_EQ(released.frames.back().cols, w);
+  EXPECT_EQ(released.frames.back().rows, h);
+  const Rig out = rig_load(saved);
+  EXPECT_EQ(out.cameras.size(), 2u);
+  EXPECT_LT(corner_error_vs_shift(out, 1, 400), 1.5);
 }
 
 TEST(StitchCalibBadInput, MissingRigFile) {

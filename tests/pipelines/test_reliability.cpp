@@ -193,7 +193,8 @@ void run_pipeline(const std::string& description, const std::vector<std::vector<
     }
   }
   EXPECT_TRUE(eos || !run.errors.empty()) << "neither EOS nor an error within " << timeout_s << " s";
-  // what reached the sink before an error still counts
+  // An error ends the loop above at once, but outputs made before it may still wait in the
+  // appsink (the error is posted by a later bundle): collect them before NULL flushes them.
   while (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 0)) {
     read_sample(s, run);
     gst_sample_unref(s);
@@ -319,8 +320,9 @@ TEST(LateFrames, FrameFromThePastDroppedWithQos) {
   EXPECT_TRUE(run.dropouts.empty());
 }
 
-// A camera that starts late: stitchcalib drops the bundles it cannot calibrate on yet, each
-// with a QoS message, then stitches every later one.
+// A camera that starts late: stitchcalib drops the bundles it cannot calibrate on yet, then
+// stitches every later one. The drops are announced by QoS messages, rate-limited (the first
+// drop, then at most one a second) and summed up before the first bundle passes.
 TEST(LateFrames, BundlesBeforeTheFirstCalibrationDroppedWithQos) {
   const std::string calib = testdata::temp_dir() + "/late_start.json";
   stitch::rig_save(testdata::shifted_rig(2, 32, 24, 16), calib);
@@ -330,8 +332,10 @@ TEST(LateFrames, BundlesBeforeTheFirstCalibrationDroppedWithQos) {
                {coded_frames(0, 0, 11), coded_frames(1, 3, 11)}, run);
   ASSERT_TRUE(run.errors.empty()) << run.errors[0];
   EXPECT_EQ(run.outputs.size(), 9u);
-  ASSERT_EQ(run.qos.size(), 3u) << "dropped bundles not announced";
-  EXPECT_EQ(run.qos[2].second, 3u);
+  ASSERT_EQ(run.qos.size(), 2u) << "dropped bundles not announced, or not rate-limited";
+  EXPECT_EQ(run.qos[0].second, 1u);
+  EXPECT_EQ(run.qos[1].second, 3u);
+  EXPECT_EQ(run.qos[1].first, 0u);
   EXPECT_EQ(run.outputs.front().pts, frame_time(3));
 }
 
@@ -452,6 +456,43 @@ TEST(Resize, RecalibratesForTheNewSize) {
   ASSERT_EQ(run.outputs[7].panorama.size(), want.size());
   EXPECT_GT(testdata::psnr_rgb(run.outputs[0].panorama, want), 40.0);
   EXPECT_GT(testdata::psnr_rgb(run.outputs[7].panorama, want), 24.0);
+}
+
+// Calibrated from the images: the cameras' change of resolution recalibrates from scratch (never
+// from the geometry made for the old sizes), as good as a fresh start on the new frames, and
+// the panorama follows the new canvas (the saved canvas is the video's size).
+TEST(Resize, RecalibrationFromTheImagesMatchesAFreshOne) {
+  const std::string desc = "stitchsync name=s ! stitchcalib calibration-frames=1 ! stitchblend ! appsink name=out" +
+                           gsttest::appsrc_inputs(2);
+  Collected run, fresh;
+  run_pipeline(desc, resizing_inputs(), run);
+  std::vector<std::vector<Push>> half(2);
+  const auto small = scene().views(0.5);
+  for (int f = 0; f < 4; ++f)
+    for (int i = 0; i < 2; ++i) half[std::size_t(i)].push_back({f, small[std::size_t(i)]});
+  run_pipeline(desc, half, fresh);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  ASSERT_TRUE(fresh.errors.empty()) << fresh.errors[0];
+  ASSERT_EQ(run.outputs.size(), 8u);
+  ASSERT_EQ(run.calibrations.size(), 2u);
+  ASSERT_EQ(fresh.calibrations.size(), 1u);
+  int w = 0, h = 0, fw = 0, fh = 0;
+  gst_structure_get_int(run.calibrations[1], "canvas-width", &w);
+  gst_structure_get_int(run.calibrations[1], "canvas-height", &h);
+  gst_structure_get_int(fresh.calibrations[0], "canvas-width", &fw);
+  gst_structure_get_int(fresh.calibrations[0], "canvas-height", &fh);
+  EXPECT_NEAR(w, fw, 4);
+  EXPECT_NEAR(h, fh, 4);
+  double px = -1, fresh_px = -1;
+  gst_structure_get_double(run.calibrations[1], "alignment-px", &px);
+  gst_structure_get_double(fresh.calibrations[0], "alignment-px", &fresh_px);
+  EXPECT_LT(px, fresh_px + 0.5);
+  EXPECT_EQ(run.outputs[7].panorama.cols, w);
+  EXPECT_EQ(run.outputs[7].panorama.rows, h);
+  cv::Mat want;
+  cv::resize(scene().photo(cv::Rect(0, 200, 1040, 480)), want, cv::Size(520, 240), 0, 0, cv::INTER_AREA);
+  const cv::Mat got = run.outputs[7].panorama(cv::Rect(0, 0, std::min(520, w), std::min(240, h)));
+  EXPECT_GT(testdata::psnr_rgb(got, want(cv::Rect(0, 0, got.cols, got.rows))), 24.0);
 }
 
 TEST(Resize, ErrorWhenAskedTo) {

@@ -1,0 +1,815 @@
+#include "stitch/calib/calib_session.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <sstream>
+
+#include "stitch/cv_interop.hpp"
+#include "stitch/rig/canvas_map.hpp"
+
+namespace stitch {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+std::string fmt(double v, int digits = 1) {
+  std::ostringstream s;
+  s.setf(std::ios::fixed);
+  s.precision(digits);
+  s << v;
+  return s.str();
+}
+
+SessionEvent make_event(SessionEvent::Type type, const std::string& text) {
+  SessionEvent e;
+  e.type = type;
+  e.text = text;
+  return e;
+}
+
+std::string size_text(const std::array<int, 2>& s) { return std::to_string(s[0]) + "x" + std::to_string(s[1]); }
+
+}  // namespace
+
+// ---- frame quality ---------------------------------------------------------------------------
+
+const char* frame_verdict_name(FrameVerdict v) {
+  switch (v) {
+    case FrameVerdict::Good: return "good";
+    case FrameVerdict::Dark: return "dark";
+    case FrameVerdict::Featureless: return "featureless";
+    case FrameVerdict::Blurred: return "blurred";
+    case FrameVerdict::Corrupt: return "corrupt";
+  }
+  return "?";
+}
+
+double FrameQuality::score() const {
+  if (verdict != FrameVerdict::Good) return 0;
+  return std::log1p(sharpness) * std::min(corners, 800);
+}
+
+std::string FrameQuality::describe() const {
+  switch (verdict) {
+    case FrameVerdict::Good: return "good";
+    case FrameVerdict::Dark: return "dark (mean luma " + fmt(mean_luma) + ")";
+    case FrameVerdict::Featureless: return "featureless (" + std::to_string(corners) + " corners, contrast " + fmt(contrast) + ")";
+    case FrameVerdict::Blurred: return "blurred (Laplacian variance " + fmt(sharpness) + ")";
+    case FrameVerdict::Corrupt: return "corrupt (a torn picture: row discontinuity " + fmt(tear) + "x its surroundings)";
+  }
+  return "?";
+}
+
+FrameQuality assess_frame(const ImageView& v) {
+  FrameQuality q;
+  if (v.empty() || v.on_device) {
+    q.verdict = FrameVerdict::Featureless;
+    return q;
+  }
+  const cv::Mat rgba = as_mat(v);
+  const double s = std::min(1.0, 320.0 / std::max(v.width, 1));
+  cv::Mat small, grey;
+  if (s < 1.0) cv::resize(rgba, small, cv::Size(), s, s, cv::INTER_AREA);
+  else small = rgba;
+  cv::cvtColor(small, grey, cv::COLOR_RGBA2GRAY);
+  cv::Scalar mean, dev;
+  cv::meanStdDev(grey, mean, dev);
+  q.mean_luma = mean[0];
+  q.contrast = dev[0];
+  if (grey.cols >= 8 && grey.rows >= 8) {
+    cv::Mat lap;
+    cv::Laplacian(grey, lap, CV_64F);
+    cv::meanStdDev(lap, mean, dev);
+    q.sharpness = dev[0] * dev[0];
+    std::vector<cv::KeyPoint> kp;
+    cv::FAST(grey, kp, 20, true);
+    q.corners = int(kp.size());
+    // A broken keyframe glues two pictures: one row boundary changes much more, across most of
+    // the width, than the rows around it.
+    const int h = grey.rows, w = grey.cols;
+    std::vector<double> d(std::size_t(h - 1)), cover(std::size_t(h - 1));
+    for (int y = 0; y + 1 < h; ++y) {
+      const uint8_t* a = grey.ptr<uint8_t>(y);
+      const uint8_t* b = grey.ptr<uint8_t>(y + 1);
+      double sum = 0;
+      int big = 0;
+      for (int x = 0; x < w; ++x) {
+        const int diff = std::abs(int(a[x]) - int(b[x]));
+        sum += diff;
+        big += diff > 16;
+      }
+      d[std::size_t(y)] = sum / w;
+      cover[std::size_t(y)] = double(big) / w;
+    }
+    for (int y = 4; y + 5 < h; ++y) {
+      if (cover[std::size_t(y)] < 0.35) continue;
+      std::vector<double> around;
+      for (int k = y - 8; k <= y + 8; ++k)
+        if (k >= 0 && k < h - 1 && std::abs(k - y) > 1) around.push_back(d[std::size_t(k)]);
+      std::nth_element(around.begin(), around.begin() + around.size() / 2, around.end());
+      q.tear = std::max(q.tear, d[std::size_t(y)] / (around[around.size() / 2] + 2.0));
+    }
+  }
+  if (q.mean_luma < 16) q.verdict = FrameVerdict::Dark;
+  else if (q.tear > 4) q.verdict = FrameVerdict::Corrupt;  // natural frames of the real clips: <= 3.1
+  else if (q.contrast >= 8 && q.sharpness < 20) q.verdict = FrameVerdict::Blurred;  // real clips: >= 440
+  else if (q.corners < 12 || q.contrast < 4) q.verdict = FrameVerdict::Featureless;
+  return q;
+}
+
+// ---- canvas helpers --------------------------------------------------------------------------
+
+void transform_canvas(Rig& rig, double s, double tx, double ty, int width, int height) {
+  // Pixel-centre convention: canvas (x + 0.5) * s + t lands on (x' + 0.5).
+  const double ox = 0.5 * s - 0.5 + tx, oy = 0.5 * s - 0.5 + ty;
+  if (rig.planar()) {
+    Eigen::Matrix3d A;
+    A << s, 0, ox, 0, s, oy, 0, 0, 1;
+    for (auto& c : rig.cameras)
+      if (c.homography) {
+        Eigen::Matrix3d H = A * *c.homography;
+        c.homography = H / H(2, 2);
+      }
+  } else {
+    rig.canvas_origin_x = s * rig.canvas_origin_x + ox;
+    rig.canvas_origin_y = s * rig.canvas_origin_y + oy;
+    rig.canvas_scale *= s;
+    if (rig.canvas_wrap && std::abs(2 * kPi * rig.canvas_scale - width) > 0.5) rig.canvas_wrap = false;
+  }
+  rig.canvas_width = width;
+  rig.canvas_height = height;
+}
+
+bool make_canvas_even(Rig& rig) {
+  const int w = rig.canvas_width, h = rig.canvas_height;
+  if (w <= 0 || h <= 0 || (w % 2 == 0 && h % 2 == 0)) return false;
+  const int ew = std::max(2, w + (w & 1)), eh = std::max(2, h + (h & 1));
+  if (!rig.planar() && rig.canvas_wrap && (w & 1)) {
+    // 360 degrees must stay exactly the width: scale (both axes alike) rather than pad.
+    const double s = double(ew) / w;
+    transform_canvas(rig, s, 0, 0, ew, std::max(eh, 2 * int(std::ceil(h * s / 2))));
+    rig.canvas_wrap = true;
+    return true;
+  }
+  transform_canvas(rig, 1, 0, 0, ew, eh);
+  return true;
+}
+
+void fit_canvas(Rig& rig, int width, int height) {
+  if (width <= 0 || height <= 0 || rig.canvas_width <= 0 || rig.canvas_height <= 0) return;
+  if (rig.canvas_width == width && rig.canvas_height == height) return;
+  const bool wrap = rig.canvas_wrap;
+  const double s = std::min(double(width) / rig.canvas_width, double(height) / rig.canvas_height);
+  const double tx = std::floor((width - rig.canvas_width * s) * 0.5), ty = std::floor((height - rig.canvas_height * s) * 0.5);
+  transform_canvas(rig, s, tx, ty, width, height);
+  if (wrap && std::abs(2 * kPi * rig.canvas_scale - width) <= 0.5) rig.canvas_wrap = true;
+}
+
+// ---- jobs ------------------------------------------------------------------------------------
+
+const char* job_kind_name(JobKind k) {
+  switch (k) {
+    case JobKind::First: return "first";
+    case JobKind::Pooled: return "pooled";
+    case JobKind::Recalibration: return "recalibration";
+    case JobKind::DriftCheck: return "drift-check";
+    case JobKind::LoadCheck: return "load-check";
+  }
+  return "?";
+}
+
+std::vector<ImageView> FrameSet::views() const {
+  std::vector<ImageView> v;
+  for (cv::Mat m : images) v.push_back(as_view(m));  // a header sharing the pixels
+  return v;
+}
+
+FrameSet FrameSet::copy_of(const std::vector<ImageView>& views) {
+  FrameSet set;
+  for (const auto& v : views) set.images.push_back(as_mat(v).clone());
+  return set;
+}
+
+namespace {
+
+bool boxes_overlap(const Rig& rig, int a, int b) {
+  if (rig.canvas_wrap) return true;  // across the wrap: let the matches decide
+  double box[2][4];
+  for (int k = 0; k < 2; ++k) {
+    box[k][0] = box[k][1] = 1e300;
+    box[k][2] = box[k][3] = -1e300;
+    for (const auto& p : camera_canvas_outline(rig, k ? b : a)) {
+      box[k][0] = std::min(box[k][0], p.x());
+      box[k][1] = std::min(box[k][1], p.y());
+      box[k][2] = std::max(box[k][2], p.x());
+      box[k][3] = std::max(box[k][3], p.y());
+    }
+  }
+  return box[0][0] < box[1][2] && box[1][0] < box[0][2] && box[0][1] < box[1][3] && box[1][1] < box[0][3];
+}
+
+CalibrationResult calibrate(const SessionConfig& s, const std::optional<Rig>& rough,
+                            const std::vector<std::vector<ImageView>>& sets) {
+  if (rough) {
+    Rig start = *rough;
+    if (s.reference >= 0) start.reference = s.reference;
+    if (s.projection && start.projection != projection_name(*s.projection)) {
+      // Another canvas: what the file computed for its own one does not apply.
+      start.projection = projection_name(*s.projection);
+      for (auto& c : start.cameras) c.homography.reset();
+      start.canvas_width = start.canvas_height = 0;
+      start.canvas_scale = 0;
+    }
+    return calibrate_from_rig(start, sets, s.options);
+  }
+  if (s.projection && *s.projection != Projection::Plane)
+    throw RigError(std::string("projection=") + projection_name(*s.projection) +
+                   " needs rough focal lengths and rotations: give a rig-file");
+  return calibrate_from_images(sets, s.reference, s.options);
+}
+
+}  // namespace
+
+RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets, const std::atomic<bool>* cancel) {
+  RigResiduals r;
+  const int n = int(rig.cameras.size());
+  r.camera_px.assign(std::size_t(n), -1);
+  std::vector<double> cam_sum(std::size_t(n), 0), cam_w(std::size_t(n), 0);
+  double sum = 0, sum2 = 0;
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      if (cancel && cancel->load()) return r;
+      if (!boxes_overlap(rig, a, b)) continue;
+      Rig sub = rig;
+      sub.cameras = {rig.cameras[std::size_t(a)], rig.cameras[std::size_t(b)]};
+      sub.reference = 0;
+      PairResidual p;
+      p.a = a;
+      p.b = b;
+      double pair_sum = 0;
+      for (const auto& set : sets) {
+        if (int(set.images.size()) != n) continue;
+        const auto views = set.views();
+        const AlignmentReport rep = measure_alignment(sub, {views[std::size_t(a)], views[std::size_t(b)]});
+        if (rep.median_px < 0 || rep.matches <= 0) continue;
+        pair_sum += rep.median_px * rep.matches;
+        p.matches += rep.matches;
+      }
+      if (p.matches == 0) continue;
+      p.median_px = pair_sum / p.matches;
+      r.pairs.push_back(p);
+      for (int c : {a, b}) {
+        cam_sum[std::size_t(c)] += p.median_px * p.matches;
+        cam_w[std::size_t(c)] += p.matches;
+      }
+      sum += p.median_px * p.matches;
+      sum2 += p.median_px * p.median_px * p.matches;
+      r.matches += p.matches;
+    }
+  for (int c = 0; c < n; ++c)
+    if (cam_w[std::size_t(c)] > 0) r.camera_px[std::size_t(c)] = cam_sum[std::size_t(c)] / cam_w[std::size_t(c)];
+  if (r.matches > 0) {
+    r.median_px = sum / r.matches;
+    r.rms_px = std::sqrt(sum2 / r.matches);
+  }
+  return r;
+}
+
+CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel) {
+  CalibOutcome o;
+  o.kind = job.kind;
+  o.serial = job.serial;
+  auto cancelled = [&]() { return (o.cancelled = cancel.load()); };
+  if (cancelled()) return o;
+  if (job.kind == JobKind::DriftCheck || job.kind == JobKind::LoadCheck) {
+    if (!job.current) {
+      o.error = "nothing to check";
+      return o;
+    }
+    o.current = measure_residuals(*job.current, job.holdout_sets, &cancel);
+    o.residual_source = "held-out";
+    cancelled();
+    return o;
+  }
+  std::vector<std::vector<ImageView>> sets;
+  for (const auto& s : job.calib_sets) sets.push_back(s.views());
+  if (sets.empty()) {
+    o.error = "no usable frames";
+    return o;
+  }
+  try {
+    o.result = calibrate(job.config, job.rough, sets);
+  } catch (const RigError& e) {
+    o.error = e.what();
+    // Degenerate rough geometry cannot be repaired by other frames.
+    o.fatal = job.kind == JobKind::First && job.rough.has_value();
+    return o;
+  }
+  if (cancelled()) return o;
+  Rig& rig = o.result->rig;
+  if (job.fit_width > 0 && job.fit_height > 0) fit_canvas(rig, job.fit_width, job.fit_height);
+  else make_canvas_even(rig);
+  const bool heldout = !job.holdout_sets.empty();
+  const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
+  o.residual_source = heldout ? "held-out" : "calibration frames";
+  o.candidate = measure_residuals(rig, judge, &cancel);
+  if (cancelled()) return o;
+  if (job.kind != JobKind::First && job.current) o.current = measure_residuals(*job.current, judge, &cancel);
+  cancelled();
+  return o;
+}
+
+// ---- the session -----------------------------------------------------------------------------
+
+void CalibSession::set_config(const SessionConfig& config) { config_ = config; }
+
+std::vector<SessionEvent> CalibSession::take_events() {
+  std::vector<SessionEvent> e;
+  e.swap(events_);
+  return e;
+}
+
+void CalibSession::reset() {
+  const SessionConfig config = config_;
+  *this = CalibSession();
+  config_ = config;
+}
+
+void CalibSession::note_time(double t) {
+  if (have_t_ && t > last_t_) now_ += t - last_t_;  // a seek back does not stop the clock
+  last_t_ = t;
+  have_t_ = true;
+}
+
+void CalibSession::warn(const std::string& s) {
+  SessionEvent e = make_event(SessionEvent::Type::Warning, s);
+  events_.push_back(e);
+}
+
+void CalibSession::fail(const std::string& s) {
+  if (failed_) return;
+  failed_ = true;
+  SessionEvent e = make_event(SessionEvent::Type::Error, s);
+  events_.push_back(e);
+}
+
+void CalibSession::pending(const std::string& why) {
+  last_problem_ = why;
+  const double waited = now_ - first_frame_at_;
+  if (config_.calibration_timeout_s > 0 && waited > config_.calibration_timeout_s) {
+    fail("Could not calibrate within " + fmt(config_.calibration_timeout_s) + " s of running time (calibration-timeout): " + why);
+    return;
+  }
+  if (now_ - last_pending_at_ < config_.pending_interval_s) return;
+  last_pending_at_ = now_;
+  SessionEvent e = make_event(SessionEvent::Type::Pending, why);
+  e.waited_s = waited;
+  events_.push_back(e);
+}
+
+bool CalibSession::handle_sizes(const Frame& frame) {
+  if (!current_ || sizes_.empty() || sizes_ == frame.sizes) return true;
+  std::string what;
+  if (frame.sizes.size() != sizes_.size()) {
+    what = std::to_string(sizes_.size()) + " -> " + std::to_string(frame.sizes.size()) + " cameras";
+  } else {
+    for (std::size_t i = 0; i < sizes_.size(); ++i)
+      if (frame.sizes[i] != sizes_[i])
+        what += (what.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " " + size_text(sizes_[i]) +
+                " -> " + size_text(frame.sizes[i]);
+  }
+  if (config_.resize_is_error) {
+    fail("Input resolution changed mid-stream (" + what + ") and on-resize=error");
+    return false;
+  }
+  warn("Input resolution changed mid-stream (" + what + "); recalibrating");
+  // From scratch (the rough rig or the images), never from the old geometry: it was made for
+  // other cameras. Jobs in flight are forgotten; the version keeps counting.
+  current_.reset();
+  rough_.reset();
+  sizes_.clear();
+  panorama_w_ = panorama_h_ = 0;
+  window_open_ = false;
+  bins_.clear();
+  load_check_due_ = false;
+  job_in_flight_ = false;
+  ++serial_;
+  first_frame_at_ = now_;
+  next_attempt_at_ = now_;
+  last_pending_at_ = -1e9;
+  return true;
+}
+
+bool CalibSession::load_file() {
+  const SessionConfig& s = config_;
+  Rig rig;
+  try {
+    rig = rig_load(s.load_file);
+  } catch (const std::exception& e) {
+    fail(e.what());
+    return false;
+  }
+  if (s.projection && rig.projection != projection_name(*s.projection))
+    warn("load-file \"" + s.load_file + "\" holds a " + rig.projection + " calibration; projection=" +
+         projection_name(*s.projection) + " applies to estimation only, the file is used as is");
+  if (!rig.calibrated()) {
+    fail("load-file \"" + s.load_file +
+         "\" holds no calibration (a planar rig needs a \"homography\" per camera and a \"canvas\", a "
+         "non-planar one a \"canvas\" with \"scale\"); use rig-file for rough parameters");
+    return false;
+  }
+  if (rig.cameras.size() != sizes_.size()) {
+    fail("load-file \"" + s.load_file + "\" describes " + std::to_string(rig.cameras.size()) + " cameras but " +
+         std::to_string(sizes_.size()) + " streams are connected");
+    return false;
+  }
+  if (rig_adapt_to_sizes(rig, sizes_))
+    warn("The calibration was made for other frame sizes; it was scaled to the streams");
+  try {
+    rig_layout_canvas(rig);
+  } catch (const std::exception& e) {
+    fail(std::string("load-file: ") + e.what());
+    return false;
+  }
+  make_canvas_even(rig);
+  CalibrationResult r;
+  r.rig = rig;
+  CalibReport rep;
+  rep.source = "file";
+  install(rep, &r);
+  load_check_due_ = true;
+  return true;
+}
+
+bool CalibSession::load_rough() {
+  const SessionConfig& s = config_;
+  if (s.rig_file.empty()) {
+    rough_.reset();
+    return true;
+  }
+  if (rough_ && rough_from_ == s.rig_file && rough_sizes_ == sizes_) return true;
+  try {
+    rough_ = rig_load(s.rig_file);
+  } catch (const std::exception& e) {
+    fail(e.what());
+    return false;
+  }
+  rough_from_ = s.rig_file;
+  rough_sizes_ = sizes_;
+  if (rough_->cameras.size() != sizes_.size()) {
+    fail("rig-file \"" + s.rig_file + "\" describes " + std::to_string(rough_->cameras.size()) + " cameras but " +
+         std::to_string(sizes_.size()) + " streams are connected");
+    return false;
+  }
+  if (rig_adapt_to_sizes(*rough_, sizes_)) warn("rig-file camera sizes differ from the streams; intrinsics were scaled");
+  return true;
+}
+
+namespace {
+void fill_report(CalibReport& rep, const CalibrationResult* result) {
+  rep.refined_cameras = result->refined_cameras;
+  rep.warnings = int(result->warnings.size());
+  rep.ba_rms_px = result->ba_rms_after_px;
+  double sum2 = 0;
+  int accepted = 0;
+  for (const auto& p : result->pairs) {
+    rep.inliers += p.inliers;
+    if (p.accepted && p.rms_px > 0) {
+      sum2 += p.rms_px * p.rms_px;
+      ++accepted;
+    }
+  }
+  rep.fit_rms_px = accepted ? std::sqrt(sum2 / accepted) : -1;
+}
+}  // namespace
+
+void CalibSession::install(CalibReport rep, CalibrationResult* result) {
+  for (const auto& w : result->warnings) warn("Calibration: " + w);
+  current_ = std::make_shared<const Rig>(result->rig);
+  rep.rig = current_;
+  rep.version = ++version_;
+  fill_report(rep, result);
+  ever_installed_ = true;
+  panorama_w_ = current_->canvas_width;
+  panorama_h_ = current_->canvas_height;
+  last_calibration_at_ = now_;
+  if (rep.residuals.median_px >= 0) baseline_px_ = rep.residuals.median_px;
+  if (!config_.save_file.empty()) {
+    try {
+      rig_save(*current_, config_.save_file);
+    } catch (const std::exception& e) {
+      warn(std::string("save-file: ") + e.what());
+    }
+  }
+  SessionEvent e = make_event(SessionEvent::Type::Installed, "");
+  e.report = rep;
+  events_.push_back(e);
+}
+
+void CalibSession::start_window(JobKind kind) {
+  window_open_ = true;
+  window_kind_ = kind;
+  window_start_ = now_;
+  const int pool = std::max(1, config_.calibration_frames);
+  const int holdout = std::max(1, (pool * 2 + 4) / 5);
+  const int n = pool + holdout;
+  const int stride = std::max(1, n / holdout);
+  bins_.assign(std::size_t(n), Bin());
+  int marked = 0;
+  for (int i = 0; i < n && marked < holdout; ++i)
+    if (i % stride == stride / 2 || n - i <= holdout - marked) {
+      bins_[std::size_t(i)].holdout = true;
+      ++marked;
+    }
+}
+
+std::shared_ptr<CalibJob> CalibSession::make_job(JobKind kind) {
+  auto job = std::make_shared<CalibJob>();
+  job->kind = kind;
+  job->serial = ++serial_;
+  job->config = config_;
+  job->rough = rough_;
+  job->current = current_;
+  if (kind != JobKind::First && current_) {
+    // Same cameras: the panorama keeps its size (the saved canvas stays the video's size).
+    job->fit_width = current_->canvas_width;
+    job->fit_height = current_->canvas_height;
+  }
+  job_in_flight_ = true;
+  return job;
+}
+
+std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score) {
+  std::string problem;
+  double worst = 1e300;
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const FrameQuality q = assess_frame(views[i]);
+    const bool bad = q.verdict == FrameVerdict::Dark || q.verdict == FrameVerdict::Corrupt ||
+                     (features_needed && q.verdict != FrameVerdict::Good);
+    if (bad) problem += (problem.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " is " + q.describe();
+    worst = std::min(worst, q.verdict == FrameVerdict::Good ? q.score() : 0.0);
+  }
+  if (score) *score = views.empty() ? 0 : worst;
+  return problem;
+}
+
+bool CalibSession::wants_pixels(const Frame& frame) {
+  if (failed_) return false;
+  if (!current_ || (!sizes_.empty() && frame.sizes != sizes_))
+    return frame.missing_mask == 0 && config_.load_file.empty() && !job_in_flight_;
+  if (frame.missing_mask) return false;
+  if (window_open_ || load_check_due_ || recalibrate_requested_) return true;
+  if (config_.recalibrate_interval_s > 0 && now_ + 0.5 >= last_calibration_at_ + config_.recalibrate_interval_s) return true;
+  return config_.drift_threshold_px > 0 && now_ + 0.5 >= next_drift_check_at_;
+}
+
+std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::vector<ImageView>& views) {
+  note_time(frame.time_s);
+  if (failed_) return nullptr;
+  if (!handle_sizes(frame)) return nullptr;
+  const bool have_pixels = !views.empty() && views.size() == frame.sizes.size();
+  if (!current_) {
+    if (first_frame_at_ < 0) first_frame_at_ = now_;
+    sizes_ = frame.sizes;
+    if (frame.missing_mask) {
+      std::string who;
+      for (std::size_t i = 0; i < frame.sizes.size() && i < 64; ++i)
+        if (frame.missing_mask >> i & 1) who += (who.empty() ? "camera " : ", ") + std::to_string(i);
+      pending(who + " has not delivered a frame yet");
+      return nullptr;
+    }
+    if (!config_.load_file.empty()) {
+      load_file();
+      return nullptr;
+    }
+    if (config_.rig_file.empty() &&
+        ((config_.projection && *config_.projection != Projection::Plane) || config_.options.bundle_adjust)) {
+      fail(std::string(config_.options.bundle_adjust ? "bundle-adjust=true" : "a cylindrical or spherical projection") +
+           " needs rough focal lengths and rotations: set rig-file");
+      return nullptr;
+    }
+    if (!load_rough()) return nullptr;
+    if (job_in_flight_) return nullptr;
+    if (now_ < next_attempt_at_) {
+      pending(last_problem_);
+      return nullptr;
+    }
+    if (!have_pixels && !(rough_ && config_.options.refinement == Refinement::None)) return nullptr;
+    // A rough rig holds geometry without features (refine=none reads no pixels at all); the
+    // images alone need them in every camera.
+    const std::string problem = rough_ && config_.options.refinement == Refinement::None
+                                    ? std::string()
+                                    : bundle_problem(views, !rough_.has_value(), nullptr);
+    if (!problem.empty()) {
+      pending(problem);
+      return nullptr;
+    }
+    auto job = make_job(JobKind::First);
+    if (have_pixels) {
+      job->calib_sets.push_back(FrameSet::copy_of(views));
+    } else {
+      std::vector<cv::Mat> grey;  // refine=none: the frames are not read
+      for (const auto& sz : frame.sizes) grey.push_back(cv::Mat(sz[1], sz[0], CV_8UC4, cv::Scalar(0, 0, 0, 255)));
+      job->calib_sets.push_back({grey});
+    }
+    return job;
+  }
+  if (frame.missing_mask) return nullptr;
+  // Triggers of a recalibration window.
+  if (!window_open_) {
+    bool due = false;
+    if (recalibrate_requested_ && config_.load_file.empty()) due = true;
+    if (config_.recalibrate_interval_s > 0 && config_.load_file.empty() &&
+        now_ >= last_calibration_at_ + config_.recalibrate_interval_s)
+      due = true;
+    recalibrate_requested_ = false;
+    if (due) start_window(JobKind::Recalibration);
+  } else {
+    recalibrate_requested_ = false;  // one window answers every request made while it collects
+  }
+  if (have_pixels && window_open_) {
+    const double length = std::max(1e-3, config_.calibration_window_s);
+    const int n = int(bins_.size());
+    const int k = std::min(n - 1, int((now_ - window_start_) / (length / n)));
+    double score = 0;
+    if (k >= 0 && bundle_problem(views, true, &score).empty() && score > bins_[std::size_t(k)].score) {
+      bins_[std::size_t(k)].best = FrameSet::copy_of(views);
+      bins_[std::size_t(k)].score = score;
+    }
+  }
+  if (job_in_flight_) return nullptr;
+  if (window_open_ && now_ >= window_start_ + config_.calibration_window_s) {
+    window_open_ = false;
+    auto job = make_job(window_kind_);
+    for (auto& b : bins_)
+      if (b.best) (b.holdout ? job->holdout_sets : job->calib_sets).push_back(std::move(*b.best));
+    bins_.clear();
+    last_calibration_at_ = now_;
+    if (job->calib_sets.empty()) {
+      job_in_flight_ = false;
+      if (window_kind_ == JobKind::Recalibration)
+        warn("Recalibration skipped: no usable frames in the calibration window; keeping the current calibration");
+      return nullptr;
+    }
+    // Too few frames to hold any out: judge on the calibration frames themselves.
+    if (job->holdout_sets.empty() && job->calib_sets.size() > 1) {
+      job->holdout_sets.push_back(std::move(job->calib_sets.back()));
+      job->calib_sets.pop_back();
+    }
+    return job;
+  }
+  if (window_open_ || !have_pixels) return nullptr;
+  const bool check_load = load_check_due_;
+  const bool check_drift = config_.drift_threshold_px > 0 && now_ >= next_drift_check_at_;
+  if (check_load || check_drift) {
+    if (!bundle_problem(views, true, nullptr).empty()) return nullptr;  // try the next bundle
+    auto job = make_job(check_load ? JobKind::LoadCheck : JobKind::DriftCheck);
+    job->holdout_sets.push_back(FrameSet::copy_of(views));
+    load_check_due_ = false;
+    if (!check_load) next_drift_check_at_ = now_ + config_.drift_check_interval_s + drift_backoff_s_;
+    return job;
+  }
+  return nullptr;
+}
+
+void CalibSession::on_outcome(const CalibOutcome& o) {
+  if (!job_in_flight_ || o.serial != serial_) return;  // forgotten (a reset, a resize)
+  job_in_flight_ = false;
+  if (o.cancelled || failed_) return;
+  switch (o.kind) {
+    case JobKind::First: {
+      if (!o.error.empty() || !o.result) {
+        if (o.fatal) {
+          fail("Calibration failed: " + o.error);
+          return;
+        }
+        next_attempt_at_ = now_ + config_.retry_interval_s;
+        pending("calibration attempt failed (" + o.error + ")");
+        return;
+      }
+      CalibrationResult r = *o.result;
+      CalibReport rep;
+      rep.source = rough_ ? "rig" : "images";
+      rep.residuals = o.candidate;
+      rep.residual_source = o.residual_source;
+      install(rep, &r);
+      // Pool better frames (refine=none reads none: nothing to gain).
+      if (config_.calibration_frames > 1 && !(rough_ && config_.options.refinement == Refinement::None))
+        start_window(JobKind::Pooled);
+      next_drift_check_at_ = now_ + config_.drift_check_interval_s;
+      return;
+    }
+    case JobKind::Pooled:
+    case JobKind::Recalibration: {
+      const char* what = o.kind == JobKind::Pooled ? "pooled" : "recalibration";
+      if (!o.error.empty() || !o.result) {
+        warn(std::string(o.kind == JobKind::Pooled ? "Pooled calibration" : "Recalibration") + " failed (" + o.error +
+             "); keeping the current calibration");
+        return;
+      }
+      CalibReport rep;
+      rep.source = what;
+      rep.residuals = o.candidate;
+      rep.residual_source = o.residual_source;
+      rep.previous_px = o.current.median_px;
+      const double c = o.candidate.median_px, cur = o.current.median_px;
+      // It must beat the current one clearly on the same frames: no flipping between equals.
+      const bool better = c >= 0 && (cur < 0 || (c < 0.9 * cur && c < cur - 0.05));
+      if (better) {
+        CalibrationResult r = *o.result;
+        install(rep, &r);
+      } else {
+        if (cur >= 0) baseline_px_ = cur;
+        rep.rig = std::make_shared<const Rig>(o.result->rig);
+        rep.version = version_;
+        fill_report(rep, &*o.result);
+        SessionEvent e = make_event(SessionEvent::Type::Rejected, "");
+        e.report = rep;
+        events_.push_back(e);
+      }
+      return;
+    }
+    case JobKind::DriftCheck: {
+      const double px = o.current.median_px;
+      const double limit = std::max(config_.drift_threshold_px, 2 * std::max(0.0, baseline_px_));
+      if (px > limit) {
+        if (++drift_strikes_ >= 2) {
+          // Two checks in a row: recalibrate, and check less often until the alignment is back.
+          drift_strikes_ = 0;
+          drift_backoff_s_ = std::min(60.0, std::max(config_.drift_check_interval_s, 2 * drift_backoff_s_));
+          warn("Alignment drifted to " + fmt(px) + " px (drift-threshold " + fmt(config_.drift_threshold_px) +
+               " px); recalibrating");
+          start_window(JobKind::Recalibration);
+        }
+      } else if (px >= 0 && px < 0.7 * limit) {
+        drift_strikes_ = 0;
+        drift_backoff_s_ = 0;
+      }
+      return;
+    }
+    case JobKind::LoadCheck: {
+      const auto& r = o.current;
+      if (r.matches == 0) return;  // nothing to judge by (flat or dark views)
+      const int n = int(r.camera_px.size());
+      std::string bad_pairs;
+      std::vector<int> bad_count(std::size_t(n), 0), pair_count(std::size_t(n), 0);
+      for (const auto& p : r.pairs) {
+        ++pair_count[std::size_t(p.a)];
+        ++pair_count[std::size_t(p.b)];
+        if (p.median_px > config_.load_misfit_px) {
+          bad_pairs += (bad_pairs.empty() ? "" : ", ") + std::to_string(p.a) + "-" + std::to_string(p.b) + " " +
+                       fmt(p.median_px) + " px";
+          ++bad_count[std::size_t(p.a)];
+          ++bad_count[std::size_t(p.b)];
+        }
+      }
+      if (bad_pairs.empty()) return;
+      std::string who;
+      int named = 0;
+      for (int c = 0; c < n; ++c)
+        if (pair_count[std::size_t(c)] > 0 && bad_count[std::size_t(c)] == pair_count[std::size_t(c)]) {
+          who += (who.empty() ? "" : ", ") + std::to_string(c);
+          ++named;
+        }
+      warn("load-file \"" + config_.load_file + "\" does not fit the images: " +
+           (named ? std::string(named > 1 ? "cameras " : "camera ") + who + " misaligned" : std::string("misaligned")) +
+           " (pairs " + bad_pairs + "; independent matches); it was made for another rig, or a camera moved: "
+           "recalibrate (unset load-file) or fix the file");
+      return;
+    }
+  }
+}
+
+void CalibSession::bundle_passed() {
+  if (dropped_ > dropped_reported_) {
+    // The drops since the last QoS message, summed up before the first bundle passes.
+    dropped_reported_ = dropped_;
+    SessionEvent e = make_event(SessionEvent::Type::Qos, "");
+    e.processed = passed_;
+    e.dropped = dropped_;
+    events_.push_back(e);
+  }
+  ++passed_;
+}
+
+void CalibSession::bundle_dropped() {
+  ++dropped_;
+  if (dropped_reported_ != 0 && now_ - last_qos_at_ < config_.qos_interval_s) return;
+  last_qos_at_ = now_;
+  dropped_reported_ = dropped_;
+  SessionEvent e = make_event(SessionEvent::Type::Qos, "");
+  e.processed = passed_;
+  e.dropped = dropped_;
+  events_.push_back(e);
+}
+
+void CalibSession::on_eos() {
+  if (ever_installed_ || failed_) return;
+  fail("Could not calibrate before the stream ended, so no panorama was made" +
+       (last_problem_.empty() ? std::string() : ": " + last_problem_));
+}
+
+}  // namespace stitch

@@ -1,0 +1,239 @@
+// Calibration policy over a whole stream, as a state machine with no GStreamer and no threads:
+// which frames to calibrate from (quality), when to calibrate (first usable frame, a pooling
+// window over the first seconds, recalibration on request, at an interval or on drift), whether a
+// new calibration replaces the current one (it must beat it on held-out frames), how long to keep
+// trying, and what to say about it (events). The element feeds bundles and runs the jobs the
+// session hands out (run_calib_job, in a worker thread); the session never blocks.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <opencv2/core.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "stitch/calib/calibrator.hpp"
+#include "stitch/image.hpp"
+#include "stitch/rig/rig.hpp"
+
+namespace stitch {
+
+// ---- frame quality ---------------------------------------------------------------------------
+
+enum class FrameVerdict { Good, Dark, Featureless, Blurred, Corrupt };
+const char* frame_verdict_name(FrameVerdict v);
+
+struct FrameQuality {
+  FrameVerdict verdict = FrameVerdict::Good;
+  double mean_luma = 0;   // 0..255
+  double contrast = 0;    // luma standard deviation
+  double sharpness = 0;   // variance of the Laplacian (downscaled to ~320 px wide)
+  int corners = 0;        // FAST corners on the same image
+  double tear = 0;        // strongest row discontinuity against its neighbourhood (corrupt frames)
+  double score() const;   // larger is better (for picking among good frames)
+  std::string describe() const;  // "dark (mean luma 3)", ...
+};
+
+// RGBA view -> verdict. Cheap (a few ms): works on a ~320 px wide grey copy.
+FrameQuality assess_frame(const ImageView& view);
+
+// ---- canvas helpers --------------------------------------------------------------------------
+
+// Moves the canvas of a calibrated rig by canvas' = s * canvas + (tx, ty) (pixel-centre
+// convention), for every projection, and sets the canvas size.
+void transform_canvas(Rig& rig, double s, double tx, double ty, int width, int height);
+// Pads the canvas to even sizes (encoders take 4:2:0 only at even sizes; stitchblend rounds the
+// same way): the saved canvas is the panorama size. A 360-degree canvas is scaled instead so that
+// it keeps closing. Returns true when something changed.
+bool make_canvas_even(Rig& rig);
+// Fits the whole canvas into width x height (uniform scale, centred): a recalibration keeps the
+// panorama size (stitchblend keeps it too), so the saved canvas stays the video's size.
+void fit_canvas(Rig& rig, int width, int height);
+
+// ---- jobs (run by a worker) ------------------------------------------------------------------
+
+struct SessionConfig {
+  std::string rig_file, load_file, save_file;
+  CalibrationOptions options;
+  std::optional<Projection> projection;  // unset: the rig-file's
+  int reference = -1;
+  int calibration_frames = 5;          // pooled frame sets (1: the first usable frame only)
+  double calibration_window_s = 2.0;   // pooled sets are spread over this much running time
+  double calibration_timeout_s = 30;   // uncalibrated this long: an error (0: keep trying)
+  double recalibrate_interval_s = 0;   // 0: only on request
+  double drift_threshold_px = 0;       // 0: no drift watch
+  double drift_check_interval_s = 5;
+  double retry_interval_s = 0.5;       // between failed first attempts
+  double pending_interval_s = 1;       // pending messages at most this often
+  double qos_interval_s = 1;           // QoS messages for dropped bundles at most this often
+  double load_misfit_px = 4;           // a loaded calibration worse than this warns
+  bool resize_is_error = false;        // on-resize=error
+};
+
+enum class JobKind { First, Pooled, Recalibration, DriftCheck, LoadCheck };
+const char* job_kind_name(JobKind k);
+
+// Owned copies of one bundle's views (RGBA).
+struct FrameSet {
+  std::vector<cv::Mat> images;
+  std::vector<ImageView> views() const;
+  static FrameSet copy_of(const std::vector<ImageView>& views);
+};
+
+struct CalibJob {
+  JobKind kind = JobKind::First;
+  std::uint64_t serial = 0;
+  SessionConfig config;
+  std::optional<Rig> rough;                 // from the rig-file (sizes adapted)
+  std::shared_ptr<const Rig> current;       // the calibration to beat (or to check)
+  std::vector<FrameSet> calib_sets, holdout_sets;
+  int fit_width = 0, fit_height = 0;        // > 0: fit the new canvas into this panorama size
+};
+
+struct PairResidual {
+  int a = -1, b = -1;
+  double median_px = -1;  // canvas pixels, over the held-out frames' independent matches
+  int matches = 0;
+};
+
+// Residuals of a rig on frame sets: independent matches of every overlapping pair (see
+// measure_alignment), per pair, per camera and overall. Checks `cancel` between pairs.
+struct RigResiduals {
+  std::vector<PairResidual> pairs;
+  std::vector<double> camera_px;  // match-weighted mean of its pairs' medians; -1: no pair measured
+  double median_px = -1;          // match-weighted mean of the pair medians; -1: nothing measured
+  double rms_px = -1;             // root mean square of the pair medians (match-weighted)
+  int matches = 0;
+};
+RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets, const std::atomic<bool>* cancel);
+
+struct CalibOutcome {
+  JobKind kind = JobKind::First;
+  std::uint64_t serial = 0;
+  bool cancelled = false;
+  bool fatal = false;           // the geometry cannot be repaired by other frames
+  std::string error;            // empty: success
+  std::optional<CalibrationResult> result;  // the new calibration (First, Pooled, Recalibration)
+  RigResiduals candidate, current;          // on the held-out frames (or the calibration's own)
+  std::string residual_source;              // "held-out" or "calibration frames"
+};
+
+// The work of one job; pure, may run in any thread. Catches nothing: the caller does.
+CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel);
+
+// ---- the session -----------------------------------------------------------------------------
+
+struct CalibReport {        // one installed (or rejected) calibration, for the bus
+  std::uint64_t version = 0;
+  std::string source;        // file, rig, images, pooled, recalibration
+  std::shared_ptr<const Rig> rig;
+  int refined_cameras = 0, inliers = 0, warnings = 0;
+  double fit_rms_px = -1;    // the calibrator's own residual over accepted pairs (-1: not given)
+  double ba_rms_px = -1;
+  RigResiduals residuals;    // independent, see residual_source
+  std::string residual_source;
+  double previous_px = -1;   // the calibration it replaced (or kept), same frames
+};
+
+struct SessionEvent {
+  enum class Type { Installed, Rejected, Pending, Qos, Warning, Error } type = Type::Warning;
+  std::string text;          // Pending: why; Warning, Error: the message
+  CalibReport report;        // Installed, Rejected
+  double waited_s = 0;       // Pending
+  std::uint64_t processed = 0, dropped = 0;  // Qos (totals)
+};
+
+class CalibSession {
+ public:
+  struct Frame {
+    double time_s = 0;  // running time (seconds); may jump back (seeks): only forward steps count
+    std::vector<std::array<int, 2>> sizes;
+    std::uint64_t missing_mask = 0;  // views the bundle lacks
+  };
+
+  void set_config(const SessionConfig& config);
+  const SessionConfig& config() const { return config_; }
+
+  // A bundle arrives: whether its pixels are needed (quality, pooling, a job).
+  bool wants_pixels(const Frame& frame);
+  // The bundle's pixels (empty when not wanted). Returns a job to run, if any (one at a time).
+  std::shared_ptr<CalibJob> on_frame(const Frame& frame, const std::vector<ImageView>& views);
+  // A job's outcome (stale serials are ignored).
+  void on_outcome(const CalibOutcome& outcome);
+  // After on_frame/on_outcome: this bundle passes (counted) or is dropped (QoS events, rate-limited).
+  void bundle_passed();
+  void bundle_dropped();
+  // The stream ended: an error when no calibration was ever made.
+  void on_eos();
+  void request_recalibration() { recalibrate_requested_ = true; }
+  // Stop: forgets everything (and any job in flight).
+  void reset();
+
+  std::shared_ptr<const Rig> current() const { return current_; }
+  std::uint64_t version() const { return version_; }
+  bool job_in_flight() const { return job_in_flight_; }
+  bool failed() const { return failed_; }  // a fatal error was reported
+  std::vector<SessionEvent> take_events();
+
+ private:
+  struct Bin {
+    bool holdout = false;
+    std::optional<FrameSet> best;
+    double score = -1;
+  };
+  void note_time(double t);
+  void warn(const std::string& s);
+  void fail(const std::string& s);
+  void pending(const std::string& why);
+  bool handle_sizes(const Frame& frame);
+  bool load_file();
+  bool load_rough();
+  void install(CalibReport report, CalibrationResult* result);
+  void start_window(JobKind kind);
+  std::shared_ptr<CalibJob> make_job(JobKind kind);
+  std::string bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score);
+
+  SessionConfig config_;
+  std::vector<SessionEvent> events_;
+  // time
+  double now_ = 0, last_t_ = 0;
+  bool have_t_ = false;
+  double first_frame_at_ = -1;
+  // geometry
+  std::shared_ptr<const Rig> current_;
+  std::optional<Rig> rough_;
+  std::string rough_from_;
+  std::vector<std::array<int, 2>> rough_sizes_;  // the view sizes rough_ was adapted to
+  std::vector<std::array<int, 2>> sizes_;
+  int panorama_w_ = 0, panorama_h_ = 0;  // kept over recalibrations
+  std::uint64_t version_ = 0;
+  bool ever_installed_ = false, failed_ = false;
+  // first calibration
+  double next_attempt_at_ = 0;
+  std::string last_problem_;
+  double last_pending_at_ = -1e9;
+  // windows
+  JobKind window_kind_ = JobKind::Pooled;
+  bool window_open_ = false;
+  double window_start_ = 0;
+  std::vector<Bin> bins_;
+  double last_calibration_at_ = 0;
+  bool recalibrate_requested_ = false;
+  // load-file check
+  bool load_check_due_ = false;
+  // drift watch
+  double next_drift_check_at_ = 0, drift_backoff_s_ = 0;
+  int drift_strikes_ = 0;
+  double baseline_px_ = -1;
+  // jobs
+  std::uint64_t serial_ = 0;
+  bool job_in_flight_ = false;
+  // QoS
+  std::uint64_t passed_ = 0, dropped_ = 0, dropped_reported_ = 0;
+  double last_qos_at_ = -1e9;
+};
+
+}  // namespace stitch

@@ -1,0 +1,423 @@
+// The calibration policy (calib_session): frame quality, when it calibrates, what it accepts,
+// how long it keeps trying, what it says, and canvases that equal the panorama.
+#include <gtest/gtest.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/calib/calib_session.hpp"
+#include "stitch/cv_interop.hpp"
+#include "stitch/rig/canvas_map.hpp"
+#include "test_data.hpp"
+
+using namespace stitch;
+
+namespace {
+
+const cv::Mat& photo() {
+  static cv::Mat p = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  return p;
+}
+
+// n crops 640x480 of the photo, `shift` px apart (the true geometry is a pure shift).
+std::vector<cv::Mat> crops(int n = 2, int shift = 400) {
+  std::vector<cv::Mat> v;
+  for (int i = 0; i < n; ++i) v.push_back(photo()(cv::Rect(shift * i, 200, 640, 480)).clone());
+  return v;
+}
+
+ImageView view_of(cv::Mat m) { return as_view(m); }  // a header sharing the pixels
+
+std::vector<ImageView> views_of(const std::vector<cv::Mat>& m) {
+  std::vector<ImageView> v;
+  for (const auto& x : m) v.push_back(view_of(x));
+  return v;
+}
+
+cv::Mat black() { return cv::Mat(480, 640, CV_8UC4, cv::Scalar(2, 2, 2, 255)); }
+
+// Feeds frame f (time f/30 s) and runs any job synchronously. Returns the events.
+std::vector<SessionEvent> feed(CalibSession& s, int f, const std::vector<cv::Mat>& frames, int* jobs = nullptr) {
+  CalibSession::Frame fr;
+  fr.time_s = f / 30.0;
+  for (const auto& m : frames) fr.sizes.push_back({m.cols, m.rows});
+  const auto views = views_of(frames);
+  auto job = s.on_frame(fr, s.wants_pixels(fr) ? views : std::vector<ImageView>());
+  if (job) {
+    if (jobs) ++*jobs;
+    std::atomic<bool> cancel{false};
+    s.on_outcome(run_calib_job(*job, cancel));
+  }
+  if (s.current()) {
+    s.bundle_passed();
+  } else {
+    s.bundle_dropped();
+  }
+  return s.take_events();
+}
+
+int count(const std::vector<SessionEvent>& e, SessionEvent::Type t) {
+  int n = 0;
+  for (const auto& x : e) n += x.type == t;
+  return n;
+}
+
+const SessionEvent* find(const std::vector<SessionEvent>& e, SessionEvent::Type t) {
+  for (const auto& x : e)
+    if (x.type == t) return &x;
+  return nullptr;
+}
+
+SessionConfig quick() {
+  SessionConfig c;
+  c.calibration_frames = 1;  // no pooled refinement unless a test asks
+  return c;
+}
+
+}  // namespace
+
+// ---- frame quality ---------------------------------------------------------------------------
+
+TEST(FrameQuality, GoodDarkFlatBlurredAndTorn) {
+  const cv::Mat good = crops(1)[0];
+  EXPECT_EQ(assess_frame(view_of(good)).verdict, FrameVerdict::Good) << assess_frame(view_of(good)).describe();
+  EXPECT_EQ(assess_frame(view_of(black())).verdict, FrameVerdict::Dark);
+  const cv::Mat flat(480, 640, CV_8UC4, cv::Scalar(90, 90, 90, 255));
+  EXPECT_EQ(assess_frame(view_of(flat)).verdict, FrameVerdict::Featureless);
+  cv::Mat blurred;
+  cv::GaussianBlur(good, blurred, cv::Size(0, 0), 9);
+  EXPECT_EQ(assess_frame(view_of(blurred)).verdict, FrameVerdict::Blurred) << assess_frame(view_of(blurred)).describe();
+  // A broken keyframe: the top of one picture over the bottom of another.
+  cv::Mat torn = good.clone();
+  photo()(cv::Rect(900, 700, 640, 272)).copyTo(torn(cv::Rect(0, 208, 640, 272)));
+  const FrameQuality q = assess_frame(view_of(torn));
+  EXPECT_EQ(q.verdict, FrameVerdict::Corrupt) << q.describe();
+  // Every crop of the real photo passes (no false alarms on natural horizontal edges).
+  for (int y = 0; y + 480 <= photo().rows; y += 100) {
+    for (int x = 0; x + 640 <= photo().cols; x += 160) {
+      const FrameQuality g = assess_frame(view_of(photo()(cv::Rect(x, y, 640, 480)).clone()));
+      EXPECT_NE(g.verdict, FrameVerdict::Corrupt) << x << "," << y << ": " << g.describe();
+    }
+  }
+}
+
+// ---- canvas helpers --------------------------------------------------------------------------
+
+TEST(CanvasHelpers, OddCanvasIsPaddedAndFitKeepsTheMappingInside) {
+  Rig rig = testdata::shifted_rig(2, 640, 480, 401);
+  rig.canvas_height = 481;
+  ASSERT_EQ(rig.canvas_width, 1041);
+  const Eigen::Matrix3d h1 = *rig.cameras[1].homography;
+  EXPECT_TRUE(make_canvas_even(rig));
+  EXPECT_EQ(rig.canvas_width, 1042);
+  EXPECT_EQ(rig.canvas_height, 482);
+  EXPECT_TRUE(rig.cameras[1].homography->isApprox(h1));  // padded, not moved
+  // A recalibrated canvas fitted into the panorama it replaces: every corner lands inside.
+  fit_canvas(rig, 800, 600);
+  EXPECT_EQ(rig.canvas_width, 800);
+  EXPECT_EQ(rig.canvas_height, 600);
+  for (int c = 0; c < 2; ++c)
+    for (const auto& p : camera_canvas_corners(rig.cameras[std::size_t(c)])) {
+      EXPECT_GE(p.x(), -0.5);
+      EXPECT_LE(p.x(), 799.5);
+      EXPECT_GE(p.y(), -0.5);
+      EXPECT_LE(p.y(), 599.5);
+    }
+}
+
+// ---- the session -----------------------------------------------------------------------------
+
+TEST(CalibSession, CalibratesOnTheFirstGoodBundleAndReportsResiduals) {
+  CalibSession s;
+  s.set_config(quick());
+  int jobs = 0;
+  const auto e = feed(s, 0, crops(3), &jobs);
+  ASSERT_TRUE(s.current()) << (e.empty() ? "" : e[0].text);
+  EXPECT_EQ(jobs, 1);
+  const SessionEvent* in = find(e, SessionEvent::Type::Installed);
+  ASSERT_NE(in, nullptr);
+  EXPECT_EQ(in->report.source, "images");
+  ASSERT_EQ(in->report.residuals.camera_px.size(), 3u);
+  for (double px : in->report.residuals.camera_px) {
+    EXPECT_GE(px, 0);
+    EXPECT_LT(px, 1.5);
+  }
+  EXPECT_GT(in->report.residuals.rms_px, 0);  // a real number, not 0
+  EXPECT_EQ(s.current()->canvas_width % 2, 0);
+  EXPECT_EQ(s.current()->canvas_height % 2, 0);
+}
+
+// A camera dark for its first 5 s: no attempt on those frames, rate-limited pending messages
+// naming the right camera, rate-limited QoS, then a calibration. Not fatal.
+TEST(CalibSession, DarkCameraForFiveSecondsIsNotFatal) {
+  CalibSession s;
+  s.set_config(quick());
+  auto good = crops(3);
+  auto dark = good;
+  dark[1] = black();
+  int jobs = 0, pending = 0, qos = 0;
+  for (int f = 0; f < 150; ++f) {
+    const auto e = feed(s, f, dark, &jobs);
+    pending += count(e, SessionEvent::Type::Pending);
+    qos += count(e, SessionEvent::Type::Qos);
+    ASSERT_EQ(count(e, SessionEvent::Type::Error), 0) << "frame " << f;
+    if (const SessionEvent* p = find(e, SessionEvent::Type::Pending)) {
+      EXPECT_NE(p->text.find("camera 1 is dark"), std::string::npos) << p->text;
+    }
+  }
+  EXPECT_EQ(jobs, 0);
+  EXPECT_GE(pending, 4);
+  EXPECT_LE(pending, 6);
+  EXPECT_LE(qos, 6);
+  const auto e = feed(s, 150, good, &jobs);
+  EXPECT_TRUE(s.current());
+  // The drops are summed up in one QoS message before the first bundle passes.
+  const SessionEvent* q = find(e, SessionEvent::Type::Qos);
+  ASSERT_NE(q, nullptr);
+  EXPECT_EQ(q->dropped, 150u);
+}
+
+TEST(CalibSession, GivesUpAfterTheTimeoutNamingTheCamera) {
+  SessionConfig c = quick();
+  c.calibration_timeout_s = 2;
+  CalibSession s;
+  s.set_config(c);
+  auto frames = crops(3);
+  frames[2] = black();
+  std::string error;
+  for (int f = 0; f < 90 && error.empty(); ++f)
+    for (const auto& e : feed(s, f, frames))
+      if (e.type == SessionEvent::Type::Error) error = e.text;
+  EXPECT_NE(error.find("calibration-timeout"), std::string::npos) << error;
+  EXPECT_NE(error.find("camera 2 is dark"), std::string::npos) << error;
+}
+
+TEST(CalibSession, StreamEndingUncalibratedIsAnError) {
+  CalibSession s;
+  s.set_config(quick());
+  auto frames = crops(2);
+  frames[0] = cv::Mat(480, 640, CV_8UC4, cv::Scalar(90, 90, 90, 255));
+  for (int f = 0; f < 5; ++f) feed(s, f, frames);
+  s.on_eos();
+  const auto e = s.take_events();
+  const SessionEvent* err = find(e, SessionEvent::Type::Error);
+  ASSERT_NE(err, nullptr);
+  EXPECT_NE(err->text.find("Could not calibrate before the stream ended"), std::string::npos) << err->text;
+  EXPECT_NE(err->text.find("camera 0 is featureless"), std::string::npos) << err->text;
+}
+
+// A torn first frame is never calibrated on: the next good one is.
+TEST(CalibSession, CorruptFirstFrameIsSkipped) {
+  CalibSession s;
+  s.set_config(quick());
+  auto frames = crops(2);
+  auto torn = frames;
+  torn[1] = frames[1].clone();
+  photo()(cv::Rect(900, 700, 640, 272)).copyTo(torn[1](cv::Rect(0, 208, 640, 272)));
+  int jobs = 0;
+  feed(s, 0, torn, &jobs);
+  EXPECT_EQ(jobs, 0);
+  EXPECT_FALSE(s.current());
+  feed(s, 1, frames, &jobs);
+  EXPECT_EQ(jobs, 1);
+  EXPECT_TRUE(s.current());
+}
+
+// The pooled calibration over the window is judged on held-out frames against the first one;
+// a worse candidate is never swapped in.
+TEST(CalibSession, WorseCalibrationIsNeverSwappedIn) {
+  SessionConfig c;
+  c.calibration_frames = 2;
+  c.calibration_window_s = 0.3;
+  CalibSession s;
+  s.set_config(c);
+  const auto frames = crops(2);
+  feed(s, 0, frames);
+  ASSERT_TRUE(s.current());
+  // The pooled job: same frames, so it cannot clearly beat the first one: rejected.
+  std::vector<SessionEvent> all;
+  for (int f = 1; f < 20; ++f)
+    for (const auto& e : feed(s, f, frames)) all.push_back(e);
+  EXPECT_EQ(count(all, SessionEvent::Type::Installed), 0);
+  ASSERT_EQ(count(all, SessionEvent::Type::Rejected), 1);
+  EXPECT_EQ(s.version(), 1u);
+  // Handing it a clearly worse outcome by hand: rejected too.
+  s.request_recalibration();
+  CalibSession::Frame fr;
+  fr.time_s = 1;
+  fr.sizes = {{640, 480}, {640, 480}};
+  std::shared_ptr<CalibJob> job;
+  for (int f = 30; f < 50 && !job; ++f) {
+    fr.time_s = f / 30.0;
+    job = s.on_frame(fr, views_of(frames));
+  }
+  ASSERT_TRUE(job);
+  CalibOutcome bad;
+  bad.kind = job->kind;
+  bad.serial = job->serial;
+  bad.result = CalibrationResult();
+  bad.result->rig = testdata::shifted_rig(2, 640, 480, 300);
+  bad.candidate.median_px = 50;
+  bad.candidate.matches = 100;
+  bad.current.median_px = 0.4;
+  bad.current.matches = 100;
+  s.on_outcome(bad);
+  EXPECT_EQ(count(s.take_events(), SessionEvent::Type::Rejected), 1);
+  EXPECT_EQ(s.version(), 1u);
+}
+
+// The rig moved (a camera shifted 40 px): the recalibration beats the old geometry on the new
+// frames and is installed, fitted into the same panorama size.
+TEST(CalibSession, BetterRecalibrationIsInstalledInTheSamePanoramaSize) {
+  SessionConfig c = quick();
+  c.calibration_window_s = 0.2;
+  CalibSession s;
+  s.set_config(c);
+  feed(s, 0, crops(2, 400));
+  ASSERT_TRUE(s.current());
+  const int w = s.current()->canvas_width, h = s.current()->canvas_height;
+  s.request_recalibration();
+  std::vector<SessionEvent> all;
+  for (int f = 1; f < 20; ++f)
+    for (const auto& e : feed(s, f, crops(2, 360))) all.push_back(e);
+  const SessionEvent* in = find(all, SessionEvent::Type::Installed);
+  ASSERT_NE(in, nullptr);
+  EXPECT_EQ(in->report.source, "recalibration");
+  EXPECT_GT(in->report.previous_px, 10);
+  EXPECT_LT(in->report.residuals.median_px, 1.5);
+  EXPECT_EQ(s.current()->canvas_width, w);
+  EXPECT_EQ(s.current()->canvas_height, h);
+}
+
+// A resize (or a camera leaving) calibrates from scratch: the job carries no old geometry.
+TEST(CalibSession, ResizeRecalibratesFromScratch) {
+  CalibSession s;
+  s.set_config(quick());
+  feed(s, 0, crops(3));
+  ASSERT_TRUE(s.current());
+  CalibSession::Frame fr;
+  fr.time_s = 1;
+  const auto two = crops(2);
+  fr.sizes = {{640, 480}, {640, 480}};
+  auto job = s.on_frame(fr, views_of(two));
+  ASSERT_TRUE(job);
+  EXPECT_EQ(job->kind, JobKind::First);
+  EXPECT_FALSE(job->current);
+  EXPECT_EQ(job->fit_width, 0);
+  const auto e = s.take_events();
+  const SessionEvent* w = find(e, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("3 -> 2 cameras"), std::string::npos) << w->text;
+}
+
+TEST(CalibSession, DriftWatchNeedsTwoBadChecksInARow) {
+  SessionConfig c = quick();
+  c.drift_threshold_px = 3;
+  c.drift_check_interval_s = 1;
+  CalibSession s;
+  s.set_config(c);
+  feed(s, 0, crops(2));
+  ASSERT_TRUE(s.current());
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {640, 480}};
+  const auto frames = crops(2);
+  auto check = [&](double t, double px) {
+    fr.time_s = t;
+    auto job = s.on_frame(fr, views_of(frames));
+    if (!job) return false;
+    EXPECT_EQ(job->kind, JobKind::DriftCheck);
+    CalibOutcome o;
+    o.kind = job->kind;
+    o.serial = job->serial;
+    o.current.median_px = px;
+    o.current.matches = 50;
+    s.on_outcome(o);
+    return true;
+  };
+  ASSERT_TRUE(check(1.1, 9));   // one bad check: nothing yet
+  EXPECT_EQ(count(s.take_events(), SessionEvent::Type::Warning), 0);
+  ASSERT_TRUE(check(2.2, 1));   // good again: strikes reset
+  ASSERT_TRUE(check(3.3, 9));
+  EXPECT_EQ(count(s.take_events(), SessionEvent::Type::Warning), 0);
+  ASSERT_TRUE(check(4.4, 9));   // second in a row: recalibrate
+  const auto e = s.take_events();
+  const SessionEvent* w = find(e, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("drifted"), std::string::npos);
+}
+
+TEST(CalibSession, LoadedCalibrationThatDoesNotFitWarnsNamingTheCameras) {
+  const std::string path = testdata::temp_dir() + "/other_rig.json";
+  rig_save(testdata::shifted_rig(2, 640, 480, 400), path);
+  SessionConfig c = quick();
+  c.load_file = path;
+  CalibSession s;
+  s.set_config(c);
+  std::vector<SessionEvent> all;
+  for (int f = 0; f < 3; ++f)
+    for (const auto& e : feed(s, f, crops(2, 330))) all.push_back(e);
+  ASSERT_TRUE(s.current());
+  const SessionEvent* w = find(all, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("does not fit the images"), std::string::npos) << w->text;
+  EXPECT_NE(w->text.find("cameras 0, 1"), std::string::npos) << w->text;
+  // The right file: no warning.
+  CalibSession ok;
+  ok.set_config(c);
+  std::vector<SessionEvent> fine;
+  for (int f = 0; f < 3; ++f)
+    for (const auto& e : feed(ok, f, crops(2, 400))) fine.push_back(e);
+  EXPECT_EQ(count(fine, SessionEvent::Type::Warning), 0);
+}
+
+// recalibrate-interval counts running time that has passed, not timestamps: a seek back (the
+// timestamps start again) does not stop it.
+TEST(CalibSession, IntervalCountsRunningTimeAcrossASeekBack) {
+  SessionConfig c = quick();
+  c.recalibrate_interval_s = 1;
+  c.calibration_window_s = 0.1;
+  CalibSession s;
+  s.set_config(c);
+  const auto frames = crops(2);
+  feed(s, 0, frames);
+  ASSERT_TRUE(s.current());
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {640, 480}};
+  std::shared_ptr<CalibJob> job;
+  for (int f = 1; f <= 24 && !job; ++f) {  // 0.8 s
+    fr.time_s = f / 30.0;
+    job = s.on_frame(fr, views_of(frames));
+  }
+  EXPECT_FALSE(job);
+  for (int f = 0; f <= 20 && !job; ++f) {  // the timestamps restart at 0 (a flushing seek back)
+    fr.time_s = f / 30.0;
+    job = s.on_frame(fr, views_of(frames));
+  }
+  ASSERT_TRUE(job) << "the interval stopped after the seek back";
+  EXPECT_EQ(job->kind, JobKind::Recalibration);
+}
+
+// Uncalibrated (a dark camera) when the resolution changes: the rough rig is adapted to the
+// new sizes, not kept for the old ones.
+TEST(CalibSession, RoughRigFollowsASizeChangeBeforeTheFirstCalibration) {
+  const std::string path = testdata::temp_dir() + "/rough_sizes.json";
+  Rig rough = testdata::shifted_rig(2, 640, 480, 400);
+  for (auto& cam : rough.cameras) cam.homography.reset();
+  rough.canvas_width = rough.canvas_height = 0;
+  for (auto& cam : rough.cameras) cam.fx = cam.fy = 600;
+  rig_save(rough, path);
+  SessionConfig c = quick();
+  c.rig_file = path;
+  CalibSession s;
+  s.set_config(c);
+  feed(s, 0, {black(), black()});
+  EXPECT_FALSE(s.current());
+  cv::Mat small;
+  cv::resize(crops(1)[0], small, cv::Size(320, 240));
+  CalibSession::Frame fr;
+  fr.time_s = 0.1;
+  fr.sizes = {{320, 240}, {320, 240}};
+  auto job = s.on_frame(fr, views_of({small, small}));
+  ASSERT_TRUE(job);
+  ASSERT_TRUE(job->rough);
+  EXPECT_EQ(job->rough->cameras[0].width, 320);
+}
