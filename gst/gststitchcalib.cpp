@@ -9,16 +9,24 @@
  * - `rig-file`: rough camera parameters (stitch-rig JSON), turned into homographies
  *   (paper eq. 8-12) and refined by feature matching in the widened overlaps
  *   (`refine=skew-scale` is the paper's eq. 13-14, `refine=homography` a full correction);
- * - neither: calibration from the images alone (features, pairwise homographies chained to
- *   the reference camera).
+ * - neither: calibration from the images alone (features; focal lengths and rotations from
+ *   the pairwise homographies along the match graph, whatever the pad order; one bundle
+ *   adjustment over every pair, which closes a 360-degree ring).
+ *
+ * `camera-model` (default `auto`): cameras that turn about one centre (most rigs) are modelled
+ * by rotation + intrinsics, refined jointly by bundle adjustment; a free homography per camera
+ * fits a really planar scene seen by translating cameras (a document, a wall, a top-down view).
+ * `auto` picks the model whose error on held-out matches is lower, and the result message says
+ * which (`model`).
  *
  * `projection` picks the canvas: `plane` (the reference camera's image plane, homographies),
  * `cylindrical` or `spherical` (equirectangular; each camera's K and R map the canvas, and a
  * ring that looks all around gets a 360-degree canvas whose seam closes at the wrap). Unset, the
- * rig-file's `projection` holds. Non-planar calibration needs a rig-file (rough focal lengths
- * and rotations): features of every overlapping pair feed one bundle adjustment of all
- * rotations and focal lengths, then `wave-correct` levels the horizon. `bundle-adjust=true`
- * does the same for a planar rig (a rotating one) instead of chaining pairwise corrections.
+ * rig-file's `projection` holds; with neither, it is chosen from the estimated field of view:
+ * plane while the views fit, cylindrical for wide rigs, spherical for rigs that also look up
+ * or down. Features of every overlapping pair feed one bundle adjustment of all rotations and
+ * focal lengths, then `wave-correct` levels the horizon. `bundle-adjust=true` is the older
+ * switch for `camera-model=rotation`.
  *
  * The policy (src/stitch/calib/calib_session.hpp) over a whole stream:
  *
@@ -119,6 +127,7 @@ enum {
   PROP_ON_RESIZE,
   PROP_PROJECTION,
   PROP_BUNDLE_ADJUST,
+  PROP_CAMERA_MODEL,
   PROP_WAVE_CORRECT,
   PROP_CALIBRATION_WINDOW,
   PROP_CALIBRATION_TIMEOUT,
@@ -242,13 +251,27 @@ static GType features_get_type(void) {
 static GType projection_get_type(void) {
   static GType type = 0;
   static const GEnumValue values[] = {
-      {PROJECTION_UNSET, "Unset: the rig-file's \"projection\" (plane without a rig-file)", "unset"},
+      {PROJECTION_UNSET, "Unset: the rig-file's \"projection\"; without one, chosen from the field of view", "unset"},
       {int(stitch::Projection::Plane), "The reference camera's image plane (homographies)", "plane"},
       {int(stitch::Projection::Cylindrical), "Cylinder about the rig's vertical axis", "cylindrical"},
       {int(stitch::Projection::Spherical), "Sphere, equirectangular", "spherical"},
       {0, NULL, NULL}};
   if (g_once_init_enter(&type)) {
     GType t = g_enum_register_static("GstStitchCalibProjection", values);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static GType camera_model_get_type(void) {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::CameraModel::Auto), "The model with the lower error on held-out matches", "auto"},
+      {int(stitch::CameraModel::Rotation), "Rotation + intrinsics about one centre, bundle-adjusted", "rotation"},
+      {int(stitch::CameraModel::Homography), "A free homography per camera (planar scenes)", "homography"},
+      {0, NULL, NULL}};
+  if (g_once_init_enter(&type)) {
+    GType t = g_enum_register_static("GstStitchCalibCameraModel", values);
     g_once_init_leave(&type, t);
   }
   return type;
@@ -591,6 +614,7 @@ static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const 
       break;
     }
     case PROP_BUNDLE_ADJUST: c.options.bundle_adjust = g_value_get_boolean(value); break;
+    case PROP_CAMERA_MODEL: c.options.model = stitch::CameraModel(g_value_get_enum(value)); break;
     case PROP_WAVE_CORRECT: c.options.wave_correct = g_value_get_boolean(value); break;
     case PROP_CALIBRATION_WINDOW: c.calibration_window_s = g_value_get_double(value); break;
     case PROP_CALIBRATION_TIMEOUT: c.calibration_timeout_s = g_value_get_double(value); break;
@@ -620,6 +644,7 @@ static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue
     case PROP_ON_RESIZE: g_value_set_enum(value, int(s.on_resize)); break;
     case PROP_PROJECTION: g_value_set_enum(value, c.projection ? int(*c.projection) : PROJECTION_UNSET); break;
     case PROP_BUNDLE_ADJUST: g_value_set_boolean(value, c.options.bundle_adjust); break;
+    case PROP_CAMERA_MODEL: g_value_set_enum(value, int(c.options.model)); break;
     case PROP_WAVE_CORRECT: g_value_set_boolean(value, c.options.wave_correct); break;
     case PROP_CALIBRATION_WINDOW: g_value_set_double(value, c.calibration_window_s); break;
     case PROP_CALIBRATION_TIMEOUT: g_value_set_double(value, c.calibration_timeout_s); break;
@@ -715,14 +740,19 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
                         on_resize_get_type(), ON_RESIZE_RECALIBRATE, live));
   g_object_class_install_property(gobject_class, PROP_PROJECTION,
       g_param_spec_enum("projection", "Projection",
-                        "Canvas projection (unset: the rig-file's \"projection\"); cylindrical and "
-                        "spherical need a rig-file and may wrap around 360 degrees",
+                        "Canvas projection (unset: the rig-file's \"projection\", or without a rig-file chosen "
+                        "from the estimated field of view); cylindrical and spherical may wrap around 360 degrees",
                         projection_get_type(), PROJECTION_UNSET, live));
   g_object_class_install_property(gobject_class, PROP_BUNDLE_ADJUST,
       g_param_spec_boolean("bundle-adjust", "Bundle adjust",
-                           "Planar rigs: refine all rotations and focal lengths jointly on every "
-                           "pair's matches instead of chaining pairwise corrections (needs a "
-                           "rig-file; non-planar rigs always do)", FALSE, live));
+                           "Older switch: true forces camera-model=rotation (all rotations and focal lengths "
+                           "refined jointly on every pair's matches)", FALSE, live));
+  g_object_class_install_property(gobject_class, PROP_CAMERA_MODEL,
+      g_param_spec_enum("camera-model", "Camera model",
+                        "Planar canvases: rotation + intrinsics (cameras turning about one centre), a "
+                        "homography per camera (a planar scene, translating cameras), or auto: the one "
+                        "with the lower error on held-out matches (non-planar canvases: always rotation)",
+                        camera_model_get_type(), int(stitch::CameraModel::Auto), live));
   g_object_class_install_property(gobject_class, PROP_WAVE_CORRECT,
       g_param_spec_boolean("wave-correct", "Wave correct",
                            "Non-planar rigs: level the horizon after the bundle adjustment", TRUE, live));
@@ -753,6 +783,7 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
   gst_type_mark_as_plugin_api(features_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(on_resize_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(projection_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(camera_model_get_type(), GstPluginAPIFlags(0));
   gst_type_mark_as_plugin_api(GST_TYPE_STITCH_BACKEND, GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_calib_debug, "stitchcalib", 0, "stitch calibration");
 }

@@ -225,10 +225,11 @@ CalibrationResult calibrate(const SessionConfig& s, const std::optional<Rig>& ro
     }
     return calibrate_from_rig(start, sets, s.options);
   }
-  if (s.projection && *s.projection != Projection::Plane)
-    throw RigError(std::string("projection=") + projection_name(*s.projection) +
-                   " needs rough focal lengths and rotations: give a rig-file");
-  return calibrate_from_images(sets, s.reference, s.options);
+  // Images alone: focal lengths and rotations are estimated; unset, the projection is chosen
+  // from the rig's field of view.
+  CalibrationOptions options = s.options;
+  options.projection = s.projection;
+  return calibrate_from_images(sets, s.reference, options);
 }
 
 }  // namespace
@@ -583,12 +584,6 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     }
     if (!config_.load_file.empty()) {
       load_file();
-      return nullptr;
-    }
-    if (config_.rig_file.empty() &&
-        ((config_.projection && *config_.projection != Projection::Plane) || config_.options.bundle_adjust)) {
-      fail(std::string(config_.options.bundle_adjust ? "bundle-adjust=true" : "a cylindrical or spherical projection") +
-           " needs rough focal lengths and rotations: set rig-file");
       return nullptr;
     }
     if (!load_rough()) return nullptr;
