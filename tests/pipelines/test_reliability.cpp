@@ -319,6 +319,20 @@ TEST(LateFrames, FrameFromThePastDroppedWithQos) {
   EXPECT_TRUE(run.dropouts.empty());
 }
 
+// A camera whose clock jumps back sends a run of frames from the past: each is dropped, but the
+// QoS messages are rate-limited (one per input per second, carrying the running totals).
+TEST(LateFrames, QosMessagesAreRateLimited) {
+  std::vector<std::vector<Push>> in = {coded_frames(0, 0, 59), coded_frames(1, 0, 29)};
+  for (int f = 0; f < 29; ++f) in[1].push_back({f, coded(1, f)});  // 29 frames from the past
+  for (const Push& p : coded_frames(1, 30, 59)) in[1].push_back(p);
+  Collected run;
+  run_pipeline(bundles("", 2), in, run);
+  ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+  EXPECT_EQ(run.outputs.size(), 60u);
+  ASSERT_GE(run.qos.size(), 1u);
+  EXPECT_LE(run.qos.size(), 3u) << "one QoS message per dropped frame";
+}
+
 // A camera that starts late: stitchcalib drops the bundles it cannot calibrate on yet, each
 // with a QoS message, then stitches every later one.
 TEST(LateFrames, BundlesBeforeTheFirstCalibrationDroppedWithQos) {
