@@ -349,6 +349,29 @@ TEST(LateFrames, BundlesBeforeTheFirstCalibrationDroppedWithQos) {
   EXPECT_EQ(run.outputs.front().pts, frame_time(3));
 }
 
+namespace {
+
+// Pulls samples and messages for `ms` of wall-clock time; `on_tick(t_ms)` runs each round.
+void collect_for(GstElement* pipe, GstElement* sink, int ms, Collected& run,
+                 const std::function<void(gint64)>& on_tick = nullptr) {
+  GstBus* bus = gst_element_get_bus(pipe);
+  const gint64 start = g_get_monotonic_time();
+  while (g_get_monotonic_time() - start < gint64(ms) * 1000 && run.errors.empty()) {
+    if (on_tick) on_tick((g_get_monotonic_time() - start) / 1000);
+    if (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 10 * GST_MSECOND)) {
+      read_sample(s, run);
+      gst_sample_unref(s);
+    }
+    while (GstMessage* m = gst_bus_pop(bus)) {
+      read_message(m, run);
+      gst_message_unref(m);
+    }
+  }
+  gst_object_unref(bus);
+}
+
+}  // namespace
+
 // Live cameras: one stalls for 0.6 s (a valve drops its frames). The aggregator's latency
 // timeout keeps the panorama going; the camera is left out meanwhile and rejoins.
 TEST(LiveDropout, StalledLiveCameraIsLeftOutAndRejoins) {
@@ -362,31 +385,10 @@ TEST(LiveDropout, StalledLiveCameraIsLeftOutAndRejoins) {
   ASSERT_NE(pipe, nullptr);
   GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
   GstElement* valve = gst_bin_get_by_name(GST_BIN(pipe), "v");
-  GstBus* bus = gst_element_get_bus(pipe);
   gst_element_set_state(pipe, GST_STATE_PLAYING);
   Collected run;
-  const gint64 start = g_get_monotonic_time();
-  int phase = 0;
-  while (g_get_monotonic_time() - start < 2200 * 1000 && run.errors.empty()) {
-    const gint64 t = g_get_monotonic_time() - start;
-    if (phase == 0 && t > 600 * 1000) {
-      g_object_set(valve, "drop", TRUE, NULL);
-      phase = 1;
-    } else if (phase == 1 && t > 1200 * 1000) {
-      g_object_set(valve, "drop", FALSE, NULL);
-      phase = 2;
-    }
-    if (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 10 * GST_MSECOND)) {
-      read_sample(s, run);
-      gst_sample_unref(s);
-    }
-    while (GstMessage* m = gst_bus_pop(bus)) {
-      read_message(m, run);
-      gst_message_unref(m);
-    }
-  }
+  collect_for(pipe, sink, 2200, run, [&](gint64 t) { g_object_set(valve, "drop", t > 600 && t <= 1200, NULL); });
   gst_element_set_state(pipe, GST_STATE_NULL);
-  gst_object_unref(bus);
   gst_object_unref(valve);
   gst_object_unref(sink);
   gst_object_unref(pipe);
@@ -774,24 +776,6 @@ TEST(Properties, DropoutAndResizeDefaults) {
 
 namespace {
 
-// Pulls samples and messages for `ms` of wall-clock time; `on_tick(t_ms)` runs each round.
-void collect_for(GstElement* pipe, GstElement* sink, int ms, Collected& run,
-                 const std::function<void(gint64)>& on_tick = nullptr) {
-  GstBus* bus = gst_element_get_bus(pipe);
-  const gint64 start = g_get_monotonic_time();
-  while (g_get_monotonic_time() - start < gint64(ms) * 1000 && run.errors.empty()) {
-    if (on_tick) on_tick((g_get_monotonic_time() - start) / 1000);
-    if (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 10 * GST_MSECOND)) {
-      read_sample(s, run);
-      gst_sample_unref(s);
-    }
-    while (GstMessage* m = gst_bus_pop(bus)) {
-      read_message(m, run);
-      gst_message_unref(m);
-    }
-  }
-  gst_object_unref(bus);
-}
 
 const char* kLiveCam = "video/x-raw,format=RGBA,width=32,height=24,framerate=30/1";
 
