@@ -91,21 +91,10 @@
 #include "gststitchsync.h"
 
 #include <algorithm>
-#include <atomic>
-#include <cstring>
-#include <map>
-#include <mutex>
-#include <set>
-#include <vector>
 
-#include "gststitchbundle.h"
-#include "gststitchcuda.h"
-#include "stitch/convert/convert.hpp"
-#include "stitch/rig/rig.hpp"
-#include "stitch/sync/policy.hpp"
-#include "stitch/sync/time_align.hpp"
+#include "gststitchsyncpriv.h"
 
-GST_DEBUG_CATEGORY_STATIC(gst_stitch_sync_debug);
+GST_DEBUG_CATEGORY(gst_stitch_sync_debug);
 #define GST_CAT_DEFAULT gst_stitch_sync_debug
 
 enum {
@@ -126,89 +115,6 @@ enum {
 #define DEFAULT_DROPOUT GST_STITCH_SYNC_DROPOUT_FREEZE
 #define DEFAULT_DROPOUT_TIMEOUT (500 * GST_MSECOND)
 #define DEFAULT_TIME_ALIGNMENT GST_STITCH_SYNC_TIME_ALIGNMENT_NONE
-/* at most one QoS message per input per second (each carries the running totals) */
-#define QOS_INTERVAL GST_SECOND
-
-/* Per-input state, on the pad object itself (GstStitchSyncPad::st): it lives exactly as long as
- * the pad, so a released pad's state goes with it. Guarded by StitchSyncState::lock. */
-struct SyncPadState {
-  /* Last real frame, reused while a live camera is late. */
-  /* system-memory bundles: the view's memory, held alive */
-  GstBuffer* buffer = nullptr;
-  gint width = 0, height = 0, stride = 0;
-  gsize offset = 0;
-  /* CUDA-memory bundles: the input frame, converted again when repeated */
-  GstBuffer* frame = nullptr;
-  GstVideoInfo frame_info;
-  /* dropout bookkeeping (stitch::sync::update_dropout) */
-  stitch::sync::DropoutTrack track;
-  /* end (running time) of the newest frame taken in, to drop frames from the past (QoS) */
-  GstClockTime newest_end = GST_CLOCK_TIME_NONE;
-  guint64 processed = 0, late = 0;
-  stitch::sync::RateLimit qos{gint64(QOS_INTERVAL)};
-  /* time alignment: ns added to the segment's running time by us, the file's value, the
-   * newest frame whose signal was taken */
-  gint64 applied_ns = 0;
-  gint64 file_offset_ns = 0;
-  GstClockTime signal_pts = GST_CLOCK_TIME_NONE;
-
-  void release() {
-    gst_clear_buffer(&buffer);
-    gst_clear_buffer(&frame);
-    signal_pts = GST_CLOCK_TIME_NONE;
-  }
-};
-
-struct StitchSyncState {
-  std::mutex lock;  // guards the pads' SyncPadState and what follows
-  /* CUDA-memory bundles (aggregate thread; the pads read out_cuda) */
-  std::atomic<bool> out_cuda{false};
-  StitchCudaContext cuda;
-  StitchCudaOwned<stitch::FrameConverter> converter;
-  GstBufferPool* pool = nullptr;
-  std::vector<std::array<int, 2>> pool_sizes;
-  /* QoS messages for frames dropped in clip, posted from aggregate_frames (clip runs under the
-   * element's object lock, which posting takes) */
-  std::vector<GstMessage*> pending_qos;
-  /* start-up: running time of the first bundle, monotonic time the first aggregate came */
-  GstClockTime started = GST_CLOCK_TIME_NONE;
-  gint64 first_ready_us = -1;
-  /* time-alignment=auto (aggregate thread) */
-  std::unique_ptr<stitch::sync::OffsetTracker> tracker;
-  /* pads requested and released before the element started: gst_parse_launch does that for
-   * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
-   * bundle waits for them too (guarded by the element's object lock) */
-  std::set<std::string> expected;
-
-  void clear_run() {
-    for (GstMessage* m : pending_qos) gst_message_unref(m);
-    pending_qos.clear();
-    started = GST_CLOCK_TIME_NONE;
-    first_ready_us = -1;
-    if (tracker) tracker->reset();
-  }
-  void clear() {
-    clear_run();
-    tracker.reset();
-    converter.reset();
-    stitch_bundle_pool_clear(&pool);
-    pool_sizes.clear();
-  }
-};
-
-struct _GstStitchSync {
-  GstVideoAggregator parent;
-  /* settings */
-  gint fps_n, fps_d;
-  GstStitchSyncInputEos input_eos;
-  stitch::Backend backend;
-  GstStitchSyncDropout dropout;
-  GstClockTime dropout_timeout;
-  GstStitchSyncTimeAlignment time_alignment;
-  gchar* load_file;
-  /* state */
-  StitchSyncState* state;
-};
 
 G_DEFINE_TYPE(GstStitchSync, gst_stitch_sync, GST_TYPE_VIDEO_AGGREGATOR);
 GST_ELEMENT_REGISTER_DEFINE(stitchsync, "stitchsync", GST_RANK_NONE, GST_TYPE_STITCH_SYNC);
@@ -217,35 +123,8 @@ GST_ELEMENT_REGISTER_DEFINE(stitchsync, "stitchsync", GST_RANK_NONE, GST_TYPE_ST
  * kernels convert: the frame is then handed over as it is, mapped where it lies (GST_MAP_CUDA
  * for CUDA memory of our context). Formats the kernels do not take still go through the CPU
  * converter and are uploaded as RGBA. */
-typedef struct {
-  GstVideoAggregatorConvertPad parent;
-  SyncPadState* st;
-} GstStitchSyncPad;
-typedef struct {
-  GstVideoAggregatorConvertPadClass parent_class;
-} GstStitchSyncPadClass;
 
 G_DEFINE_TYPE(GstStitchSyncPad, gst_stitch_sync_pad, GST_TYPE_VIDEO_AGGREGATOR_CONVERT_PAD);
-
-static gboolean converts_on_device(GstVideoFormat format) {
-  switch (format) {
-    case GST_VIDEO_FORMAT_RGBA:
-    case GST_VIDEO_FORMAT_RGBx:
-    case GST_VIDEO_FORMAT_BGRA:
-    case GST_VIDEO_FORMAT_BGRx:
-    case GST_VIDEO_FORMAT_NV12:
-    case GST_VIDEO_FORMAT_I420: return TRUE;
-    default: return FALSE;
-  }
-}
-
-/* Maps `buffer` as a frame of `info`: device pointers when it is CUDA memory of our context. */
-static gboolean map_input_frame(StitchSyncState* st, const GstVideoInfo* info, GstBuffer* buffer,
-                                GstVideoFrame* frame) {
-  GstMapFlags flags = GST_MAP_READ;
-  if (st->cuda.owns(gst_buffer_peek_memory(buffer, 0))) flags = GstMapFlags(flags | STITCH_MAP_CUDA);
-  return gst_video_frame_map(frame, info, buffer, flags);
-}
 
 static gboolean gst_stitch_sync_pad_prepare_frame(GstVideoAggregatorPad* pad, GstVideoAggregator* vagg,
                                                   GstBuffer* buffer, GstVideoFrame* prepared) {
@@ -273,8 +152,6 @@ static void gst_stitch_sync_pad_class_init(GstStitchSyncPadClass* klass) {
 
 static void gst_stitch_sync_pad_init(GstStitchSyncPad* pad) { pad->st = new SyncPadState(); }
 
-/* The pad's own state (every sink pad of stitchsync is a GstStitchSyncPad). */
-static SyncPadState* pad_state(gpointer pad) { return reinterpret_cast<GstStitchSyncPad*>(pad)->st; }
 
 #define GST_TYPE_STITCH_SYNC_INPUT_EOS (gst_stitch_sync_input_eos_get_type())
 static GType gst_stitch_sync_input_eos_get_type(void) {
@@ -369,24 +246,11 @@ struct SortedPads {
   SortedPads& operator=(const SortedPads&) = delete;
 };
 
-static bool is_negotiated(GstVideoAggregatorPad* p) {
-  return p->info.finfo && GST_VIDEO_INFO_FORMAT(&p->info) != GST_VIDEO_FORMAT_UNKNOWN;
-}
 
 /* Views in a bundle: one per input, at least two (bundles have 2 to 16 views: with a single
  * input left, after the others were released, the second view is marked missing). */
 static guint bundle_views(const std::vector<GstVideoAggregatorPad*>& pads) { return guint(MAX(pads.size(), 2)); }
 
-/* A pad's view size: its frames', or the bundle's while it has no caps. */
-static std::array<int, 2> view_size(GstVideoAggregator* vagg, GstVideoAggregatorPad* pad) {
-  gint w = pad && pad->info.finfo ? GST_VIDEO_INFO_WIDTH(&pad->info) : 0;
-  gint h = pad && pad->info.finfo ? GST_VIDEO_INFO_HEIGHT(&pad->info) : 0;
-  if (w <= 0 || h <= 0) {
-    w = GST_VIDEO_INFO_WIDTH(&vagg->info);
-    h = GST_VIDEO_INFO_HEIGHT(&vagg->info);
-  }
-  return {w, h};
-}
 
 static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTemplate* templ,
                                                const gchar* name, const GstCaps* caps) {
@@ -469,16 +333,6 @@ static const char* caps_refusal(GstCaps* caps) {
   return NULL;
 }
 
-/* Time alignment: `target` ns added to the pad's running time from now on (its segment is
- * shifted by the change; aggregate thread or pad's object lock holder). */
-static void apply_time_offset(GstAggregatorPad* pad, SyncPadState& st, gint64 target) {
-  if (target == st.applied_ns) return;
-  GST_OBJECT_LOCK(pad);
-  if (pad->segment.format == GST_FORMAT_TIME)
-    gst_segment_offset_running_time(&pad->segment, GST_FORMAT_TIME, target - st.applied_ns);
-  GST_OBJECT_UNLOCK(pad);
-  st.applied_ns = target;
-}
 
 static gboolean gst_stitch_sync_sink_event(GstAggregator* agg, GstAggregatorPad* pad,
                                            GstEvent* event) {
@@ -690,202 +544,6 @@ static GstFlowReturn gst_stitch_sync_create_output_buffer(GstVideoAggregator* va
   return stitch_bundle_pool_acquire(GST_ELEMENT(self), st->pool, outbuf);
 }
 
-/* Appends one view: shares the frame's memory when it is a single block of system memory,
- * copies otherwise (CUDA memory is read through host memory: this bundle is in system memory).
- * FALSE when memory cannot be had or mapped. */
-static gboolean append_view(GstBuffer* bundle, guint id, GstBuffer* src, gsize src_offset, gint width, gint height,
-                            gint stride) {
-  const gsize bundle_offset = gst_buffer_get_size(bundle);
-  gsize offset[GST_VIDEO_MAX_PLANES] = {0};
-  gint strides[GST_VIDEO_MAX_PLANES] = {0};
-  if (gst_buffer_n_memory(src) == 1 && !stitch_memory_is_cuda(gst_buffer_peek_memory(src, 0))) {
-    gst_buffer_append_memory(bundle, gst_buffer_get_memory(src, 0));
-    offset[0] = bundle_offset + src_offset;
-    strides[0] = stride;
-  } else {
-    const gsize row = gsize(width) * 4;
-    GstMemory* mem = gst_allocator_alloc(NULL, row * height, NULL);
-    if (!mem) return FALSE;
-    GstMapInfo dst, in;
-    if (!gst_memory_map(mem, &dst, GST_MAP_WRITE)) {
-      gst_memory_unref(mem);
-      return FALSE;
-    }
-    if (!gst_buffer_map(src, &in, GST_MAP_READ)) {
-      gst_memory_unmap(mem, &dst);
-      gst_memory_unref(mem);
-      return FALSE;
-    }
-    for (gint y = 0; y < height; ++y) memcpy(dst.data + y * row, in.data + src_offset + gsize(y) * stride, row);
-    gst_buffer_unmap(src, &in);
-    gst_memory_unmap(mem, &dst);
-    gst_buffer_append_memory(bundle, mem);
-    offset[0] = bundle_offset;
-    strides[0] = gint(row);
-  }
-  GstVideoMeta* vm = gst_buffer_add_video_meta_full(bundle, GST_VIDEO_FRAME_FLAG_NONE, GST_VIDEO_FORMAT_RGBA, width,
-                                                    height, 1, offset, strides);
-  if (!vm) return FALSE;
-  vm->id = gint(id);
-  return TRUE;
-}
-
-static gboolean append_black_view(GstBuffer* bundle, guint id, gint width, gint height) {
-  const gsize size = gsize(width) * 4 * height;
-  GstMemory* mem = gst_allocator_alloc(NULL, size, NULL);
-  if (!mem) return FALSE;
-  GstMapInfo map;
-  if (!gst_memory_map(mem, &map, GST_MAP_WRITE)) {
-    gst_memory_unref(mem);
-    return FALSE;
-  }
-  memset(map.data, 0, size);
-  gst_memory_unmap(mem, &map);
-  GstBuffer* tmp = gst_buffer_new();
-  gst_buffer_append_memory(tmp, mem);
-  const gboolean ok = append_view(bundle, id, tmp, 0, width, height, width * 4);
-  gst_buffer_unref(tmp);
-  return ok;
-}
-
-/* The core's description of a mapped input frame (a format converts_on_device takes). */
-static stitch::FrameView frame_view(const GstVideoFrame* frame) {
-  stitch::FrameView v;
-  switch (GST_VIDEO_FRAME_FORMAT(frame)) {
-    case GST_VIDEO_FORMAT_RGBx: v.format = stitch::FrameFormat::RGBx; break;
-    case GST_VIDEO_FORMAT_BGRA: v.format = stitch::FrameFormat::BGRA; break;
-    case GST_VIDEO_FORMAT_BGRx: v.format = stitch::FrameFormat::BGRx; break;
-    case GST_VIDEO_FORMAT_NV12: v.format = stitch::FrameFormat::NV12; break;
-    case GST_VIDEO_FORMAT_I420: v.format = stitch::FrameFormat::I420; break;
-    default: v.format = stitch::FrameFormat::RGBA; break;
-  }
-  v.width = GST_VIDEO_FRAME_WIDTH(frame);
-  v.height = GST_VIDEO_FRAME_HEIGHT(frame);
-  for (guint p = 0; p < GST_VIDEO_FRAME_N_PLANES(frame) && p < 3; ++p) {
-    v.planes[p] = static_cast<const uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(frame, p));
-    v.pitches[p] = std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, p));
-  }
-  v.on_device = STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA) != 0;
-  /* Y'CbCr as GstVideoConverter reads it: the caps' matrix and range, else SD/HD defaults */
-  const GstVideoColorimetry& c = frame->info.colorimetry;
-  gdouble kr = 0, kb = 0;
-  if (!gst_video_color_matrix_get_Kr_Kb(c.matrix, &kr, &kb))
-    gst_video_color_matrix_get_Kr_Kb(v.height >= 720 ? GST_VIDEO_COLOR_MATRIX_BT709 : GST_VIDEO_COLOR_MATRIX_BT601,
-                                     &kr, &kb);
-  v.colorimetry.kr = kr;
-  v.colorimetry.kb = kb;
-  v.colorimetry.full_range = c.range == GST_VIDEO_COLOR_RANGE_0_255;
-  v.colorimetry.chroma_cosited_x = (frame->info.chroma_site & GST_VIDEO_CHROMA_SITE_H_COSITED) != 0;
-  v.colorimetry.chroma_cosited_y = (frame->info.chroma_site & GST_VIDEO_CHROMA_SITE_V_COSITED) != 0;
-  return v;
-}
-
-/* System memory: views reference the inputs' memory (zero-copy for single-block frames). `pads`
- * holds NULL for a view without an input (a single input left). FALSE after an element error. */
-static gboolean bundle_in_system_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                                        GstBuffer* outbuf, guint64 left_out, guint64& missing) {
-  GstVideoAggregator* vagg = GST_VIDEO_AGGREGATOR(self);
-  for (guint id = 0; id < pads.size(); ++id) {
-    GstVideoAggregatorPad* pad = pads[id];
-    GstVideoFrame* frame = pad ? gst_video_aggregator_pad_get_prepared_frame(pad) : NULL;
-    SyncPadState* last = pad ? pad_state(pad) : NULL;
-    gboolean ok = TRUE;
-    if (!pad || (left_out >> id & 1) || (!frame && !last->buffer)) {
-      /* no input, dropped out with dropout=fill, or never had a frame: black, marked missing
-       * so that stitchblend leaves it out (the last frame is kept) */
-      const auto size = view_size(vagg, pad);
-      ok = append_black_view(outbuf, id, size[0], size[1]);
-      missing |= guint64(1) << id;
-    } else if (frame) {
-      ok = append_view(outbuf, id, frame->buffer, GST_VIDEO_FRAME_PLANE_OFFSET(frame, 0), GST_VIDEO_FRAME_WIDTH(frame),
-                       GST_VIDEO_FRAME_HEIGHT(frame), GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
-      if (ok) {
-        /* Keep only what the bundle already references: the view's memory. */
-        GstBuffer* keep = gst_buffer_new();
-        gst_buffer_append_memory(keep, gst_buffer_get_memory(outbuf, id));
-        gst_clear_buffer(&last->buffer);
-        last->buffer = keep;
-        GstVideoMeta* vm = gst_buffer_get_video_meta_id(outbuf, gint(id));
-        last->width = gint(vm->width);
-        last->height = gint(vm->height);
-        last->stride = vm->stride[0];
-        last->offset = vm->offset[0] - (gst_buffer_get_size(outbuf) - gst_buffer_get_size(keep));
-      }
-    } else {
-      /* a live camera that is late or gone: freeze its last frame */
-      ok = append_view(outbuf, id, last->buffer, last->offset, last->width, last->height, last->stride);
-    }
-    if (!ok) {
-      GST_ELEMENT_ERROR(self, RESOURCE, NO_SPACE_LEFT,
-                        ("Cannot allocate or map the view of %s (view %u)", pad ? GST_PAD_NAME(pad) : "no input", id),
-                        (NULL));
-      return FALSE;
-    }
-  }
-  return TRUE;
-}
-
-/* CUDA memory: every view of the pooled bundle is written on the device from its input frame
- * (uploaded once when it is in system memory). FALSE after an element error. */
-static gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                                      GstBuffer* outbuf, guint64 left_out, guint64& missing) {
-  StitchSyncState* st = self->state;
-  const guint n = guint(pads.size());  // NULL entries: views without an input
-  StitchBundleMapping out;
-  std::string error;
-  if (!out.map(outbuf, n, GST_MAP_WRITE, error, &st->cuda)) {
-    GST_ELEMENT_ERROR(self, RESOURCE, FAILED, ("Cannot map the CUDA-memory bundle: %s", error.c_str()), (NULL));
-    return FALSE;
-  }
-  GstVideoFrame repeated[STITCH_MAX_VIEWS];  /* last frames, mapped until the device is done */
-  guint n_repeated = 0;
-  const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchsync", [&]() {
-    if (!st->converter.made_with(st->cuda))
-      st->converter.make(st->cuda, []() { return stitch::FrameConverter::create(stitch::Backend::Cuda); });
-    st->converter.run([&](stitch::FrameConverter& converter) {
-      for (guint id = 0; id < n; ++id) {
-        GstVideoAggregatorPad* pad = pads[id];
-        const stitch::ImageView& view = out.views()[id];
-        if (!pad) {
-          converter.clear(view);
-          missing |= guint64(1) << id;
-          continue;
-        }
-        GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
-        SyncPadState& last = *pad_state(pad);
-        if (left_out >> id & 1) {
-          converter.clear(view);
-          missing |= guint64(1) << id;
-        } else if (frame) {
-          converter.convert(frame_view(frame), view);
-          gst_buffer_replace(&last.frame, frame->buffer);
-          last.frame_info = frame->info;
-        } else if (last.frame) {
-          /* a live camera that is late or gone: its last frame again */
-          GstVideoFrame* f = &repeated[n_repeated];
-          if (!map_input_frame(st, &last.frame_info, last.frame, f))
-            throw std::runtime_error("cannot map the last frame of " + std::string(GST_PAD_NAME(pad)));
-          ++n_repeated;
-          converter.convert(frame_view(f), view);
-        } else {
-          converter.clear(view);
-          missing |= guint64(1) << id;
-        }
-      }
-      converter.finish();
-    });
-  });
-  if (!ok && st->converter) {
-    /* nothing the device still reads may be unmapped under it */
-    try {
-      st->converter.run([](stitch::FrameConverter& converter) { converter.finish(); });
-    } catch (...) {
-    }
-  }
-  for (guint i = 0; i < n_repeated; ++i) gst_video_frame_unmap(&repeated[i]);
-  return ok;
-}
-
 /* Dropouts (policy: stitch::sync::update_dropout). A camera has dropped out when it ended, when
  * it stalled (its newest frame ended more than dropout-timeout before the output time with
  * nothing queued after it; live inputs: the aggregator's latency timeout brings the output here
@@ -958,92 +616,6 @@ static void post_dropout_change(GstStitchSync* self, const DropoutChange& c) {
                                       c.view, "dropped", G_TYPE_BOOLEAN, c.dropped, "reason", G_TYPE_STRING,
                                       c.reason.c_str(), NULL);
   gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
-}
-
-/* Time alignment. The pads' offsets from load-file, then (time-alignment=auto) from the
- * tracker, fed one motion signal per new input frame at its uncorrected running time. Returns
- * the message to post when the estimates moved (state lock held). */
-static GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, bool automatic,
-                                  std::vector<guint>& no_signal) {
-  StitchSyncState* st = self->state;
-  guint n = 0;
-  while (n < pads.size() && pads[n]) ++n;
-  if (!automatic) {
-    st->tracker.reset();
-    for (guint v = 0; v < n; ++v) apply_time_offset(GST_AGGREGATOR_PAD(pads[v]), *pad_state(pads[v]), pad_state(pads[v])->file_offset_ns);
-    return NULL;
-  }
-  if (!st->tracker || st->tracker->views() != int(n)) st->tracker = std::make_unique<stitch::sync::OffsetTracker>(int(n));
-  for (guint v = 0; v < n; ++v) {
-    GstVideoAggregatorPad* pad = pads[v];
-    SyncPadState& ps = *pad_state(pad);
-    GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
-    if (frame && GST_BUFFER_PTS(frame->buffer) != ps.signal_pts &&
-        !(STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA))) {
-      ps.signal_pts = GST_BUFFER_PTS(frame->buffer);
-      GST_OBJECT_LOCK(pad);
-      const GstClockTime rt =
-          gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(frame->buffer));
-      GST_OBJECT_UNLOCK(pad);
-      const GstVideoFormat f = GST_VIDEO_FRAME_FORMAT(frame);
-      const bool luma = f == GST_VIDEO_FORMAT_NV12 || f == GST_VIDEO_FORMAT_I420;  // the Y plane; else RGBA-like
-      if (GST_CLOCK_TIME_IS_VALID(rt))
-        st->tracker->add_frame(int(v), gint64(rt) - ps.applied_ns, static_cast<const uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(frame, 0)),
-                               GST_VIDEO_FRAME_WIDTH(frame), GST_VIDEO_FRAME_HEIGHT(frame),
-                               std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0)), luma ? 1 : 4, luma ? 0 : 1);
-    }
-  }
-  std::vector<stitch::sync::Estimate> est;
-  std::vector<int> quiet;
-  const bool changed = st->tracker->update(est, quiet);
-  for (int v : quiet) no_signal.push_back(guint(v));
-  for (guint v = 0; v < n; ++v) {
-    SyncPadState& ps = *pad_state(pads[v]);
-    const auto& cur = st->tracker->current();
-    const bool valid = v < cur.size() && cur[v].valid;
-    /* the estimate is measured on the uncorrected times: it replaces the file's value */
-    GstBuffer* buf = gst_video_aggregator_pad_get_current_buffer(pads[v]);
-    GstClockTime rt = GST_CLOCK_TIME_NONE;
-    if (buf && GST_BUFFER_PTS_IS_VALID(buf)) {
-      GST_OBJECT_LOCK(pads[v]);
-      rt = gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pads[v])->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(buf));
-      GST_OBJECT_UNLOCK(pads[v]);
-    }
-    const gint64 raw = GST_CLOCK_TIME_IS_VALID(rt) ? gint64(rt) - ps.applied_ns : 0;
-    apply_time_offset(GST_AGGREGATOR_PAD(pads[v]), ps, valid ? st->tracker->offset_at(int(v), raw) : ps.file_offset_ns);
-  }
-  if (!changed) return NULL;
-  GstStructure* s = gst_structure_new_empty("stitchsync-time-offsets");
-  for (guint v = 0; v < n && v < est.size(); ++v) {
-    gchar* k = g_strdup_printf("offset-%u", v);
-    gst_structure_set(s, k, G_TYPE_INT64, est[v].valid ? gint64(est[v].offset_ns) : gint64(0), NULL);
-    g_free(k);
-    k = g_strdup_printf("confidence-%u", v);
-    gst_structure_set(s, k, G_TYPE_DOUBLE, est[v].confidence, NULL);
-    g_free(k);
-    k = g_strdup_printf("rate-%u", v);
-    gst_structure_set(s, k, G_TYPE_DOUBLE, est[v].valid ? est[v].rate : 1.0, NULL);
-    g_free(k);
-  }
-  return s;
-}
-
-/* The calibration file's per-camera time offsets (stitchcalib's rig JSON, "time_offset_ns"),
- * read at the first bundle. FALSE after an element error. */
-static gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads) {
-  GST_OBJECT_LOCK(self);
-  const std::string path = self->load_file ? self->load_file : "";
-  GST_OBJECT_UNLOCK(self);
-  if (path.empty()) return TRUE;
-  try {
-    const stitch::Rig rig = stitch::rig_load(path);
-    for (guint v = 0; v < pads.size() && v < rig.cameras.size(); ++v)
-      if (pads[v]) pad_state(pads[v])->file_offset_ns = rig.cameras[v].time_offset_ns.value_or(0);
-  } catch (const std::exception& e) {
-    GST_ELEMENT_ERROR(self, RESOURCE, READ, ("Cannot read the time offsets of %s: %s", path.c_str(), e.what()), (NULL));
-    return FALSE;
-  }
-  return TRUE;
 }
 
 /* Before the first bundle (stitch::sync::may_start): every requested pad negotiated, or

@@ -53,6 +53,11 @@ TEST(SyncPolicy, StallDropsOutButATimestampGapDoesNot) {
   EXPECT_FALSE(t.dropped);
   EXPECT_TRUE(update_dropout(t, frame_until(400 * kMs, false), 1000 * kMs, 0, 500 * kMs, why));
   EXPECT_NE(why.find("no frame for 600 ms"), std::string::npos) << why;
+  // frames queued for later do not bring it back; a fresh frame does
+  EXPECT_FALSE(update_dropout(t, frame_until(400 * kMs, true), 1100 * kMs, 0, 500 * kMs, why));
+  EXPECT_TRUE(t.dropped);
+  EXPECT_TRUE(update_dropout(t, frame_until(1150 * kMs), 1120 * kMs, 0, 500 * kMs, why));
+  EXPECT_FALSE(t.dropped);
   // ended
   InputFacts ended;
   ended.negotiated = ended.eos = true;

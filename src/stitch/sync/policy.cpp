@@ -12,6 +12,15 @@ bool update_dropout(DropoutTrack& track, const InputFacts& in, int64_t now, int6
                     std::string& reason) {
   reason.clear();
   if (in.has_frame) track.ever_had_frame = true;
+  const bool stale = in.has_frame && now != kNoTime && in.frame_end != kNoTime && now > in.frame_end &&
+                     now - in.frame_end > timeout;
+  if (track.dropped) {
+    // out until a fresh frame covers the output: frames queued for later (a reconnect's new
+    // stream, a stalled camera's backlog) do not bring it back before they are shown
+    if (!in.has_frame || stale) return false;
+    track.dropped = false;
+    return true;
+  }
   if (!in.has_frame) {
     if (in.eos) {
       reason = "it ended";
@@ -21,8 +30,7 @@ bool update_dropout(DropoutTrack& track, const InputFacts& in, int64_t now, int6
       reason = in.negotiated ? "no frame since the start (" + ms(now - started) + ")"
                              : "it never started (no caps after " + ms(now - started) + ")";
     }
-  } else if (!in.queued && now != kNoTime && in.frame_end != kNoTime && now > in.frame_end &&
-             now - in.frame_end > timeout) {
+  } else if (!in.queued && stale) {
     reason = "no frame for " + ms(now - in.frame_end);
   }
   const bool out = !reason.empty();

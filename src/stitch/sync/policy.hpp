@@ -35,6 +35,8 @@ struct DropoutTrack {
 //  * an input whose newest frame ended more than `timeout` before `now` with nothing queued
 //    after it (a stalled camera). A later frame already waiting is a gap in the timestamps
 //    (variable frame rate, a file with holes): never a dropout.
+// A camera that is out comes back with the first fresh frame that covers an output (not with
+// frames merely queued for later).
 bool update_dropout(DropoutTrack& track, const InputFacts& in, int64_t now, int64_t started, int64_t timeout,
                     std::string& reason);
 

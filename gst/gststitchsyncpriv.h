@@ -1,0 +1,139 @@
+/* stitchsync's private parts, shared by gststitchsync.cpp (the element: negotiation, start-up,
+ * dropouts, properties) and gststitchsyncviews.cpp (assembling the bundle's views, applying
+ * time offsets). C++ only, not installed. */
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "gststitchbundle.h"
+#include "gststitchcuda.h"
+#include "gststitchsync.h"
+#include "stitch/convert/convert.hpp"
+#include "stitch/sync/policy.hpp"
+#include "stitch/sync/time_align.hpp"
+
+GST_DEBUG_CATEGORY_EXTERN(gst_stitch_sync_debug);
+
+/* at most one QoS message per input per second (each carries the running totals) */
+#define QOS_INTERVAL GST_SECOND
+
+/* Per-input state, on the pad object itself (GstStitchSyncPad::st): it lives exactly as long as
+ * the pad, so a released pad's state goes with it. Guarded by StitchSyncState::lock. */
+struct SyncPadState {
+  /* Last real frame, reused while a live camera is late. */
+  /* system-memory bundles: the view's memory, held alive */
+  GstBuffer* buffer = nullptr;
+  gint width = 0, height = 0, stride = 0;
+  gsize offset = 0;
+  /* CUDA-memory bundles: the input frame, converted again when repeated */
+  GstBuffer* frame = nullptr;
+  GstVideoInfo frame_info;
+  /* dropout bookkeeping (stitch::sync::update_dropout) */
+  stitch::sync::DropoutTrack track;
+  /* end (running time) of the newest frame taken in, to drop frames from the past (QoS) */
+  GstClockTime newest_end = GST_CLOCK_TIME_NONE;
+  guint64 processed = 0, late = 0;
+  stitch::sync::RateLimit qos{gint64(QOS_INTERVAL)};
+  /* time alignment: ns added to the segment's running time by us, the file's value, the
+   * newest frame whose signal was taken */
+  gint64 applied_ns = 0;
+  gint64 file_offset_ns = 0;
+  GstClockTime signal_pts = GST_CLOCK_TIME_NONE;
+
+  void release() {
+    gst_clear_buffer(&buffer);
+    gst_clear_buffer(&frame);
+    signal_pts = GST_CLOCK_TIME_NONE;
+  }
+};
+
+struct StitchSyncState {
+  std::mutex lock;  // guards the pads' SyncPadState and what follows
+  /* CUDA-memory bundles (aggregate thread; the pads read out_cuda) */
+  std::atomic<bool> out_cuda{false};
+  StitchCudaContext cuda;
+  StitchCudaOwned<stitch::FrameConverter> converter;
+  GstBufferPool* pool = nullptr;
+  std::vector<std::array<int, 2>> pool_sizes;
+  /* QoS messages for frames dropped in clip, posted from aggregate_frames (clip runs under the
+   * element's object lock, which posting takes) */
+  std::vector<GstMessage*> pending_qos;
+  /* start-up: running time of the first bundle, monotonic time the first aggregate came */
+  GstClockTime started = GST_CLOCK_TIME_NONE;
+  gint64 first_ready_us = -1;
+  /* time-alignment=auto (aggregate thread) */
+  std::unique_ptr<stitch::sync::OffsetTracker> tracker;
+  /* pads requested and released before the element started: gst_parse_launch does that for
+   * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
+   * bundle waits for them too (guarded by the element's object lock) */
+  std::set<std::string> expected;
+
+  void clear_run() {
+    for (GstMessage* m : pending_qos) gst_message_unref(m);
+    pending_qos.clear();
+    started = GST_CLOCK_TIME_NONE;
+    first_ready_us = -1;
+    if (tracker) tracker->reset();
+  }
+  void clear() {
+    clear_run();
+    tracker.reset();
+    converter.reset();
+    stitch_bundle_pool_clear(&pool);
+    pool_sizes.clear();
+  }
+};
+
+struct _GstStitchSync {
+  GstVideoAggregator parent;
+  /* settings */
+  gint fps_n, fps_d;
+  GstStitchSyncInputEos input_eos;
+  stitch::Backend backend;
+  GstStitchSyncDropout dropout;
+  GstClockTime dropout_timeout;
+  GstStitchSyncTimeAlignment time_alignment;
+  gchar* load_file;
+  /* state */
+  StitchSyncState* state;
+};
+
+typedef struct {
+  GstVideoAggregatorConvertPad parent;
+  SyncPadState* st;
+} GstStitchSyncPad;
+typedef struct {
+  GstVideoAggregatorConvertPadClass parent_class;
+} GstStitchSyncPadClass;
+
+/* The pad's own state (every sink pad of stitchsync is a GstStitchSyncPad). */
+static inline SyncPadState* pad_state(gpointer pad) { return reinterpret_cast<GstStitchSyncPad*>(pad)->st; }
+
+static inline bool is_negotiated(GstVideoAggregatorPad* p) {
+  return p->info.finfo && GST_VIDEO_INFO_FORMAT(&p->info) != GST_VIDEO_FORMAT_UNKNOWN;
+}
+
+/* gststitchsyncviews.cpp */
+gboolean converts_on_device(GstVideoFormat format);
+/* Maps `buffer` as a frame of `info`: device pointers when it is CUDA memory of our context. */
+gboolean map_input_frame(StitchSyncState* st, const GstVideoInfo* info, GstBuffer* buffer, GstVideoFrame* frame);
+/* A pad's view size: its frames', or the bundle's while it has no caps (or no pad). */
+std::array<int, 2> view_size(GstVideoAggregator* vagg, GstVideoAggregatorPad* pad);
+/* `target` ns added to the pad's running time from now on (state lock held). */
+void apply_time_offset(GstAggregatorPad* pad, SyncPadState& st, gint64 target);
+/* The bundle's views from the pads (NULL: a view without an input), in system or CUDA memory;
+ * FALSE after an element error (state lock held). */
+gboolean bundle_in_system_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
+                                 GstBuffer* outbuf, guint64 left_out, guint64& missing);
+gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
+                               GstBuffer* outbuf, guint64 left_out, guint64& missing);
+/* time-alignment: signals in, offsets applied; the message to post when they moved. */
+GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, bool automatic,
+                           std::vector<guint>& no_signal);
+gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads);
