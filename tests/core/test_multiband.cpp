@@ -263,6 +263,37 @@ TEST(Seam, StaysPutUnderNoiseAndFollowsTheLastFrame) {
   EXPECT_LT(per_row, 0.5);
 }
 
+// The seam is held: under sensor noise alone it does not move at all; when something moves
+// onto it, it is cut anew around it.
+TEST(Seam, HoldsStillUntilSomethingCrossesIt) {
+  SeamScene s(280);
+  SeamFinder finder;
+  finder.prepare(s.views, s.geometry.width, s.geometry.height);
+  finder.find({as_view(s.cam0), as_view(s.cam1)});
+  const std::vector<int> first = finder.pairs()[0].path;
+  cv::RNG rng(11);
+  for (int t = 0; t < 6; ++t) {
+    cv::Mat n0 = s.cam0.clone(), n1 = s.cam1.clone(), noise(n0.size(), CV_8UC4);
+    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
+    n0 += noise;
+    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
+    n1 += noise;
+    finder.find({as_view(n0), as_view(n1)});
+    ASSERT_EQ(finder.pairs()[0].path, first) << "frame " << t << ": the seam moved under noise alone";
+  }
+  // The square moves onto the seam (centred on where it crosses row 140).
+  const int x = finder.pairs()[0].box.x + first[std::size_t(140 - finder.pairs()[0].box.y)];
+  SeamScene crossed(std::min(std::max(x - 20, 205), 355));
+  finder.find({as_view(crossed.cam0), as_view(crossed.cam1)});
+  const SeamFinder::Pair& p = finder.pairs()[0];
+  EXPECT_NE(p.path, first);
+  const int sx = std::min(std::max(x - 20, 205), 355);
+  for (int y = 100; y < 180; ++y) {
+    const int px = p.box.x + p.path[std::size_t(y - p.box.y)];
+    EXPECT_TRUE(px <= sx || px >= sx + 40) << "row " << y << ": the seam crosses the square at x=" << px;
+  }
+}
+
 TEST(Seam, MultibandWithSeamsShowsTheSquareWholeOrNotAtAll) {
   SeamScene s(280);
   CompositorSettings settings;
