@@ -215,6 +215,14 @@ struct SeamScene {
   }
 };
 
+// The view with sensor noise of up to 5 grey levels added.
+cv::Mat with_noise(const cv::Mat& view, cv::RNG& rng) {
+  cv::Mat noisy = view.clone(), noise(view.size(), CV_8UC4);
+  rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
+  noisy += noise;
+  return noisy;
+}
+
 }  // namespace
 
 TEST(Seam, GoesAroundWhatOnlyOneViewShows) {
@@ -248,11 +256,7 @@ TEST(Seam, StaysPutUnderNoiseAndFollowsTheLastFrame) {
   cv::RNG rng(7);
   double moved = 0;
   for (int t = 0; t < 8; ++t) {
-    cv::Mat n0 = s.cam0.clone(), n1 = s.cam1.clone(), noise(n0.size(), CV_8UC4);
-    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
-    n0 += noise;
-    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
-    n1 += noise;
+    cv::Mat n0 = with_noise(s.cam0, rng), n1 = with_noise(s.cam1, rng);
     const std::vector<int> before = finder.pairs()[0].path;
     finder.find({as_view(n0), as_view(n1)});
     const std::vector<int>& after = finder.pairs()[0].path;
@@ -273,11 +277,7 @@ TEST(Seam, HoldsStillUntilSomethingCrossesIt) {
   const std::vector<int> first = finder.pairs()[0].path;
   cv::RNG rng(11);
   for (int t = 0; t < 6; ++t) {
-    cv::Mat n0 = s.cam0.clone(), n1 = s.cam1.clone(), noise(n0.size(), CV_8UC4);
-    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
-    n0 += noise;
-    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
-    n1 += noise;
+    cv::Mat n0 = with_noise(s.cam0, rng), n1 = with_noise(s.cam1, rng);
     finder.find({as_view(n0), as_view(n1)});
     ASSERT_EQ(finder.pairs()[0].path, first) << "frame " << t << ": the seam moved under noise alone";
   }
