@@ -56,6 +56,9 @@ constexpr const char* kBlurbs[][2] = {
      "Where every stage runs (set on all five): auto: on the GPU when a CUDA device opens, the frames then "
      "staying in CUDA memory from stitchsync to stitchblend, otherwise on the CPU; cpu: every stage on the CPU, "
      "in system memory; cuda: on the GPU, or an error when no device opens"},
+    {"load-file",
+     "A saved calibration (set on stitchsync and stitchcalib): stitchcalib uses its geometry as is, and "
+     "stitchsync applies its cameras' time_offset_ns to the inputs"},
 };
 
 // One property of the bin: the children that have it (a bit per child) and its spec.

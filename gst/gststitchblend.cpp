@@ -525,6 +525,10 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
       f.rect = {p.rect[0], p.rect[1], p.rect[2], p.rect[3]};
       f.mean_magnitude = p.mean_magnitude;
       f.confident_fraction = p.confident_fraction;
+      f.error_homography = p.error_homography;
+      f.error_flow = p.error_flow;
+      f.gain = p.gain;
+      f.flow_on = p.flow_on;
       flow.push_back(f);
     }
   const gboolean ok = stitch_guard(GST_ELEMENT(self), "stitchblend", [&]() {

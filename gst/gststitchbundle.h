@@ -84,6 +84,10 @@ typedef struct {
   gint view_a, view_b;
   gint rect[4];
   gdouble mean_magnitude, confident_fraction;
+  /* the overlap's decision: matching error (grey levels) without / with the flow, whether the
+   * flow is on and the gain it is applied with (0 = homography only) */
+  gdouble error_homography, error_flow, gain;
+  gboolean flow_on;
 } GstStitchFlowPair;
 
 typedef struct {

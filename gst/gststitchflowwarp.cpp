@@ -14,6 +14,16 @@
  * texture) the flow is scaled toward zero, i.e. back to the homography. History resets on
  * flush, seek and caps change.
  *
+ * Never worse than the homography: per pixel the flow is used only where it makes the views
+ * match better than the homography alone (so a background the homography aligns keeps it,
+ * and no copy of a distant object appears beside a near one); per overlap the stage measures
+ * the views' matching error (photometric + structural) with and without the flow every frame
+ * and switches the flow off where it does not cut the error, on again where it does, with
+ * hysteresis and a gain that ramps over a few frames. The decision travels with every buffer
+ * (GstStitchFlowMeta, drawn by stitchblend's debug view) and, when it changes, as an element
+ * message "stitch-flow-decision" (view-a, view-b, flow-on, gain, error-homography,
+ * error-flow).
+ *
  * The output is a bundle of the same caps whose views are the warped rectangles of the canvas
  * (a GstStitchWarpMeta says where each lies); stitchblend detects it and only fuses.
  * `flow=false` keeps the homography alone.
@@ -47,7 +57,9 @@
 
 #include <gst/video/video.h>
 
+#include <array>
 #include <mutex>
+#include <vector>
 
 #include "gststitchbundle.h"
 #include "gststitchcuda.h"
@@ -56,13 +68,23 @@
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_flow_warp_debug);
 #define GST_CAT_DEFAULT gst_stitch_flow_warp_debug
 
-enum { PROP_0, PROP_FLOW, PROP_QUALITY, PROP_ALGORITHM, PROP_MARGIN, PROP_TEMPORAL_SMOOTHING, PROP_BACKEND };
+enum {
+  PROP_0,
+  PROP_FLOW,
+  PROP_QUALITY,
+  PROP_ALGORITHM,
+  PROP_MARGIN,
+  PROP_TEMPORAL_SMOOTHING,
+  PROP_BACKEND,
+  PROP_FALLBACK
+};
 
 #define DEFAULT_FLOW TRUE
 #define DEFAULT_QUALITY stitch::FlowQuality::Medium
 #define DEFAULT_ALGORITHM stitch::FlowAlgorithm::Dis
 #define DEFAULT_MARGIN 16
 #define DEFAULT_TEMPORAL_SMOOTHING 0.95
+#define DEFAULT_FALLBACK TRUE
 
 struct FlowWarpElementState {
   std::mutex lock;  // guards the settings
@@ -77,10 +99,12 @@ struct FlowWarpElementState {
   GstBufferPool* pool = nullptr;
   bool cuda_memory = false;  /* negotiated bundles in CUDA memory (both sides) */
   StitchCudaContext cuda;
+  std::vector<std::array<int, 3>> decisions;  /* (view a, view b, flow on) last posted */
   void clear() {
     warper.reset();
     rig_version = G_MAXUINT64;
     stitch_bundle_pool_clear(&pool);
+    decisions.clear();
   }
 };
 
@@ -123,6 +147,8 @@ static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
     "sink", GST_PAD_SINK, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
     "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
+
+static void post_decisions(GstStitchFlowWarp* self, const std::vector<stitch::FlowPairStats>& stats);
 
 static void request_reset(GstStitchFlowWarp* self) {
   std::lock_guard<std::mutex> guard(self->state->lock);
@@ -270,10 +296,38 @@ static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, Gst
       p.rect[0] = s.rect.x, p.rect[1] = s.rect.y, p.rect[2] = s.rect.width, p.rect[3] = s.rect.height;
       p.mean_magnitude = s.mean_magnitude;
       p.confident_fraction = s.confident_fraction;
+      p.error_homography = s.error_homography;
+      p.error_flow = s.error_flow;
+      p.gain = s.gain;
+      p.flow_on = s.flow_on;
     }
     gst_buffer_add_stitch_flow_meta(outbuf, &flow);
+    post_decisions(self, st->warper->stats());
   }
   return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
+}
+
+/* An element message for every overlap whose decision (flow on or off) changed. */
+static void post_decisions(GstStitchFlowWarp* self, const std::vector<stitch::FlowPairStats>& stats) {
+  FlowWarpElementState* st = self->state;
+  for (const auto& s : stats) {
+    bool known = false, changed = true;
+    for (auto& d : st->decisions)
+      if (d[0] == s.view_a && d[1] == s.view_b) {
+        known = true;
+        changed = d[2] != int(s.flow_on);
+        d[2] = int(s.flow_on);
+      }
+    if (!known) st->decisions.push_back({s.view_a, s.view_b, int(s.flow_on)});
+    if (!changed) continue;
+    GST_INFO_OBJECT(self, "views %d-%d: flow %s (error %.2f with, %.2f without)", s.view_a, s.view_b,
+                    s.flow_on ? "on" : "off", s.error_flow, s.error_homography);
+    GstStructure* structure = gst_structure_new("stitch-flow-decision", "view-a", G_TYPE_INT, s.view_a, "view-b",
+                                                G_TYPE_INT, s.view_b, "flow-on", G_TYPE_BOOLEAN, gboolean(s.flow_on),
+                                                "gain", G_TYPE_DOUBLE, s.gain, "error-homography", G_TYPE_DOUBLE,
+                                                s.error_homography, "error-flow", G_TYPE_DOUBLE, s.error_flow, NULL);
+    gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), structure));
+  }
 }
 
 static gboolean gst_stitch_flow_warp_transform_meta(GstBaseTransform*, GstBuffer*, GstMeta* meta, GstBuffer*) {
@@ -343,6 +397,7 @@ static void gst_stitch_flow_warp_set_property(GObject* object, guint prop_id, co
     case PROP_MARGIN: s.margin = g_value_get_int(value); break;
     case PROP_TEMPORAL_SMOOTHING: s.temporal_smoothing = g_value_get_double(value); break;
     case PROP_BACKEND: self->state->backend = stitch::Backend(g_value_get_enum(value)); break;
+    case PROP_FALLBACK: s.fallback = g_value_get_boolean(value); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -359,6 +414,7 @@ static void gst_stitch_flow_warp_get_property(GObject* object, guint prop_id, GV
     case PROP_MARGIN: g_value_set_int(value, s.margin); break;
     case PROP_TEMPORAL_SMOOTHING: g_value_set_double(value, s.temporal_smoothing); break;
     case PROP_BACKEND: g_value_set_enum(value, int(self->state->backend)); break;
+    case PROP_FALLBACK: g_value_set_boolean(value, s.fallback); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -400,6 +456,12 @@ static void gst_stitch_flow_warp_class_init(GstStitchFlowWarpClass* klass) {
                           "Weight of the previous frame's flow where neither view changed (static "
                           "scene); where the content moves the new flow is taken at once (0: every "
                           "frame alone)", 0.0, 0.99, DEFAULT_TEMPORAL_SMOOTHING, controllable));
+  g_object_class_install_property(gobject_class, PROP_FALLBACK,
+      g_param_spec_boolean("fallback", "Fallback",
+                           "Never worse than the homography: use the flow only where it makes the views "
+                           "match better, and per overlap only while it cuts the matching error "
+                           "(false: the flow wherever it is forward-backward consistent)",
+                           DEFAULT_FALLBACK, per_frame));
   g_object_class_install_property(gobject_class, PROP_BACKEND,
       g_param_spec_enum("backend", "Backend", "Implementation of the warp and the flow",
                         GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), GParamFlags(rw | GST_PARAM_MUTABLE_READY)));
@@ -435,4 +497,5 @@ static void gst_stitch_flow_warp_init(GstStitchFlowWarp* self) {
   s.algorithm = DEFAULT_ALGORITHM;
   s.margin = DEFAULT_MARGIN;
   s.temporal_smoothing = DEFAULT_TEMPORAL_SMOOTHING;
+  s.fallback = DEFAULT_FALLBACK;
 }

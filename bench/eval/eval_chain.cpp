@@ -6,6 +6,7 @@
 // per panorama is the chain's alone, comparable with stitch-eval-opencv's.
 // usage: stitch-eval-chain --out DIR --clips A,B[,C...] [--frames 40] [--rig ROUGH.json]
 //          [--chain "stitchcolor ! stitchflowwarp"] [--blend "mode=..."] [--backend cpu|cuda|auto]
+//          [--calib SAVED.json]   (stitchcalib load-file: a known calibration, no estimation)
 #include <gst/app/gstappsink.h>
 #include <gst/app/gstappsrc.h>
 #include <gst/gst.h>
@@ -29,7 +30,7 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 struct Options {
-  std::string out, rig, chain, blend, backend = "cpu";
+  std::string out, rig, calib, chain, blend, backend = "cpu";
   std::vector<std::string> clips;
   int frames = 40;
 };
@@ -57,6 +58,7 @@ Options parse_args(int argc, char** argv) {
     else if (key == "--clips") o.clips = split(v, ',');
     else if (key == "--frames") o.frames = std::atoi(v.c_str());
     else if (key == "--rig") o.rig = v;
+    else if (key == "--calib") o.calib = v;
     else if (key == "--chain") o.chain = v;
     else if (key == "--blend") o.blend = v;
     else if (key == "--backend") o.backend = v;
@@ -127,6 +129,7 @@ int main(int argc, char** argv) {
 
   std::string desc = "stitchsync name=s ! stitchcalib save-file=\"" + calib + "\"";
   if (!o.rig.empty()) desc += " rig-file=\"" + o.rig + "\"";
+  if (!o.calib.empty()) desc += " load-file=\"" + o.calib + "\"";
   desc += " ! " + (o.chain.empty() ? std::string() : o.chain + " ! ") + "stitchblend " + o.blend +
           " ! video/x-raw,format=RGBA ! appsink name=sink sync=false max-buffers=0";
   for (int i = 0; i < n; ++i)

@@ -45,7 +45,7 @@ __global__ void cost_kernel(SeamPairGeometry p, DeviceImage va, DeviceImage vb, 
 
 // One block per pair: the rows one after the other (each depends on the one before), the columns
 // of a row across the threads; two rows of energy in shared memory. Then one thread walks back.
-__global__ void dp_kernel(const SeamDpJob* jobs, float stability) {
+__global__ void dp_kernel(const SeamDpJob* jobs, float stability, float hold) {
   extern __shared__ float energy[];  // 2 x max_cols
   const SeamDpJob job = jobs[blockIdx.x];
   const int rows = job.rows, cols = job.cols;
@@ -65,6 +65,14 @@ __global__ void dp_kernel(const SeamDpJob* jobs, float stability) {
   int c = 0;  // the first minimum, as std::min_element
   for (int k = 1; k < cols; ++k)
     if (above[k] < above[c]) c = k;
+  if (job.previous) {  // the seam holds still until something crosses it
+    float previous_cost = 0.f;
+    for (int r = 0; r < rows; ++r) previous_cost = sm::add(previous_cost, job.cost[size_t(r) * cols + job.previous[r]]);
+    if (sm::keep_previous(previous_cost, above[c], rows, hold)) {
+      for (int r = 0; r < rows; ++r) job.path[r] = job.previous[r];
+      return;
+    }
+  }
   for (int r = rows - 1; r >= 0; --r) {
     job.path[r] = c;
     c += job.steps[size_t(r) * cols + c];
@@ -98,14 +106,14 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
   check_launch("seam cost_kernel");
 }
 
-void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, cudaStream_t stream) {
+void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream) {
   if (n_jobs <= 0) return;
   const size_t shared = size_t(2) * max_cols * sizeof(float);
   if (shared > 48 * 1024) {
     const cudaError_t e = cudaFuncSetAttribute(dp_kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(shared));
     if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp_kernel: overlap too wide: ") + cudaGetErrorString(e));
   }
-  dp_kernel<<<n_jobs, 1024, shared, stream>>>(jobs, stability);
+  dp_kernel<<<n_jobs, 1024, shared, stream>>>(jobs, stability, hold);
   check_launch("seam dp_kernel");
 }
 

@@ -35,7 +35,9 @@ struct SeamDpJob {
 };
 // All pairs at once, one block each (a block sweeps its rows one after the other); jobs is in
 // device memory; max_cols sizes the shared rows.
-void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, cudaStream_t stream);
+// A pair whose previous path still costs within hold per row of the best keeps it
+// (stitch::seam::keep_previous).
+void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream);
 // Overlap pixels labelled a or b: a before the path, b from it on.
 void launch_seam_labels(uint8_t* labels, int label_width, const SeamPairGeometry& pair, const float* centre,
                         const int* path, cudaStream_t stream);

@@ -4,6 +4,7 @@
 #include "../launch_check.hpp"
 #include "../common.cuh"
 #include "flow_warp_kernels.hpp"
+#include "stitch/warp/flow_gate_math.hpp"
 
 namespace stitch_cuda {
 
@@ -43,6 +44,25 @@ __device__ __forceinline__ float2 sample_flow(const float* f, int w, int h, floa
   const float2 a = p[y0 * w + x0], b = p[y0 * w + x1], c = p[y1 * w + x0], d = p[y1 * w + x1];
   return make_float2((1 - ay) * ((1 - ax) * a.x + ax * b.x) + ay * ((1 - ax) * c.x + ax * d.x),
                      (1 - ay) * ((1 - ax) * a.y + ax * b.y) + ay * ((1 - ax) * c.y + ax * d.y));
+}
+
+// Bilinear read of a packed 8-bit gray image, coordinates clamped (as the CPU warper's sample()).
+__device__ __forceinline__ float sample_gray(const uint8_t* g, int w, int h, float x, float y) {
+  x = fminf(fmaxf(x, 0.f), float(w - 1));
+  y = fminf(fmaxf(y, 0.f), float(h - 1));
+  const int x0 = int(x), y0 = int(y);
+  const int x1 = min(x0 + 1, w - 1), y1 = min(y0 + 1, h - 1);
+  const float ax = x - x0, ay = y - y0;
+  const float a = g[y0 * w + x0], b = g[y0 * w + x1], c = g[y1 * w + x0], d = g[y1 * w + x1];
+  return (1.f - ay) * ((1.f - ax) * a + ax * b) + ay * ((1.f - ax) * c + ax * d);
+}
+
+// Value and central-difference gradient of a gray image at (x, y) (flow_gate::match_error).
+__device__ __forceinline__ void gray_with_gradient(const uint8_t* g, int w, int h, float x, float y, float& v,
+                                                   float& gx, float& gy) {
+  v = sample_gray(g, w, h, x, y);
+  gx = 0.5f * (sample_gray(g, w, h, x + 1.f, y) - sample_gray(g, w, h, x - 1.f, y));
+  gy = 0.5f * (sample_gray(g, w, h, x, y + 1.f) - sample_gray(g, w, h, x, y - 1.f));
 }
 
 template <bool kCurved>
@@ -88,8 +108,23 @@ __global__ void confidence_kernel(const FlowPairDevice* pairs, FlowPairMask acti
   const float2 b = sample_flow(P.flow[1 - d], P.work_w, P.work_h, x + f.x, y + f.y);
   const float ex = f.x + b.x, ey = f.y + b.y;
   const float c = __expf(-(ex * ex + ey * ey) * inv_tau2);
-  reinterpret_cast<float2*>(P.work[d])[i] = make_float2(f.x * c, f.y * c);
   P.confidence[d][i] = c;
+  // How much the flow improves the match over the homography (blurred, then gated).
+  const float a = P.gray[d][i], o = P.gray[1 - d][i];
+  const float warped = sample_gray(P.gray[1 - d], P.work_w, P.work_h, x + f.x, y + f.y);
+  P.gate[d][i] = fabsf(a - o) - fabsf(a - warped);
+}
+
+__global__ void gate_kernel(const FlowPairDevice* pairs, FlowPairMask active, bool use_gate) {
+  const int pair = blockIdx.z >> 1, d = blockIdx.z & 1;
+  if (!active.test(pair)) return;
+  const FlowPairDevice& P = pairs[pair];
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= P.work_w || y >= P.work_h) return;
+  const int i = y * P.work_w + x;
+  const float2 f = reinterpret_cast<const float2*>(P.flow[d])[i];
+  const float c = P.confidence[d][i] * (use_gate ? stitch::flow_gate::gate(P.gate[d][i]) : 1.f);
+  reinterpret_cast<float2*>(P.work[d])[i] = make_float2(f.x * c, f.y * c);
 }
 
 struct Taps {
@@ -113,8 +148,12 @@ __global__ void blur_kernel(const FlowPairDevice* pairs, FlowPairMask active, in
   const FlowPairDevice& P = pairs[pair];
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= P.work_w || y >= P.work_h) return;
-  const float* src = target == 0 ? (kVertical ? P.work2[k] : P.work[k]) : (kVertical ? P.change2[k] : P.change[k]);
-  float* dst = target == 0 ? (kVertical ? P.work[k] : P.work2[k]) : (kVertical ? P.change[k] : P.change2[k]);
+  const float* src = target == 0   ? (kVertical ? P.work2[k] : P.work[k])
+                     : target == 1 ? (kVertical ? P.change2[k] : P.change[k])
+                                   : (kVertical ? P.gate2[k] : P.gate[k]);
+  float* dst = target == 0   ? (kVertical ? P.work[k] : P.work2[k])
+               : target == 1 ? (kVertical ? P.change[k] : P.change2[k])
+                             : (kVertical ? P.gate[k] : P.gate2[k]);
   const int n = kVertical ? P.work_h : P.work_w, i = kVertical ? y : x;
   const int step = kVertical ? P.work_w * C : C;
   const float* base = src + (y * P.work_w + x) * C - i * step;  // start of this row / column
@@ -156,7 +195,7 @@ __global__ void temporal_kernel(const FlowPairDevice* pairs, FlowPairMask active
   const FlowPairDevice& P = pairs[pair];
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   const bool inside = x < P.work_w && y < P.work_h;
-  float mag = 0.f, both = 0.f, confident = 0.f;
+  float mag = 0.f, both = 0.f, confident = 0.f, err_h = 0.f, err_f = 0.f;
   if (inside) {
     const int i = y * P.work_w + x;
     float keep = 0.f;
@@ -178,27 +217,32 @@ __global__ void temporal_kernel(const FlowPairDevice* pairs, FlowPairMask active
       both = 1.f;
       mag = sqrtf(out.x * out.x + out.y * out.y);
       confident = P.confidence[0][i] > 0.5f ? 1.f : 0.f;
+      // The views' matching error without and with the flow (flow_gate_math.hpp).
+      float av, agx, agy, bv, bgx, bgy, wv, wgx, wgy;
+      gray_with_gradient(P.gray[0], P.work_w, P.work_h, float(x), float(y), av, agx, agy);
+      gray_with_gradient(P.gray[1], P.work_w, P.work_h, float(x), float(y), bv, bgx, bgy);
+      gray_with_gradient(P.gray[1], P.work_w, P.work_h, x + out.x, y + out.y, wv, wgx, wgy);
+      err_h = stitch::flow_gate::match_error(av, bv, agx, agy, bgx, bgy);
+      err_f = stitch::flow_gate::match_error(av, wv, agx, agy, wgx, wgy);
     }
   }
   if (d != 0) return;  // uniform per block
   // Warp sums, then one atomic per block: per-warp atomics on three addresses serialise.
-  __shared__ float partial[3][8];
-  mag = warp_sum(mag);
-  both = warp_sum(both);
-  confident = warp_sum(confident);
+  __shared__ float partial[kFlowStats][8];
+  float values[kFlowStats] = {mag, both, confident, err_h, err_f};
   const int lane = threadIdx.x & 31, warp = (threadIdx.y * blockDim.x + threadIdx.x) >> 5;
-  if (lane == 0) {
-    partial[0][warp] = mag;
-    partial[1][warp] = both;
-    partial[2][warp] = confident;
+#pragma unroll
+  for (int q = 0; q < kFlowStats; ++q) {
+    values[q] = warp_sum(values[q]);
+    if (lane == 0) partial[q][warp] = values[q];
   }
   __syncthreads();
   if (threadIdx.x == 0 && threadIdx.y == 0) {
-    float sum[3] = {0.f, 0.f, 0.f};
+    float sum[kFlowStats] = {};
     for (int w = 0; w < (blockDim.x * blockDim.y) >> 5; ++w)
-      for (int q = 0; q < 3; ++q) sum[q] += partial[q][w];
+      for (int q = 0; q < kFlowStats; ++q) sum[q] += partial[q][w];
     if (sum[1] > 0.f)
-      for (int q = 0; q < 3; ++q) atomicAdd(stats + 3 * pair + q, sum[q]);
+      for (int q = 0; q < kFlowStats; ++q) atomicAdd(stats + kFlowStats * pair + q, sum[q]);
   }
 }
 
@@ -206,9 +250,13 @@ struct Destinations {
   DeviceImage dst[kMaxViews];
 };
 
+struct Gains {
+  float g[kMaxFlowPairs];
+};
+
 template <bool kCurved>
 __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations out, const FlowPairDevice* pairs,
-                                       int n_pairs, FlowPairMask active, float inv_scale) {
+                                       int n_pairs, FlowPairMask active, float inv_scale, const Gains gains) {
   const int v = blockIdx.z;
   const DeviceImage& frame = vp.frames[v];
   const DeviceImage& dst = out.dst[v];
@@ -231,6 +279,8 @@ __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations o
         wsum += view_weight<kCurved>(vp.views[k], px, py, u, w);
       }
     }
+    const float gain = gains.g[i];
+    if (gain <= 0.f) continue;  // this overlap falls back to the homography
     const int other = P.a == v ? P.b : P.a;
     float u, w;
     const float theta = view_weight<kCurved>(vp.views[other], px, py, u, w) / fmaxf(wsum, 1e-12f);
@@ -240,8 +290,8 @@ __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations o
     const float fx = (px - P.rect_x + 0.5f) * P.work_w / P.rect_w - 0.5f;
     const float fy = (py - P.rect_y + 0.5f) * P.work_h / P.rect_h - 0.5f;
     const float2 f = sample_flow(field, P.work_w, P.work_h, fx, fy);
-    dx += theta * f.x * inv_scale;
-    dy += theta * f.y * inv_scale;
+    dx += gain * theta * f.x * inv_scale;
+    dy += gain * theta * f.y * inv_scale;
   }
   float u, w;
   float4 c = make_float4(0.f, 0.f, 0.f, 0.f);
@@ -275,6 +325,13 @@ void launch_flow_confidence(const FlowPairDevice* pairs, int n_pairs, int max_w,
   check_launch("flow confidence kernel");
 }
 
+void launch_flow_gate(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& active,
+                      bool use_gate, cudaStream_t stream) {
+  if (n_pairs <= 0) return;
+  gate_kernel<<<grid_for(max_w, max_h, 2 * n_pairs), dim3(32, 8), 0, stream>>>(pairs, active, use_gate);
+  check_launch("flow gate kernel");
+}
+
 void launch_pair_blur(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& active,
                       int target, const float* taps, int radius, cudaStream_t stream) {
   if (n_pairs <= 0) return;
@@ -287,11 +344,11 @@ void launch_pair_blur(const FlowPairDevice* pairs, int n_pairs, int max_w, int m
   if (target == 0 && radius == 6) {
     blur_kernel<2, false, 6><<<grid, block, 0, stream>>>(pairs, active, target, t);
     blur_kernel<2, true, 6><<<grid, block, 0, stream>>>(pairs, active, target, t);
-  } else if (target == 1 && radius == 8) {
+  } else if ((target == 1 || target == 2) && radius == 8) {
     blur_kernel<1, false, 8><<<grid, block, 0, stream>>>(pairs, active, target, t);
     blur_kernel<1, true, 8><<<grid, block, 0, stream>>>(pairs, active, target, t);
   } else {
-    throw std::invalid_argument("pair blur: radius 6 on the flow or 8 on the change");
+    throw std::invalid_argument("pair blur: radius 6 on the flow or 8 on the change and the gate");
   }
   check_launch("pair blur kernel");
 }
@@ -313,7 +370,7 @@ void launch_flow_temporal(const FlowPairDevice* pairs, int n_pairs, int max_w, i
 
 void launch_flow_warp_views(const ViewGeometry* views, const DeviceImage* frames, const DeviceImage* dst, int n_views,
                             const FlowPairDevice* pairs, int n_pairs, const FlowPairMask& active, float inv_scale,
-                            cudaStream_t stream) {
+                            const float* gains, cudaStream_t stream) {
   Destinations out{};
   int max_w = 0, max_h = 0;
   for (int v = 0; v < n_views && v < kMaxViews; ++v) {
@@ -326,11 +383,13 @@ void launch_flow_warp_views(const ViewGeometry* views, const DeviceImage* frames
   if (max_w == 0 || max_h == 0) return;
   if (n_pairs > kMaxFlowPairs) throw std::invalid_argument("too many overlapping pairs");
   const ViewsParam vp = views_param(views, frames, n_views);
+  Gains g{};
+  for (int i = 0; i < n_pairs; ++i) g.g[i] = gains ? gains[i] : 1.f;
   const dim3 grid = grid_for(max_w, max_h, n_views), block(32, 8);
   if (any_curved(views, n_views))
-    flow_warp_views_kernel<true><<<grid, block, 0, stream>>>(vp, out, pairs, n_pairs, active, inv_scale);
+    flow_warp_views_kernel<true><<<grid, block, 0, stream>>>(vp, out, pairs, n_pairs, active, inv_scale, g);
   else
-    flow_warp_views_kernel<false><<<grid, block, 0, stream>>>(vp, out, pairs, n_pairs, active, inv_scale);
+    flow_warp_views_kernel<false><<<grid, block, 0, stream>>>(vp, out, pairs, n_pairs, active, inv_scale, g);
   check_launch("flow warp kernel");
 }
 

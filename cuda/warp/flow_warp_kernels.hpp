@@ -28,6 +28,8 @@ struct FlowPairDevice {
   float* confidence[2];   // forward-backward confidence
   float* change[2];       // change of each view's gray since last frame (then blurred)
   float* change2[2];      // scratch
+  float* gate[2];         // matching-cost improvement of the flow (flow_gate_math.hpp), blurred
+  float* gate2[2];        // scratch
 };
 
 // Bits per pair: this frame's state. Pairs are indexed 0..n_pairs-1 (< kMaxFlowPairs).
@@ -41,31 +43,40 @@ struct FlowPairMask {
 void launch_overlap_gray(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& active,
                          const ViewGeometry* views, const DeviceImage* frames, int n_views, cudaStream_t stream);
 
-// work[d] = flow[d] * exp(-|flow[d](p) + flow[1-d](p + flow[d](p))|^2 / tau^2); confidence[d].
+// confidence[d] = exp(-|flow[d](p) + flow[1-d](p + flow[d](p))|^2 / tau^2), and gate[d] = the
+// flow's matching improvement |A - B| - |A - B(p + flow[d](p))| (A = gray[d], B = gray[1-d]).
 void launch_flow_confidence(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h,
                             const FlowPairMask& active, float tau, cudaStream_t stream);
 
 // Separable Gaussian (reflect-101 borders, as OpenCV's GaussianBlur) of both work fields
-// (target 0, 2 channels, through work2) or both change images (target 1, 1 channel, through
-// change2). taps: 2 * radius + 1 weights (radius <= 12).
+// (target 0, 2 channels, through work2), both change images (target 1, 1 channel, through
+// change2) or both gate images (target 2, 1 channel, through gate2). taps: 2 * radius + 1
+// weights (radius <= 12).
 void launch_pair_blur(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& active,
                       int target, const float* taps, int radius, cudaStream_t stream);
+
+// work[d] = flow[d] * confidence[d] * flow_gate::gate(gate[d]) (the blurred improvement);
+// without `use_gate`, flow[d] * confidence[d].
+void launch_flow_gate(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& active,
+                      bool use_gate, cudaStream_t stream);
 
 // change[k] = gray[k] - prev_gray[k] (float), for the pairs in `history`.
 void launch_gray_change(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& history,
                         cudaStream_t stream);
 
 // flow[d] = keep * prev_flow[d] + (1 - keep) * work[d], keep = smoothing * stillness (0 for
-// pairs without history). Accumulates per pair into stats[3 * pair]: sum of |flow[0]| and
-// the count of pixels both views cover, and of those whose confidence[0] > 0.5.
+// pairs without history). Accumulates per pair into stats[kFlowStats * pair]: sum of
+// |flow[0]|, the count of pixels both views cover, of those whose confidence[0] > 0.5, and
+// the sums of the matching error without and with flow[0] (flow_gate::match_error).
+constexpr int kFlowStats = 5;
 void launch_flow_temporal(const FlowPairDevice* pairs, int n_pairs, int max_w, int max_h, const FlowPairMask& active,
                           const FlowPairMask& history, float smoothing, float* stats, cudaStream_t stream);
 
 // Every present view warped into its rectangle: output pixel p samples camera v at
-// H_v(p + d(p)), d = sum over v's active pairs of theta_other(p) * flow_{other->v}(p) / scale
+// H_v(p + d(p)), d = sum over v's active pairs of gains[pair] * theta_other(p) * flow_{other->v}(p) / scale
 // (bilinear from the flow resolution). frames[v].data == nullptr leaves dst[v] untouched.
 void launch_flow_warp_views(const ViewGeometry* views, const DeviceImage* frames, const DeviceImage* dst, int n_views,
                             const FlowPairDevice* pairs, int n_pairs,
-                            const FlowPairMask& active, float inv_scale, cudaStream_t stream);
+                            const FlowPairMask& active, float inv_scale, const float* gains, cudaStream_t stream);
 
 }  // namespace stitch_cuda

@@ -194,6 +194,97 @@ TEST_P(FlowWarp, HistorySurvivesARecalibrationThatKeepsTheOverlap) {
   EXPECT_FALSE(all_equal(warp_views(s, *fresh), warp_views(s, *steady)));
 }
 
+// A near object in front of a background the homography aligns: view 1 sees the object 6 px
+// to the right of where view 0 sees it, the background identically. The flow aligns the
+// object, and the background around it keeps the homography output: no copy of a distant
+// object is made beside a near one (the matching-cost gate, flow_gate_math.hpp).
+Scene near_object_scene(int shift) {
+  Scene s = make_scene(2, 0.0);
+  cv::Mat photo = testdata::test_photo();
+  cv::Mat object;
+  cv::resize(photo(cv::Rect(photo.cols / 3, photo.rows / 4, photo.cols / 4, photo.rows / 3)), object, cv::Size(36, 56));
+  cv::flip(object, object, 1);  // other content than the background behind it
+  object.copyTo(s.frames[0](cv::Rect(kShift + 36, 90, 36, 56)));
+  object.copyTo(s.frames[1](cv::Rect(36 + shift, 90, 36, 56)));
+  return s;
+}
+
+TEST_P(FlowWarp, BackgroundBesideANearObjectKeepsTheHomography) {
+  const Scene s = near_object_scene(6);
+  auto coarse = warper(s, false);
+  auto fine = warper(s, true);
+  const auto a = warp_views(s, *coarse), b = warp_views(s, *fine, 3);
+  // Canvas rect of the object (both copies) and the background 24 px and more away from it.
+  const cv::Rect object(kShift + 36, 90, 36 + 6, 56);
+  cv::Mat far(s.geometry.height, s.geometry.width, CV_8U, cv::Scalar(255));
+  far(cv::Rect(object.x - 24, object.y - 24, object.width + 48, object.height + 48)) = 0;
+  double worst = 0;
+  for (int v = 0; v < 2; ++v) {
+    const Rect& r = s.views[std::size_t(v)].roi;
+    cv::Mat d;
+    cv::absdiff(a[std::size_t(v)], b[std::size_t(v)], d);
+    std::vector<cv::Mat> ch;
+    cv::split(d, ch);
+    double m = 0;
+    cv::minMaxLoc(cv::max(cv::max(ch[0], ch[1]), ch[2]), nullptr, &m, nullptr, nullptr,
+                  far(cv::Rect(r.x, r.y, r.width, r.height)));
+    worst = std::max(worst, m);
+  }
+  std::printf("background beside the object: largest change %.0f grey levels\n", worst);
+  EXPECT_LE(worst, 2.0);
+  // ... while the object itself is aligned.
+  auto object_mad = [&](const std::vector<cv::Mat>& w) {
+    const Rect &ra = s.views[0].roi, &rb = s.views[1].roi;
+    cv::Mat d;
+    cv::absdiff(w[0](object - cv::Point(ra.x, ra.y)), w[1](object - cv::Point(rb.x, rb.y)), d);
+    const cv::Scalar m = cv::mean(d);
+    return (m[0] + m[1] + m[2]) / 3;
+  };
+  std::printf("object MAD: homography %.2f, flow %.2f\n", object_mad(a), object_mad(b));
+  EXPECT_LT(object_mad(b), 0.8 * object_mad(a));
+  ASSERT_EQ(fine->stats().size(), 1u);
+  EXPECT_TRUE(fine->stats()[0].flow_on);
+  EXPECT_LT(fine->stats()[0].error_flow, fine->stats()[0].error_homography);
+}
+
+// Where the flow cannot improve on the homography (aligned views with sensor noise), the
+// overlap's decision turns the flow off and its gain ramps down over a few frames to exactly
+// the homography output; where it helps (parallax) it stays on at full gain.
+TEST_P(FlowWarp, FlowThatDoesNotHelpFallsBackSmoothlyToTheHomography) {
+  Scene s = make_scene(2, 0.0);
+  cv::Mat noise(s.frames[1].size(), CV_8UC4);
+  cv::randu(noise, cv::Scalar::all(0), cv::Scalar(5, 5, 5, 1));
+  s.frames[1] += noise;  // the cameras' noise differs
+  auto coarse = warper(s, false);
+  auto fine = warper(s, true);
+  const auto homography = warp_views(s, *coarse);
+  std::vector<double> gains;
+  for (int k = 0; k < 6; ++k) {
+    warp_views(s, *fine);
+    ASSERT_EQ(fine->stats().size(), 1u);
+    gains.push_back(fine->stats()[0].gain);
+  }
+  const FlowPairStats& st = fine->stats()[0];
+  std::printf("aligned views: error %.2f without flow, %.2f with; gains", st.error_homography, st.error_flow);
+  for (double g : gains) std::printf(" %.2f", g);
+  std::printf("\n");
+  EXPECT_FALSE(st.flow_on);
+  EXPECT_GT(st.error_homography, 0.5);
+  for (std::size_t k = 1; k < gains.size(); ++k) {
+    EXPECT_LE(gains[k], gains[k - 1]);
+    EXPECT_GE(gains[k], gains[k - 1] - 0.26);  // smooth: a bounded step per frame
+  }
+  EXPECT_EQ(gains.back(), 0.0);
+  EXPECT_TRUE(all_equal(warp_views(s, *fine), homography));
+
+  const Scene parallax = make_scene(2, 4.0);
+  auto helps = warper(parallax, true);
+  warp_views(parallax, *helps, 4);
+  EXPECT_TRUE(helps->stats()[0].flow_on);
+  EXPECT_EQ(helps->stats()[0].gain, 1.0);
+  EXPECT_LT(helps->stats()[0].error_flow, 0.7 * helps->stats()[0].error_homography);
+}
+
 INSTANTIATE_TEST_SUITE_P(Backends, FlowWarp, ::testing::Values(Backend::Cpu, Backend::Cuda),
                          [](const ::testing::TestParamInfo<Backend>& i) { return std::string(backend_name(i.param)); });
 
@@ -210,6 +301,17 @@ TEST(FlowWarpBackends, CudaMatchesCpu) {
       const double psnr = testdata::psnr_rgb(a[i], b[i]);
       std::printf("FLOWWARP flow=%d view %zu: CUDA vs CPU PSNR %.2f dB\n", int(flow), i, psnr);
       EXPECT_GE(psnr, flow ? 30.0 : 45.0);
+    }
+    if (flow) {  // the same decision, from matching errors of the same size
+      ASSERT_EQ(cpu->stats().size(), gpu->stats().size());
+      for (std::size_t p = 0; p < cpu->stats().size(); ++p) {
+        const FlowPairStats &c = cpu->stats()[p], &g = gpu->stats()[p];
+        std::printf("FLOWWARP pair %zu: error without flow CPU %.3f CUDA %.3f, with CPU %.3f CUDA %.3f\n", p,
+                    c.error_homography, g.error_homography, c.error_flow, g.error_flow);
+        EXPECT_NEAR(g.error_homography, c.error_homography, 0.05 * c.error_homography + 0.1);
+        EXPECT_NEAR(g.error_flow, c.error_flow, 0.25 * c.error_homography + 0.2);
+        EXPECT_EQ(g.flow_on, c.flow_on);
+      }
     }
     const double mad_cpu = overlap_mad(s, a, 0, 1), mad_gpu = overlap_mad(s, b, 0, 1);
     std::printf("FLOWWARP flow=%d overlap MAD 0-1: CPU %.3f, CUDA %.3f\n", int(flow), mad_cpu, mad_gpu);

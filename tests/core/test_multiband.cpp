@@ -215,6 +215,14 @@ struct SeamScene {
   }
 };
 
+// The view with sensor noise of up to 5 grey levels added.
+cv::Mat with_noise(const cv::Mat& view, cv::RNG& rng) {
+  cv::Mat noisy = view.clone(), noise(view.size(), CV_8UC4);
+  rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
+  noisy += noise;
+  return noisy;
+}
+
 }  // namespace
 
 TEST(Seam, GoesAroundWhatOnlyOneViewShows) {
@@ -248,11 +256,7 @@ TEST(Seam, StaysPutUnderNoiseAndFollowsTheLastFrame) {
   cv::RNG rng(7);
   double moved = 0;
   for (int t = 0; t < 8; ++t) {
-    cv::Mat n0 = s.cam0.clone(), n1 = s.cam1.clone(), noise(n0.size(), CV_8UC4);
-    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
-    n0 += noise;
-    rng.fill(noise, cv::RNG::UNIFORM, 0, 6);
-    n1 += noise;
+    cv::Mat n0 = with_noise(s.cam0, rng), n1 = with_noise(s.cam1, rng);
     const std::vector<int> before = finder.pairs()[0].path;
     finder.find({as_view(n0), as_view(n1)});
     const std::vector<int>& after = finder.pairs()[0].path;
@@ -261,6 +265,33 @@ TEST(Seam, StaysPutUnderNoiseAndFollowsTheLastFrame) {
   const double per_row = moved / (8.0 * first.size());
   std::printf("seam moved %.3f px per row per frame under sensor noise\n", per_row);
   EXPECT_LT(per_row, 0.5);
+}
+
+// The seam is held: under sensor noise alone it does not move at all; when something moves
+// onto it, it is cut anew around it.
+TEST(Seam, HoldsStillUntilSomethingCrossesIt) {
+  SeamScene s(280);
+  SeamFinder finder;
+  finder.prepare(s.views, s.geometry.width, s.geometry.height);
+  finder.find({as_view(s.cam0), as_view(s.cam1)});
+  const std::vector<int> first = finder.pairs()[0].path;
+  cv::RNG rng(11);
+  for (int t = 0; t < 6; ++t) {
+    cv::Mat n0 = with_noise(s.cam0, rng), n1 = with_noise(s.cam1, rng);
+    finder.find({as_view(n0), as_view(n1)});
+    ASSERT_EQ(finder.pairs()[0].path, first) << "frame " << t << ": the seam moved under noise alone";
+  }
+  // The square moves onto the seam (centred on where it crosses row 140).
+  const int x = finder.pairs()[0].box.x + first[std::size_t(140 - finder.pairs()[0].box.y)];
+  SeamScene crossed(std::min(std::max(x - 20, 205), 355));
+  finder.find({as_view(crossed.cam0), as_view(crossed.cam1)});
+  const SeamFinder::Pair& p = finder.pairs()[0];
+  EXPECT_NE(p.path, first);
+  const int sx = std::min(std::max(x - 20, 205), 355);
+  for (int y = 100; y < 180; ++y) {
+    const int px = p.box.x + p.path[std::size_t(y - p.box.y)];
+    EXPECT_TRUE(px <= sx || px >= sx + 40) << "row " << y << ": the seam crosses the square at x=" << px;
+  }
 }
 
 TEST(Seam, MultibandWithSeamsShowsTheSquareWholeOrNotAtAll) {

@@ -99,6 +99,36 @@ TEST(StitchFlowWarp, ParallaxMovesTheOverlapOnly) {
   EXPECT_EQ(cv::norm(plain.frames[1](right), flow.frames[1](right), cv::NORM_INF), 0.0);
 }
 
+// The per-overlap decision goes on the bus: a "stitch-flow-decision" element message whenever
+// it changes (the first frame's included). Aligned views: the flow cannot cut the matching
+// error, so it is switched off; parallax: it stays on.
+TEST(StitchFlowWarp, PostsThePerOverlapDecision) {
+  for (double parallax : {0.0, 8.0}) {
+    Scene s = scene(parallax);
+    gsttest::RunResult run;
+    gsttest::run_pipeline(chain(s, "stitchflowwarp ! "), s.views, 3, run);
+    ASSERT_TRUE(run.errors.empty()) << run.errors[0];
+    std::vector<bool> decisions;
+    for (GstStructure* m : run.element_messages) {
+      if (!gst_structure_has_name(m, "stitch-flow-decision")) continue;
+      int a = -1, b = -1;
+      gboolean on = FALSE;
+      double gain = -1, err_h = -1, err_f = -1;
+      ASSERT_TRUE(gst_structure_get_int(m, "view-a", &a) && gst_structure_get_int(m, "view-b", &b));
+      ASSERT_TRUE(gst_structure_get_boolean(m, "flow-on", &on) && gst_structure_get_double(m, "gain", &gain));
+      ASSERT_TRUE(gst_structure_get_double(m, "error-homography", &err_h) &&
+                  gst_structure_get_double(m, "error-flow", &err_f));
+      EXPECT_EQ(a, 0);
+      EXPECT_EQ(b, 1);
+      EXPECT_GE(gain, 0.0);
+      EXPECT_LE(gain, 1.0);
+      decisions.push_back(on);
+    }
+    ASSERT_FALSE(decisions.empty()) << "parallax " << parallax;
+    EXPECT_EQ(decisions.back(), parallax > 0) << "parallax " << parallax;
+  }
+}
+
 TEST(StitchFlowWarp, WithoutCalibrationIsAnError) {
   Scene s = scene(0);
   gsttest::RunResult r;

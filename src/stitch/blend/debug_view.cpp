@@ -115,6 +115,11 @@ void draw_debug_view(const ImageView& out, unsigned flags, const DebugScene& sce
                     100 * f.confident_fraction);
       cv::putText(img, text, cv::Point(box.x + 6, box.y + box.height - 10), cv::FONT_HERSHEY_SIMPLEX, 0.5, heat, 1,
                   cv::LINE_AA);
+      // The overlap's decision (stitchflowwarp's fallback): on/off, gain, error without/with.
+      std::snprintf(text, sizeof text, "%s x%.2f, err %.1f -> %.1f", f.flow_on ? "flow on" : "homography", f.gain,
+                    f.error_homography, f.error_flow);
+      cv::putText(img, text, cv::Point(box.x + 6, box.y + box.height - 28), cv::FONT_HERSHEY_SIMPLEX, 0.5, heat, 1,
+                  cv::LINE_AA);
     }
   }
 }

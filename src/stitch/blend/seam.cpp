@@ -133,9 +133,16 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
   }
   std::vector<int> path(rows);
   int c = int(std::min_element(energy.begin(), energy.end()) - energy.begin());
-  for (int r = rows - 1; r >= 0; --r) {
-    path[r] = c;
-    c += step[std::size_t(r) * cols + c];
+  float previous_cost = 0.f;
+  if (has_previous)  // the seam holds still until something crosses it
+    for (int r = 0; r < rows; ++r) previous_cost = seam::add(previous_cost, cost(r, p.previous_path[r]));
+  if (has_previous && seam::keep_previous(previous_cost, energy[std::size_t(c)], rows, w.hold)) {
+    path = p.previous_path;
+  } else {
+    for (int r = rows - 1; r >= 0; --r) {
+      path[r] = c;
+      c += step[std::size_t(r) * cols + c];
+    }
   }
   p.path = path;
   p.previous_path = path;

@@ -23,6 +23,8 @@ struct SeamSettings {
   float motion_weight = 2.f;      // per luma level of change since the last frame, either view
   float centre_weight = 8.f;      // at the overlap's border; 0 at its middle (keeps the seam off the borders)
   float stability = 2.f;          // per pixel the path moves away from the last frame's path, per row
+  float hold = 1.f;               // per row: the new path must be this much cheaper than last frame's
+                                  // path is now, or that one is kept (seam_math.hpp keep_previous)
 };
 
 class SeamFinder {
@@ -49,7 +51,8 @@ class SeamFinder {
  private:
   void cut(Pair& p, const std::vector<ImageView>& warped);
   seam::Weights weights() const {
-    return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability};
+    return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
+            settings_.hold};
   }
 
   SeamSettings settings_;

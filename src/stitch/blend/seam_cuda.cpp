@@ -103,7 +103,8 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
   STITCH_CUDA(cudaMemcpyAsync(s.labels.data(), s.nearest.data(), std::size_t(s.width) * s.height,
                               cudaMemcpyDeviceToDevice, st));
   const SeamSettings& settings = s.planner.settings();
-  const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability};
+  const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability,
+                        settings.hold};
   // Costs of every cut pair, then all their DP sweeps in one launch, then the labels pair by pair
   // (in the CPU's order: boxes of different pairs may overlap).
   s.host_jobs.clear();
@@ -129,7 +130,7 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
     s.jobs.resize(bytes);
     STITCH_CUDA(cudaMemcpyAsync(s.jobs.data(), s.host_jobs.data(), bytes, cudaMemcpyHostToDevice, st));
     stitch_cuda::launch_seam_dp(reinterpret_cast<const stitch_cuda::SeamDpJob*>(s.jobs.data()), int(s.host_jobs.size()),
-                                max_cols, w.stability, st);
+                                max_cols, w.stability, w.hold, st);
   }
   for (State::PairState& p : s.pairs) {
     if (!p.cut) continue;

@@ -11,7 +11,9 @@ namespace seam {
 
 struct Weights {  // SeamSettings, for the kernels
   float difference, edge, motion, stability;
+  float hold;  // per row: how much cheaper the new path must be to replace last frame's
 };
+
 
 constexpr float kOutside = 1e5f;  // a seam point outside the overlap: allowed, but never cheap
 
@@ -62,6 +64,13 @@ STITCH_HD int dp_cell(const float* above, int c, int cols, bool first_row, float
   energy = add(best, cost);
   if (previous >= 0) energy = add(energy, mul(stability, float(absi(c - previous))));
   return step;
+}
+
+// Last frame's path is kept while its cost now is within `hold` per row of the best path's
+// energy: the seam holds still until something crosses it (its cost then rises: motion,
+// difference), instead of drifting with noise.
+STITCH_HD bool keep_previous(float previous_cost, float best_energy, int rows, float hold) {
+  return previous_cost <= add(best_energy, mul(hold, float(rows)));
 }
 
 }  // namespace seam

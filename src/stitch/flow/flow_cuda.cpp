@@ -13,15 +13,19 @@
 namespace stitch {
 namespace {
 
-constexpr int kMaxLevels = 5;
+// Six levels: a 1080p overlap at the flow's half resolution (~540 rows) still has a level of
+// 17 rows, where two passes of at most 1 px reach 64 px of the full resolution and more.
+constexpr int kMaxLevels = 6;
 
 struct LkSettings {
   int max_levels = kMaxLevels;
   int min_level_side = 16;       // no pyramid level whose smaller side is below this
   int coarse_iterations = 2;     // passes per level above the finest
   int fine_iterations = 3;       // passes at full resolution (>= 2, see compute())
-  int initial_start_level = 2;   // with a previous field: refine from this level (capture range
-                                 // ~10 px around it; fewer launches than the full pyramid)
+  int initial_start_level = 3;   // with a previous field: refine from this level (capture range
+                                 // ~30 px of the flow image around it, so an object that enters
+                                 // an overlap with 60 px of disparity is caught; fewer launches
+                                 // than the full pyramid)
   float lambda = 1.f;
   float max_step = 1.f;
 };

@@ -28,6 +28,8 @@ struct FlowWarpSettings {
   int margin = 16;                       // output pixels the overlap is widened by for the flow
   double temporal_smoothing = 0.95;      // weight of last frame's flow where the scene is still
   double consistency_px = 4.0;           // forward-backward error (px) at which confidence is 1/e
+  bool fallback = true;                  // never worse than the homography: the per-pixel matching-cost
+                                         // gate and the per-overlap decision (flow_gate_math.hpp)
 };
 
 // True when going from `a` to `b` changes the flow images (size, implementation): the warper
@@ -48,6 +50,12 @@ struct FlowPairStats {
   Rect rect;                     // output pixels, the widened overlap
   double mean_magnitude = 0;     // px, of the applied flow a→b where both views are valid
   double confident_fraction = 0; // of the valid pixels, those passing the forward-backward check
+  // What the flow does for the overlap (flow_gate_math.hpp): the views' mean matching error
+  // (grey levels, photometric + structural) without and with the flow, and the decision:
+  // whether the flow is on and the gain it is applied with next frame (0 = homography only).
+  double error_homography = 0, error_flow = 0;
+  bool flow_on = true;
+  double gain = 1;
 };
 
 class FlowWarper {

@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "stitch/blend/blender_cpu.hpp"
+#include "stitch/warp/flow_gate_math.hpp"
 #include "stitch/warp/flow_pairs.hpp"
 #include "stitch/warp/flow_warper.hpp"
 #include "stitch/warp/warper_cpu.hpp"
@@ -53,6 +54,68 @@ cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, floa
   return conf;
 }
 
+// Bilinear sample of a float image, the position clamped into it (as the CUDA kernels read).
+float sample(const cv::Mat& img, float x, float y) {
+  x = std::clamp(x, 0.f, float(img.cols - 1));
+  y = std::clamp(y, 0.f, float(img.rows - 1));
+  const int x0 = int(x), y0 = int(y);
+  const int x1 = std::min(x0 + 1, img.cols - 1), y1 = std::min(y0 + 1, img.rows - 1);
+  const float ax = x - float(x0), ay = y - float(y0);
+  const float* r0 = img.ptr<float>(y0);
+  const float* r1 = img.ptr<float>(y1);
+  return (1.f - ay) * ((1.f - ax) * r0[x0] + ax * r0[x1]) + ay * ((1.f - ax) * r1[x0] + ax * r1[x1]);
+}
+
+// The matching-cost gate of the flow a->b (flow_gate_math.hpp): per pixel, how much the flow
+// improves the match over the homography, blurred, mapped to 0..1.
+cv::Mat cost_gate(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow) {
+  cv::Mat improvement(a.size(), CV_32F);
+  for (int y = 0; y < a.rows; ++y) {
+    const float* pa = a.ptr<float>(y);
+    const float* pb = b.ptr<float>(y);
+    const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
+    float* pi = improvement.ptr<float>(y);
+    for (int x = 0; x < a.cols; ++x)
+      pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b, x + pf[x][0], y + pf[x][1]));
+  }
+  cv::GaussianBlur(improvement, improvement, cv::Size(0, 0), flow_gate::kGateSigma);
+  for (int y = 0; y < a.rows; ++y) {
+    float* pi = improvement.ptr<float>(y);
+    for (int x = 0; x < a.cols; ++x) pi[x] = flow_gate::gate(pi[x]);
+  }
+  return improvement;
+}
+
+// Mean matching error of the views where both are valid, without the flow and with b sampled
+// at p + flow(p) (flow_gate::match_error; gradients by central differences of samples).
+void matching_errors(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow, const cv::Mat& both, double& homography,
+                     double& with_flow) {
+  double sh = 0, sf = 0;
+  long n = 0;
+  for (int y = 0; y < a.rows; ++y) {
+    const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
+    const uint8_t* pm = both.ptr<uint8_t>(y);
+    for (int x = 0; x < a.cols; ++x) {
+      if (!pm[x]) continue;
+      const float fx = float(x), fy = float(y);
+      const float av = sample(a, fx, fy), bv = sample(b, fx, fy);
+      const float agx = 0.5f * (sample(a, fx + 1, fy) - sample(a, fx - 1, fy));
+      const float agy = 0.5f * (sample(a, fx, fy + 1) - sample(a, fx, fy - 1));
+      const float bgx = 0.5f * (sample(b, fx + 1, fy) - sample(b, fx - 1, fy));
+      const float bgy = 0.5f * (sample(b, fx, fy + 1) - sample(b, fx, fy - 1));
+      const float qx = fx + pf[x][0], qy = fy + pf[x][1];
+      const float wv = sample(b, qx, qy);
+      const float wgx = 0.5f * (sample(b, qx + 1, qy) - sample(b, qx - 1, qy));
+      const float wgy = 0.5f * (sample(b, qx, qy + 1) - sample(b, qx, qy - 1));
+      sh += flow_gate::match_error(av, bv, agx, agy, bgx, bgy);
+      sf += flow_gate::match_error(av, wv, agx, agy, wgx, wgy);
+      ++n;
+    }
+  }
+  homography = n ? sh / double(n) : 0.0;
+  with_flow = n ? sf / double(n) : 0.0;
+}
+
 class FlowWarperCpu final : public FlowWarper {
  public:
   FlowWarperCpu() : warper_(Warper::create(Backend::Cpu)) {}
@@ -72,7 +135,10 @@ class FlowWarperCpu final : public FlowWarper {
   }
 
   void reset() override {
-    for (auto& p : pairs_) p.history = false;
+    for (auto& p : pairs_) {
+      p.history = false;
+      p.decision = {};
+    }
   }
 
   void warp(const std::vector<ImageView>& frames, const std::vector<ImageView>& warped) override {
@@ -122,6 +188,7 @@ class FlowWarperCpu final : public FlowWarper {
     cv::Mat prev_gray[2];      // the views' overlap last frame, to tell static from moving
     cv::Mat full_ab, full_ba;  // output resolution, this frame
     bool history = false;
+    flow_gate::Decision decision;  // whether the flow helps this overlap, and its gain
   };
 
   void build() {
@@ -168,6 +235,7 @@ class FlowWarperCpu final : public FlowWarper {
           p.prev_gray[0] = o.prev_gray[0];
           p.prev_gray[1] = o.prev_gray[1];
           p.history = true;
+          p.decision = o.decision;
         }
       bands_[a].push_back(rect);
       bands_[b].push_back(rect);
@@ -212,6 +280,12 @@ class FlowWarperCpu final : public FlowWarper {
     const float tau = float(settings_.consistency_px * scale);
     const cv::Mat conf_ab = forward_backward_confidence(ab, ba, std::max(tau, 0.25f));
     const cv::Mat conf_ba = forward_backward_confidence(ba, ab, std::max(tau, 0.25f));
+    // The flow counts only where it improves the match over the homography.
+    cv::Mat fa, fb;
+    gray[0].convertTo(fa, CV_32F);
+    gray[1].convertTo(fb, CV_32F);
+    const cv::Mat trust_ab = settings_.fallback ? conf_ab.mul(cost_gate(fa, fb, ab)) : conf_ab;
+    const cv::Mat trust_ba = settings_.fallback ? conf_ba.mul(cost_gate(fb, fa, ba)) : conf_ba;
     cv::Mat both = p.side[0].valid & p.side[1].valid;
     FlowPairStats st;
     st.view_a = p.a;
@@ -221,8 +295,8 @@ class FlowWarperCpu final : public FlowWarper {
     st.confident_fraction = n_valid ? cv::countNonZero((conf_ab > 0.5) & both) / double(n_valid) : 0.0;
 
     const cv::Mat still = init ? stillness(gray, p.prev_gray) : cv::Mat();
-    p.flow_ab = refine(ab, conf_ab, prev_ab, still);
-    p.flow_ba = refine(ba, conf_ba, prev_ba, still);
+    p.flow_ab = refine(ab, trust_ab, prev_ab, still);
+    p.flow_ba = refine(ba, trust_ba, prev_ba, still);
     p.prev_gray[0] = gray[0];
     p.prev_gray[1] = gray[1];
     p.history = true;
@@ -232,13 +306,21 @@ class FlowWarperCpu final : public FlowWarper {
     cv::split(p.flow_ab, ch);
     cv::magnitude(ch[0], ch[1], mag);
     st.mean_magnitude = n_valid ? cv::mean(mag, both)[0] / scale : 0.0;
+
+    // This frame is warped with the gain decided last frame; what the flow did now decides
+    // the next (flow_gate_math.hpp).
+    const double gain = settings_.fallback ? p.decision.gain : 1.0;
+    matching_errors(fa, fb, p.flow_ab, both, st.error_homography, st.error_flow);
+    p.decision = flow_gate::update(p.decision, st.error_homography, st.error_flow);
+    st.flow_on = p.decision.on;
+    st.gain = p.decision.gain;
     stats_.push_back(st);
 
     const cv::Size full(p.rect.width, p.rect.height);
     cv::resize(p.flow_ab, p.full_ab, full, 0, 0, cv::INTER_LINEAR);
     cv::resize(p.flow_ba, p.full_ba, full, 0, 0, cv::INTER_LINEAR);
-    p.full_ab *= 1.0 / scale;
-    p.full_ba *= 1.0 / scale;
+    p.full_ab *= gain / scale;
+    p.full_ba *= gain / scale;
   }
 
   // Confidence-weighted flow (unreliable pixels fall back toward the homography), lightly

@@ -12,6 +12,7 @@
 #include "stitch/cuda/stages_cuda.hpp"
 #include "stitch/cuda/view_geometry.hpp"
 #include "stitch/flow/flow_cuda.hpp"
+#include "stitch/warp/flow_gate_math.hpp"
 #include "stitch/warp/flow_pairs.hpp"
 #include "stitch/warp/flow_warper.hpp"
 
@@ -47,7 +48,10 @@ class FlowWarperCuda final : public FlowWarper {
     if (rebuild && !views_.empty()) build();
   }
 
-  void reset() override { std::fill(history_.begin(), history_.end(), false); }
+  void reset() override {
+    std::fill(history_.begin(), history_.end(), false);
+    std::fill(decisions_.begin(), decisions_.end(), flow_gate::Decision{});
+  }
 
   void warp(const std::vector<ImageView>& frames, const std::vector<ImageView>& warped) override {
     if (frames.size() != views_.size() || warped.size() != views_.size())
@@ -113,6 +117,9 @@ class FlowWarperCuda final : public FlowWarper {
       const double scale = flow_scale(settings_.quality);
       const float tau = std::max(float(settings_.consistency_px * scale), 0.25f);
       stitch_cuda::launch_flow_confidence(pairs_dev_.get(), np, max_w_, max_h_, active, tau, s);
+      stitch_cuda::launch_pair_blur(pairs_dev_.get(), np, max_w_, max_h_, active, 2, change_taps_.data(),
+                                    int(change_taps_.size() / 2), s);
+      stitch_cuda::launch_flow_gate(pairs_dev_.get(), np, max_w_, max_h_, active, settings_.fallback, s);
       stitch_cuda::launch_pair_blur(pairs_dev_.get(), np, max_w_, max_h_, active, 0, flow_taps_.data(),
                                     int(flow_taps_.size() / 2), s);
       if (any_history) {
@@ -133,14 +140,18 @@ class FlowWarperCuda final : public FlowWarper {
         history_[std::size_t(p)] = true;
       }
     }
+    // This frame is warped with the gains decided last frame (flow_gate_math.hpp): no round trip.
+    gains_.assign(plans_.size(), 1.f);
+    if (settings_.fallback)
+      for (std::size_t p = 0; p < plans_.size(); ++p) gains_[p] = float(decisions_[p].gain);
     stitch_cuda::launch_flow_warp_views(geometry_.data(), src.data(), dst.data(), int(n), pairs_dev_.get(), np, active,
-                                        float(1.0 / flow_scale(settings_.quality)), s);
+                                        float(1.0 / flow_scale(settings_.quality)), gains_.data(), s);
     for (std::size_t i = 0; i < n; ++i)
       if (dst[i].data && !warped[i].on_device)
         STITCH_CUDA(cudaMemcpy2DAsync(warped[i].data, warped[i].pitch, dst[i].data, dst[i].pitch,
                                       std::size_t(warped[i].width) * 4, warped[i].height, cudaMemcpyDeviceToHost, s));
     std::vector<float>& sums = sums_;
-    sums.assign(plans_.size() * 3, 0.f);
+    sums.assign(plans_.size() * stitch_cuda::kFlowStats, 0.f);
     if (any_active)
       STITCH_CUDA(cudaMemcpyAsync(sums.data(), stats_dev_.data(), sums.size() * sizeof(float), cudaMemcpyDeviceToHost, s));
     stream_.sync();
@@ -152,9 +163,16 @@ class FlowWarperCuda final : public FlowWarper {
       st.view_a = plans_[std::size_t(p)].a;
       st.view_b = plans_[std::size_t(p)].b;
       st.rect = plans_[std::size_t(p)].rect;
-      const float count = sums[3 * std::size_t(p) + 1];
-      st.mean_magnitude = count > 0 ? sums[3 * std::size_t(p)] / count / scale : 0.0;
-      st.confident_fraction = count > 0 ? sums[3 * std::size_t(p) + 2] / count : 0.0;
+      const float* sum = sums.data() + stitch_cuda::kFlowStats * std::size_t(p);
+      const float count = sum[1];
+      st.mean_magnitude = count > 0 ? sum[0] / count / scale : 0.0;
+      st.confident_fraction = count > 0 ? sum[2] / count : 0.0;
+      st.error_homography = count > 0 ? sum[3] / count : 0.0;
+      st.error_flow = count > 0 ? sum[4] / count : 0.0;
+      flow_gate::Decision& d = decisions_[std::size_t(p)];
+      d = flow_gate::update(d, st.error_homography, st.error_flow);
+      st.flow_on = d.on;
+      st.gain = d.gain;
       stats_.push_back(st);
     }
   }
@@ -182,6 +200,7 @@ class FlowWarperCuda final : public FlowWarper {
     const std::vector<FlowPairPlan> old_plans = plans_;
     const std::vector<FlowPairDevice> old_pairs = pairs_;
     const std::vector<bool> old_history = history_;
+    const std::vector<flow_gate::Decision> old_decisions = decisions_;
     DeviceBuffer old_arena = std::move(arena_);
 
     std::vector<cv::Mat> weight(views_.size());
@@ -197,12 +216,13 @@ class FlowWarperCuda final : public FlowWarper {
     std::size_t total = 0;
     for (const auto& p : plans_) {
       const std::size_t px = std::size_t(p.work_width) * p.work_height;
-      total += 5 * aligned(px) + 8 * aligned(px * 8) + 6 * aligned(px * 4);
+      total += 5 * aligned(px) + 8 * aligned(px * 8) + 10 * aligned(px * 4);
     }
     arena_ = DeviceBuffer();
     if (total) arena_.resize(total);
     pairs_.assign(plans_.size(), FlowPairDevice{});
     history_.assign(plans_.size(), false);
+    decisions_.assign(plans_.size(), flow_gate::Decision{});
     max_w_ = max_h_ = 0;
     std::size_t offset = 0;
     auto take = [&](std::size_t bytes) {
@@ -234,6 +254,8 @@ class FlowWarperCuda final : public FlowWarper {
         d.confidence[k] = reinterpret_cast<float*>(take(px * 4));
         d.change[k] = reinterpret_cast<float*>(take(px * 4));
         d.change2[k] = reinterpret_cast<float*>(take(px * 4));
+        d.gate[k] = reinterpret_cast<float*>(take(px * 4));
+        d.gate2[k] = reinterpret_cast<float*>(take(px * 4));
       }
       d.valid = take(px);
       for (std::size_t o = 0; o < old_plans.size(); ++o) {
@@ -244,13 +266,14 @@ class FlowWarperCuda final : public FlowWarper {
           STITCH_CUDA(cudaMemcpyAsync(d.prev_gray[k], od.prev_gray[k], px, cudaMemcpyDeviceToDevice, stream_.get()));
         }
         history_[i] = true;
+        decisions_[i] = old_decisions[o];
       }
     }
     pairs_dev_.buffer.resize(std::max<std::size_t>(1, pairs_.size()) * sizeof(FlowPairDevice));
     if (!pairs_.empty())
       STITCH_CUDA(cudaMemcpyAsync(pairs_dev_.buffer.data(), pairs_.data(), pairs_.size() * sizeof(FlowPairDevice),
                                   cudaMemcpyHostToDevice, stream_.get()));
-    stats_dev_.resize(std::max<std::size_t>(1, plans_.size()) * 3 * sizeof(float));
+    stats_dev_.resize(std::max<std::size_t>(1, plans_.size()) * stitch_cuda::kFlowStats * sizeof(float));
     stream_.sync();  // the old arena is freed after the carry-over copies
   }
 
@@ -262,6 +285,8 @@ class FlowWarperCuda final : public FlowWarper {
   std::vector<FlowPairPlan> plans_;
   std::vector<FlowPairDevice> pairs_;  // host copy of the descriptors
   std::vector<bool> history_;
+  std::vector<flow_gate::Decision> decisions_;  // per pair: whether its flow helps, and its gain
+  std::vector<float> gains_;                    // this frame's, from decisions_
   DevicePairs pairs_dev_;
   DeviceBuffer arena_, stats_dev_;
   int max_w_ = 0, max_h_ = 0;
@@ -269,7 +294,7 @@ class FlowWarperCuda final : public FlowWarper {
   std::vector<DeviceBuffer> inputs_, outputs_;  // staging for views in system memory
   std::vector<FlowPairStats> stats_;
   std::vector<DeviceFlowTask> tasks_;  // reused every frame
-  std::vector<float> sums_;            // per pair: sum |flow|, covered pixels, confident pixels
+  std::vector<float> sums_;            // per pair: kFlowStats sums (flow_warp_kernels.hpp)
 };
 
 }  // namespace
