@@ -16,11 +16,11 @@
  * gst-launch-1.0 -e videotestsrc num-buffers=30 ! video/x-raw,width=512,height=256,format=I420 ! \
  *   x264enc ! stitch360sink location=out360.mp4
  * ]|
- * |[
- * gst-launch-1.0 -e stitchsync name=s ! stitchcalib load-file=dual_fisheye.json ! stitchblend ! \
- *   videoconvert ! video/x-raw,format=I420 ! x264enc ! stitch360sink location=sphere.mp4 \
- *   filesrc location=front.mp4 ! decodebin ! s.sink_0 filesrc location=back.mp4 ! decodebin ! s.sink_1
- * ]|
+ *
+ * A full-sphere rig (e.g. back-to-back fisheyes, `"projection": "spherical"`) to a 360 file:
+ * `stitchsync name=s ! stitchcalib load-file=dual_fisheye.json ! stitchblend ! videoconvert !
+ * video/x-raw,format=I420 ! x264enc ! stitch360sink location=sphere.mp4` with the two cameras
+ * linked to `s.sink_0` and `s.sink_1`.
  */
 #include "gststitch360sink.h"
 

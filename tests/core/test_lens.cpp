@@ -53,20 +53,6 @@ cv::Mat stitch_cpu(const Rig& rig, std::vector<cv::Mat>& frames) {
   return pano;
 }
 
-// PSNR over the canvas pixels where `mask` is set.
-double masked_psnr(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
-  cv::Mat a3, b3, d;
-  cv::cvtColor(a, a3, cv::COLOR_RGBA2RGB);
-  cv::cvtColor(b, b3, cv::COLOR_RGBA2RGB);
-  a3.convertTo(a3, CV_32F);
-  b3.convertTo(b3, CV_32F);
-  d = a3 - b3;
-  d = d.mul(d);
-  const double n = cv::countNonZero(mask) * 3.0;
-  const cv::Scalar s = cv::sum(d.setTo(cv::Scalar::all(0), mask == 0));
-  const double mse = (s[0] + s[1] + s[2]) / std::max(1.0, n);
-  return 10 * std::log10(255.0 * 255.0 / std::max(mse, 1e-10));
-}
 
 }  // namespace
 
@@ -338,7 +324,7 @@ TEST(Lens, DualFisheyeStitchesTheFullSphere) {
     EXPECT_GT(bottom, 5.0);
     cv::Mat all(pano.size(), CV_8U, cv::Scalar(0));
     all(cv::Rect(0, 0, rig.canvas_width, rig.canvas_height)).setTo(255);
-    const double psnr = masked_psnr(pano, gt, all);
+    const double psnr = testdata::masked_psnr_rgb(pano, gt, all);
     std::printf("dual fisheye %.0f deg, 2x %dx%d -> %dx%d sphere: PSNR vs ground truth %.2f dB\n", fov, 240, 240,
                 pano.cols, pano.rows, psnr);
     EXPECT_GT(psnr, 24.0);
@@ -385,7 +371,7 @@ TEST(Lens, RadtanRigStitchesMuchBetterWithItsLens) {
     cv::cvtColor(with, gray, cv::COLOR_RGBA2GRAY);
     mask = gray > 0;
     cv::erode(mask, mask, cv::Mat::ones(9, 9, CV_8U));
-    const double p_with = masked_psnr(with, gt, mask), p_without = masked_psnr(without, gt, mask);
+    const double p_with = testdata::masked_psnr_rgb(with, gt, mask), p_without = testdata::masked_psnr_rgb(without, gt, mask);
     std::printf("radtan k1 %+.2f, 3x 320x240 -> %dx%d plane: PSNR lens on %.2f dB, lens ignored %.2f dB\n", k1,
                 with.cols, with.rows, p_with, p_without);
     EXPECT_GT(p_with, 27.0);
