@@ -58,22 +58,6 @@ cv::Mat compose(const Rig& rig, std::vector<cv::Mat>& frames, Backend b = Backen
 }
 
 
-// Ground truth of a plane canvas: canvas pixel -> reference ideal pixel -> ray -> the panorama.
-cv::Mat plane_ground_truth(const cv::Mat& pano, const Rig& rig) {
-  const Camera& ref = rig.cameras[rig.reference];
-  const Eigen::Matrix3d M = ref.R() * ref.K().inverse() * ref.homography->inverse();
-  cv::Mat mx(rig.canvas_height, rig.canvas_width, CV_32F), my = mx.clone();
-  for (int y = 0; y < mx.rows; ++y)
-    for (int x = 0; x < mx.cols; ++x) {
-      const Eigen::Vector3d r = M * Eigen::Vector3d(x, y, 1);
-      double a, b;
-      stitch_projection::ray_to_angles(stitch_projection::kSpherical, r.x(), r.y(), r.z(), a, b);
-      testdata::equirect_pixel(pano, a, b, mx.at<float>(y, x), my.at<float>(y, x));
-    }
-  cv::Mat gt;
-  cv::remap(pano, gt, mx, my, cv::INTER_LINEAR, cv::BORDER_WRAP);
-  return gt;
-}
 
 // Scene lines through each camera (rows and columns of rays across its view), seen in raw pixels
 // through the TRUE lens, mapped to the plane canvas by `rig`: the worst distance of a point from
@@ -115,7 +99,7 @@ int quality(const std::string& path, int size) {
     std::vector<cv::Mat> frames;
     for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(pano, c));
     const Rig ign = ignoring_lenses(rig);
-    const cv::Mat on = compose(rig, frames), off = compose(ign, frames), gt = plane_ground_truth(pano, rig);
+    const cv::Mat on = compose(rig, frames), off = compose(ign, frames), gt = testdata::plane_ground_truth(pano, rig);
     cv::Mat gray, mask;
     cv::cvtColor(on, gray, cv::COLOR_RGBA2GRAY);
     mask = gray > 0;

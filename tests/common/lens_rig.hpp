@@ -61,6 +61,23 @@ inline cv::Mat equirect_ground_truth(const cv::Mat& pano, const stitch::Rig& rig
   return out;
 }
 
+// The ground truth of a plane canvas (laid out): canvas pixel -> reference ideal pixel -> ray -> the panorama.
+inline cv::Mat plane_ground_truth(const cv::Mat& pano, const stitch::Rig& rig) {
+  const stitch::Camera& ref = rig.cameras[rig.reference];
+  const Eigen::Matrix3d M = ref.R() * ref.K().inverse() * ref.homography->inverse();
+  cv::Mat mx(rig.canvas_height, rig.canvas_width, CV_32F), my = mx.clone();
+  for (int y = 0; y < mx.rows; ++y)
+    for (int x = 0; x < mx.cols; ++x) {
+      const Eigen::Vector3d r = M * Eigen::Vector3d(x, y, 1);
+      double a, b;
+      stitch_projection::ray_to_angles(stitch_projection::kSpherical, r.x(), r.y(), r.z(), a, b);
+      equirect_pixel(pano, a, b, mx.at<float>(y, x), my.at<float>(y, x));
+    }
+  cv::Mat gt;
+  cv::remap(pano, gt, mx, my, cv::INTER_LINEAR, cv::BORDER_WRAP);
+  return gt;
+}
+
 // A fisheye camera (equidistant-ish Kannala-Brandt) of side `size` seeing `fov_deg` across its
 // inscribed image circle.
 inline stitch::Camera fisheye_camera(int size, double fov_deg, double k1 = 0.0, double k2 = 0.0) {

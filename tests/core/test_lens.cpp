@@ -349,19 +349,7 @@ TEST(Lens, RadtanRigStitchesMuchBetterWithItsLens) {
     rig_compute_rough_homographies(rig);
     std::vector<cv::Mat> frames;
     for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
-    // Ground truth: canvas pixel -> reference ideal pixel -> ray -> the photo.
-    const Camera& ref = rig.cameras[1];
-    const Eigen::Matrix3d M = ref.R() * ref.K().inverse() * ref.homography->inverse();
-    cv::Mat mx(rig.canvas_height, rig.canvas_width, CV_32F), my = mx.clone();
-    for (int y = 0; y < mx.rows; ++y)
-      for (int x = 0; x < mx.cols; ++x) {
-        const Eigen::Vector3d r = M * Eigen::Vector3d(x, y, 1);
-        double a, b;
-        stitch_projection::ray_to_angles(stitch_projection::kSpherical, r.x(), r.y(), r.z(), a, b);
-        testdata::equirect_pixel(photo, a, b, mx.at<float>(y, x), my.at<float>(y, x));
-      }
-    cv::Mat gt;
-    cv::remap(photo, gt, mx, my, cv::INTER_LINEAR, cv::BORDER_WRAP);
+    const cv::Mat gt = testdata::plane_ground_truth(photo, rig);
     const cv::Mat with = stitch_cpu(rig, frames);
     Rig ignored = rig;
     for (auto& c : ignored.cameras) c.lens = Lens{};
