@@ -299,6 +299,14 @@ TEST(Lens, PtoLoadsAndFitsThePanotoolsPolynomial) {
   ASSERT_TRUE(fish.cameras[0].lens.circle);
   EXPECT_NEAR(fish.cameras[0].lens.circle->radius, 480, 1e-9);
   EXPECT_THROW(rig_from_pto_string("p f0 w100 v50\ni w100 h100 f4 v50\n"), RigError);
+  // rig_load (what stitchcalib's rig-file / load-file call) reads .pto by extension.
+  const auto path = std::filesystem::temp_directory_path() / ("stitch_lens_" + std::to_string(::getpid()) + ".pto");
+  {
+    std::ofstream out(path);
+    out << pto;
+  }
+  EXPECT_EQ(rig_load(path.string()).cameras.size(), 3u);
+  std::filesystem::remove(path);
 }
 
 TEST(Lens, DualFisheyeStitchesTheFullSphere) {
