@@ -19,6 +19,14 @@
 // for every frame. --illumination-step F dims the whole scene from frame F on (a light
 // switched off), so the suite can see how color correction follows a sudden change.
 //
+// Lenses (issue 15): --lens radtan|fisheye with --k1 --k2 --k3 --k4 --p1 --p2 renders every
+// camera through that lens (planar mode: radtan; the true rig carries the lens, the rough rig the
+// model without coefficients, "estimate them"). --equirect 1: the photo is a 360-degree
+// equirectangular panorama and the N cameras (yaws 360/N apart; N = 2: back-to-back) look out
+// of its centre; --fov sets a fisheye's field of view across its image circle (--circle 1, the
+// default for fisheyes); writes cam*.avi (a static scene), rig_true.json (spherical, laid out),
+// rig_rough.json and gt_frame0.png (the equirectangular ground truth on the true canvas).
+//
 // --ring cylindrical|spherical: instead, N cameras (yaws 360/N apart) around a full circle, the
 // photo taken as a 360-degree panorama of that projection (tests/common/ring_rig.hpp); writes
 // cam*.avi (a static scene), rig_true.json (laid out, wrapping canvas) and rig_rough.json.
@@ -37,6 +45,7 @@
 #include <string>
 #include <vector>
 
+#include "lens_rig.hpp"
 #include "ring_rig.hpp"
 #include "stitch/rig/rig.hpp"
 
@@ -56,6 +65,12 @@ struct Options {
   int illumination_step = 0;           // first frame of the dimmed scene; 0 = never
   double illumination_factor = 0.7;
   std::string ring;  // empty: a planar rig; else the projection of a 360-degree ring
+  // Lenses (issue 15).
+  std::string lens = "pinhole";
+  double k1 = 0, k2 = 0, k3 = 0, k4 = 0, p1 = 0, p2 = 0;
+  double fov = 200;   // fisheye: degrees across the image circle
+  int circle = -1;    // -1: fisheyes have one, others not
+  bool equirect = false;
 };
 
 void usage(std::FILE* f) {
@@ -65,6 +80,8 @@ void usage(std::FILE* f) {
                "         [--frames 60] [--fps 30] [--hfov 55] [--overlap 0.35] [--seed 1] "
                "[--moving-object 1] [--ring cylindrical|spherical]\n"
                "         [--ground-truth first|all] [--illumination-step FRAME] [--illumination-factor 0.7]\n"
+               "         [--lens pinhole|radtan|fisheye] [--k1 0] [--k2 0] [--k3 0] [--k4 0] [--p1 0] [--p2 0]\n"
+               "         [--fov 200] [--circle 0|1] [--equirect 0|1]\n"
                "Renders N overlapping camera clips (camK.avi) from one photo with exact geometry,\n"
                "plus rig_true.json, rig_rough.json and gt_frame0.png.\n");
 }
@@ -118,11 +135,24 @@ Options parse_args(int argc, char** argv) {
     } else if (key == "--illumination-step") o.illumination_step = parse_int(key, v);
     else if (key == "--illumination-factor") o.illumination_factor = parse_number(key, v);
     else if (key == "--ring") o.ring = v;
+    else if (key == "--lens") o.lens = v;
+    else if (key == "--k1") o.k1 = parse_number(key, v);
+    else if (key == "--k2") o.k2 = parse_number(key, v);
+    else if (key == "--k3") o.k3 = parse_number(key, v);
+    else if (key == "--k4") o.k4 = parse_number(key, v);
+    else if (key == "--p1") o.p1 = parse_number(key, v);
+    else if (key == "--p2") o.p2 = parse_number(key, v);
+    else if (key == "--fov") o.fov = parse_number(key, v);
+    else if (key == "--circle") o.circle = parse_int(key, v);
+    else if (key == "--equirect") o.equirect = parse_int(key, v) != 0;
     else die(2, "unknown option " + key);
   }
   if (o.photo.empty()) die(2, "--photo is required");
   if (o.out.empty()) die(2, "--out is required");
   if (o.cameras < 2 || o.cameras > 16) die(2, "--cameras must be between 2 and 16");
+  if (o.lens != "pinhole" && o.lens != "radtan" && o.lens != "fisheye") die(2, "--lens must be pinhole, radtan or fisheye");
+  if (o.lens == "fisheye" && !o.equirect) die(2, "--lens fisheye needs --equirect 1 (a planar photo cannot hold it)");
+  if (!(o.fov >= 90 && o.fov <= 280)) die(2, "--fov must be between 90 and 280 degrees");
   if (o.width < 16 || o.height < 16 || o.width > 8192 || o.height > 8192)
     die(2, "--width/--height must be between 16 and 8192");
   if (o.frames < 1 || o.frames > 100000) die(2, "--frames must be between 1 and 100000");
@@ -255,6 +285,99 @@ void draw_disc(cv::Mat& img, const Disc& d, double cx, double cy) {
 
 }  // namespace
 
+// The lens of the options on camera `cam` (its K set from --hfov, or for a fisheye from --fov
+// across the inscribed image circle).
+void apply_lens(const Options& o, stitch::Camera& cam) {
+  if (o.lens == "fisheye") {
+    const stitch::Camera f = testdata::fisheye_camera(std::min(o.width, o.height), o.fov, o.k1, o.k2);
+    cam.fx = cam.fy = f.fx;
+    cam.lens = f.lens;
+    cam.lens.k3 = o.k3;
+    cam.lens.k4 = o.k4;
+    cam.lens.circle->cx = cam.cx;
+    cam.lens.circle->cy = cam.cy;
+    if (o.circle == 0) cam.lens.circle.reset();
+    return;
+  }
+  if (o.lens == "radtan") {
+    cam.lens.model = stitch::Lens::Model::Radtan;
+    cam.lens.k1 = o.k1, cam.lens.k2 = o.k2, cam.lens.k3 = o.k3, cam.lens.p1 = o.p1, cam.lens.p2 = o.p2;
+  }
+  if (o.circle == 1)
+    cam.lens.circle = stitch::LensCircle{cam.cx, cam.cy, 0.5 * std::min(cam.width, cam.height) - 1};
+  const std::string problem = stitch::lens_problem(cam);
+  if (!problem.empty()) die(2, "the lens: " + problem);
+}
+
+// The rough rig of a true one: perturbed focal and angles, lenses without coefficients.
+stitch::Rig rough_of(const stitch::Rig& truth, std::mt19937& rng) {
+  stitch::Rig rough = truth;
+  rough.canvas_width = rough.canvas_height = 0;
+  rough.canvas_scale = 0;
+  std::uniform_real_distribution<double> df(-0.03, 0.03), dyaw(-2.0, 2.0), dpitch(-1.0, 1.0);
+  for (auto& cam : rough.cameras) {
+    cam.homography.reset();
+    cam.fx *= 1.0 + df(rng);
+    cam.fy = cam.fx;
+    cam.yaw_deg += dyaw(rng);
+    cam.pitch_deg += dpitch(rng);
+    if (!cam.lens.pinhole()) {
+      const auto circle = cam.lens.circle;
+      const auto model = cam.lens.model;
+      cam.lens = stitch::Lens{};
+      cam.lens.model = model;
+      cam.lens.estimate = true;
+      cam.lens.circle = circle;
+    }
+  }
+  return rough;
+}
+
+void open_writers(const Options& o, std::vector<cv::VideoWriter>& writers);
+
+// --equirect: cameras looking out of the centre of a 360-degree photo.
+int render_equirect_clips(const Options& o, const cv::Mat& photo) {
+  if (photo.cols != 2 * photo.rows)
+    std::fprintf(stderr, "stitch-render-rig: warning: the photo is %dx%d, not 2:1 (taken as 360 degrees wide)\n",
+                 photo.cols, photo.rows);
+  stitch::Rig truth;
+  truth.projection = "spherical";
+  truth.reference = 0;
+  const double f = (o.width / 2.0) / std::tan(o.hfov * kPi / 360.0);
+  for (int c = 0; c < o.cameras; ++c) {
+    stitch::Camera cam;
+    cam.width = o.width;
+    cam.height = o.height;
+    cam.fx = cam.fy = f;
+    cam.cx = (o.width - 1) * 0.5;
+    cam.cy = (o.height - 1) * 0.5;
+    cam.yaw_deg = 360.0 * c / o.cameras;
+    if (cam.yaw_deg > 180) cam.yaw_deg -= 360;
+    apply_lens(o, cam);
+    truth.cameras.push_back(cam);
+  }
+  std::mt19937 rng(o.seed);
+  try {
+    stitch::rig_layout_canvas(truth);
+    stitch::rig_save(truth, (std::filesystem::path(o.out) / "rig_true.json").string());
+    stitch::rig_save(rough_of(truth, rng), (std::filesystem::path(o.out) / "rig_rough.json").string());
+  } catch (const std::exception& e) {
+    die(1, std::string("cannot build the rig: ") + e.what());
+  }
+  cv::Mat gt = testdata::equirect_ground_truth(photo, truth), bgra;
+  cv::cvtColor(gt, bgra, cv::COLOR_BGR2BGRA);
+  if (!cv::imwrite((std::filesystem::path(o.out) / "gt_frame0.png").string(), bgra)) die(1, "cannot write gt_frame0.png");
+  std::vector<cv::VideoWriter> writers;
+  open_writers(o, writers);
+  for (int c = 0; c < o.cameras; ++c) {
+    const cv::Mat frame = testdata::render_camera_from_equirect(photo, truth.cameras[c], kSupersample);
+    for (int t = 0; t < o.frames; ++t) writers[c].write(frame);
+  }
+  std::printf("%d cameras (%s) from a 360-degree photo in %s: canvas %dx%d, wraps: %s\n", o.cameras, o.lens.c_str(),
+              o.out.c_str(), truth.canvas_width, truth.canvas_height, truth.canvas_wrap ? "yes" : "no");
+  return 0;
+}
+
 void open_writers(const Options& o, std::vector<cv::VideoWriter>& writers) {
   writers.resize(o.cameras);
   const cv::Size size(o.width, o.height);
@@ -321,6 +444,7 @@ int main(int argc, char** argv) {
   std::filesystem::create_directories(o.out, ec);
   if (!std::filesystem::is_directory(o.out)) die(1, "cannot create the output folder \"" + o.out + "\"");
   if (!o.ring.empty()) return render_ring_clips(o, photo);
+  if (o.equirect) return render_equirect_clips(o, photo);
 
   const int n = o.cameras;
   const double hfov = o.hfov * kPi / 180.0;
@@ -350,6 +474,7 @@ int main(int argc, char** argv) {
     cam.yaw_deg = (c - (n - 1) / 2.0) * step_deg;
     cam.pitch_deg = jitter(rng);
     cam.roll_deg = jitter(rng);
+    apply_lens(o, cam);
     truth.cameras.push_back(cam);
   }
 
@@ -385,19 +510,8 @@ int main(int argc, char** argv) {
     die(1, std::string("cannot build the true rig: ") + e.what());
   }
 
-  // The rough rig: perturbed parameters, no homographies.
-  stitch::Rig rough = truth;
-  rough.canvas_width = rough.canvas_height = 0;
-  {
-    std::uniform_real_distribution<double> df(-0.03, 0.03), dyaw(-2.0, 2.0), dpitch(-1.0, 1.0);
-    for (auto& cam : rough.cameras) {
-      cam.homography.reset();
-      cam.fx *= 1.0 + df(rng);
-      cam.fy = cam.fx;
-      cam.yaw_deg += dyaw(rng);
-      cam.pitch_deg += dpitch(rng);
-    }
-  }
+  // The rough rig: perturbed parameters, no homographies (lenses: the model, no coefficients).
+  stitch::Rig rough = rough_of(truth, rng);
   try {
     stitch::rig_save(rough, (std::filesystem::path(o.out) / "rig_rough.json").string());
   } catch (const std::exception& e) {
@@ -469,6 +583,27 @@ int main(int argc, char** argv) {
       die(1, "cannot write " + name);
   };
 
+  // Lenses: supersampled raw pixel -> ray -> ideal pixel -> photo pixel.
+  std::vector<cv::Mat> lens_mx(n), lens_my(n);
+  for (int c = 0; c < n; ++c) {
+    const stitch::Camera& cam = truth.cameras[c];
+    if (cam.lens.pinhole() && !cam.lens.circle) continue;
+    lens_mx[c].create(big, CV_32F);
+    lens_my[c].create(big, CV_32F);
+    for (int y = 0; y < big.height; ++y)
+      for (int x = 0; x < big.width; ++x) {
+        const Eigen::Vector2d raw = apply(A, x, y);
+        Eigen::Vector3d ray;
+        float px = -1e6f, py = -1e6f;
+        if (stitch::lens_unproject(cam, raw, ray) && ray.z() > 1e-9) {
+          const Eigen::Vector2d q = apply(cam2photo[c] * cam.K(), ray.x() / ray.z(), ray.y() / ray.z());
+          px = float(q.x()), py = float(q.y());
+        }
+        lens_mx[c].at<float>(y, x) = px;
+        lens_my[c].at<float>(y, x) = py;
+      }
+  }
+
   cv::Mat plane;
   cv::RNG noise_rng(o.seed * 7919u + 17u);
   for (int f = 0; f < o.frames; ++f) {
@@ -486,8 +621,11 @@ int main(int argc, char** argv) {
     }
     for (int c = 0; c < n; ++c) {
       cv::Mat hi, lo;
-      cv::warpPerspective(plane, hi, cv::Mat(to_cv(cam2photo[c] * A)), big,
-                          cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+      if (lens_mx[c].empty())
+        cv::warpPerspective(plane, hi, cv::Mat(to_cv(cam2photo[c] * A)), big,
+                            cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+      else
+        cv::remap(plane, hi, lens_mx[c], lens_my[c], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
       cv::resize(hi, lo, size, 0, 0, cv::INTER_AREA);
       cv::LUT(lo, photometric[c].lut, lo);
       cv::Mat noise(lo.size(), CV_16SC3);

@@ -44,8 +44,12 @@ __device__ __forceinline__ bool to_camera(const Homography& H, float x, float y,
 // the camera. kCurved = false compiles the planar mapping alone: kernels are instantiated both
 // ways and launched planar-only when every view is planar, so the trigonometry of the curved
 // projections costs planar rigs nothing (registers, occupancy).
+// Lenses (issue 15) take the kCurved instantiation too: planar pinhole rigs pay nothing for them.
 template <bool kCurved>
 __device__ __forceinline__ bool view_to_camera(const ViewGeometry& vg, float x, float y, float& u, float& v) {
+  if (kCurved && vg.has_lens)
+    return stitch_projection::canvas_to_lens_camera(vg.projection, vg.output_to_angles, vg.output_to_camera, vg.lens, x,
+                                                    y, u, v);
   if (!kCurved || vg.projection == stitch_projection::kPlane) {
     Homography H;
 #pragma unroll
@@ -74,13 +78,14 @@ __device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int 
     if (xu > vg.span_x1) return 0.f;
   }
   if (!view_to_camera<kCurved>(vg, float(x), float(y), u, v)) return 0.f;
+  if (kCurved && vg.has_lens) return stitch_projection::lens_position_weight(vg.lens, u, v, vg.camera_w, vg.camera_h);
   return position_weight(u, v, vg.camera_w, vg.camera_h);
 }
 
-// Whether any of the n views needs the curved mapping (host side: picks the instantiation).
+// Whether any of the n views needs the curved (or lens) mapping (host side: picks the instantiation).
 inline bool any_curved(const ViewGeometry* views, int n) {
   for (int i = 0; i < n; ++i)
-    if (views[i].projection != stitch_projection::kPlane) return true;
+    if (views[i].projection != stitch_projection::kPlane || views[i].has_lens) return true;
   return false;
 }
 

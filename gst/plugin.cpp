@@ -1,5 +1,6 @@
 #include <gst/gst.h>
 
+#include "gststitch360sink.h"
 #include "gststitchbin.h"
 #include "gststitchblend.h"
 #include "gststitchcalib.h"
@@ -15,6 +16,7 @@ static gboolean plugin_init(GstPlugin* plugin) {
   ok |= GST_ELEMENT_REGISTER(stitchflowwarp, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchblend, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchbin, plugin);  // after its children
+  ok |= GST_ELEMENT_REGISTER(stitch360sink, plugin);
   return ok;
 }
 

@@ -5,6 +5,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "stitch/rig/projection_math.hpp"
+
 namespace stitch_cuda {
 
 constexpr int kMaxViews = 16;
@@ -23,6 +25,8 @@ struct ViewGeometry {
   float output_to_angles[4];   // non-planar: a = [0] x + [1], b = [2] y + [3]
   int wrap_w;                  // > 0: the view crosses the 360-degree wrap and reaches only
   float span_x0, span_x1;      // the columns [span_x0, span_x1] (unwrapped, modulo wrap_w)
+  int has_lens;                // lens (issue 15): output_to_camera yields the camera-frame ray and
+  stitch_projection::LensParams<float> lens;  // the lens the raw pixel (canvas_to_lens_camera)
 };
 
 // dst (roi-sized) = camera frame `src` sampled where output pixel roi + (x, y) maps to.

@@ -19,7 +19,7 @@ cv::Mat position_weight_map(const ViewPlacement& v) {
       for (int x = 0; x < v.roi.width; ++x) {
         const double ox = v.roi.x + x;
         double u, vv;
-        pw[x] = view_to_camera(v, ox, oy, u, vv) ? position_weight(u, vv, v.camera_width, v.camera_height) : 0.f;
+        pw[x] = view_to_camera(v, ox, oy, u, vv) ? view_position_weight(v, u, vv) : 0.f;
       }
     }
   });

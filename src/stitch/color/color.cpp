@@ -1,5 +1,6 @@
 #include "stitch/color/color.hpp"
 #include "stitch/rig/canvas_map.hpp"
+#include "stitch/rig/lens.hpp"
 #include "stitch/rig/overlap.hpp"
 
 #include <Eigen/Dense>
@@ -16,6 +17,8 @@ bool in_image(const CameraCanvasMap& m, const Eigen::Vector2d& p, int w, int h, 
   if (!m.to_camera(p, q)) return false;
   x = q.x();
   y = q.y();
+  // Lenses (issue 15): outside the image circle the frame is black, not scene.
+  if (m.lens && !lens_sees(m.camera, x, y)) return false;
   return x >= 1 && y >= 1 && x <= w - 2 && y <= h - 2;
 }
 

@@ -22,6 +22,11 @@ inline stitch_cuda::ViewGeometry to_device_geometry(const ViewPlacement& v) {
   g.wrap_w = v.wrap_width;
   g.span_x0 = float(v.span_x0);
   g.span_x1 = float(v.span_x1);
+  g.has_lens = v.has_lens() ? 1 : 0;
+  const auto& l = v.lens;
+  g.lens = {l.model, float(l.fx), float(l.fy), float(l.cx), float(l.cy), float(l.k1), float(l.k2), float(l.k3),
+            float(l.k4), float(l.p1), float(l.p2), float(l.limit < 1e30 ? l.limit : 1e30), float(l.circle_cx),
+            float(l.circle_cy), float(l.circle_r)};
   return g;
 }
 

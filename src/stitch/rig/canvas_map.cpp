@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "stitch/rig/lens.hpp"
 #include "stitch/rig/projection_math.hpp"
 
 namespace stitch {
@@ -23,13 +24,25 @@ CameraCanvasMap projected_map(const Rig& rig, const Camera& c, double scale, dou
   m.origin_x = ox;
   m.origin_y = oy;
   m.period = 2 * kPi * scale;
+  m.camera = c;
+  m.lens = stitch_projection::has_lens(lens_params(c));
   return m;
 }
 
-// The image border, clockwise from the top-left corner, kOutlineSteps samples per edge.
+// The image border, clockwise from the top-left corner, kOutlineSteps samples per edge. With an
+// image circle: its rim, clipped to the frame.
 std::vector<Eigen::Vector2d> border_samples(const Camera& c) {
   const double w = c.width - 1, h = c.height - 1;
   std::vector<Eigen::Vector2d> pts;
+  if (c.lens.circle) {
+    const LensCircle& k = *c.lens.circle;
+    const double r = k.radius - 1;  // just inside the rim
+    for (int s = 0; s < 4 * kOutlineSteps; ++s) {
+      const double a = 2 * kPi * s / (4 * kOutlineSteps);
+      pts.emplace_back(std::clamp(k.cx + r * std::sin(-a + kPi), 0.0, w), std::clamp(k.cy + r * std::cos(-a + kPi), 0.0, h));
+    }
+    return pts;
+  }
   for (int k = 0; k < kOutlineSteps; ++k) pts.emplace_back(w * k / kOutlineSteps, 0);
   for (int k = 0; k < kOutlineSteps; ++k) pts.emplace_back(w, h * k / kOutlineSteps);
   for (int k = 0; k < kOutlineSteps; ++k) pts.emplace_back(w - w * k / kOutlineSteps, h);
@@ -39,6 +52,10 @@ std::vector<Eigen::Vector2d> border_samples(const Camera& c) {
 
 // True when the rig direction `ray` lands inside the camera's image.
 bool sees(const Camera& c, const Eigen::Vector3d& ray) {
+  if (stitch_projection::has_lens(lens_params(c))) {
+    Eigen::Vector2d q;
+    return lens_project(c, c.R().transpose() * ray, q) && lens_sees(c, q.x(), q.y());
+  }
   const Eigen::Vector3d p = c.K() * (c.R().transpose() * ray);
   if (!(p.z() > 1e-9)) return false;
   const double u = p.x() / p.z(), v = p.y() / p.z();
@@ -65,7 +82,12 @@ std::vector<Eigen::Vector2d> projected_outline(const Rig& rig, int cam, const Ca
     ymax = std::max(ymax, q.y());
     out.push_back(q);
   }
-  if (north || south) {
+  if (north && south) {
+    // Both poles (a fisheye wider than 180 degrees): every longitude, pole to pole.
+    const double x0 = centre.x() - 0.5 * m.period, x1 = centre.x() + 0.5 * m.period;
+    const double y0 = m.origin_y - 0.5 * kPi * m.scale, y1 = m.origin_y + 0.5 * kPi * m.scale;
+    out = {{x0, y0}, {x1, y0}, {x1, y1}, {x0, y1}};
+  } else if (north || south) {
     // The view holds a pole: on the canvas it covers a full band from that pole.
     const double pole_y = m.origin_y + (north ? -0.5 : 0.5) * kPi * m.scale;
     const double far_y = north ? ymax : ymin;
@@ -87,6 +109,20 @@ bool apply_in_front(const Eigen::Matrix3d& H, const Eigen::Vector2d& p, Eigen::V
 }  // namespace
 
 bool CameraCanvasMap::to_canvas(const Eigen::Vector2d& pixel, Eigen::Vector2d& canvas) const {
+  if (lens) {
+    Eigen::Vector3d ray;
+    if (!lens_unproject(camera, pixel, ray)) return false;
+    if (kind == Projection::Plane) {
+      if (!(ray.z() > 1e-9)) return false;
+      const Eigen::Vector3d ideal = camera.K() * (ray / ray.z());
+      return apply_in_front(H, ideal.head<2>(), canvas);
+    }
+    const Eigen::Vector3d r = camera.R() * ray;
+    double a, b;
+    if (!stitch_projection::ray_to_angles(static_cast<int>(kind), r.x(), r.y(), r.z(), a, b)) return false;
+    canvas = {origin_x + scale * a, origin_y + scale * b};
+    return true;
+  }
   if (kind == Projection::Plane) return apply_in_front(H, pixel, canvas);
   const Eigen::Vector3d r = RKinv * Eigen::Vector3d(pixel.x(), pixel.y(), 1.0);
   double a, b;
@@ -96,6 +132,17 @@ bool CameraCanvasMap::to_canvas(const Eigen::Vector2d& pixel, Eigen::Vector2d& c
 }
 
 bool CameraCanvasMap::to_camera(const Eigen::Vector2d& canvas, Eigen::Vector2d& pixel) const {
+  if (lens) {
+    if (kind == Projection::Plane) {
+      const Eigen::Vector3d h = H_inv * Eigen::Vector3d(canvas.x(), canvas.y(), 1.0);
+      if (!(h.z() > 1e-12)) return false;
+      return lens_project(camera, camera.K().inverse() * h, pixel);
+    }
+    Eigen::Vector3d ray;
+    stitch_projection::angles_to_ray(static_cast<int>(kind), (canvas.x() - origin_x) / scale, (canvas.y() - origin_y) / scale,
+                                     ray.x(), ray.y(), ray.z());
+    return lens_project(camera, camera.R().transpose() * ray, pixel);
+  }
   if (kind == Projection::Plane) return apply_in_front(H_inv, canvas, pixel);
   const double angle[4] = {1 / scale, -origin_x / scale, 1 / scale, -origin_y / scale};
   const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> M = KRt;
@@ -110,10 +157,32 @@ CameraCanvasMap camera_canvas_map(const Rig& rig, int cam) {
   CameraCanvasMap m;
   m.H = *c.homography;
   m.H_inv = m.H.inverse();
+  m.camera = c;
+  m.lens = stitch_projection::has_lens(lens_params(c));
   return m;
 }
 
 std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
+  if (rig.planar() && stitch_projection::has_lens(lens_params(rig.cameras.at(static_cast<std::size_t>(cam))))) {
+    // The border, undistorted: curved on the canvas. A plane holds no ray at 90 degrees or more,
+    // so rays are pulled in to kPlaneMaxTheta from the camera's axis.
+    constexpr double kPlaneMaxTheta = 75.0 * kPi / 180.0;
+    const Camera& c = rig.cameras[static_cast<std::size_t>(cam)];
+    const Eigen::Matrix3d HK = *c.homography * c.K();
+    std::vector<Eigen::Vector2d> out;
+    for (const auto& p : border_samples(c)) {
+      Eigen::Vector3d ray;
+      if (!lens_unproject(c, p, ray)) continue;
+      const double theta = std::atan2(ray.head<2>().norm(), ray.z());
+      if (theta > kPlaneMaxTheta) {
+        const Eigen::Vector2d dir = ray.head<2>().normalized();
+        ray = {dir.x() * std::sin(kPlaneMaxTheta), dir.y() * std::sin(kPlaneMaxTheta), std::cos(kPlaneMaxTheta)};
+      }
+      Eigen::Vector2d q;
+      if (apply_in_front(HK, (ray.head<2>() / ray.z()).eval(), q)) out.push_back(q);
+    }
+    return out;
+  }
   if (rig.planar()) {
     const auto q = camera_canvas_corners(rig.cameras.at(static_cast<std::size_t>(cam)));
     return {q.begin(), q.end()};
@@ -182,11 +251,19 @@ void layout_projected_canvas(Rig& rig) {
     cw = std::ceil(maxx - std::floor(minx)) + 1;
     rig.canvas_origin_x = -std::floor(minx);
   }
-  const double ch = std::ceil(maxy - std::floor(miny)) + 1;
+  double ch = std::ceil(maxy - std::floor(miny)) + 1;
+  // Lenses (issue 15): a spherical canvas covered all round and pole to pole is the full sphere,
+  // kept exactly 2:1 (equirectangular: row y at latitude ((y + 0.5) / height - 0.5) pi).
+  const bool full_sphere = wrap && rig.projection_kind() == Projection::Spherical &&
+                           miny <= -0.5 * kPi * scale + 1.0 && maxy >= 0.5 * kPi * scale - 1.0;
+  if (full_sphere) {
+    ch = cw / 2;
+    miny = -0.5 * (ch - 1);  // origin_y = ch / 2 - 0.5 below
+  }
   if (cw > kMaxSide || ch > kMaxSide || cw * ch > 16.0 * input_area)
     throw RigError("degenerate geometry: the " + rig.projection + " canvas would be " + std::to_string(int(cw)) +
                    "x" + std::to_string(int(ch)) + " pixels (views close to the cylinder's axis?)");
-  rig.canvas_origin_y = -std::floor(miny);
+  rig.canvas_origin_y = full_sphere ? 0.5 * ch - 0.5 : -std::floor(miny);
   rig.canvas_scale = scale;
   rig.canvas_wrap = wrap;
   rig.canvas_width = static_cast<int>(cw);

@@ -17,13 +17,18 @@ struct CameraCanvasMap {
   Eigen::Matrix3d RKinv = Eigen::Matrix3d::Identity(); // non-planar: camera pixel -> rig ray
   double scale = 1, origin_x = 0, origin_y = 0;
   double period = 0;  // canvas pixels per 360 degrees (non-planar)
+  // The camera's lens (issue 15): pixels are raw camera pixels; with a lens to_canvas undistorts
+  // (iteratively) and to_camera distorts. Pinhole cameras keep the plain mappings above.
+  Camera camera;
+  bool lens = false;
 
   // False where the mapping has no answer (behind the camera or the canvas plane).
   bool to_canvas(const Eigen::Vector2d& pixel, Eigen::Vector2d& canvas) const;
   bool to_camera(const Eigen::Vector2d& canvas, Eigen::Vector2d& pixel) const;
 };
 
-// The map of camera `cam` of a calibrated rig (planar: needs the homography).
+// The map of camera `cam` of a calibrated rig (planar: needs the homography). Pixels are raw
+// camera pixels (the lens applied).
 CameraCanvasMap camera_canvas_map(const Rig& rig, int cam);
 
 // Canvas polygon around the camera's image (planar: its four corners; non-planar: its border

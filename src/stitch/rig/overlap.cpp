@@ -20,7 +20,10 @@ std::vector<cv::Point2f> canvas_overlap(const Camera& a, const Camera& b, float*
 }
 
 std::vector<cv::Point2f> canvas_overlap(const Rig& rig, int a, int b, float* area) {
-  if (rig.planar()) return canvas_overlap(rig.cameras.at(a), rig.cameras.at(b), area);
+  if (rig.planar() && rig.cameras.at(a).lens.pinhole() && rig.cameras.at(b).lens.pinhole() &&
+      !rig.cameras[a].lens.circle && !rig.cameras[b].lens.circle)
+    return canvas_overlap(rig.cameras.at(a), rig.cameras.at(b), area);
+  // Lenses (curved borders) and non-planar footprints: convex hulls of the outlines.
   auto hull = [&](int cam, double shift) {
     std::vector<cv::Point2f> pts, h;
     for (const auto& p : camera_canvas_outline(rig, cam)) pts.emplace_back(float(p.x() + shift), float(p.y()));

@@ -23,6 +23,8 @@ STITCH_HD float p_atan2(float y, float x) { return atan2f(y, x); }
 STITCH_HD double p_atan2(double y, double x) { return atan2(y, x); }
 STITCH_HD float p_sqrt(float x) { return sqrtf(x); }
 STITCH_HD double p_sqrt(double x) { return sqrt(x); }
+STITCH_HD float p_abs(float x) { return fabsf(x); }
+STITCH_HD double p_abs(double x) { return fabs(x); }
 
 // Direction (not normalised) of the ray with canvas angles (a, b).
 template <typename T>
@@ -63,5 +65,103 @@ STITCH_HD bool canvas_to_camera(int kind, const T* angle, const T* m, T x, T y, 
   v = (m[3] * rx + m[4] * ry + m[5] * rz) / Z;
   return true;
 }
+
+// --- lens (issue 15) -------------------------------------------------------------------------
+// A camera's lens between its camera-frame ray and its raw pixel, exactly as OpenCV's
+// projectPoints (radtan) and fisheye::projectPoints (fisheye): closed form, no iteration, so the
+// gather warps (canvas -> raw pixel) stay one pass. The inverse (raw pixel -> ray) is iterative
+// and host-only (stitch/rig/lens.hpp).
+enum LensModel : int { kLensPinhole = 0, kLensRadtan = 1, kLensFisheye = 2 };
+
+template <typename T>
+struct LensParams {
+  int model;        // LensModel
+  T fx, fy, cx, cy;
+  T k1, k2, k3, k4;  // radtan: k1 k2 k3 (k4 unused); fisheye: k1..k4
+  T p1, p2;          // radtan tangential
+  // radtan: the largest r^2 (ideal, normalised) before the radius folds back; fisheye: the
+  // largest angle from the axis (radians) the lens sees (monotonic, <= the circle, <= pi).
+  T limit;
+  T circle_cx, circle_cy, circle_r;  // circle_r <= 0: no image circle
+};
+
+// Raw pixel (u, v) of the camera-frame ray (x, y, z); false where the lens does not see it
+// (behind a radtan camera, beyond the fold of its distortion or the fisheye's limit).
+template <typename T>
+STITCH_HD bool lens_project(const LensParams<T>& L, T x, T y, T z, T& u, T& v) {
+  T xd, yd;
+  if (L.model == kLensFisheye) {
+    const T r = p_sqrt(x * x + y * y);
+    const T theta = p_atan2(r, z);
+    if (!(theta <= L.limit)) return false;
+    const T t2 = theta * theta;
+    const T td = theta * (T(1) + t2 * (L.k1 + t2 * (L.k2 + t2 * (L.k3 + t2 * L.k4))));
+    // On the axis theta / r -> 1 / z.
+    const T s = r > T(1e-12) * p_abs(z) ? td / r : T(1) / z;
+    xd = x * s;
+    yd = y * s;
+  } else {
+    if (!(z > T(1e-9))) return false;
+    const T xn = x / z, yn = y / z;
+    if (L.model == kLensRadtan) {
+      const T r2 = xn * xn + yn * yn;
+      if (!(r2 <= L.limit)) return false;
+      const T radial = T(1) + r2 * (L.k1 + r2 * (L.k2 + r2 * L.k3));
+      xd = xn * radial + T(2) * L.p1 * xn * yn + L.p2 * (r2 + T(2) * xn * xn);
+      yd = yn * radial + L.p1 * (r2 + T(2) * yn * yn) + T(2) * L.p2 * xn * yn;
+    } else {
+      xd = xn;
+      yd = yn;
+    }
+  }
+  u = L.fx * xd + L.cx;
+  v = L.fy * yd + L.cy;
+  return true;
+}
+
+// Output pixel (x, y) -> raw camera pixel (u, v) of a view with a lens. `m` maps to the
+// camera-frame ray: planar canvases (kind kPlane) the homogeneous ray of (x, y, 1), non-planar
+// the rig ray of the output's angles. A planar canvas holds only rays in front (z > 0).
+template <typename T>
+STITCH_HD bool canvas_to_lens_camera(int kind, const T* angle, const T* m, const LensParams<T>& L, T x, T y, T& u,
+                                     T& v) {
+  T rx = x, ry = y, rz = T(1);
+  if (kind != kPlane) angles_to_ray(kind, angle[0] * x + angle[1], angle[2] * y + angle[3], rx, ry, rz);
+  const T X = m[0] * rx + m[1] * ry + m[2] * rz;
+  const T Y = m[3] * rx + m[4] * ry + m[5] * rz;
+  const T Z = m[6] * rx + m[7] * ry + m[8] * rz;
+  if (kind == kPlane && !(Z > T(1e-12))) return false;
+  return lens_project(L, X, Y, Z, u, v);
+}
+
+// 1 inside the image circle's centre falling linearly to 0 at its rim (1 when there is none).
+template <typename T>
+STITCH_HD T circle_weight(const LensParams<T>& L, T u, T v) {
+  if (!(L.circle_r > T(0))) return T(1);
+  const T du = u - L.circle_cx, dv = v - L.circle_cy;
+  const T w = T(1) - p_sqrt(du * du + dv * dv) / L.circle_r;
+  return w > T(0) ? w : T(0);
+}
+// The blend weight of raw pixel (u, v) of a w x h view with a lens: the position tent
+// (stitch::position_weight); with an image circle, the circle's tent (1 at its centre, 0 at its
+// rim) bounded by the tent of each image axis (a circle cropped by the frame).
+template <typename T>
+STITCH_HD T lens_position_weight(const LensParams<T>& L, T u, T v, int w, int h) {
+  const T ax = u + T(0.5), bx = T(w) - T(0.5) - u, ay = v + T(0.5), by = T(h) - T(0.5) - v;
+  const T wx = (ax < bx ? ax : bx) / (T(w) * T(0.5)), wy = (ay < by ? ay : by) / (T(h) * T(0.5));
+  if (!(wx > T(0)) || !(wy > T(0))) return T(0);
+  if (L.circle_r > T(0)) {
+    const T c = circle_weight(L, u, v), m = wx < wy ? wx : wy;
+    return c < m ? c : m;
+  }
+  return (wx < T(1) ? wx : T(1)) * (wy < T(1) ? wy : T(1));
+}
+
+// Whether a view needs the lens path (a distortion model or an image circle).
+template <typename T>
+STITCH_HD bool has_lens(const LensParams<T>& L) {
+  return L.model != kLensPinhole || L.circle_r > T(0);
+}
+// --- end lens ----------------------------------------------------------------------------------
 
 }  // namespace stitch_projection

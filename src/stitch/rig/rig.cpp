@@ -2,9 +2,14 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <cctype>
 #include <cmath>
+#include <iterator>
 
 #include "stitch/rig/canvas_map.hpp"
+#include "stitch/rig/lens.hpp"
+#include "stitch/rig/opencv_yaml.hpp"
+#include "stitch/rig/pto.hpp"
 #include <cstdio>
 #include <fstream>
 #include <limits>
@@ -46,6 +51,57 @@ int get_int(const json& obj, const char* key, const std::string& where, bool req
                     ", " + std::to_string(hi) + "]");
   return static_cast<int>(v);
 }
+
+// --- lens (issue 15) -------------------------------------------------------------------------
+Lens lens_from_json(const json& j, const std::string& where) {
+  if (!j.is_object()) fail(where, "\"lens\" must be an object");
+  Lens l;
+  auto m = j.find("model");
+  if (m == j.end() || !m->is_string()) fail(where, "\"lens\" needs a \"model\" (pinhole, radtan or fisheye)");
+  const std::string model = m->get<std::string>();
+  const char* keys_radtan[] = {"k1", "k2", "k3", "p1", "p2"};
+  const char* keys_fisheye[] = {"k1", "k2", "k3", "k4"};
+  std::vector<const char*> keys;
+  if (model == "pinhole") l.model = Lens::Model::Pinhole;
+  else if (model == "radtan") l.model = Lens::Model::Radtan, keys.assign(std::begin(keys_radtan), std::end(keys_radtan));
+  else if (model == "fisheye") l.model = Lens::Model::Fisheye, keys.assign(std::begin(keys_fisheye), std::end(keys_fisheye));
+  else fail(where, "lens model \"" + model + "\" is not supported (supported: pinhole, radtan, fisheye)");
+  const std::string lw = where + ": lens";
+  bool any = false;
+  for (const char* k : keys) any |= j.contains(k);
+  l.k1 = get_number(j, "k1", lw, false);
+  l.k2 = get_number(j, "k2", lw, false);
+  l.k3 = get_number(j, "k3", lw, false);
+  if (l.model == Lens::Model::Fisheye) l.k4 = get_number(j, "k4", lw, false);
+  if (l.model == Lens::Model::Radtan) {
+    l.p1 = get_number(j, "p1", lw, false);
+    l.p2 = get_number(j, "p2", lw, false);
+  }
+  l.estimate = !keys.empty() && !any;
+  if (auto c = j.find("circle"); c != j.end()) {
+    if (!c->is_object()) fail(lw, "\"circle\" must be an object {cx, cy, radius}");
+    LensCircle k;
+    k.cx = get_number(*c, "cx", lw + " circle", true);
+    k.cy = get_number(*c, "cy", lw + " circle", true);
+    k.radius = get_number(*c, "radius", lw + " circle", true);
+    l.circle = k;
+  }
+  return l;
+}
+
+json lens_to_json(const Lens& l) {
+  json j = {{"model", lens_model_name(l.model)}};
+  if (!l.estimate) {
+    if (l.model == Lens::Model::Radtan) {
+      j["k1"] = l.k1, j["k2"] = l.k2, j["k3"] = l.k3, j["p1"] = l.p1, j["p2"] = l.p2;
+    } else if (l.model == Lens::Model::Fisheye) {
+      j["k1"] = l.k1, j["k2"] = l.k2, j["k3"] = l.k3, j["k4"] = l.k4;
+    }
+  }
+  if (l.circle) j["circle"] = {{"cx", l.circle->cx}, {"cy", l.circle->cy}, {"radius", l.circle->radius}};
+  return j;
+}
+// --- end lens ----------------------------------------------------------------------------------
 
 Camera camera_from_json(const json& j, int index) {
   const std::string where = "camera " + std::to_string(index);
@@ -89,10 +145,36 @@ Camera camera_from_json(const json& j, int index) {
       fail(where, "\"time_offset_ns\" must be an integer number of ns within a day");
     c.time_offset_ns = it->get<int64_t>();
   }
+  // --- lens (issue 15)
+  if (auto it = j.find("lens"); it != j.end()) {
+    c.lens = lens_from_json(*it, where);
+    const std::string problem = lens_problem(c);
+    if (!problem.empty()) fail(where, problem);
+  }
+  // --- end lens
   return c;
 }
 
 }  // namespace
+
+// --- lens (issue 15)
+const char* lens_model_name(Lens::Model m) {
+  switch (m) {
+    case Lens::Model::Pinhole: return "pinhole";
+    case Lens::Model::Radtan: return "radtan";
+    case Lens::Model::Fisheye: return "fisheye";
+  }
+  return "?";
+}
+
+bool Lens::operator==(const Lens& o) const {
+  const bool same_circle = bool(circle) == bool(o.circle) &&
+                           (!circle || (circle->cx == o.circle->cx && circle->cy == o.circle->cy &&
+                                        circle->radius == o.circle->radius));
+  return model == o.model && k1 == o.k1 && k2 == o.k2 && k3 == o.k3 && k4 == o.k4 && p1 == o.p1 && p2 == o.p2 &&
+         estimate == o.estimate && same_circle;
+}
+// --- end lens
 
 Eigen::Matrix3d Camera::K() const {
   Eigen::Matrix3d k;
@@ -190,6 +272,17 @@ Rig rig_from_json_string(const std::string& text) {
 }
 
 Rig rig_load(const std::string& path) {
+  // --- lens (issue 15): other calibration formats by extension
+  auto ends_with = [&](const char* ext) {
+    const std::string e(ext);
+    if (path.size() < e.size()) return false;
+    std::string tail = path.substr(path.size() - e.size());
+    std::transform(tail.begin(), tail.end(), tail.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
+    return tail == e;
+  };
+  if (ends_with(".yaml") || ends_with(".yml")) return rig_load_opencv_yaml(path);
+  if (ends_with(".pto")) return rig_load_pto(path);
+  // --- end lens
   std::ifstream in(path, std::ios::binary);
   if (!in) throw RigError("cannot open rig file \"" + path + "\"");
   std::ostringstream ss;
@@ -229,6 +322,7 @@ std::string rig_to_json_string(const Rig& rig) {
       cj["homography"] = h;
     }
     if (c.time_offset_ns) cj["time_offset_ns"] = *c.time_offset_ns;
+    if (!c.lens.pinhole() || c.lens.circle) cj["lens"] = lens_to_json(c.lens);  // lens (issue 15)
     j["cameras"].push_back(cj);
   }
   return j.dump(2);
@@ -317,7 +411,14 @@ void rig_layout_canvas(Rig& rig) {
     std::string problem = homography_problem(*c.homography, c.width, c.height);
     if (!problem.empty())
       throw RigError("camera " + std::to_string(i) + ": degenerate homography: " + problem);
-    for (const auto& q : camera_canvas_corners(c)) {
+    std::vector<Eigen::Vector2d> outline;  // lens (issue 15): the undistorted border
+    if (c.lens.pinhole() && !c.lens.circle) {
+      const auto q4 = camera_canvas_corners(c);
+      outline.assign(q4.begin(), q4.end());
+    } else {
+      outline = camera_canvas_outline(rig, static_cast<int>(i));
+    }
+    for (const auto& q : outline) {
       minx = std::min(minx, q.x());
       miny = std::min(miny, q.y());
       maxx = std::max(maxx, q.x());
@@ -370,6 +471,11 @@ bool rig_adapt_to_sizes(Rig& rig, const std::vector<std::array<int, 2>>& sizes) 
     c.fy /= sy;
     c.cx = (c.cx + 0.5) / sx - 0.5;
     c.cy = (c.cy + 0.5) / sy - 0.5;
+    if (c.lens.circle) {  // lens (issue 15)
+      c.lens.circle->cx = (c.lens.circle->cx + 0.5) / sx - 0.5;
+      c.lens.circle->cy = (c.lens.circle->cy + 0.5) / sy - 0.5;
+      c.lens.circle->radius /= 0.5 * (sx + sy);
+    }
     c.width = w;
     c.height = h;
     changed = true;

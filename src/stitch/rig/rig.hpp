@@ -24,6 +24,27 @@ struct RigError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// --- lens (issue 15) -------------------------------------------------------------------------
+// Distortion between the raw pixel and the ideal pinhole pixel (fx, fy, cx, cy), as OpenCV:
+//   radtan (cv::projectPoints): x' = x r(1 + k1 r^2 + k2 r^4 + k3 r^6) + tangential(p1, p2);
+//   fisheye (cv::fisheye, Kannala-Brandt): theta_d = theta (1 + k1 theta^2 + .. + k4 theta^8),
+//     theta = the ray's angle from the optical axis (may exceed 90 degrees on curved canvases).
+// "circle": the image circle (raw pixels); pixels outside it carry no weight.
+struct LensCircle {
+  double cx = 0, cy = 0, radius = 0;
+};
+struct Lens {
+  enum class Model { Pinhole, Radtan, Fisheye };
+  Model model = Model::Pinhole;
+  double k1 = 0, k2 = 0, k3 = 0, k4 = 0, p1 = 0, p2 = 0;
+  std::optional<LensCircle> circle;
+  bool estimate = false;  // a rough rig's model without coefficients: "estimate them"
+  bool pinhole() const { return model == Model::Pinhole; }
+  bool operator==(const Lens& o) const;
+};
+const char* lens_model_name(Lens::Model m);
+// --- end lens ----------------------------------------------------------------------------------
+
 struct Camera {
   int width = 0, height = 0;
   double fx = 0, fy = 0, cx = 0, cy = 0;
@@ -33,6 +54,7 @@ struct Camera {
   // Time alignment (stitchsync): ns added to this camera's running time so that its frames
   // line up with camera 0's (GstPad offset semantics); absent when never measured.
   std::optional<int64_t> time_offset_ns;
+  Lens lens;                                 // pinhole unless the rig says otherwise (issue 15)
 
   Eigen::Matrix3d K() const;
   Eigen::Matrix3d R() const;  // camera -> rig rotation
@@ -64,6 +86,8 @@ struct Rig {
 
 // JSON I/O. Throws RigError with a message that names the problem (and the camera index).
 Rig rig_from_json_string(const std::string& text);
+// By extension: .yaml/.yml (OpenCV calibration, stitch/rig/opencv_yaml.hpp), .pto (Hugin/PTGui,
+// stitch/rig/pto.hpp), anything else the JSON contract.
 Rig rig_load(const std::string& path);
 std::string rig_to_json_string(const Rig& rig);
 void rig_save(const Rig& rig, const std::string& path);  // atomic: write temp + rename

@@ -5,13 +5,20 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/blend/blender.hpp"
 #include "stitch/rig/canvas_map.hpp"
+#include "stitch/rig/lens.hpp"
 
 namespace stitch {
 
 namespace {
 int even_at_least_2(double v) { return std::max(2, 2 * static_cast<int>(std::ceil(v / 2.0 - 1e-9))); }
 }  // namespace
+
+float view_position_weight(const ViewPlacement& v, double u, double w) {
+  if (v.has_lens()) return float(stitch_projection::lens_position_weight(v.lens, u, w, v.camera_width, v.camera_height));
+  return position_weight(u, w, v.camera_width, v.camera_height);
+}
 
 Rect largest_covered_rect(const Rig& rig) {
   // Rasterise the coverage at a reduced scale, then the classic max-rectangle-in-histogram.
@@ -25,7 +32,8 @@ Rect largest_covered_rect(const Rig& rig) {
       std::vector<cv::Point> poly;
       for (const auto& q : outline)
         poly.emplace_back(int(std::lround((q.x() + k * rig.canvas_width) * scale)), int(std::lround(q.y() * scale)));
-      if (rig.planar()) cv::fillConvexPoly(cover, poly, cv::Scalar(1));
+      if (rig.planar() && rig.cameras[i].lens.pinhole() && !rig.cameras[i].lens.circle)
+        cv::fillConvexPoly(cover, poly, cv::Scalar(1));
       else cv::fillPoly(cover, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(1));
     }
   }
@@ -107,13 +115,15 @@ std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out
     ViewPlacement v;
     v.camera_width = cam.width;
     v.camera_height = cam.height;
+    v.lens = lens_params(cam);
     if (rig.planar()) {
       const Eigen::Matrix3d cam_to_out = A * cam.homography.value();
       v.output_to_camera = cam_to_out.inverse();
+      if (v.has_lens()) v.output_to_camera = cam.K().inverse() * v.output_to_camera;  // -> camera ray
     } else {
       // output -> canvas -> angles, both axis-aligned: a = ((x - A02) / A00 - origin_x) / scale.
       v.projection = rig.projection_kind();
-      v.output_to_camera = cam.K() * cam.R().transpose();
+      v.output_to_camera = v.has_lens() ? Eigen::Matrix3d(cam.R().transpose()) : Eigen::Matrix3d(cam.K() * cam.R().transpose());
       const double s = rig.canvas_scale;
       v.output_to_angles = {1 / (A(0, 0) * s), -(A(0, 2) / A(0, 0) + rig.canvas_origin_x) / s, 1 / (A(1, 1) * s),
                             -(A(1, 2) / A(1, 1) + rig.canvas_origin_y) / s};

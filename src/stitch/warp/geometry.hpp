@@ -37,11 +37,21 @@ struct ViewPlacement {
   // Lets the kernels skip the columns it cannot see. wrap_width = 0 for every other view.
   int wrap_width = 0;
   double span_x0 = 0, span_x1 = 0;
+  // The camera's lens (issue 15). A view with one (stitch_projection::has_lens) maps through
+  // canvas_to_lens_camera: output_to_camera then yields the camera-frame ray (planar:
+  // K^-1 (output -> ideal pixel); non-planar: R^T), and the lens gives the raw pixel.
+  stitch_projection::LensParams<double> lens{};
+  bool has_lens() const { return stitch_projection::has_lens(lens); }
 };
 
 // Camera pixel (u, v) of output pixel (x, y); false behind the camera (or the canvas plane).
 inline bool view_to_camera(const ViewPlacement& v, double x, double y, double& u, double& w) {
   const Eigen::Matrix3d& M = v.output_to_camera;
+  if (v.has_lens()) {
+    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> m = M;
+    return stitch_projection::canvas_to_lens_camera(static_cast<int>(v.projection), v.output_to_angles.data(), m.data(),
+                                                    v.lens, x, y, u, w);
+  }
   if (v.projection == Projection::Plane) {
     const double Z = M(2, 0) * x + M(2, 1) * y + M(2, 2);
     if (!(Z > 1e-12)) return false;
@@ -59,6 +69,10 @@ inline bool view_to_camera(const ViewPlacement& v, double x, double y, double& u
   w = c.y() / c.z();
   return true;
 }
+
+// The blend weight of camera pixel (u, v) of the view: the position tent, or with a lens
+// lens_position_weight (the image circle). 0 outside the image.
+float view_position_weight(const ViewPlacement& v, double u, double w);
 
 // Output size and canvas->output transform. requested_w/h = 0 keep the canvas (or crop) size;
 // one of them set keeps the aspect ratio; both set fit the canvas inside, centred.

@@ -1,0 +1,228 @@
+#include "stitch/rig/lens.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace stitch {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kNoLimit = 1e30;
+
+// The first x in (0, hi] where slope(x) <= 0 (a coarse scan, then bisection); `none` if none.
+template <typename F>
+double first_fold(F slope, double hi, double step, double none) {
+  double prev = 0;
+  for (double x = step; x <= hi + 1e-12; x += step) {
+    if (slope(x) <= 0) {
+      double lo = prev, up = x;
+      for (int it = 0; it < 50; ++it) {
+        const double mid = 0.5 * (lo + up);
+        (slope(mid) <= 0 ? up : lo) = mid;
+      }
+      return lo;
+    }
+    prev = x;
+  }
+  return none;
+}
+
+double radtan_limit(const Lens& l) {
+  // The radius r (1 + k1 r^2 + k2 r^4 + k3 r^6) grows while 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6 > 0.
+  const double r = first_fold(
+      [&](double x) {
+        const double r2 = x * x;
+        return 1 + r2 * (3 * l.k1 + r2 * (5 * l.k2 + r2 * 7 * l.k3));
+      },
+      20.0, 0.01, -1.0);
+  return r < 0 ? kNoLimit : r * r;
+}
+
+double fisheye_limit(const Lens& l) {
+  return first_fold(
+      [&](double t) {
+        const double t2 = t * t;
+        return 1 + t2 * (3 * l.k1 + t2 * (5 * l.k2 + t2 * (7 * l.k3 + t2 * 9 * l.k4)));
+      },
+      kPi, 0.005, kPi);
+}
+
+double fisheye_theta_d(const Lens& l, double t) {
+  const double t2 = t * t;
+  return t * (1 + t2 * (l.k1 + t2 * (l.k2 + t2 * (l.k3 + t2 * l.k4))));
+}
+
+}  // namespace
+
+stitch_projection::LensParams<double> lens_params(const Camera& c) {
+  stitch_projection::LensParams<double> p{};
+  const Lens& l = c.lens;
+  p.model = l.model == Lens::Model::Radtan ? stitch_projection::kLensRadtan
+            : l.model == Lens::Model::Fisheye ? stitch_projection::kLensFisheye
+                                              : stitch_projection::kLensPinhole;
+  p.fx = c.fx;
+  p.fy = c.fy;
+  p.cx = c.cx;
+  p.cy = c.cy;
+  p.k1 = l.k1;
+  p.k2 = l.k2;
+  p.k3 = l.k3;
+  p.k4 = l.k4;
+  p.p1 = l.p1;
+  p.p2 = l.p2;
+  p.limit = l.model == Lens::Model::Radtan ? radtan_limit(l) : l.model == Lens::Model::Fisheye ? fisheye_limit(l) : kNoLimit;
+  if (l.circle) {
+    p.circle_cx = l.circle->cx;
+    p.circle_cy = l.circle->cy;
+    p.circle_r = l.circle->radius;
+  }
+  return p;
+}
+
+stitch_projection::LensParams<float> lens_params_f(const Camera& c) {
+  const auto d = lens_params(c);
+  stitch_projection::LensParams<float> f{};
+  f.model = d.model;
+  f.fx = float(d.fx), f.fy = float(d.fy), f.cx = float(d.cx), f.cy = float(d.cy);
+  f.k1 = float(d.k1), f.k2 = float(d.k2), f.k3 = float(d.k3), f.k4 = float(d.k4);
+  f.p1 = float(d.p1), f.p2 = float(d.p2);
+  f.limit = float(std::min(d.limit, 1e30));
+  f.circle_cx = float(d.circle_cx), f.circle_cy = float(d.circle_cy), f.circle_r = float(d.circle_r);
+  return f;
+}
+
+bool lens_project(const Camera& c, const Eigen::Vector3d& ray, Eigen::Vector2d& raw) {
+  return stitch_projection::lens_project(lens_params(c), ray.x(), ray.y(), ray.z(), raw.x(), raw.y());
+}
+
+bool lens_unproject(const Camera& c, const Eigen::Vector2d& raw, Eigen::Vector3d& ray) {
+  const double xd = (raw.x() - c.cx) / c.fx, yd = (raw.y() - c.cy) / c.fy;
+  const Lens& l = c.lens;
+  if (l.model == Lens::Model::Pinhole) {
+    ray = Eigen::Vector3d(xd, yd, 1).normalized();
+    return true;
+  }
+  if (l.model == Lens::Model::Fisheye) {
+    const double td = std::hypot(xd, yd), limit = fisheye_limit(l);
+    if (td < 1e-12) {
+      ray = {0, 0, 1};
+      return true;
+    }
+    if (td > fisheye_theta_d(l, limit) + 1e-9) return false;
+    // Newton on theta_d(theta) = td, kept inside [0, limit] where theta_d is monotonic.
+    double t = std::min(td, limit);
+    for (int it = 0; it < 50; ++it) {
+      const double t2 = t * t;
+      const double f = fisheye_theta_d(l, t) - td;
+      const double df = 1 + t2 * (3 * l.k1 + t2 * (5 * l.k2 + t2 * (7 * l.k3 + t2 * 9 * l.k4)));
+      double next = df > 1e-12 ? t - f / df : t;
+      next = std::clamp(next, 0.0, limit);
+      if (std::abs(next - t) < 1e-14) {
+        t = next;
+        break;
+      }
+      t = next;
+    }
+    if (std::abs(fisheye_theta_d(l, t) - td) > 1e-7) return false;
+    const double s = std::sin(t) / td;
+    ray = {xd * s, yd * s, std::cos(t)};
+    return true;
+  }
+  // radtan: Newton on the 2-D distortion, from the distorted point.
+  const double limit = radtan_limit(l);
+  double x = xd, y = yd;
+  for (int it = 0; it < 50; ++it) {
+    const double r2 = x * x + y * y;
+    const double rad = 1 + r2 * (l.k1 + r2 * (l.k2 + r2 * l.k3));
+    const double drad = l.k1 + r2 * (2 * l.k2 + r2 * 3 * l.k3);  // d rad / d r2
+    const double fx = x * rad + 2 * l.p1 * x * y + l.p2 * (r2 + 2 * x * x) - xd;
+    const double fy = y * rad + l.p1 * (r2 + 2 * y * y) + 2 * l.p2 * x * y - yd;
+    const double j00 = rad + 2 * x * x * drad + 2 * l.p1 * y + 6 * l.p2 * x;
+    const double j01 = 2 * x * y * drad + 2 * l.p1 * x + 2 * l.p2 * y;
+    const double j10 = 2 * x * y * drad + 2 * l.p1 * x + 2 * l.p2 * y;
+    const double j11 = rad + 2 * y * y * drad + 6 * l.p1 * y + 2 * l.p2 * x;
+    const double det = j00 * j11 - j01 * j10;
+    if (!(std::abs(det) > 1e-15)) return false;
+    double dx = (j11 * fx - j01 * fy) / det, dy = (j00 * fy - j10 * fx) / det;
+    // Damped: never jump past the fold.
+    for (int k = 0; k < 30 && (x - dx) * (x - dx) + (y - dy) * (y - dy) > limit; ++k) dx *= 0.5, dy *= 0.5;
+    x -= dx;
+    y -= dy;
+    if (dx * dx + dy * dy < 1e-26) break;
+  }
+  const double r2 = x * x + y * y;
+  if (!(r2 <= limit) || !std::isfinite(r2)) return false;
+  Eigen::Vector2d check;
+  if (!lens_project(c, {x, y, 1}, check) || (check - raw).norm() > 1e-4) return false;
+  ray = Eigen::Vector3d(x, y, 1).normalized();
+  return true;
+}
+
+bool undistort_point(const Camera& c, const Eigen::Vector2d& raw, Eigen::Vector2d& ideal) {
+  if (c.lens.pinhole()) {
+    ideal = raw;
+    return true;
+  }
+  Eigen::Vector3d r;
+  if (!lens_unproject(c, raw, r) || !(r.z() > 1e-9)) return false;
+  ideal = {c.fx * r.x() / r.z() + c.cx, c.fy * r.y() / r.z() + c.cy};
+  return true;
+}
+
+bool distort_point(const Camera& c, const Eigen::Vector2d& ideal, Eigen::Vector2d& raw) {
+  return lens_project(c, {(ideal.x() - c.cx) / c.fx, (ideal.y() - c.cy) / c.fy, 1.0}, raw);
+}
+
+std::vector<cv::Point2f> undistort_points(const Camera& c, const std::vector<cv::Point2f>& raw) {
+  std::vector<cv::Point2f> out;
+  out.reserve(raw.size());
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (const auto& p : raw) {
+    Eigen::Vector2d q;
+    if (undistort_point(c, {p.x, p.y}, q)) out.emplace_back(float(q.x()), float(q.y()));
+    else out.emplace_back(nan, nan);
+  }
+  return out;
+}
+
+bool lens_sees(const Camera& c, double u, double v) {
+  if (!(u >= -0.5 && v >= -0.5 && u <= c.width - 0.5 && v <= c.height - 0.5)) return false;
+  if (!c.lens.circle) return true;
+  return std::hypot(u - c.lens.circle->cx, v - c.lens.circle->cy) < c.lens.circle->radius;
+}
+
+std::string lens_problem(const Camera& c) {
+  const Lens& l = c.lens;
+  if (l.circle) {
+    const LensCircle& k = *l.circle;
+    if (!(k.radius > 0)) return "the image circle's radius must be positive";
+    // The circle must overlap the frame.
+    const double nx = std::clamp(k.cx, -0.5, c.width - 0.5), ny = std::clamp(k.cy, -0.5, c.height - 0.5);
+    if (std::hypot(nx - k.cx, ny - k.cy) >= k.radius) return "the image circle lies outside the frame";
+  }
+  if (l.model == Lens::Model::Pinhole) return {};
+  // The raw radius (normalised) of the farthest image corner (or circle rim) must lie before the
+  // distortion folds back.
+  double far = 0;
+  const double xs[2] = {-0.5, c.width - 0.5}, ys[2] = {-0.5, c.height - 0.5};
+  for (double x : xs)
+    for (double y : ys) far = std::max(far, std::hypot((x - c.cx) / c.fx, (y - c.cy) / c.fy));
+  if (l.circle) far = std::min(far, (std::hypot(l.circle->cx - c.cx, l.circle->cy - c.cy) + l.circle->radius) / std::min(c.fx, c.fy));
+  if (l.model == Lens::Model::Radtan) {
+    const double lim = radtan_limit(l);
+    if (lim >= kNoLimit) return {};
+    const double r = std::sqrt(lim), rd = r * (1 + lim * (l.k1 + lim * (l.k2 + lim * l.k3)));
+    if (rd < far * 0.999)
+      return "the distortion coefficients fold the image (the radius stops growing at " + std::to_string(rd) +
+             " focal lengths, inside the image which reaches " + std::to_string(far) + ")";
+    return {};
+  }
+  const double lim = fisheye_limit(l);
+  if (lim < kPi && fisheye_theta_d(l, lim) < far * 0.999)
+    return "the fisheye coefficients fold the image (theta_d stops growing at " + std::to_string(lim * 180 / kPi) +
+           " degrees from the axis)";
+  return {};
+}
+
+}  // namespace stitch

@@ -1,0 +1,45 @@
+// Lenses (issue 15): a camera's raw pixel <-> its ray / ideal pinhole pixel, on the host.
+// The forward direction (ray -> raw pixel) is stitch_projection::lens_project
+// (projection_math.hpp, shared with the kernels); the inverse here is iterative, as
+// cv::undistortPoints and cv::fisheye::undistortPoints.
+#pragma once
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "stitch/rig/projection_math.hpp"
+#include "stitch/rig/rig.hpp"
+
+namespace stitch {
+
+// The kernels' parameters of the camera's lens (limit computed: where the radius folds back).
+stitch_projection::LensParams<double> lens_params(const Camera& c);
+stitch_projection::LensParams<float> lens_params_f(const Camera& c);
+
+// Raw pixel of the camera-frame ray; false where the lens does not see it.
+bool lens_project(const Camera& c, const Eigen::Vector3d& ray, Eigen::Vector2d& raw);
+
+// Unit camera-frame ray of raw pixel `raw` (the inverse of lens_project); false where the
+// iteration finds none (beyond the fold of the distortion, or the fisheye's limit).
+bool lens_unproject(const Camera& c, const Eigen::Vector2d& raw, Eigen::Vector3d& ray);
+
+// Raw pixel -> ideal pinhole pixel (fx, fy, cx, cy) and back. undistort fails for rays at 90
+// degrees or more from the axis (a fisheye's outer ring: no ideal pixel there).
+bool undistort_point(const Camera& c, const Eigen::Vector2d& raw, Eigen::Vector2d& ideal);
+bool distort_point(const Camera& c, const Eigen::Vector2d& ideal, Eigen::Vector2d& raw);
+
+// cv::undistortPoints(..., P = K) for any of our lenses: raw pixels -> ideal pixels. Points with
+// no ideal pixel come back as NaN. The calibrator undistorts keypoints through this before it
+// fits homographies (the planar contract: homographies map ideal pixels).
+std::vector<cv::Point2f> undistort_points(const Camera& c, const std::vector<cv::Point2f>& raw);
+
+// Whether raw pixel (u, v) shows the scene: inside the image and its image circle.
+bool lens_sees(const Camera& c, double u, double v);
+
+// Empty when the lens is usable; else what is wrong (coefficients that fold the radius inside
+// the image, an image circle outside the frame, a negative radius).
+std::string lens_problem(const Camera& c);
+
+}  // namespace stitch

@@ -1,0 +1,129 @@
+// Cameras with lenses rendered from a photo taken as an equirectangular 360-degree panorama
+// (issue 15): exact ground truth for the lens tests, the CUDA comparison and
+// stitch-render-rig --equirect. Header-only (the GPU-host binaries link no test_data.cpp).
+#pragma once
+#include <Eigen/Dense>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "stitch/rig/lens.hpp"
+#include "stitch/rig/projection_math.hpp"
+#include "stitch/rig/rig.hpp"
+
+namespace testdata {
+
+// Equirectangular pixel (px, py) of rig ray angles (a = longitude, b = latitude, +b down):
+// longitude 0 at the middle column, latitude 0 at the middle row.
+inline void equirect_pixel(const cv::Mat& pano, double a, double b, float& px, float& py) {
+  const double scale = pano.cols / (2 * CV_PI);
+  double x = pano.cols * 0.5 - 0.5 + scale * a;
+  x -= std::floor((x + 0.5) / pano.cols) * pano.cols;
+  px = float(x);
+  py = float(pano.rows * 0.5 - 0.5 + scale * b);
+}
+
+// The frame camera `c` (K, R, lens) sees of the panorama; black outside its image circle and
+// where the lens sees nothing. `supersample` > 1 renders bigger and area-averages (anti-aliasing).
+inline cv::Mat render_camera_from_equirect(const cv::Mat& pano, const stitch::Camera& c, int supersample = 2) {
+  const int s = std::max(1, supersample);
+  cv::Mat mx(c.height * s, c.width * s, CV_32F), my(c.height * s, c.width * s, CV_32F);
+  const Eigen::Matrix3d R = c.R();
+  for (int y = 0; y < mx.rows; ++y)
+    for (int x = 0; x < mx.cols; ++x) {
+      const double u = (x + 0.5) / s - 0.5, v = (y + 0.5) / s - 0.5;
+      Eigen::Vector3d ray;
+      if (!stitch::lens_sees(c, u, v) || !stitch::lens_unproject(c, {u, v}, ray)) {
+        mx.at<float>(y, x) = my.at<float>(y, x) = -1e6f;
+        continue;
+      }
+      const Eigen::Vector3d r = R * ray;
+      double a, b;
+      stitch_projection::ray_to_angles(stitch_projection::kSpherical, r.x(), r.y(), r.z(), a, b);
+      equirect_pixel(pano, a, b, mx.at<float>(y, x), my.at<float>(y, x));
+    }
+  cv::Mat big, out;
+  cv::remap(pano, big, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+  if (s == 1) return big;
+  cv::resize(big, out, cv::Size(c.width, c.height), 0, 0, cv::INTER_AREA);
+  return out;
+}
+
+// The ground truth of a spherical canvas of `rig` (laid out): each canvas pixel's angles looked
+// up in the panorama.
+inline cv::Mat equirect_ground_truth(const cv::Mat& pano, const stitch::Rig& rig) {
+  cv::Mat mx(rig.canvas_height, rig.canvas_width, CV_32F), my(rig.canvas_height, rig.canvas_width, CV_32F);
+  for (int y = 0; y < mx.rows; ++y)
+    for (int x = 0; x < mx.cols; ++x)
+      equirect_pixel(pano, (x - rig.canvas_origin_x) / rig.canvas_scale, (y - rig.canvas_origin_y) / rig.canvas_scale,
+                     mx.at<float>(y, x), my.at<float>(y, x));
+  cv::Mat out;
+  cv::remap(pano, out, mx, my, cv::INTER_LINEAR, cv::BORDER_WRAP);
+  return out;
+}
+
+// The ground truth of a plane canvas (laid out): canvas pixel -> reference ideal pixel -> ray -> the panorama.
+inline cv::Mat plane_ground_truth(const cv::Mat& pano, const stitch::Rig& rig) {
+  const stitch::Camera& ref = rig.cameras[rig.reference];
+  const Eigen::Matrix3d M = ref.R() * ref.K().inverse() * ref.homography->inverse();
+  cv::Mat mx(rig.canvas_height, rig.canvas_width, CV_32F), my = mx.clone();
+  for (int y = 0; y < mx.rows; ++y)
+    for (int x = 0; x < mx.cols; ++x) {
+      const Eigen::Vector3d r = M * Eigen::Vector3d(x, y, 1);
+      double a, b;
+      stitch_projection::ray_to_angles(stitch_projection::kSpherical, r.x(), r.y(), r.z(), a, b);
+      equirect_pixel(pano, a, b, mx.at<float>(y, x), my.at<float>(y, x));
+    }
+  cv::Mat gt;
+  cv::remap(pano, gt, mx, my, cv::INTER_LINEAR, cv::BORDER_WRAP);
+  return gt;
+}
+
+// A fisheye camera (equidistant-ish Kannala-Brandt) of side `size` seeing `fov_deg` across its
+// inscribed image circle.
+inline stitch::Camera fisheye_camera(int size, double fov_deg, double k1 = 0.0, double k2 = 0.0) {
+  stitch::Camera c;
+  c.width = c.height = size;
+  c.cx = c.cy = (size - 1) * 0.5;
+  const double radius = size * 0.5 - 1;
+  const double theta = 0.5 * fov_deg * CV_PI / 180.0, t2 = theta * theta;
+  c.fx = c.fy = radius / (theta * (1 + t2 * (k1 + t2 * k2)));  // the rim at theta
+  c.lens.model = stitch::Lens::Model::Fisheye;
+  c.lens.k1 = k1;
+  c.lens.k2 = k2;
+  c.lens.circle = stitch::LensCircle{c.cx, c.cy, radius};
+  return c;
+}
+
+// Back-to-back dual fisheye (yaw 0 and 180) on a spherical canvas of scale `scale`, laid out.
+inline stitch::Rig dual_fisheye_rig(int size, double fov_deg, double scale = 0, double k1 = 0.0, double k2 = 0.0) {
+  stitch::Rig rig;
+  rig.projection = "spherical";
+  for (int i = 0; i < 2; ++i) {
+    stitch::Camera c = fisheye_camera(size, fov_deg, k1, k2);
+    c.yaw_deg = i == 0 ? 0.0 : 180.0;
+    rig.cameras.push_back(c);
+  }
+  rig.reference = 0;
+  rig.canvas_scale = scale;
+  stitch::rig_layout_canvas(rig);
+  return rig;
+}
+
+// n fisheye cameras around the horizon, yaws 360/n apart, laid out on a spherical canvas.
+inline stitch::Rig fisheye_ring(int n, int size, double fov_deg, double scale = 0) {
+  stitch::Rig rig;
+  rig.projection = "spherical";
+  for (int i = 0; i < n; ++i) {
+    stitch::Camera c = fisheye_camera(size, fov_deg, -0.02, 0.001);
+    c.yaw_deg = 360.0 * i / n;
+    if (c.yaw_deg > 180) c.yaw_deg -= 360;
+    c.pitch_deg = i % 2 ? 10.0 : -10.0;
+    rig.cameras.push_back(c);
+  }
+  rig.reference = 0;
+  rig.canvas_scale = scale;
+  stitch::rig_layout_canvas(rig);
+  return rig;
+}
+
+}  // namespace testdata

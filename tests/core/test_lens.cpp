@@ -1,0 +1,408 @@
+// Lenses (issue 15): radtan and fisheye in every per-view mapping against OpenCV, the inverse,
+// the JSON / OpenCV YAML / Hugin .pto loaders, bad lenses, and rigs stitched with their true
+// lenses (planar radtan, dual fisheye to the full sphere) against ground truth. Reads the
+// repository photo as PPM (taken as an equirectangular panorama); links no imgcodecs.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/calib3d.hpp>
+#include <random>
+
+#include "image_compare.hpp"
+#include "lens_rig.hpp"
+#include "ppm.hpp"
+#include "stitch/blend/compositor.hpp"
+#include "stitch/cv_interop.hpp"
+#include "stitch/rig/canvas_map.hpp"
+#include "stitch/rig/lens.hpp"
+#include "stitch/rig/opencv_yaml.hpp"
+#include "stitch/rig/overlap.hpp"
+#include "stitch/rig/pto.hpp"
+#include "stitch/warp/geometry.hpp"
+
+using namespace stitch;
+
+namespace {
+
+Camera radtan_camera(double k1, double k2, double k3, double p1, double p2) {
+  Camera c;
+  c.width = 640;
+  c.height = 480;
+  c.fx = 520;
+  c.fy = 515;
+  c.cx = 322.5;
+  c.cy = 238.0;
+  c.lens.model = Lens::Model::Radtan;
+  c.lens.k1 = k1, c.lens.k2 = k2, c.lens.k3 = k3, c.lens.p1 = p1, c.lens.p2 = p2;
+  return c;
+}
+
+cv::Mat camera_matrix(const Camera& c) { return (cv::Mat_<double>(3, 3) << c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1); }
+
+// Compose the rig's panorama from `frames` on the CPU.
+cv::Mat stitch_cpu(const Rig& rig, std::vector<cv::Mat>& frames) {
+  Compositor comp(Backend::Cpu);
+  comp.prepare(rig, CompositorSettings{});
+  cv::Mat pano(comp.geometry().height, comp.geometry().width, CV_8UC4);
+  std::vector<ImageView> views;
+  for (auto& f : frames) views.push_back(as_view(f));
+  comp.compose(views, as_view(pano));
+  return pano;
+}
+
+
+}  // namespace
+
+TEST(Lens, RadtanMatchesOpenCvProjectPoints) {
+  const double coeffs[][5] = {{-0.35, 0.12, -0.02, 0.001, -0.0005}, {-0.23, 0.055, 0, 0, 0}, {0.1, -0.01, 0, 0.002, 0.001}};
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-0.6, 0.6);
+  for (const auto& k : coeffs) {
+    const Camera c = radtan_camera(k[0], k[1], k[2], k[3], k[4]);
+    std::vector<cv::Point3d> pts;
+    for (int i = 0; i < 500; ++i) pts.emplace_back(u(rng), u(rng), 1.0);
+    std::vector<cv::Point2d> ref;
+    const cv::Mat D = (cv::Mat_<double>(1, 5) << k[0], k[1], k[3], k[4], k[2]);
+    cv::projectPoints(pts, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), camera_matrix(c), D, ref);
+    double worst = 0;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      Eigen::Vector2d q;
+      ASSERT_TRUE(lens_project(c, {pts[i].x, pts[i].y, pts[i].z}, q));
+      worst = std::max(worst, std::hypot(q.x() - ref[i].x, q.y() - ref[i].y));
+      // The float (device) evaluation of the same formula.
+      float fu, fv;
+      ASSERT_TRUE(stitch_projection::lens_project(lens_params_f(c), float(pts[i].x), float(pts[i].y), 1.f, fu, fv));
+      EXPECT_NEAR(fu, ref[i].x, 2e-3);
+      EXPECT_NEAR(fv, ref[i].y, 2e-3);
+    }
+    EXPECT_LT(worst, 1e-3) << "k1 " << k[0];
+  }
+}
+
+TEST(Lens, RadtanPlanarViewMatchesInitUndistortRectifyMap) {
+  // A planar canvas that is the camera's own ideal image: the warp map is OpenCV's undistort map.
+  Rig rig;
+  Camera c = radtan_camera(-0.3, 0.08, 0, 0.001, -0.001);
+  c.homography = Eigen::Matrix3d::Identity();
+  rig.cameras = {c};
+  rig.canvas_width = c.width;
+  rig.canvas_height = c.height;
+  OutputGeometry g;
+  g.width = c.width;
+  g.height = c.height;
+  const ViewPlacement v = place_views(rig, g)[0];
+  ASSERT_TRUE(v.has_lens());
+  cv::Mat mx, my;
+  const cv::Mat D = (cv::Mat_<double>(1, 5) << -0.3, 0.08, 0.001, -0.001, 0);
+  cv::initUndistortRectifyMap(camera_matrix(c), D, cv::Mat(), camera_matrix(c), cv::Size(c.width, c.height), CV_32FC1,
+                              mx, my);
+  double worst = 0;
+  for (int y = 0; y < c.height; y += 7)
+    for (int x = 0; x < c.width; x += 7) {
+      double u, w;
+      ASSERT_TRUE(view_to_camera(v, x, y, u, w));
+      worst = std::max(worst, std::hypot(u - mx.at<float>(y, x), w - my.at<float>(y, x)));
+    }
+  // OpenCV's map is float: its own rounding is about 1e-4 px at 640 px.
+  EXPECT_LT(worst, 1e-3);
+}
+
+TEST(Lens, FisheyeMatchesOpenCvFisheyeProjectPoints) {
+  Camera c;
+  c.width = c.height = 1000;
+  c.fx = c.fy = 310;
+  c.cx = 501;
+  c.cy = 498;
+  c.lens.model = Lens::Model::Fisheye;
+  c.lens.k1 = -0.0437, c.lens.k2 = 0.0217, c.lens.k3 = -0.0264, c.lens.k4 = 0.0084;  // the surround-view set's
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-3, 3);
+  std::vector<cv::Point3d> pts;
+  for (int i = 0; i < 500; ++i) pts.emplace_back(u(rng), u(rng), 1.0);  // up to ~77 degrees
+  std::vector<cv::Point2d> ref;
+  const cv::Vec4d D(c.lens.k1, c.lens.k2, c.lens.k3, c.lens.k4);
+  cv::fisheye::projectPoints(pts, ref, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), cv::Matx33d((double*)camera_matrix(c).data), D);
+  double worst = 0;
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    Eigen::Vector2d q;
+    ASSERT_TRUE(lens_project(c, {pts[i].x, pts[i].y, pts[i].z}, q));
+    worst = std::max(worst, std::hypot(q.x() - ref[i].x, q.y() - ref[i].y));
+  }
+  EXPECT_LT(worst, 1e-3);
+  // Beyond 90 degrees (behind the camera's plane) the same law continues: theta = 100 degrees.
+  Camera wide = testdata::fisheye_camera(800, 200);
+  const double t = 100 * CV_PI / 180;
+  Eigen::Vector2d q;
+  ASSERT_TRUE(lens_project(wide, {std::sin(t), 0, std::cos(t)}, q));
+  EXPECT_NEAR(q.x() - wide.cx, wide.fx * t, 1e-6);
+}
+
+TEST(Lens, UndistortInvertsDistortAndMatchesOpenCv) {
+  const Camera r = radtan_camera(-0.35, 0.12, -0.02, 0.001, -0.0005);
+  std::vector<cv::Point2f> raw;
+  for (int y = 0; y < r.height; y += 40)
+    for (int x = 0; x < r.width; x += 40) raw.emplace_back(float(x), float(y));
+  const std::vector<cv::Point2f> ours = undistort_points(r, raw);
+  std::vector<cv::Point2f> ref;
+  const cv::Mat D = (cv::Mat_<double>(1, 5) << -0.35, 0.12, 0.001, -0.0005, -0.02);
+  cv::undistortPoints(raw, ref, camera_matrix(r), D, cv::noArray(), camera_matrix(r),
+                      cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 100, 1e-12));
+  double worst_cv = 0, worst_round = 0;
+  for (std::size_t i = 0; i < raw.size(); ++i) {
+    ASSERT_TRUE(std::isfinite(ours[i].x)) << raw[i];
+    worst_cv = std::max(worst_cv, double(cv::norm(ours[i] - ref[i])));
+    Eigen::Vector2d back;
+    ASSERT_TRUE(distort_point(r, {ours[i].x, ours[i].y}, back));
+    worst_round = std::max(worst_round, std::hypot(back.x() - raw[i].x, back.y() - raw[i].y));
+  }
+  EXPECT_LT(worst_cv, 2e-2);  // OpenCV's fixed-point iteration converges more loosely than Newton
+  EXPECT_LT(worst_round, 1e-3);
+  // Fisheye beyond 90 degrees: raw -> ray -> raw.
+  const Camera f = testdata::fisheye_camera(800, 210, -0.01, 0.001);
+  double worst_f = 0;
+  for (int k = 0; k < 200; ++k) {
+    const double a = k * 0.31, rad = (k % 20) * 19.5;
+    const Eigen::Vector2d p(f.cx + rad * std::cos(a), f.cy + rad * std::sin(a));
+    Eigen::Vector3d ray;
+    ASSERT_TRUE(lens_unproject(f, p, ray));
+    Eigen::Vector2d back;
+    ASSERT_TRUE(lens_project(f, ray, back));
+    worst_f = std::max(worst_f, (back - p).norm());
+  }
+  EXPECT_LT(worst_f, 1e-6);
+}
+
+TEST(Lens, JsonRoundTripAndPinholeFilesUnchanged) {
+  const std::string pinhole = R"({"format":"stitch-rig","version":1,"cameras":[{"width":640,"height":480,"fx":600}]})";
+  const Rig p = rig_from_json_string(pinhole);
+  EXPECT_TRUE(p.cameras[0].lens.pinhole());
+  EXPECT_EQ(rig_to_json_string(p).find("lens"), std::string::npos);
+  const std::string text = R"({"cameras":[
+    {"width":640,"height":480,"fx":500,"lens":{"model":"radtan","k1":-0.2,"k2":0.03,"p1":0.001}},
+    {"width":960,"height":960,"fx":300,"lens":{"model":"fisheye","k1":0.01,"k4":-0.001,"circle":{"cx":480,"cy":479,"radius":470}}},
+    {"width":640,"height":480,"fx":500,"lens":{"model":"radtan"}}]})";
+  const Rig r = rig_from_json_string(text);
+  EXPECT_EQ(r.cameras[0].lens.model, Lens::Model::Radtan);
+  EXPECT_DOUBLE_EQ(r.cameras[0].lens.k1, -0.2);
+  EXPECT_DOUBLE_EQ(r.cameras[0].lens.p1, 0.001);
+  EXPECT_FALSE(r.cameras[0].lens.estimate);
+  EXPECT_EQ(r.cameras[1].lens.model, Lens::Model::Fisheye);
+  ASSERT_TRUE(r.cameras[1].lens.circle);
+  EXPECT_DOUBLE_EQ(r.cameras[1].lens.circle->radius, 470);
+  EXPECT_TRUE(r.cameras[2].lens.estimate);  // a model without coefficients: estimate them
+  const Rig back = rig_from_json_string(rig_to_json_string(r));
+  for (int i = 0; i < 3; ++i) EXPECT_TRUE(back.cameras[i].lens == r.cameras[i].lens) << i;
+}
+
+TEST(Lens, BadLensesAreRejectedNamingTheCamera) {
+  auto error_of = [](const std::string& lens) {
+    try {
+      rig_from_json_string(R"({"cameras":[{"width":640,"height":480,"fx":600},{"width":640,"height":480,"fx":400,"lens":)" +
+                           lens + "}]}");
+    } catch (const RigError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  const std::string fold = error_of(R"({"model":"radtan","k1":-0.9})");  // the radius folds inside the frame
+  EXPECT_NE(fold.find("camera 1"), std::string::npos) << fold;
+  EXPECT_NE(fold.find("fold"), std::string::npos) << fold;
+  const std::string circle = error_of(R"({"model":"fisheye","circle":{"cx":2000,"cy":240,"radius":100}})");
+  EXPECT_NE(circle.find("outside the frame"), std::string::npos) << circle;
+  EXPECT_NE(error_of(R"({"model":"brown"})").find("not supported"), std::string::npos);
+  EXPECT_TRUE(error_of(R"({"model":"radtan","k1":-0.1})").empty());
+}
+
+TEST(Lens, OpenCvYamlLoadsPinholeFisheyeAndKalibr) {
+  const auto dir = std::filesystem::temp_directory_path() / ("stitch_lens_yaml_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  {
+    cv::FileStorage fs((dir / "fish.yaml").string(), cv::FileStorage::WRITE);
+    fs << "camera_matrix" << (cv::Mat_<double>(3, 3) << 302.45, 0, 496.64, 0, 320.75, 331.2, 0, 0, 1);
+    fs << "dist_coeffs" << (cv::Mat_<double>(4, 1) << -0.0437, 0.0217, -0.0264, 0.0084);
+    fs << "resolution" << (cv::Mat_<int>(2, 1) << 960, 640);
+  }
+  const Rig f = rig_load((dir / "fish.yaml").string());  // by extension
+  ASSERT_EQ(f.cameras.size(), 1u);
+  EXPECT_EQ(f.cameras[0].lens.model, Lens::Model::Fisheye);
+  EXPECT_EQ(f.cameras[0].width, 960);
+  EXPECT_DOUBLE_EQ(f.cameras[0].lens.k4, 0.0084);
+  {
+    std::ofstream out(dir / "pair.yml");
+    out << "%YAML:1.0\n---\nprojection: plane\n"
+           "cam0:\n  camera_matrix: !!opencv-matrix\n    rows: 3\n    cols: 3\n    dt: d\n"
+           "    data: [ 500., 0., 319.5, 0., 500., 239.5, 0., 0., 1. ]\n"
+           "  distortion_coefficients: [ -0.2, 0.05, 0.0, 0.0, 0.0 ]\n  image_width: 640\n  image_height: 480\n"
+           "cam1:\n  distortion_model: radtan\n  intrinsics: [ 500., 500., 319.5, 239.5 ]\n"
+           "  distortion_coeffs: [ -0.2, 0.05, 0.0, 0.0 ]\n  resolution: [ 640, 480 ]\n"
+           "  T_cn_cnm1: [ 0.9396926, 0., -0.3420201, 0.1, 0., 1., 0., 0., 0.3420201, 0., 0.9396926, 0., 0., 0., 0., 1. ]\n";
+  }
+  const Rig pair = rig_load((dir / "pair.yml").string());
+  ASSERT_EQ(pair.cameras.size(), 2u);
+  EXPECT_EQ(pair.cameras[0].lens.model, Lens::Model::Radtan);
+  EXPECT_NEAR(pair.cameras[1].yaw_deg, 20.0, 1e-4);  // T rotates camera 0 rays by -20 degrees about y
+  EXPECT_TRUE(pair.calibrated());                     // overlapping: laid out
+  // The real surround-view calibration, where the shared data is present.
+  const char* shared = std::getenv("STITCH_SHARED_DATA");
+  const std::string real = std::string(shared ? shared : "") + "/images/surround_view_4fisheye/front.yaml";
+  if (shared && std::filesystem::exists(real)) {
+    const Rig s = rig_load(real);
+    EXPECT_EQ(s.cameras[0].lens.model, Lens::Model::Fisheye);
+    EXPECT_EQ(s.cameras[0].width, 960);
+  }
+  std::filesystem::remove_all(dir);
+}
+
+TEST(Lens, PtoLoadsAndFitsThePanotoolsPolynomial) {
+  const std::string pto =
+      "# hugin project\n"
+      "p f2 w4000 h2000 v360 E0 R0 n\"TIFF_m c:LZW\"\n"
+      "i w1600 h1200 f0 v70 Ra0 Rb0 Rc0 Rd0 Re0 Eev0 Er1 Eb1 r0 p0 y0 TrX0 TrY0 TrZ0 j0 a0.002 b-0.02 c0.005 d12 e-8 g0 t0 "
+      "Va1 Vb0 Vc0 Vd0 Vx0 Vy0 Vm5 n\"img 0.jpg\"\n"
+      "i w1600 h1200 f0 v=0 r1.5 p-2 y50 a=0 b=0 c=0 d=0 e=0 n\"img1.jpg\"\n"
+      "i w1600 h1200 f0 v=0 r0 p3 y100 a=0 b=0 c=0 d=0 e=0 n\"img2.jpg\"\n";
+  PtoReport rep;
+  const Rig rig = rig_from_pto_string(pto, &rep);
+  ASSERT_EQ(rig.cameras.size(), 3u);
+  EXPECT_EQ(rig.projection, "spherical");
+  EXPECT_TRUE(rig.calibrated());
+  const Camera& c = rig.cameras[1];
+  const double f_pano = 800 / std::tan(35 * CV_PI / 180);  // panotools' ideal image
+  EXPECT_NEAR(c.fx, f_pano * (1 - 0.002 + 0.02 - 0.005), 0.05 * f_pano);
+  EXPECT_DOUBLE_EQ(c.yaw_deg, 50);
+  EXPECT_DOUBLE_EQ(c.pitch_deg, -2);
+  EXPECT_NEAR(c.cx, 799.5 + 12, 1e-9);
+  EXPECT_NEAR(c.cy, 599.5 - 8, 1e-9);
+  EXPECT_EQ(c.lens.model, Lens::Model::Radtan);
+  // Our lens against panotools' radius law, across the image.
+  const double half = 600, d = 1 - 0.002 + 0.02 - 0.005;
+  double worst = 0;
+  for (double r_ideal = 10; r_ideal < 900; r_ideal += 10) {
+    const double rn = r_ideal / half;
+    const double raw = (((0.002 * rn - 0.02) * rn + 0.005) * rn + d) * rn * half;
+    Eigen::Vector2d q;
+    ASSERT_TRUE(lens_project(c, {r_ideal / f_pano, 0, 1}, q));
+    worst = std::max(worst, std::abs(q.x() - c.cx - raw));
+  }
+  EXPECT_LT(worst, 0.5);
+  ASSERT_EQ(rep.fit_residual_px.size(), 3u);
+  EXPECT_LT(rep.fit_residual_px[0], 0.5);
+  std::printf("pto: panotools a,b,c -> radtan k1 %.5f k2 %.5f k3 %.5f, worst residual %.3f px (checked %.3f)\n", c.lens.k1,
+              c.lens.k2, c.lens.k3, rep.fit_residual_px[0], worst);
+  // A circular fisheye lens: the image circle from the crop.
+  const Rig fish = rig_from_pto_string(
+      "p f2 w2000 h1000 v360\ni w1000 h1000 f2 v200 y0 p0 r0 S20,980,20,980\ni w1000 h1000 f2 v=0 y180 p0 r0 S20,980,20,980\n");
+  EXPECT_EQ(fish.cameras[0].lens.model, Lens::Model::Fisheye);
+  ASSERT_TRUE(fish.cameras[0].lens.circle);
+  EXPECT_NEAR(fish.cameras[0].lens.circle->radius, 480, 1e-9);
+  EXPECT_THROW(rig_from_pto_string("p f0 w100 v50\ni w100 h100 f4 v50\n"), RigError);
+  // rig_load (what stitchcalib's rig-file / load-file call) reads .pto by extension.
+  const auto path = std::filesystem::temp_directory_path() / ("stitch_lens_" + std::to_string(::getpid()) + ".pto");
+  {
+    std::ofstream out(path);
+    out << pto;
+  }
+  EXPECT_EQ(rig_load(path.string()).cameras.size(), 3u);
+  std::filesystem::remove(path);
+}
+
+TEST(Lens, DualFisheyeStitchesTheFullSphere) {
+  const cv::Mat photo = testdata::test_photo();
+  for (double fov : {190.0, 220.0}) {
+    const Rig rig = testdata::dual_fisheye_rig(240, fov);
+    EXPECT_TRUE(rig.canvas_wrap);
+    EXPECT_EQ(rig.canvas_width, 2 * rig.canvas_height) << "a full sphere is 2:1";
+    std::vector<cv::Mat> frames;
+    for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    const cv::Mat pano = stitch_cpu(rig, frames);
+    ASSERT_EQ(pano.cols, rig.canvas_width);
+    cv::Mat gt = testdata::equirect_ground_truth(photo, rig);
+    // The output is the canvas padded to even sizes.
+    cv::Mat padded(pano.size(), gt.type(), cv::Scalar::all(0));
+    gt.copyTo(padded(cv::Rect(0, 0, gt.cols, gt.rows)));
+    gt = padded;
+    // Every pixel covered, poles included: no black rows at the top or bottom.
+    cv::Mat gray;
+    cv::cvtColor(pano, gray, cv::COLOR_RGBA2GRAY);
+    const double top = cv::mean(gray.row(0))[0], bottom = cv::mean(gray.row(rig.canvas_height - 1))[0];
+    EXPECT_GT(top, 5.0);
+    EXPECT_GT(bottom, 5.0);
+    cv::Mat all(pano.size(), CV_8U, cv::Scalar(0));
+    all(cv::Rect(0, 0, rig.canvas_width, rig.canvas_height)).setTo(255);
+    const double psnr = testdata::masked_psnr_rgb(pano, gt, all);
+    std::printf("dual fisheye %.0f deg, 2x %dx%d -> %dx%d sphere: PSNR vs ground truth %.2f dB\n", fov, 240, 240,
+                pano.cols, pano.rows, psnr);
+    EXPECT_GT(psnr, 24.0);
+  }
+}
+
+TEST(Lens, RadtanRigStitchesMuchBetterWithItsLens) {
+  // Three barrel-distorted cameras on a plane canvas, rendered with their lenses; stitched with
+  // the true calibration, lens on versus the same rig with the lens ignored.
+  const cv::Mat photo = testdata::test_photo();
+  for (double k1 : {-0.35, -0.2, 0.1}) {
+    Rig rig;
+    for (int i = 0; i < 3; ++i) {
+      Camera c = radtan_camera(k1, k1 < 0 ? 0.25 * k1 * k1 : 0.0, 0, 0, 0);
+      c.width = 320, c.height = 240;
+      c.fx = c.fy = 260;
+      c.cx = 159.5, c.cy = 119.5;
+      c.yaw_deg = 35.0 * (i - 1);
+      rig.cameras.push_back(c);
+    }
+    rig.reference = 1;
+    rig_compute_rough_homographies(rig);
+    std::vector<cv::Mat> frames;
+    for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    const cv::Mat gt = testdata::plane_ground_truth(photo, rig);
+    const cv::Mat with = stitch_cpu(rig, frames);
+    Rig ignored = rig;
+    for (auto& c : ignored.cameras) c.lens = Lens{};
+    const cv::Mat without = stitch_cpu(ignored, frames);
+    // Compare where the lens-aware panorama is covered (the inner 90 %, away from the border).
+    cv::Mat gray, mask;
+    cv::cvtColor(with, gray, cv::COLOR_RGBA2GRAY);
+    mask = gray > 0;
+    cv::erode(mask, mask, cv::Mat::ones(9, 9, CV_8U));
+    const double p_with = testdata::masked_psnr_rgb(with, gt, mask), p_without = testdata::masked_psnr_rgb(without, gt, mask);
+    std::printf("radtan k1 %+.2f, 3x 320x240 -> %dx%d plane: PSNR lens on %.2f dB, lens ignored %.2f dB\n", k1,
+                with.cols, with.rows, p_with, p_without);
+    EXPECT_GT(p_with, 27.0);
+    if (k1 < -0.1) {
+      EXPECT_GT(p_with, p_without + 3.0);
+    }
+  }
+}
+
+TEST(Lens, OverlapAndOutlinesFollowTheLens) {
+  const Rig rig = testdata::fisheye_ring(4, 300, 200);
+  EXPECT_TRUE(rig.canvas_wrap);
+  EXPECT_EQ(rig.canvas_width, 2 * rig.canvas_height);
+  for (int a = 0; a < 4; ++a) {
+    float area = 0;
+    canvas_overlap(rig, a, (a + 1) % 4, &area);
+    EXPECT_GT(area, 0.f) << a;
+    // Raw pixel -> canvas -> raw pixel through the lens, beyond 90 degrees too.
+    const CameraCanvasMap m = camera_canvas_map(rig, a);
+    for (double r : {10.0, 80.0, 140.0}) {
+      const Eigen::Vector2d p(rig.cameras[a].cx + r, rig.cameras[a].cy - 0.5 * r);
+      Eigen::Vector2d q, back;
+      ASSERT_TRUE(m.to_canvas(p, q));
+      ASSERT_TRUE(m.to_camera(q, back));
+      EXPECT_LT((back - p).norm(), 1e-6);
+    }
+  }
+  // A pinhole rig keeps the pinhole path (the kernels' planar instantiation).
+  Rig plain;
+  for (int i = 0; i < 2; ++i) {
+    Camera c = radtan_camera(0, 0, 0, 0, 0);
+    c.lens = Lens{};
+    c.yaw_deg = 30.0 * i;
+    plain.cameras.push_back(c);
+  }
+  rig_compute_rough_homographies(plain);
+  for (const auto& v : place_views(plain, canvas_geometry(plain))) EXPECT_FALSE(v.has_lens());
+}
