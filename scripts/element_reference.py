@@ -248,7 +248,12 @@ def shortened(line, tmp):
                 i = end + 1
                 continue
         break
-    out[end:end] = ["!", "identity", "name=" + COUNTER, "silent=false", "eos-after=%d" % (FRAMES + 1)]
+    counter = ["identity", "name=" + COUNTER, "silent=false", "eos-after=%d" % (FRAMES + 1)]
+    if end:
+        out[end:end] = ["!"] + counter
+    else:  # a line that ends in a stitch sink (stitch360sink): count what reaches it
+        sink = max(k for k, a in enumerate(out) if a.startswith("stitch") and "=" not in a)
+        out[sink:sink] = counter + ["!"]
     if "cudadownload" in out or "nvh264dec" in out:
         if not has_cuda_device():
             return None, "needs a CUDA device"

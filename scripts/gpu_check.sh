@@ -8,7 +8,7 @@
 #        OUT=... scripts/gpu_check.sh [quick|blend|e2e] (on the GPU host; quick: tests only;
 #                                                   blend: tests, blend modes, decoded pipelines)
 set -uo pipefail
-GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection test_cuda_blend"
+GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection test_cuda_blend test_lens_cuda"
 if [ "${1:-}" = pack ]; then
   BUILD=${2:-build}
   rm -rf .gpubundle && mkdir -p .gpubundle
