@@ -23,16 +23,20 @@ struct Model {
 struct Layout {
   int n = 0, reference = 0;
   bool focal = true, shared = false;
-  std::vector<int> lens_k;  // per camera: 0 (kept), 1 (k1) or 2 (k1, k2)
+  std::vector<int> lens_k;      // per camera: 0 (kept), 1 (k1) or 2 (k1, k2); group leaders only
+  std::vector<int> lens_group;  // per camera: the camera whose coefficients it shares (itself: its own)
   int rot_index(int cam) const { return cam < reference ? 3 * cam : cam == reference ? -1 : 3 * (cam - 1); }
   int focal_index(int cam) const { return focal ? 3 * (n - 1) + (shared ? 0 : cam) : -1; }
   int base_size() const { return 3 * (n - 1) + (focal ? (shared ? 1 : n) : 0); }
   int lens_index(int cam) const {
-    if (lens_k.empty() || !lens_k[cam]) return -1;
+    if (lens_k.empty()) return -1;
+    const int g = lens_group[cam];
+    if (!lens_k[g]) return -1;
     int i = base_size();
-    for (int c = 0; c < cam; ++c) i += lens_k[c];
+    for (int c = 0; c < g; ++c) i += lens_k[c];
     return i;
   }
+  int lens_count(int cam) const { return lens_k.empty() ? 0 : lens_k[lens_group[cam]]; }
   int size() const {
     int s = base_size();
     for (int k : lens_k) s += k;
@@ -78,7 +82,7 @@ struct Problem {
       cc.fy = K(1, 1);
       if (const int l = layout.lens_index(i); l >= 0) {
         cc.lens.k1 = x[l];
-        if (layout.lens_k[i] > 1) cc.lens.k2 = x[l + 1];
+        if (layout.lens_count(i) > 1) cc.lens.k2 = x[l + 1];
       }
       m.cam.push_back(cc);
     }
@@ -146,14 +150,14 @@ void apply(Rig& rig, const Problem& p, const Eigen::VectorXd& x) {
   }
 }
 
-// Whether camera `cam`'s matches reach far enough out (beyond 60 % of the half diagonal) for
-// k2 to be told apart from k1.
-bool spread_for_k2(const Camera& c, const Problem& p, int cam) {
+// Whether the matches of the cameras of lens group `group` reach far enough out (beyond 60 % of
+// the half diagonal) for k2 to be told apart from k1.
+bool spread_for_k2(const Camera& c, const Problem& p, int group) {
   const double half_diag = 0.5 * std::hypot(c.width, c.height);
   int outer = 0;
   for (std::size_t k = 0; k < p.ra.size(); ++k)
     for (int e = 0; e < 2; ++e)
-      if (p.cams[k][e] == cam) {
+      if (p.layout.lens_group[p.cams[k][e]] == group) {
         const Eigen::Vector2d& q = e ? p.rb[k] : p.ra[k];
         outer += std::hypot(q.x() - c.cx, q.y() - c.cy) > 0.6 * half_diag;
       }
@@ -196,18 +200,32 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
   rep.lens = p.lens();
   if (p.lens() && o.estimate_lens) {
     p.layout.lens_k.assign(n, 0);
+    p.layout.lens_group.resize(n);
     for (int i = 0; i < n; ++i) {
+      p.layout.lens_group[i] = i;
       const Camera& c = rig.cameras[i];
       if (!c.lens.estimate || c.lens.pinhole()) continue;
-      p.layout.lens_k[i] = o.estimate_k2 && spread_for_k2(c, p, i) ? 2 : 1;
       rep.lens_estimated.push_back(i);
+      // Identical cameras (same lens model and frame size, both estimating) share one lens: a
+      // side camera's matches cover one side of its view only, the group's cover them all.
+      if (o.shared_lens)
+        for (int j = 0; j < i; ++j) {
+          const Camera& d = rig.cameras[j];
+          if (d.lens.estimate && d.lens.model == c.lens.model && d.width == c.width && d.height == c.height) {
+            p.layout.lens_group[i] = p.layout.lens_group[j];
+            break;
+          }
+        }
     }
+    for (int i = 0; i < n; ++i)
+      if (p.layout.lens_group[i] == i && rig.cameras[i].lens.estimate && !rig.cameras[i].lens.pinhole())
+        p.layout.lens_k[i] = o.estimate_k2 && spread_for_k2(rig.cameras[i], p, i) ? 2 : 1;
   }
   Eigen::VectorXd x = Eigen::VectorXd::Zero(p.layout.size());
   for (int i = 0; i < n; ++i)
     if (const int l = p.layout.lens_index(i); l >= 0) {
       x[l] = rig.cameras[i].lens.k1;
-      if (p.layout.lens_k[i] > 1) x[l + 1] = rig.cameras[i].lens.k2;
+      if (p.layout.lens_count(i) > 1) x[l + 1] = rig.cameras[i].lens.k2;
     }
   Eigen::VectorXd f(4 * p.pa.size());
   p.residuals(x, f);
@@ -217,6 +235,7 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     Eigen::NumericalDiff<Functor> numdiff(fn);
     Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
     lm.parameters.maxfev = o.max_iterations * (p.layout.size() + 1);
+    if (p.lens()) lm.parameters.xtol = lm.parameters.ftol = 1e-12;  // a flat valley: focal vs k1, k2
     lm.minimize(x);
     if (round == 1) break;
     // Drop the matches the fit does not explain (false matches, parallax) and fit again.

@@ -32,6 +32,8 @@ struct BundleAdjustOptions {
   // the raw matches (issue 15). Off: every lens is kept as given.
   bool estimate_lens = true;
   bool estimate_k2 = true;
+  // Cameras of the same lens model and frame size that all estimate share one k1 (k2).
+  bool shared_lens = true;
 };
 
 struct BundleAdjustReport {
