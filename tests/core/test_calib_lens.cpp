@@ -114,6 +114,10 @@ TEST(CalibLens, KnownRadtanCoefficients) {
   Rig before = rp.rig;
   for (std::size_t i = 0; i < before.cameras.size(); ++i) before.cameras[i].lens = rough.cameras[i].lens;
   const double err_before = corner_error(before, s.truth);
+  for (std::size_t i = 0; i < rp.rig.cameras.size(); ++i)
+    std::printf("  lens ignored: camera %zu f %.1f (true %.0f), yaw %.2f (true %.2f)\n", i, rp.rig.cameras[i].fx,
+                s.truth.cameras[i].fx, rp.rig.cameras[i].yaw_deg - rp.rig.cameras[rp.rig.reference].yaw_deg,
+                s.truth.cameras[i].yaw_deg - s.truth.cameras[s.truth.reference].yaw_deg);
   const AlignmentReport al_before = measure_alignment(before, s.views);
   std::printf("  pinhole fit, lens kept (the calibrator before issue 15): corner error %.3f px, overlap matches "
               "median %.3f px (p90 %.3f, %d)\n",
