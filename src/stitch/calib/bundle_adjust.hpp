@@ -32,8 +32,9 @@ struct BundleAdjustOptions {
   // the raw matches (issue 15). Off: every lens is kept as given.
   bool estimate_lens = true;
   bool estimate_k2 = true;
-  // Cameras of the same lens model and frame size that all estimate share one k1 (k2).
-  bool shared_lens = true;
+  // Cameras of the same lens model and frame size that all estimate share one k1 (k2): fewer
+  // unknowns for a rig of identical cameras. Off by default (per-camera lenses measured as well).
+  bool shared_lens = false;
 };
 
 struct BundleAdjustReport {

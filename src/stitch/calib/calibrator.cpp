@@ -1039,27 +1039,37 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   }
   // Matches of every pair that the start says may overlap, checked against it.
   const FeatureSets feats = detect_all(sets, n, o);
-  std::vector<PairData> pairs;
-  for (int a = 0; a < n; ++a)
-    for (int b = a + 1; b < n; ++b) {
-      const Camera &A = start.cameras[a], &B = start.cameras[b];
-      if (start.planar()) {
-        if (overlap_box(start, a, b).area() <= 0) continue;
-      } else {
-        const double axes = std::acos(std::clamp(A.R().col(2).dot(B.R().col(2)), -1.0, 1.0));
-        if (axes > (half_diagonal_fov(A) + half_diagonal_fov(B)) * (1 + o.overlap_margin)) continue;
+  // `lens_rig`: whose lenses undistort the keypoints (the start; again with estimated lenses).
+  auto match_all = [&](const Rig& lens_rig) {
+    std::vector<PairData> out;
+    for (int a = 0; a < n; ++a)
+      for (int b = a + 1; b < n; ++b) {
+        const Camera &A = start.cameras[a], &B = start.cameras[b];
+        if (start.planar()) {
+          if (overlap_box(start, a, b).area() <= 0) continue;
+        } else {
+          const double axes = std::acos(std::clamp(A.R().col(2).dot(B.R().col(2)), -1.0, 1.0));
+          if (axes > (half_diagonal_fov(A) + half_diagonal_fov(B)) * (1 + o.overlap_margin)) continue;
+        }
+        const Eigen::Matrix3d predicted = start.planar() ? Eigen::Matrix3d(B.homography->inverse() * *A.homography)
+                                                         : rough_pairwise_homography(start, a, b);
+        out.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), &lens_rig));
       }
-      const Eigen::Matrix3d predicted =
-          start.planar() ? Eigen::Matrix3d(B.homography->inverse() * *A.homography) : rough_pairwise_homography(start, a, b);
-      pairs.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), &start));
-    }
+    return out;
+  };
+  std::vector<PairData> pairs = match_all(start);
+  bool estimating = false;
+  for (const auto& c : rough.cameras) estimating |= c.lens.estimate && !c.lens.pinhole();
   std::vector<bool> matched(n, false);
-  for (const auto& p : pairs)
-    if (p.ok) matched[p.a] = matched[p.b] = true;
   int held = 0;
-  for (const auto& p : pairs)
-    if (p.ok) held += p.held_count();
-  res.heldout_matches = held;
+  auto count_matched = [&] {
+    matched.assign(n, false);
+    held = 0;
+    for (const auto& p : pairs)
+      if (p.ok) matched[p.a] = matched[p.b] = true, held += p.held_count();
+    res.heldout_matches = held;
+  };
+  count_matched();
 
   // The rotation model from the rough rotations (or, for a rig given by homographies, from
   // those: each camera's rotation relative to the reference's through its K).
@@ -1075,6 +1085,27 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       }
     }
     rot = adjust(r0, pairs);
+    if (rot.ok && estimating) {
+      // The first pass matched with lenses still unknown: the homography RANSAC (3 px) dropped
+      // much of the distorted periphery, which is what tells k2 and the focal length apart.
+      // Match again through the estimated lenses and adjust again from the first estimate.
+      Rig lens_rig = start;
+      for (int i = 0; i < n; ++i)
+        if (rough.cameras[i].lens.estimate) {
+          lens_rig.cameras[i].lens = rot.rig.cameras[i].lens;
+          lens_rig.cameras[i].lens.estimate = true;
+        }
+      std::vector<PairData> pairs2 = match_all(lens_rig);
+      Rig r1 = rot.rig;
+      for (int i = 0; i < n; ++i) r1.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
+      RotationFit rot2 = adjust(r1, pairs2);
+      if (rot2.ok) {
+        rot = std::move(rot2);
+        pairs = std::move(pairs2);
+        start = lens_rig;  // the homography chain works on the same ideal pixels
+        count_matched();
+      }
+    }
     res.warnings.insert(res.warnings.end(), rot.warnings.begin(), rot.warnings.end());
     if (rot.ok) {
       res.rotation_heldout_px = residuals(rot.rig, pairs, true, true).rms_px;
