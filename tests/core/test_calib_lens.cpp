@@ -166,5 +166,13 @@ TEST(CalibLens, EstimatesRadtanCoefficients) {
   for (const auto& c : r.rig.cameras) {
     EXPECT_NEAR(c.lens.k1, kK1, 0.1 * std::abs(kK1));
     EXPECT_TRUE(lens_problem(c).empty());
+    EXPECT_FALSE(c.lens.estimate) << "estimated: the written rig carries the coefficients";
+  }
+  // The calibrated rig file carries the estimates and loads back to the same lenses.
+  const Rig back = rig_from_json_string(rig_to_json_string(r.rig));
+  for (std::size_t i = 0; i < back.cameras.size(); ++i) {
+    EXPECT_FALSE(back.cameras[i].lens.estimate);
+    EXPECT_NEAR(back.cameras[i].lens.k1, r.rig.cameras[i].lens.k1, 1e-9);
+    EXPECT_NEAR(back.cameras[i].lens.k2, r.rig.cameras[i].lens.k2, 1e-9);
   }
 }
