@@ -20,7 +20,7 @@ namespace {
 
 constexpr double kK1 = -0.23, kK2 = 0.055;
 
-Rig true_rig() {
+Rig true_rig(double k1 = kK1, double k2 = kK2) {
   Rig rig;
   rig.projection = "plane";
   for (int i = 0; i < 3; ++i) {
@@ -31,8 +31,8 @@ Rig true_rig() {
     c.yaw_deg = 35.0 * (i - 1);
     c.pitch_deg = i == 2 ? 2.0 : 0.0;
     c.lens.model = Lens::Model::Radtan;
-    c.lens.k1 = kK1;
-    c.lens.k2 = kK2;
+    c.lens.k1 = k1;
+    c.lens.k2 = k2;
     rig.cameras.push_back(c);
   }
   rig.reference = 1;
@@ -174,5 +174,42 @@ TEST(CalibLens, EstimatesRadtanCoefficients) {
     EXPECT_FALSE(back.cameras[i].lens.estimate);
     EXPECT_NEAR(back.cameras[i].lens.k1, r.rig.cameras[i].lens.k1, 1e-9);
     EXPECT_NEAR(back.cameras[i].lens.k2, r.rig.cameras[i].lens.k2, 1e-9);
+  }
+}
+
+// The range of radtan lenses (k1 -0.35 ... +0.1), estimated from rough rigs without
+// coefficients. DISABLED: not met yet (BENCHMARKS.md): k1 -0.35 runs off (focal x60, a folding
+// lens, dropped, then the pinhole fallback fails too): 332 px; k1 +0.1: 0.70 px corner error
+// (k1 within 4 %, alignment 0.11 px). Run with --gtest_also_run_disabled_tests.
+TEST(CalibLens, DISABLED_EstimatesAcrossTheRange) {
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  for (double k1 : {-0.35, 0.1}) {
+    const double k2 = k1 < 0 ? 0.25 * k1 * k1 : 0.0;
+    const Rig truth = true_rig(k1, k2);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> views;
+    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    for (auto& f : frames) views.push_back(as_view(f));
+    Rig rough = rough_of(truth);
+    for (auto& c : rough.cameras) {
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+    }
+    const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+    const double err = corner_error(r.rig, truth);
+    const AlignmentReport al = measure_alignment(r.rig, views);
+    double worst_k1 = 0;
+    for (const auto& c : r.rig.cameras) worst_k1 = std::max(worst_k1, std::abs(c.lens.k1 - k1));
+    std::printf("radtan k1 %+.2f k2 %.3f estimated: model %s, corner error %.3f px, overlap matches median %.3f px, "
+                "worst k1 error %.4f\n",
+                k1, k2, camera_model_name(r.model), err, al.median_px, worst_k1);
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    for (std::size_t i = 0; i < r.rig.cameras.size(); ++i)
+      std::printf("  camera %zu: k1 %+.4f k2 %+.4f f %.2f (true 260)\n", i, r.rig.cameras[i].lens.k1,
+                  r.rig.cameras[i].lens.k2, r.rig.cameras[i].fx);
+    EXPECT_LE(err, 0.5) << k1;
+    EXPECT_LE(al.median_px, 0.3) << k1;
+    EXPECT_LE(worst_k1, 0.1 * std::abs(k1)) << k1;
   }
 }
