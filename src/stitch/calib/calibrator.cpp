@@ -1107,6 +1107,19 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       }
     }
     res.warnings.insert(res.warnings.end(), rot.warnings.begin(), rot.warnings.end());
+    if (rot.ok && estimating)
+      for (int i = 0; i < n; ++i) {
+        // Focal and distortion trade off: an estimate that more than halves or doubles a rough
+        // focal length ran off (seen on k1 -0.35 barrel lenses from a zero start). Say so and
+        // keep the rough rig rather than a degenerate one.
+        const double ratio = rot.rig.cameras[i].fx / rough.cameras[i].fx;
+        if (ratio > 0.5 && ratio < 2.0) continue;
+        res.warnings.push_back("camera " + std::to_string(i) + ": estimating the lens ran off (focal length " +
+                               std::to_string(rough.cameras[i].fx) + " -> " + std::to_string(rot.rig.cameras[i].fx) +
+                               " px): keeping the rough rig; give the lens coefficients");
+        rot.ok = false;
+        break;
+      }
     if (rot.ok) {
       res.rotation_heldout_px = residuals(rot.rig, pairs, true, true).rms_px;
     } else if (model == CameraModel::Rotation && !pairs.empty()) {
