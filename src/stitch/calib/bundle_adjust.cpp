@@ -7,21 +7,41 @@
 #include <unsupported/Eigen/NonLinearOptimization>
 #include <unsupported/Eigen/NumericalDiff>
 
+#include "stitch/rig/lens.hpp"
+
 namespace stitch {
 namespace {
 
 struct Model {
   std::vector<Eigen::Matrix3d> R, K;
+  std::vector<Camera> cam;  // K and lens applied (the lens path)
 };
 
 // Parameters: per camera a rotation increment (axis-angle, left-multiplied on the start
 // rotation; absent for the reference) and, when refined, a relative focal change.
+// Lens coefficients (k1, then k2 when asked) of the cameras that estimate them follow.
 struct Layout {
   int n = 0, reference = 0;
   bool focal = true, shared = false;
+  std::vector<int> lens_k;      // per camera: 0 (kept), 1 (k1) or 2 (k1, k2); group leaders only
+  std::vector<int> lens_group;  // per camera: the camera whose coefficients it shares (itself: its own)
   int rot_index(int cam) const { return cam < reference ? 3 * cam : cam == reference ? -1 : 3 * (cam - 1); }
   int focal_index(int cam) const { return focal ? 3 * (n - 1) + (shared ? 0 : cam) : -1; }
-  int size() const { return 3 * (n - 1) + (focal ? (shared ? 1 : n) : 0); }
+  int base_size() const { return 3 * (n - 1) + (focal ? (shared ? 1 : n) : 0); }
+  int lens_index(int cam) const {
+    if (lens_k.empty()) return -1;
+    const int g = lens_group[cam];
+    if (!lens_k[g]) return -1;
+    int i = base_size();
+    for (int c = 0; c < g; ++c) i += lens_k[c];
+    return i;
+  }
+  int lens_count(int cam) const { return lens_k.empty() ? 0 : lens_k[lens_group[cam]]; }
+  int size() const {
+    int s = base_size();
+    for (int k : lens_k) s += k;
+    return s;
+  }
 };
 
 Eigen::Vector2d project(const Eigen::Matrix3d& K, const Eigen::Matrix3d& R, const Eigen::Vector3d& ray) {
@@ -36,7 +56,9 @@ struct Problem {
   Layout layout;
   std::vector<std::array<int, 2>> cams;         // per match
   std::vector<Eigen::Vector2d> pa, pb;
+  std::vector<Eigen::Vector2d> ra, rb;  // raw pixels (the lens path); empty: pinhole residuals
   std::vector<double> w;
+  bool lens() const { return !ra.empty(); }
 
   Model model(const Eigen::VectorXd& x) const {
     Model m;
@@ -55,12 +77,37 @@ struct Problem {
       }
       m.R.push_back(R);
       m.K.push_back(K);
+      Camera cc = c;
+      cc.fx = K(0, 0);
+      cc.fy = K(1, 1);
+      if (const int l = layout.lens_index(i); l >= 0) {
+        cc.lens.k1 = x[l];
+        if (layout.lens_count(i) > 1) cc.lens.k2 = x[l + 1];
+      }
+      m.cam.push_back(cc);
     }
     return m;
   }
 
   void residuals(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
     const Model m = model(x);
+    if (lens()) {
+      // Raw pixel -> ray through the lens -> the other camera's raw pixel, both ways.
+      auto transfer = [&](int from, int to, const Eigen::Vector2d& p, Eigen::Vector2d& q) {
+        Eigen::Vector3d ray;
+        if (!lens_unproject(m.cam[from], p, ray)) return false;
+        return lens_project(m.cam[to], m.R[to].transpose() * (m.R[from] * ray), q);
+      };
+      for (std::size_t k = 0; k < ra.size(); ++k) {
+        const int a = cams[k][0], b = cams[k][1];
+        Eigen::Vector2d qb, qa;
+        if (!transfer(a, b, ra[k], qb)) qb = rb[k] + Eigen::Vector2d(1e3, 1e3);
+        if (!transfer(b, a, rb[k], qa)) qa = ra[k] + Eigen::Vector2d(1e3, 1e3);
+        f.segment<2>(4 * k) = w[k] * (qb - rb[k]);
+        f.segment<2>(4 * k + 2) = w[k] * (qa - ra[k]);
+      }
+      return;
+    }
     for (std::size_t k = 0; k < pa.size(); ++k) {
       const int a = cams[k][0], b = cams[k][1];
       const Eigen::Vector3d ra = m.R[a] * (m.K[a].inverse() * Eigen::Vector3d(pa[k].x(), pa[k].y(), 1));
@@ -95,7 +142,26 @@ void apply(Rig& rig, const Problem& p, const Eigen::VectorXd& x) {
     c.set_R(m.R[i]);
     c.fx = m.K[i](0, 0);
     c.fy = m.K[i](1, 1);
+    if (p.layout.lens_index(i) >= 0) {
+      c.lens.k1 = m.cam[i].lens.k1;
+      c.lens.k2 = m.cam[i].lens.k2;
+      c.lens.estimate = false;  // estimated now
+    }
   }
+}
+
+// Whether the matches of the cameras of lens group `group` reach far enough out (beyond 60 % of
+// the half diagonal) for k2 to be told apart from k1.
+bool spread_for_k2(const Camera& c, const Problem& p, int group) {
+  const double half_diag = 0.5 * std::hypot(c.width, c.height);
+  int outer = 0;
+  for (std::size_t k = 0; k < p.ra.size(); ++k)
+    for (int e = 0; e < 2; ++e)
+      if (p.layout.lens_group[p.cams[k][e]] == group) {
+        const Eigen::Vector2d& q = e ? p.rb[k] : p.ra[k];
+        outer += std::hypot(q.x() - c.cx, q.y() - c.cy) > 0.6 * half_diag;
+      }
+  return outer >= 20;
 }
 
 }  // namespace
@@ -114,16 +180,53 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
   if (n < 2 || rig.reference < 0 || rig.reference >= n) return rep;
   Problem p;
   p.start = &rig;
-  p.layout = {n, rig.reference, o.refine_focal, o.shared_focal};
+  p.layout = {n, rig.reference, o.refine_focal, o.shared_focal, {}};
   for (const auto& m : matches)
     for (std::size_t k = 0; k < m.pa.size() && k < m.pb.size(); ++k) {
       p.cams.push_back({m.a, m.b});
       p.pa.push_back(m.pa[k]);
       p.pb.push_back(m.pb[k]);
       p.w.push_back(k < m.weight.size() ? m.weight[k] : 1.0);
+      if (m.ra.size() == m.pa.size() && m.rb.size() == m.pb.size()) {
+        p.ra.push_back(m.ra[k]);
+        p.rb.push_back(m.rb[k]);
+      }
     }
   if (p.pa.empty()) return rep;
+  if (p.ra.size() != p.pa.size()) {
+    p.ra.clear();
+    p.rb.clear();
+  }
+  rep.lens = p.lens();
+  if (p.lens() && o.estimate_lens) {
+    p.layout.lens_k.assign(n, 0);
+    p.layout.lens_group.resize(n);
+    for (int i = 0; i < n; ++i) {
+      p.layout.lens_group[i] = i;
+      const Camera& c = rig.cameras[i];
+      if (!c.lens.estimate || c.lens.pinhole()) continue;
+      rep.lens_estimated.push_back(i);
+      // Identical cameras (same lens model and frame size, both estimating) share one lens: a
+      // side camera's matches cover one side of its view only, the group's cover them all.
+      if (o.shared_lens)
+        for (int j = 0; j < i; ++j) {
+          const Camera& d = rig.cameras[j];
+          if (d.lens.estimate && d.lens.model == c.lens.model && d.width == c.width && d.height == c.height) {
+            p.layout.lens_group[i] = p.layout.lens_group[j];
+            break;
+          }
+        }
+    }
+    for (int i = 0; i < n; ++i)
+      if (p.layout.lens_group[i] == i && rig.cameras[i].lens.estimate && !rig.cameras[i].lens.pinhole())
+        p.layout.lens_k[i] = o.estimate_k2 && spread_for_k2(rig.cameras[i], p, i) ? 2 : 1;
+  }
   Eigen::VectorXd x = Eigen::VectorXd::Zero(p.layout.size());
+  for (int i = 0; i < n; ++i)
+    if (const int l = p.layout.lens_index(i); l >= 0) {
+      x[l] = rig.cameras[i].lens.k1;
+      if (p.layout.lens_count(i) > 1) x[l + 1] = rig.cameras[i].lens.k2;
+    }
   Eigen::VectorXd f(4 * p.pa.size());
   p.residuals(x, f);
   rep.rms_before_px = rms(f);
@@ -132,6 +235,7 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     Eigen::NumericalDiff<Functor> numdiff(fn);
     Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
     lm.parameters.maxfev = o.max_iterations * (p.layout.size() + 1);
+    if (p.lens()) lm.parameters.xtol = lm.parameters.ftol = 1e-12;  // a flat valley: focal vs k1, k2
     lm.minimize(x);
     if (round == 1) break;
     // Drop the matches the fit does not explain (false matches, parallax) and fit again.
@@ -142,12 +246,18 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     kept.pa.clear();
     kept.pb.clear();
     kept.w.clear();
+    kept.ra.clear();
+    kept.rb.clear();
     for (std::size_t k = 0; k < p.pa.size(); ++k) {
       if (f.segment<4>(4 * k).norm() > o.outlier_px * std::sqrt(2.0) * p.w[k]) continue;
       kept.cams.push_back(p.cams[k]);
       kept.pa.push_back(p.pa[k]);
       kept.pb.push_back(p.pb[k]);
       kept.w.push_back(p.w[k]);
+      if (p.lens()) {
+        kept.ra.push_back(p.ra[k]);
+        kept.rb.push_back(p.rb[k]);
+      }
     }
     rep.dropped = int(p.pa.size() - kept.pa.size());
     if (kept.pa.size() < 8) break;
@@ -158,6 +268,19 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
   rep.rms_after_px = rms(f);
   rep.matches = int(p.pa.size());
   rep.ok = x.allFinite() && rep.rms_after_px <= rep.rms_before_px + 1e-9;
+  if (rep.ok && !rep.lens_estimated.empty()) {
+    // An estimate that folds the image (the radius turning back inside the frame) is no lens:
+    // adjust again with the given coefficients.
+    const Model m = p.model(x);
+    for (int i : rep.lens_estimated)
+      if (const std::string why = lens_problem(m.cam[i]); !why.empty()) {
+        BundleAdjustOptions again = o;
+        again.estimate_lens = false;
+        BundleAdjustReport r2 = bundle_adjust(rig, matches, again);
+        r2.lens_warning = "camera " + std::to_string(i) + ": the estimated lens was dropped (" + why + ")";
+        return r2;
+      }
+  }
   if (rep.ok) apply(rig, p, x);
   return rep;
 }

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <string>
 #include <vector>
 
 #include "stitch/rig/rig.hpp"
@@ -14,6 +15,10 @@ struct PairMatches {
   int a = -1, b = -1;
   std::vector<Eigen::Vector2d> pa, pb;  // the same scene point in camera a and camera b (pixels)
   std::vector<double> weight;           // per match (1 / its localisation uncertainty); empty: all 1
+  // Raw pixels of the same matches (issue 15), when the cameras have lenses: pa/pb are then the
+  // ideal (undistorted) pixels under the start rig's lenses, and the adjustment works on these
+  // through lens_unproject / lens_project (the focal changes the undistortion too). Empty: pinhole.
+  std::vector<Eigen::Vector2d> ra, rb;
 };
 
 struct BundleAdjustOptions {
@@ -23,15 +28,26 @@ struct BundleAdjustOptions {
   bool shared_focal = false;
   int max_iterations = 100;      // LM iterations per round
   double outlier_px = 3.0;       // after the first round, matches off by more are dropped
+  // Cameras whose lens.estimate is set also get k1 (and k2 when `estimate_k2`) refined, through
+  // the raw matches (issue 15). Off: every lens is kept as given.
+  bool estimate_lens = true;
+  bool estimate_k2 = true;
+  // Cameras of the same lens model and frame size that all estimate share one k1 (k2): fewer
+  // unknowns for a rig of identical cameras. Off by default (per-camera lenses measured as well).
+  bool shared_lens = false;
 };
 
 struct BundleAdjustReport {
   double rms_before_px = -1, rms_after_px = -1;  // symmetric transfer error over the kept matches
   int matches = 0, dropped = 0;
   bool ok = false;
+  bool lens = false;                 // the residuals went through the cameras' lenses (raw pixels)
+  std::vector<int> lens_estimated;   // cameras whose k1 (k2) the adjustment estimated
+  std::string lens_warning;          // an estimate that folded the image and was dropped
 };
 
-// Refines R and f (fx, fy together; principal points stay) of every camera; the reference
+// Refines R and f (fx, fy together; principal points stay) of every camera (and k1, k2 of
+// cameras whose lens asks for an estimate); the reference
 // camera's rotation is held (it fixes the rig frame). Cameras without matches stay as they are.
 BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& matches,
                                  const BundleAdjustOptions& options = {});

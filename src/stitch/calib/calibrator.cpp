@@ -15,6 +15,7 @@
 #include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
+#include "stitch/rig/lens.hpp"
 #include "stitch/rig/overlap.hpp"
 
 namespace stitch {
@@ -105,9 +106,33 @@ cv::Rect2d overlap_box(const Rig& rig, int a, int b) {
   return {x0, y0, x1 - x0, y1 - y0};
 }
 
-// Mask of the camera pixels that land in the (widened) canvas box.
-cv::Mat camera_mask(const Camera& c, const cv::Rect2d& box) {
+// Mask of the camera pixels that land in the (widened) canvas box. With a lens the box's border
+// is sampled and mapped through the lens-aware canvas map (a straight canvas edge bends).
+cv::Mat camera_mask(const Rig& rig, int cam, const cv::Rect2d& box) {
+  const Camera& c = rig.cameras[cam];
   cv::Mat mask(c.height, c.width, CV_8U, cv::Scalar(0));
+  if (!c.lens.pinhole()) {
+    const CameraCanvasMap m = camera_canvas_map(rig, cam);
+    std::vector<cv::Point> poly;
+    constexpr int kSteps = 16;
+    for (int side = 0; side < 4; ++side)
+      for (int k = 0; k < kSteps; ++k) {
+        const double t = double(k) / kSteps;
+        Eigen::Vector2d q;
+        switch (side) {
+          case 0: q = {box.x + t * box.width, box.y}; break;
+          case 1: q = {box.x + box.width, box.y + t * box.height}; break;
+          case 2: q = {box.x + (1 - t) * box.width, box.y + box.height}; break;
+          default: q = {box.x, box.y + (1 - t) * box.height}; break;
+        }
+        Eigen::Vector2d px;
+        if (!m.to_camera(q, px) || !px.allFinite()) return cv::Mat(c.height, c.width, CV_8U, cv::Scalar(255));
+        px = px.cwiseMax(-1e5).cwiseMin(1e5);
+        poly.emplace_back(int(std::lround(px.x())), int(std::lround(px.y())));
+      }
+    cv::fillPoly(mask, std::vector<std::vector<cv::Point>>{poly}, cv::Scalar(255));
+    return mask;
+  }
   const Eigen::Matrix3d Hinv = c.homography->inverse();
   std::vector<cv::Point> poly;
   const Eigen::Vector2d corners[4] = {{box.x, box.y}, {box.x + box.width, box.y},
@@ -121,9 +146,29 @@ cv::Mat camera_mask(const Camera& c, const cv::Rect2d& box) {
   return mask;
 }
 
+// `p`: an IDEAL (undistorted) pixel; the plane homography maps ideal pixels to the canvas.
 cv::Point2f to_canvas(const Camera& c, const cv::Point2f& p) {
   Eigen::Vector2d q = apply_homography(*c.homography, {p.x, p.y});
   return {float(q.x()), float(q.y())};
+}
+
+// Ideal pixel of raw pixel `p` (issue 15: fits happen on ideal pixels); false where the lens
+// has none. Pinhole cameras: the pixel itself.
+bool ideal_of(const Camera& c, const cv::Point2f& p, cv::Point2f& out) {
+  if (c.lens.pinhole()) {
+    out = p;
+    return true;
+  }
+  Eigen::Vector2d q;
+  if (!undistort_point(c, {p.x, p.y}, q) || !q.allFinite()) return false;
+  out = {float(q.x()), float(q.y())};
+  return true;
+}
+
+bool any_lens(const Rig& rig) {
+  for (const auto& c : rig.cameras)
+    if (!c.lens.pinhole()) return true;
+  return false;
 }
 
 struct ScaleShift {
@@ -295,7 +340,8 @@ struct PairData {
   int matches = 0, inliers = 0;
   bool ok = false;
   Eigen::Matrix3d H = Eigen::Matrix3d::Identity();  // a -> b pixels (RANSAC, all inliers)
-  std::vector<Eigen::Vector2d> pa, pb;
+  std::vector<Eigen::Vector2d> pa, pb;  // IDEAL pixels (undistorted through the rig's lenses)
+  std::vector<Eigen::Vector2d> ra, rb;  // the raw keypoints (filled when a camera has a lens)
   std::vector<double> weight;  // 1 / the keypoints' scale (SIFT localises coarse blobs worse)
   std::vector<char> held;
   std::string note;
@@ -313,17 +359,24 @@ FeatureSets detect_all(const std::vector<std::vector<ImageView>>& sets, int n, c
 
 // `predicted`: the rough a -> b homography; matches farther than `tolerance` px from it are
 // dropped (a repeated texture elsewhere in the view would pull the pair together wrongly).
+// `lens_rig`: cameras whose lenses undistort the keypoints before every fit (null: pinhole).
 PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOptions& o,
-                    const Eigen::Matrix3d* predicted, double tolerance) {
+                    const Eigen::Matrix3d* predicted, double tolerance, const Rig* lens_rig = nullptr) {
   PairData p;
   p.a = a;
   p.b = b;
-  std::vector<cv::Point2f> pa, pb;
+  const bool lens = lens_rig && any_lens(*lens_rig);
+  std::vector<cv::Point2f> pa, pb, raw_a, raw_b;
   std::vector<double> size;
   for (const auto& f : feats)
     for (const auto& mt : match(f[a], f[b], o.features)) {
-      pa.push_back(f[a].keypoints[mt.queryIdx].pt);
-      pb.push_back(f[b].keypoints[mt.trainIdx].pt);
+      const cv::Point2f qa = f[a].keypoints[mt.queryIdx].pt, qb = f[b].keypoints[mt.trainIdx].pt;
+      cv::Point2f ia = qa, ib = qb;
+      if (lens && (!ideal_of(lens_rig->cameras[a], qa, ia) || !ideal_of(lens_rig->cameras[b], qb, ib))) continue;
+      pa.push_back(ia);
+      pb.push_back(ib);
+      raw_a.push_back(qa);
+      raw_b.push_back(qb);
       size.push_back(0.5 * (f[a].keypoints[mt.queryIdx].size + f[b].keypoints[mt.trainIdx].size));
     }
   p.matches = int(pa.size());
@@ -346,6 +399,10 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
     if (predicted && (apply_homography(*predicted, qa) - qb).norm() > tolerance) continue;
     p.pa.push_back(qa);
     p.pb.push_back(qb);
+    if (lens) {
+      p.ra.emplace_back(raw_a[k].x, raw_a[k].y);
+      p.rb.emplace_back(raw_b[k].x, raw_b[k].y);
+    }
     p.weight.push_back(std::min(1.0, kWeightSize / std::max(size[k], 1e-3)));
     const int every = std::max(o.holdout_every, 0);
     p.held.push_back(every >= 2 && kept % every == every / 2);
@@ -385,6 +442,10 @@ std::vector<PairMatches> training_matches(const std::vector<PairData>& pairs, st
       m.pa.push_back(p.pa[j]);
       m.pb.push_back(p.pb[j]);
       m.weight.push_back(p.weight[j]);
+      if (p.ra.size() == p.pa.size()) {
+        m.ra.push_back(p.ra[j]);
+        m.rb.push_back(p.rb[j]);
+      }
     }
     out.push_back(std::move(m));
   }
@@ -422,10 +483,16 @@ Residuals residuals(const Rig& rig, const std::vector<PairData>& pairs, bool rot
     int pc = 0;
     if (p.ok) {
       const Eigen::Matrix3d H = pair_map(rig, p.a, p.b, rotation), Hi = H.inverse();
+      // With lenses: the raw keypoints undistorted through THIS rig's lenses and focal lengths
+      // (an adjustment that refined them judges itself by its own ideal pixels).
+      const bool lens = p.ra.size() == p.pa.size() && !p.ra.empty();
       for (std::size_t k = 0; k < p.pa.size(); ++k) {
         if (bool(p.held[k]) != heldout) continue;
-        const double e2 = 0.5 * ((apply_homography(H, p.pa[k]) - p.pb[k]).squaredNorm() +
-                                 (apply_homography(Hi, p.pb[k]) - p.pa[k]).squaredNorm());
+        Eigen::Vector2d qa = p.pa[k], qb = p.pb[k];
+        if (lens && (!undistort_point(rig.cameras[p.a], p.ra[k], qa) || !undistort_point(rig.cameras[p.b], p.rb[k], qb)))
+          qa = p.pa[k], qb = p.pb[k];
+        const double e2 = 0.5 * ((apply_homography(H, qa) - qb).squaredNorm() +
+                                 (apply_homography(Hi, qb) - qa).squaredNorm());
         const double e = std::isfinite(e2) ? std::min(100.0, e2) : 100.0;
         ps += e;
         ++pc;
@@ -562,6 +629,7 @@ struct RotationFit {
   Rig rig;
   BundleAdjustReport ba;
   bool ok = false;
+  std::vector<std::string> warnings;
 };
 
 RotationFit adjust(const Rig& start, const std::vector<PairData>& pairs) {
@@ -571,6 +639,7 @@ RotationFit adjust(const Rig& start, const std::vector<PairData>& pairs) {
   if (train.empty()) return f;
   f.ba = bundle_adjust(f.rig, train);
   f.ok = f.ba.ok;
+  if (!f.ba.lens_warning.empty()) f.warnings.push_back(f.ba.lens_warning);
   return f;
 }
 
@@ -769,13 +838,16 @@ void refine_homography_chain(CalibrationResult& res, const std::vector<std::vect
       box.y -= m;
       box.width += 2 * m;
       box.height += 2 * m;
-      const cv::Mat mask_c = camera_mask(rig.cameras[cam], box), mask_n = camera_mask(rig.cameras[nb], box);
+      const cv::Mat mask_c = camera_mask(rig, cam, box), mask_n = camera_mask(rig, nb, box);
       for (std::size_t t = 0; t < gray.size(); ++t) {
         const Features fc = feats ? masked((*feats)[t][cam], mask_c) : detect(gray[t][cam], mask_c, o);
         const Features fn = feats ? masked((*feats)[t][nb], mask_n) : detect(gray[t][nb], mask_n, o);
         for (const auto& mt : match(fc, fn, o.features)) {
-          const cv::Point2f& pc = fc.keypoints[mt.queryIdx].pt;
-          const cv::Point2f& pn = fn.keypoints[mt.trainIdx].pt;
+          // Ideal pixels: the homographies map those (the held-out set is keyed on them too).
+          cv::Point2f pc, pn;
+          if (!ideal_of(rig.cameras[cam], fc.keypoints[mt.queryIdx].pt, pc) ||
+              !ideal_of(rig.cameras[nb], fn.keypoints[mt.trainIdx].pt, pn))
+            continue;
           if (held.count(held_key(cam, nb, pc)) || held.count(held_key(nb, cam, pn))) continue;
           src.push_back(to_canvas(rig.cameras[cam], pc));
           dst.push_back(to_canvas(rig.cameras[nb], pn));
@@ -967,27 +1039,37 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   }
   // Matches of every pair that the start says may overlap, checked against it.
   const FeatureSets feats = detect_all(sets, n, o);
-  std::vector<PairData> pairs;
-  for (int a = 0; a < n; ++a)
-    for (int b = a + 1; b < n; ++b) {
-      const Camera &A = start.cameras[a], &B = start.cameras[b];
-      if (start.planar()) {
-        if (overlap_box(start, a, b).area() <= 0) continue;
-      } else {
-        const double axes = std::acos(std::clamp(A.R().col(2).dot(B.R().col(2)), -1.0, 1.0));
-        if (axes > (half_diagonal_fov(A) + half_diagonal_fov(B)) * (1 + o.overlap_margin)) continue;
+  // `lens_rig`: whose lenses undistort the keypoints (the start; again with estimated lenses).
+  auto match_all = [&](const Rig& lens_rig) {
+    std::vector<PairData> out;
+    for (int a = 0; a < n; ++a)
+      for (int b = a + 1; b < n; ++b) {
+        const Camera &A = start.cameras[a], &B = start.cameras[b];
+        if (start.planar()) {
+          if (overlap_box(start, a, b).area() <= 0) continue;
+        } else {
+          const double axes = std::acos(std::clamp(A.R().col(2).dot(B.R().col(2)), -1.0, 1.0));
+          if (axes > (half_diagonal_fov(A) + half_diagonal_fov(B)) * (1 + o.overlap_margin)) continue;
+        }
+        const Eigen::Matrix3d predicted = start.planar() ? Eigen::Matrix3d(B.homography->inverse() * *A.homography)
+                                                         : rough_pairwise_homography(start, a, b);
+        out.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), &lens_rig));
       }
-      const Eigen::Matrix3d predicted =
-          start.planar() ? Eigen::Matrix3d(B.homography->inverse() * *A.homography) : rough_pairwise_homography(start, a, b);
-      pairs.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height)));
-    }
+    return out;
+  };
+  std::vector<PairData> pairs = match_all(start);
+  bool estimating = false;
+  for (const auto& c : rough.cameras) estimating |= c.lens.estimate && !c.lens.pinhole();
   std::vector<bool> matched(n, false);
-  for (const auto& p : pairs)
-    if (p.ok) matched[p.a] = matched[p.b] = true;
   int held = 0;
-  for (const auto& p : pairs)
-    if (p.ok) held += p.held_count();
-  res.heldout_matches = held;
+  auto count_matched = [&] {
+    matched.assign(n, false);
+    held = 0;
+    for (const auto& p : pairs)
+      if (p.ok) matched[p.a] = matched[p.b] = true, held += p.held_count();
+    res.heldout_matches = held;
+  };
+  count_matched();
 
   // The rotation model from the rough rotations (or, for a rig given by homographies, from
   // those: each camera's rotation relative to the reference's through its K).
@@ -1003,6 +1085,41 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       }
     }
     rot = adjust(r0, pairs);
+    if (rot.ok && estimating) {
+      // The first pass matched with lenses still unknown: the homography RANSAC (3 px) dropped
+      // much of the distorted periphery, which is what tells k2 and the focal length apart.
+      // Match again through the estimated lenses and adjust again from the first estimate.
+      Rig lens_rig = start;
+      for (int i = 0; i < n; ++i)
+        if (rough.cameras[i].lens.estimate) {
+          lens_rig.cameras[i].lens = rot.rig.cameras[i].lens;
+          lens_rig.cameras[i].lens.estimate = true;
+        }
+      std::vector<PairData> pairs2 = match_all(lens_rig);
+      Rig r1 = rot.rig;
+      for (int i = 0; i < n; ++i) r1.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
+      RotationFit rot2 = adjust(r1, pairs2);
+      if (rot2.ok) {
+        rot = std::move(rot2);
+        pairs = std::move(pairs2);
+        start = lens_rig;  // the homography chain works on the same ideal pixels
+        count_matched();
+      }
+    }
+    res.warnings.insert(res.warnings.end(), rot.warnings.begin(), rot.warnings.end());
+    if (rot.ok && estimating)
+      for (int i = 0; i < n; ++i) {
+        // Focal and distortion trade off: an estimate that more than halves or doubles a rough
+        // focal length ran off (seen on k1 -0.35 barrel lenses from a zero start). Say so and
+        // keep the rough rig rather than a degenerate one.
+        const double ratio = rot.rig.cameras[i].fx / rough.cameras[i].fx;
+        if (ratio > 0.5 && ratio < 2.0) continue;
+        res.warnings.push_back("camera " + std::to_string(i) + ": estimating the lens ran off (focal length " +
+                               std::to_string(rough.cameras[i].fx) + " -> " + std::to_string(rot.rig.cameras[i].fx) +
+                               " px): keeping the rough rig; give the lens coefficients");
+        rot.ok = false;
+        break;
+      }
     if (rot.ok) {
       res.rotation_heldout_px = residuals(rot.rig, pairs, true, true).rms_px;
     } else if (model == CameraModel::Rotation && !pairs.empty()) {
@@ -1278,7 +1395,26 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
         pb.push_back(feats[b].keypoints[mt.trainIdx].pt);
       }
       std::vector<uchar> inl;
-      cv::Mat F = cv::findFundamentalMat(pa, pb, inl, cv::FM_RANSAC, 1.5, 0.999);
+      // The epipolar test holds for ideal pixels: undistort through the rig's lenses first
+      // (the distances below map the raw keypoints through the lens-aware canvas maps).
+      std::vector<cv::Point2f> ua = pa, ub = pb;
+      if (!rig.cameras[a].lens.pinhole() || !rig.cameras[b].lens.pinhole()) {
+        std::vector<cv::Point2f> ka, kb, ra, rb;
+        const std::vector<cv::Point2f> ia = undistort_points(rig.cameras[a], pa), ib = undistort_points(rig.cameras[b], pb);
+        for (std::size_t k = 0; k < pa.size(); ++k)
+          if (std::isfinite(ia[k].x) && std::isfinite(ia[k].y) && std::isfinite(ib[k].x) && std::isfinite(ib[k].y)) {
+            ka.push_back(ia[k]);
+            kb.push_back(ib[k]);
+            ra.push_back(pa[k]);
+            rb.push_back(pb[k]);
+          }
+        if (ka.size() < 8) continue;
+        ua = std::move(ka);
+        ub = std::move(kb);
+        pa = std::move(ra);
+        pb = std::move(rb);
+      }
+      cv::Mat F = cv::findFundamentalMat(ua, ub, inl, cv::FM_RANSAC, 1.5, 0.999);
       if (F.empty()) continue;
       std::vector<double> d;
       const CameraCanvasMap ma = camera_canvas_map(rig, a), mb = camera_canvas_map(rig, b);

@@ -1,0 +1,216 @@
+// Lens-aware calibration (issue 15): three barrel-distorted cameras rendered from the
+// repository photo (taken as an equirectangular panorama), calibrated from a rough rig whose
+// focal lengths are 5 % off and yaws 3 degrees off. With the lens coefficients known the fits
+// run on undistorted keypoints; with `"lens": {"model": "radtan"}` and no coefficients the
+// bundle adjustment estimates k1 (and k2).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+
+#include "lens_rig.hpp"
+#include "stitch/calib/calibrator.hpp"
+#include "stitch/cv_interop.hpp"
+#include "stitch/rig/lens.hpp"
+#include "test_data.hpp"
+
+using namespace stitch;
+
+namespace {
+
+constexpr double kK1 = -0.23, kK2 = 0.055;
+
+Rig true_rig(double k1 = kK1, double k2 = kK2) {
+  Rig rig;
+  rig.projection = "plane";
+  for (int i = 0; i < 3; ++i) {
+    Camera c;
+    c.width = 320, c.height = 240;
+    c.fx = c.fy = 260;
+    c.cx = 159.5, c.cy = 119.5;
+    c.yaw_deg = 35.0 * (i - 1);
+    c.pitch_deg = i == 2 ? 2.0 : 0.0;
+    c.lens.model = Lens::Model::Radtan;
+    c.lens.k1 = k1;
+    c.lens.k2 = k2;
+    rig.cameras.push_back(c);
+  }
+  rig.reference = 1;
+  return rig;
+}
+
+// Focal 5 % off (alternating), yaw 3 degrees off, pitch dropped.
+Rig rough_of(const Rig& truth) {
+  Rig r = truth;
+  for (std::size_t i = 0; i < r.cameras.size(); ++i) {
+    Camera& c = r.cameras[i];
+    const double s = i % 2 ? 1.05 : 0.95;
+    c.fx *= s;
+    c.fy *= s;
+    c.yaw_deg += i % 2 ? -3.0 : 3.0;
+    c.pitch_deg = 0;
+  }
+  return r;
+}
+
+// Where the calibration puts each non-reference camera's image corners, in that camera's raw
+// pixels under the truth: corner -> ray (estimated lens, K, R, relative to the reference) ->
+// the true camera. The worst corner over the cameras.
+double corner_error(const Rig& est, const Rig& truth) {
+  double worst = 0;
+  const int ref = truth.reference;
+  const Eigen::Matrix3d Re = est.cameras[est.reference].R().transpose(), Rt = truth.cameras[ref].R().transpose();
+  for (std::size_t i = 0; i < truth.cameras.size(); ++i) {
+    if (int(i) == ref) continue;
+    const Camera &E = est.cameras[i], &T = truth.cameras[i];
+    for (const Eigen::Vector2d& p : {Eigen::Vector2d(0, 0), Eigen::Vector2d(T.width - 1, 0),
+                                     Eigen::Vector2d(T.width - 1, T.height - 1), Eigen::Vector2d(0, T.height - 1)}) {
+      Eigen::Vector3d ray;
+      Eigen::Vector2d q;
+      if (!lens_unproject(E, p, ray)) return 1e9;
+      const Eigen::Vector3d d = Re * E.R() * ray;  // reference-camera frame
+      if (!lens_project(T, T.R().transpose() * (Rt.transpose() * d), q)) return 1e9;
+      worst = std::max(worst, (q - p).norm());
+    }
+  }
+  return worst;
+}
+
+struct Scene {
+  Rig truth;
+  std::vector<cv::Mat> frames;
+  std::vector<ImageView> views;
+};
+
+const Scene& scene() {
+  static Scene s = [] {
+    Scene sc;
+    sc.truth = true_rig();
+    const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+    for (const auto& c : sc.truth.cameras) sc.frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    for (auto& f : sc.frames) sc.views.push_back(as_view(f));
+    return sc;
+  }();
+  return s;
+}
+
+}  // namespace
+
+TEST(CalibLens, KnownRadtanCoefficients) {
+  const Scene& s = scene();
+  const Rig rough = rough_of(s.truth);
+  const double rough_err = corner_error(rough, s.truth);
+  const CalibrationResult r = calibrate_from_rig(rough, s.views, CalibrationOptions{});
+  const double err = corner_error(r.rig, s.truth);
+  const AlignmentReport al = measure_alignment(r.rig, s.views);
+  // The same calibration with the lens ignored (a pinhole rough rig).
+  Rig pin = rough;
+  for (auto& c : pin.cameras) c.lens = Lens{};
+  const CalibrationResult rp = calibrate_from_rig(pin, s.views, CalibrationOptions{});
+  const double err_pin = corner_error(rp.rig, s.truth);
+  const AlignmentReport al_pin = measure_alignment(rp.rig, s.views);
+  // What the calibrator did before it knew lenses: the pinhole fit on raw keypoints, the rough
+  // rig's lens kept in the result.
+  Rig before = rp.rig;
+  for (std::size_t i = 0; i < before.cameras.size(); ++i) before.cameras[i].lens = rough.cameras[i].lens;
+  const double err_before = corner_error(before, s.truth);
+  for (std::size_t i = 0; i < rp.rig.cameras.size(); ++i)
+    std::printf("  lens ignored: camera %zu f %.1f (true %.0f), yaw %.2f (true %.2f)\n", i, rp.rig.cameras[i].fx,
+                s.truth.cameras[i].fx, rp.rig.cameras[i].yaw_deg - rp.rig.cameras[rp.rig.reference].yaw_deg,
+                s.truth.cameras[i].yaw_deg - s.truth.cameras[s.truth.reference].yaw_deg);
+  const AlignmentReport al_before = measure_alignment(before, s.views);
+  std::printf("  pinhole fit, lens kept (the calibrator before issue 15): corner error %.3f px, overlap matches "
+              "median %.3f px (p90 %.3f, %d)\n",
+              err_before, al_before.median_px, al_before.p90_px, al_before.matches);
+  std::printf("radtan k1 %.2f k2 %.3f, 3x 320x240, rough corner error %.2f px\n"
+              "  lens known:   model %s, corner error %.3f px, overlap matches median %.3f px (p90 %.3f, %d)\n"
+              "  lens ignored: model %s, corner error %.3f px, overlap matches median %.3f px (p90 %.3f, %d)\n",
+              kK1, kK2, rough_err, camera_model_name(r.model), err, al.median_px, al.p90_px, al.matches,
+              camera_model_name(rp.model), err_pin, al_pin.median_px, al_pin.p90_px, al_pin.matches);
+  for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+  RecordProperty("corner_error_px", std::to_string(err));
+  RecordProperty("corner_error_lens_ignored_px", std::to_string(err_pin));
+  EXPECT_GT(rough_err, 5.0);
+  EXPECT_LE(err, 0.5);
+  ASSERT_GT(al.matches, 50);
+  EXPECT_LE(al.median_px, 0.3);
+  EXPECT_GT(err_pin, 3 * err);
+  // The coefficients were given: they stay.
+  for (const auto& c : r.rig.cameras) {
+    EXPECT_DOUBLE_EQ(c.lens.k1, kK1);
+    EXPECT_DOUBLE_EQ(c.lens.k2, kK2);
+  }
+}
+
+TEST(CalibLens, EstimatesRadtanCoefficients) {
+  const Scene& s = scene();
+  Rig rough = rough_of(s.truth);
+  for (auto& c : rough.cameras) {
+    c.lens = Lens{};
+    c.lens.model = Lens::Model::Radtan;  // "lens": {"model": "radtan"}: estimate them
+    c.lens.estimate = true;
+  }
+  const CalibrationResult r = calibrate_from_rig(rough, s.views, CalibrationOptions{});
+  const double err = corner_error(r.rig, s.truth);
+  const AlignmentReport al = measure_alignment(r.rig, s.views);
+  std::printf("radtan estimated: model %s, corner error %.3f px, overlap matches median %.3f px (p90 %.3f, %d)\n",
+              camera_model_name(r.model), err, al.median_px, al.p90_px, al.matches);
+  for (std::size_t i = 0; i < r.rig.cameras.size(); ++i)
+    std::printf("  camera %zu: k1 %+.4f (true %+.3f) k2 %+.4f (true %+.3f) f %.2f (true %.0f)\n", i,
+                r.rig.cameras[i].lens.k1, kK1, r.rig.cameras[i].lens.k2, kK2, r.rig.cameras[i].fx, s.truth.cameras[i].fx);
+  for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+  RecordProperty("corner_error_px", std::to_string(err));
+  EXPECT_EQ(r.model, CameraModel::Rotation);
+  EXPECT_LE(err, 0.5);
+  EXPECT_LE(al.median_px, 0.3);
+  for (const auto& c : r.rig.cameras) {
+    EXPECT_NEAR(c.lens.k1, kK1, 0.1 * std::abs(kK1));
+    EXPECT_TRUE(lens_problem(c).empty());
+    EXPECT_FALSE(c.lens.estimate) << "estimated: the written rig carries the coefficients";
+  }
+  // The calibrated rig file carries the estimates and loads back to the same lenses.
+  const Rig back = rig_from_json_string(rig_to_json_string(r.rig));
+  for (std::size_t i = 0; i < back.cameras.size(); ++i) {
+    EXPECT_FALSE(back.cameras[i].lens.estimate);
+    EXPECT_NEAR(back.cameras[i].lens.k1, r.rig.cameras[i].lens.k1, 1e-9);
+    EXPECT_NEAR(back.cameras[i].lens.k2, r.rig.cameras[i].lens.k2, 1e-9);
+  }
+}
+
+// The issue's range of radtan lenses (k1 -0.35 ... +0.1), estimated from rough rigs without
+// coefficients. DISABLED: not met yet (BENCHMARKS.md): k1 -0.35 runs off (focal x60, a folding
+// lens, dropped, then the pinhole fallback fails too; a guard keeps the rough rig with a
+// warning): 55 px; k1 +0.1: 0.70 px corner error
+// (k1 within 4 %, alignment 0.11 px). Run with --gtest_also_run_disabled_tests.
+TEST(CalibLens, DISABLED_EstimatesAcrossTheRange) {
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  for (double k1 : {-0.35, 0.1}) {
+    const double k2 = k1 < 0 ? 0.25 * k1 * k1 : 0.0;
+    const Rig truth = true_rig(k1, k2);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> views;
+    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    for (auto& f : frames) views.push_back(as_view(f));
+    Rig rough = rough_of(truth);
+    for (auto& c : rough.cameras) {
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+    }
+    const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+    const double err = corner_error(r.rig, truth);
+    const AlignmentReport al = measure_alignment(r.rig, views);
+    double worst_k1 = 0;
+    for (const auto& c : r.rig.cameras) worst_k1 = std::max(worst_k1, std::abs(c.lens.k1 - k1));
+    std::printf("radtan k1 %+.2f k2 %.3f estimated: model %s, corner error %.3f px, overlap matches median %.3f px, "
+                "worst k1 error %.4f\n",
+                k1, k2, camera_model_name(r.model), err, al.median_px, worst_k1);
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    for (std::size_t i = 0; i < r.rig.cameras.size(); ++i)
+      std::printf("  camera %zu: k1 %+.4f k2 %+.4f f %.2f (true 260)\n", i, r.rig.cameras[i].lens.k1,
+                  r.rig.cameras[i].lens.k2, r.rig.cameras[i].fx);
+    EXPECT_LE(err, 0.5) << k1;
+    EXPECT_LE(al.median_px, 0.3) << k1;
+    EXPECT_LE(worst_k1, 0.1 * std::abs(k1)) << k1;
+  }
+}
