@@ -6,6 +6,7 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/projection_math.hpp"
 #include "stitch/rig/rig.hpp"
 #include "synthetic_rig.hpp"
@@ -62,6 +63,33 @@ inline RingScene render_ring(const cv::Mat& panorama, int n, int width, int heig
   }
   s.frames = render_from_panorama(panorama, s.truth, kind, seam_deg);
   return s;
+}
+
+// Worst canvas distance (wrap-aware) between where the estimated rig puts the two images of one
+// scene point seen by cameras a and b, over ground-truth correspondences in their overlap
+// (every `step` px of camera a); `samples` counts them.
+inline double worst_seam_px(const stitch::Rig& est, const stitch::Rig& truth, int a, int b, double step = 10,
+                            int* samples = nullptr) {
+  const stitch::CameraCanvasMap ma = stitch::camera_canvas_map(est, a), mb = stitch::camera_canvas_map(est, b);
+  const stitch::Camera &A = truth.cameras[a], &B = truth.cameras[b];
+  double worst = 0;
+  int n = 0;
+  for (double y = 20; y < A.height - 20; y += 20)
+    for (double x = 5; x < A.width - 5; x += step) {
+      const Eigen::Vector3d ray = A.R() * (A.K().inverse() * Eigen::Vector3d(x, y, 1));
+      const Eigen::Vector3d pb = B.K() * (B.R().transpose() * ray);
+      if (pb.z() <= 0) continue;
+      const Eigen::Vector2d qb = pb.head<2>() / pb.z();
+      if (qb.x() < 5 || qb.y() < 5 || qb.x() > B.width - 6 || qb.y() > B.height - 6) continue;
+      Eigen::Vector2d ca, cb;
+      if (!ma.to_canvas({x, y}, ca) || !mb.to_canvas(qb, cb)) continue;
+      double dx = ca.x() - cb.x();
+      if (est.canvas_wrap) dx -= std::round(dx / est.canvas_width) * est.canvas_width;
+      worst = std::max(worst, std::hypot(dx, ca.y() - cb.y()));
+      ++n;
+    }
+  if (samples) *samples = n;
+  return worst;
 }
 
 }  // namespace testdata

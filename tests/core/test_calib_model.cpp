@@ -230,27 +230,6 @@ TEST(CameraModel, ImagesAloneOnARotatingRigMatchTheTruth) {
 
 namespace {
 
-// Worst canvas distance (wrap-aware) between where the estimate puts the two images of one
-// scene point seen by cameras a and b (true correspondences in their overlap).
-double worst_seam_px(const Rig& est, const Rig& truth, int a, int b) {
-  const CameraCanvasMap ma = camera_canvas_map(est, a), mb = camera_canvas_map(est, b);
-  const Camera &A = truth.cameras[a], &B = truth.cameras[b];
-  double worst = 0;
-  for (double y = 20; y < A.height - 20; y += 20)
-    for (double x = 5; x < A.width - 5; x += 10) {
-      const Eigen::Vector3d ray = A.R() * (A.K().inverse() * Eigen::Vector3d(x, y, 1));
-      const Eigen::Vector3d pb = B.K() * (B.R().transpose() * ray);
-      if (pb.z() <= 0) continue;
-      const Eigen::Vector2d qb = pb.head<2>() / pb.z();
-      if (qb.x() < 5 || qb.y() < 5 || qb.x() > B.width - 6 || qb.y() > B.height - 6) continue;
-      Eigen::Vector2d ca, cb;
-      if (!ma.to_canvas({x, y}, ca) || !mb.to_canvas(qb, cb)) continue;
-      double dx = ca.x() - cb.x();
-      if (est.canvas_wrap) dx -= std::round(dx / est.canvas_width) * est.canvas_width;
-      worst = std::max(worst, std::hypot(dx, ca.y() - cb.y()));
-    }
-  return worst;
-}
 
 }  // namespace
 
@@ -279,7 +258,7 @@ TEST(ImagesAlone, RingClosesAndPicksACylinder) {
   for (int k = 0; k < 6; ++k) {
     const int a = int(std::find(order.begin(), order.end(), k) - order.begin());
     const int b = int(std::find(order.begin(), order.end(), (k + 1) % 6) - order.begin());
-    const double e = worst_seam_px(r.rig, truth, a, b);
+    const double e = testdata::worst_seam_px(r.rig, truth, a, b);
     std::printf("  seam %d-%d: worst %.3f px\n", k, (k + 1) % 6, e);
     EXPECT_LT(e, 1.0) << "seam " << k;
   }
@@ -296,7 +275,7 @@ TEST(ImagesAlone, CylindricalOnRequestWithoutARig) {
   EXPECT_EQ(r.model, CameraModel::Rotation);
   EXPECT_TRUE(r.rig.calibrated());
   for (int i = 0; i < 2; ++i) {
-    const double e = worst_seam_px(r.rig, s.truth, i, i + 1);
+    const double e = testdata::worst_seam_px(r.rig, s.truth, i, i + 1);
     std::printf("cylindrical from images: seam %d-%d worst %.3f px\n", i, i + 1, e);
     EXPECT_LT(e, 1.0);
   }

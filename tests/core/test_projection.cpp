@@ -297,25 +297,11 @@ testdata::RingScene perturbed_ring(Projection kind, Rig& rough) {
   return s;
 }
 
-// Canvas distance (wrap-aware) between where the estimated rig puts the two images of one
-// scene point seen by cameras a and b, over ground-truth correspondences in their overlap.
+// The worst seam error of cameras a and b (testdata::worst_seam_px every 5 px), with enough
+// shared samples to mean something.
 double worst_seam_error(const Rig& est, const Rig& truth, int a, int b) {
-  const CameraCanvasMap ma = camera_canvas_map(est, a), mb = camera_canvas_map(est, b);
-  const Camera &A = truth.cameras[a], &B = truth.cameras[b];
-  double worst = 0;
   int n = 0;
-  for (double y = 20; y < A.height - 20; y += 20)
-    for (double x = 5; x < A.width - 5; x += 5) {
-      const Eigen::Vector3d ray = A.R() * (A.K().inverse() * Eigen::Vector3d(x, y, 1));
-      const Eigen::Vector3d pb = B.K() * (B.R().transpose() * ray);
-      if (pb.z() <= 0) continue;
-      const Eigen::Vector2d qb = pb.head<2>() / pb.z();
-      if (qb.x() < 5 || qb.y() < 5 || qb.x() > B.width - 6 || qb.y() > B.height - 6) continue;
-      Eigen::Vector2d ca, cb;
-      if (!ma.to_canvas({x, y}, ca) || !mb.to_canvas(qb, cb)) continue;
-      worst = std::max(worst, std::hypot(wrapped_dx(ca.x() - cb.x(), ma.period), ca.y() - cb.y()));
-      ++n;
-    }
+  const double worst = testdata::worst_seam_px(est, truth, a, b, 5, &n);
   EXPECT_GT(n, 50) << "cameras " << a << ", " << b << " share too little";
   return worst;
 }
