@@ -47,18 +47,6 @@ Rig ignoring_lenses(Rig rig) {
   return rig;
 }
 
-cv::Mat compose(const Rig& rig, std::vector<cv::Mat>& frames, Backend b = Backend::Cpu) {
-  Compositor comp(b);
-  comp.prepare(rig, CompositorSettings{});
-  cv::Mat pano(comp.geometry().height, comp.geometry().width, CV_8UC4);
-  std::vector<ImageView> views;
-  for (auto& f : frames) views.push_back(as_view(f));
-  comp.compose(views, as_view(pano));
-  return pano;
-}
-
-
-
 // Scene lines through each camera (rows and columns of rays across its view), seen in raw pixels
 // through the TRUE lens, mapped to the plane canvas by `rig`: the worst distance of a point from
 // its line's chord (0 = straight).
@@ -99,7 +87,7 @@ int quality(const std::string& path, int size) {
     std::vector<cv::Mat> frames;
     for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(pano, c));
     const Rig ign = ignoring_lenses(rig);
-    const cv::Mat on = compose(rig, frames), off = compose(ign, frames), gt = testdata::plane_ground_truth(pano, rig);
+    const cv::Mat on = testdata::compose_cpu(rig, frames), off = testdata::compose_cpu(ign, frames), gt = testdata::plane_ground_truth(pano, rig);
     cv::Mat gray, mask;
     cv::cvtColor(on, gray, cv::COLOR_RGBA2GRAY);
     mask = gray > 0;
@@ -124,7 +112,7 @@ int quality(const std::string& path, int size) {
   for (auto& s : spheres) {
     std::vector<cv::Mat> frames;
     for (const auto& c : s.rig.cameras) frames.push_back(testdata::render_camera_from_equirect(pano, c));
-    const cv::Mat on = compose(s.rig, frames);
+    const cv::Mat on = testdata::compose_cpu(s.rig, frames);
     cv::Mat gt = testdata::equirect_ground_truth(pano, s.rig), gt_padded(on.size(), gt.type(), cv::Scalar::all(0));
     gt.copyTo(gt_padded(cv::Rect(0, 0, gt.cols, gt.rows)));
     cv::Mat mask(on.size(), CV_8U, cv::Scalar(0));

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
+#include "stitch/blend/compositor.hpp"
+#include "stitch/cv_interop.hpp"
 #include "stitch/rig/lens.hpp"
 #include "stitch/rig/projection_math.hpp"
 #include "stitch/rig/rig.hpp"
@@ -124,6 +126,17 @@ inline stitch::Rig fisheye_ring(int n, int size, double fov_deg, double scale = 
   rig.canvas_scale = scale;
   stitch::rig_layout_canvas(rig);
   return rig;
+}
+
+// The rig's panorama composed from `frames` (RGBA) with default settings on the CPU.
+inline cv::Mat compose_cpu(const stitch::Rig& rig, std::vector<cv::Mat>& frames) {
+  stitch::Compositor comp(stitch::Backend::Cpu);
+  comp.prepare(rig, stitch::CompositorSettings{});
+  cv::Mat pano(comp.geometry().height, comp.geometry().width, CV_8UC4);
+  std::vector<stitch::ImageView> views;
+  for (auto& f : frames) views.push_back(stitch::as_view(f));
+  comp.compose(views, stitch::as_view(pano));
+  return pano;
 }
 
 }  // namespace testdata

@@ -42,18 +42,6 @@ Camera radtan_camera(double k1, double k2, double k3, double p1, double p2) {
 
 cv::Mat camera_matrix(const Camera& c) { return (cv::Mat_<double>(3, 3) << c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1); }
 
-// Compose the rig's panorama from `frames` on the CPU.
-cv::Mat stitch_cpu(const Rig& rig, std::vector<cv::Mat>& frames) {
-  Compositor comp(Backend::Cpu);
-  comp.prepare(rig, CompositorSettings{});
-  cv::Mat pano(comp.geometry().height, comp.geometry().width, CV_8UC4);
-  std::vector<ImageView> views;
-  for (auto& f : frames) views.push_back(as_view(f));
-  comp.compose(views, as_view(pano));
-  return pano;
-}
-
-
 }  // namespace
 
 TEST(Lens, RadtanMatchesOpenCvProjectPoints) {
@@ -317,7 +305,7 @@ TEST(Lens, DualFisheyeStitchesTheFullSphere) {
     EXPECT_EQ(rig.canvas_width, 2 * rig.canvas_height) << "a full sphere is 2:1";
     std::vector<cv::Mat> frames;
     for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
-    const cv::Mat pano = stitch_cpu(rig, frames);
+    const cv::Mat pano = testdata::compose_cpu(rig, frames);
     ASSERT_EQ(pano.cols, rig.canvas_width);
     cv::Mat gt = testdata::equirect_ground_truth(photo, rig);
     // The output is the canvas padded to even sizes.
@@ -358,10 +346,10 @@ TEST(Lens, RadtanRigStitchesMuchBetterWithItsLens) {
     std::vector<cv::Mat> frames;
     for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
     const cv::Mat gt = testdata::plane_ground_truth(photo, rig);
-    const cv::Mat with = stitch_cpu(rig, frames);
+    const cv::Mat with = testdata::compose_cpu(rig, frames);
     Rig ignored = rig;
     for (auto& c : ignored.cameras) c.lens = Lens{};
-    const cv::Mat without = stitch_cpu(ignored, frames);
+    const cv::Mat without = testdata::compose_cpu(ignored, frames);
     // Compare where the lens-aware panorama is covered (the inner 90 %, away from the border).
     cv::Mat gray, mask;
     cv::cvtColor(with, gray, cv::COLOR_RGBA2GRAY);
