@@ -2,7 +2,8 @@
 //   bundle copy (stitchsync) -> color (stitchcolor: 3D-M on the overlaps + piecewise balance)
 //   -> flow warp (stitchflowwarp: pre-warp + bidirectional dense flow + local warp)
 //   -> blend (stitchblend: fuse on the canvas, crop and scale into the panorama).
-// usage: stitch-bench-chain [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N]
+// usage: stitch-bench-chain [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--threads N] [--cpu-only]
+// --threads N: the CPU chain on N threads (cv::setNumThreads; default: OpenCV's, every core).
 // GPU: frames already in device memory. Each stage ends with its stream synchronised (as in
 // the elements), so stage and chain times are wall-clock medians over --frames frames.
 #include <algorithm>
@@ -20,6 +21,8 @@
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/warp/flow_warper.hpp"
+
+#include <opencv2/core/utility.hpp>
 
 #ifdef STITCH_HAVE_CUDA
 #include "stitch/cuda/cuda_util.hpp"
@@ -102,6 +105,8 @@ int main(int argc, char** argv) {
   std::string json_path, photo_path = "build/tests/boat1_1600.ppm";
   int frames = 200, cpu_frames = 10;
   std::string only_case;
+  int threads = 0;
+  bool cpu_only = false;
   FlowQuality quality = FlowQuality::Medium;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--json") && i + 1 < argc) json_path = argv[++i];
@@ -109,17 +114,21 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::max(1, std::atoi(argv[++i]));
     else if (!std::strcmp(argv[i], "--cpu-frames") && i + 1 < argc) cpu_frames = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--case") && i + 1 < argc) only_case = argv[++i];
+    else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) threads = std::atoi(argv[++i]);
+    else if (!std::strcmp(argv[i], "--cpu-only")) cpu_only = true;
     else if (!std::strcmp(argv[i], "--quality") && i + 1 < argc) {
       const std::string q = argv[++i];
       quality = q == "fast" ? FlowQuality::Fast : q == "fine" ? FlowQuality::Fine : FlowQuality::Medium;
     } else {
       std::fprintf(stderr, "usage: %s [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--case CxWxH] "
-                           "[--quality fast|medium|fine]\n", argv[0]);
+                           "[--quality fast|medium|fine] [--threads N] [--cpu-only]\n", argv[0]);
       return 2;
     }
   }
   const cv::Mat photo = testdata::read_photo_or_exit(photo_path);
-  const bool gpu = cuda_device_available();
+  if (threads > 0) cv::setNumThreads(threads);
+  std::printf("CPU threads: %d\n", cv::getNumThreads());
+  const bool gpu = !cpu_only && cuda_device_available();
   if (!gpu) std::printf("no CUDA device: CPU chain only\n");
   try {
     const std::vector<stitch_bench::Case> cases = {

@@ -5,14 +5,19 @@
 // memory (system memory, or CUDA memory with --cuda-input). Output: the panorama stays where
 // stitchblend puts it (CUDA memory when a device opens), or, with --system-output, is
 // downloaded to system memory.
+// --handoff event|host|both: the elements hand the bundles on by CUDA event (the default) or
+// synchronise their streams before pushing (STITCH_CUDA_HOST_SYNC=1, as before issue 17); both:
+// each case twice, for the A/B.
 // usage: stitch-bench-pipeline [--photo PPM] [--frames N] [--cases a,b] [--cuda-input] [--system-output]
-//                              [--chain "stitchcolor ! stitchflowwarp ! stitchblend"] [--json FILE]
+//                              [--chain "stitchcolor ! stitchflowwarp ! stitchblend"] [--handoff MODE]
+//                              [--json FILE]
 #include <gst/app/gstappsrc.h>
 #include <gst/gst.h>
 #include <gst/video/video.h>
 
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <string>
@@ -184,6 +189,7 @@ int main(int argc, char** argv) {
   std::string photo_path = "build/tests/boat1_1600.ppm", json_path, chain = "stitchcolor ! stitchflowwarp ! stitchblend";
   int frames = 600;
   bool cuda_input = false, system_output = false;
+  std::vector<std::string> handoffs = {"event"};
   std::vector<stitch_bench::Case> cases = {{2, 1920, 1080}, {3, 1920, 1080}, {3, 3840, 2160}, {6, 1920, 1080}};
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--photo") && i + 1 < argc) photo_path = argv[++i];
@@ -193,9 +199,12 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--cuda-input")) cuda_input = true;
     else if (!std::strcmp(argv[i], "--system-output")) system_output = true;
     else if (!std::strcmp(argv[i], "--small")) cases = {{3, 640, 480}};
-    else {
+    else if (!std::strcmp(argv[i], "--handoff") && i + 1 < argc) {
+      const std::string m = argv[++i];
+      handoffs = m == "both" ? std::vector<std::string>{"host", "event"} : std::vector<std::string>{m};
+    } else {
       std::fprintf(stderr, "usage: %s [--photo PPM] [--frames N] [--cuda-input] [--system-output] [--small] "
-                           "[--chain DESC] [--json FILE]\n", argv[0]);
+                           "[--chain DESC] [--handoff event|host|both] [--json FILE]\n", argv[0]);
       return 2;
     }
   }
@@ -219,18 +228,25 @@ int main(int argc, char** argv) {
   std::string json = "{\"input\":\"" + std::string(input) + "\",\"output\":\"" + output + "\",\"frames\":" +
                      std::to_string(frames) + ",\"cases\":[";
   int failures = 0;
-  for (std::size_t i = 0; i < cases.size(); ++i) {
+  std::size_t row = 0;
+  for (std::size_t i = 0; i < cases.size(); ++i)
+   for (const std::string& handoff : handoffs) {
     const auto& c = cases[i];
+    // read by the plugin at every frame (its own copy of the core library)
+    setenv("STITCH_CUDA_HOST_SYNC", handoff == "host" ? "1" : "0", 1);
     const Result r = run_case(c, photo, frames, cuda_input, system_output, chain, cuda_ctx);
-    char name[64];
-    std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
+    char name[80];
+    if (handoffs.size() > 1)
+      std::snprintf(name, sizeof name, "%dx%dx%d/%s", c.cameras, c.width, c.height, handoff.c_str());
+    else
+      std::snprintf(name, sizeof name, "%dx%dx%d", c.cameras, c.width, c.height);
     if (!r.error.empty()) {
       ++failures;
-      std::printf("%-12s error: %s\n", name, r.error.c_str());
+      std::printf("%-18s error: %s\n", name, r.error.c_str());
     } else {
-      std::printf("%-12s %8.1f panoramas/s (%d panoramas)\n", name, r.fps, r.frames);
+      std::printf("%-18s %8.1f panoramas/s (%d panoramas)\n", name, r.fps, r.frames);
     }
-    json += std::string(i ? "," : "") + "{\"case\":\"" + name + "\",\"panoramas_per_s\":" + std::to_string(r.fps) +
+    json += std::string(row++ ? "," : "") + "{\"case\":\"" + name + "\",\"panoramas_per_s\":" + std::to_string(r.fps) +
             ",\"error\":\"" + r.error + "\"}";
   }
   json += "]}\n";

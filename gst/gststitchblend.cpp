@@ -494,6 +494,7 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
   BlendState* st = self->state;
   GstStitchRigMeta* meta = gst_buffer_get_stitch_rig_meta(inbuf);
   const guint n_views = guint((*meta->rig)->cameras.size());
+  StitchCudaHandoff handoff(st->cuda);  /* waits on the bundle's events; the panorama is synchronised */
   StitchBundleMapping mapping;
   std::string error;
   if (!mapping.map(inbuf, n_views, GST_MAP_READ, error, st->in_cuda ? &st->cuda : nullptr)) {
@@ -538,8 +539,10 @@ static GstFlowReturn gst_stitch_blend_transform(GstBaseTransform* trans, GstBuff
       c.compose(mapping.views(), view);
     });
   });
+  /* the panorama leaves our elements: the host waits for it here (srcpad NULL) */
+  const gboolean handed = ok && handoff.finish(GST_ELEMENT(self), outbuf, NULL);
   gst_video_frame_unmap(&out);
-  return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
+  return handed ? GST_FLOW_OK : GST_FLOW_ERROR;
 }
 
 static gboolean gst_stitch_blend_transform_meta(GstBaseTransform*, GstBuffer*, GstMeta* meta,

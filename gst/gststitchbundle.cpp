@@ -274,14 +274,25 @@ gboolean StitchBundleMapping::map(GstBuffer* buffer, guint n_views, GstMapFlags 
   const guint64 missing = bm ? bm->missing_mask : 0;
   views_.assign(n_views, stitch::ImageView());
   if (!stitch_bundle_view_sizes(buffer, n_views, sizes_, error)) return FALSE;
+  /* where each view lies decides how it is mapped */
+  std::vector<bool> device_view(n_views, false);
+  gboolean all_on_device = TRUE;
   for (guint i = 0; i < n_views; ++i) {
     if (missing >> i & 1) continue;
     GstVideoMeta* vm = gst_buffer_get_video_meta_id(buffer, gint(i));
-    /* where the view lies decides how it is mapped */
     guint idx = 0, length = 0;
     gsize skip = 0;
-    const bool on_device = device && gst_buffer_find_memory(buffer, vm->offset[0], 1, &idx, &length, &skip) &&
-                           device->owns(gst_buffer_peek_memory(buffer, idx));
+    device_view[i] = device && gst_buffer_find_memory(buffer, vm->offset[0], 1, &idx, &length, &skip) &&
+                     device->owns(gst_buffer_peek_memory(buffer, idx));
+    all_on_device = all_on_device && device_view[i];
+  }
+  /* device work still writing or reading the bundle (stream-ordered hand-off): the stage's
+   * streams wait for it, or the host does before a host mapping (gststitchcuda.h) */
+  if (!stitch_cuda_fence_before_map(buffer, all_on_device, error)) return FALSE;
+  for (guint i = 0; i < n_views; ++i) {
+    if (missing >> i & 1) continue;
+    GstVideoMeta* vm = gst_buffer_get_video_meta_id(buffer, gint(i));
+    const bool on_device = device_view[i];
     const GstMapFlags view_flags = on_device ? GstMapFlags(flags | STITCH_MAP_CUDA) : flags;
     Mapped m{vm, {}};
     gpointer data = NULL;

@@ -149,6 +149,7 @@ static GstFlowReturn gst_stitch_color_transform_ip(GstBaseTransform* trans, GstB
   const stitch::Rig& rig = **meta->rig;
   /* CUDA-memory views are corrected where they lie, by the CUDA ColorOps. */
   const stitch::Backend effective = backend != stitch::Backend::Cpu && st->cuda_memory ? stitch::Backend::Cuda : backend;
+  StitchCudaHandoff handoff(st->cuda);  /* stream-ordered: no host synchronisation before the push */
   StitchBundleMapping mapping;
   std::string error;
   if (!mapping.map(buf, guint(rig.cameras.size()), GstMapFlags(GST_MAP_READ | GST_MAP_WRITE), error,
@@ -167,7 +168,8 @@ static GstFlowReturn gst_stitch_color_transform_ip(GstBaseTransform* trans, GstB
       c.process(rig, meta->version, mapping.views());
     });
   });
-  return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
+  if (!ok || !handoff.finish(GST_ELEMENT(self), buf, GST_BASE_TRANSFORM_SRC_PAD(trans))) return GST_FLOW_ERROR;
+  return GST_FLOW_OK;
 }
 
 static bool offer_cuda(GstStitchColor* self) {

@@ -1,5 +1,7 @@
 #include "gststitchcuda.h"
 
+#include <mutex>
+
 #ifdef STITCH_HAVE_GST_CUDA
 #include <gst/cuda/gstcudaloader.h>
 #include <gst/cuda/gstcudamemory.h>
@@ -94,8 +96,24 @@ void StitchCudaContext::set_context(GstElement* element, GstContext* context) {
   gst_cuda_handle_set_context(element, context, -1, &ctx_);
 }
 
+#define STITCH_FENCE_QUERY "stitch-cuda-fence"
+
 gboolean StitchCudaContext::handle_query(GstElement* element, GstQuery* query) {
+  /* Every bundle consumer maps through StitchBundleMapping, which honours fences. stitchcalib
+   * passes the bundle on as it is: its base class forwards the question downstream. */
+  const GstStructure* s = GST_QUERY_TYPE(query) == GST_QUERY_CUSTOM ? gst_query_get_structure(query) : NULL;
+  if (s && gst_structure_has_name(s, STITCH_FENCE_QUERY))
+    return !g_str_equal(G_OBJECT_TYPE_NAME(element), "GstStitchCalib");
   return GST_QUERY_TYPE(query) == GST_QUERY_CONTEXT && ctx_ && gst_cuda_handle_context_query(element, query, ctx_);
+}
+
+std::shared_ptr<stitch::CudaEventPool> StitchCudaContext::events() {
+  if (!events_ || events_ctx_ != ctx_) {
+    events_ = stitch::CudaEventPool::create();
+    events_ctx_ = ctx_;
+    previous.reset();
+  }
+  return events_;
 }
 
 gboolean StitchCudaContext::ensure(GstElement* element) {
@@ -135,6 +153,211 @@ gboolean StitchCudaContext::ensure(GstElement* element) {
 }
 gboolean StitchCudaContext::valid() const { return FALSE; }
 gboolean StitchCudaContext::owns(GstMemory*) const { return FALSE; }
+
+#endif
+
+/* ---- stream-ordered hand-off ---- */
+
+#ifdef STITCH_HAVE_GST_CUDA
+
+/* What a bundle's memory is still being written and read under. */
+struct StitchCudaFence {
+  std::mutex lock;
+  GstCudaContext* ctx = nullptr; /* made current to wait on the host */
+  std::vector<stitch::CudaEvent> ready;   /* the last writers' events */
+  std::vector<stitch::CudaEvent> readers; /* the events of the stages that read it since */
+  ~StitchCudaFence() { gst_clear_object(&ctx); }
+};
+using FencePtr = std::shared_ptr<StitchCudaFence>;
+
+GType gst_stitch_cuda_fence_meta_api_get_type(void) {
+  static GType type = 0;
+  /* "memory": it describes the bundle's memory, so elements that make new views drop it */
+  static const gchar* tags[] = {GST_META_TAG_MEMORY_STR, NULL};
+  if (g_once_init_enter(&type)) {
+    GType t = gst_meta_api_type_register("GstStitchCudaFenceMetaAPI", tags);
+    g_once_init_leave(&type, t);
+  }
+  return type;
+}
+
+static gboolean fence_meta_init(GstMeta* meta, gpointer, GstBuffer*) {
+  reinterpret_cast<GstStitchCudaFenceMeta*>(meta)->fence = new FencePtr(std::make_shared<StitchCudaFence>());
+  return TRUE;
+}
+
+static void fence_meta_free(GstMeta* meta, GstBuffer*) {
+  auto* m = reinterpret_cast<GstStitchCudaFenceMeta*>(meta);
+  delete static_cast<FencePtr*>(m->fence);
+  m->fence = nullptr;
+}
+
+static gboolean fence_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*, GQuark type, gpointer) {
+  if (!GST_META_TRANSFORM_IS_COPY(type)) return FALSE;
+  /* a copy shares the memory, so it shares the fence */
+  auto* m = reinterpret_cast<GstStitchCudaFenceMeta*>(meta);
+  auto* d = reinterpret_cast<GstStitchCudaFenceMeta*>(gst_buffer_add_meta(dest, gst_stitch_cuda_fence_meta_get_info(), NULL));
+  if (!d) return FALSE;
+  *static_cast<FencePtr*>(d->fence) = *static_cast<FencePtr*>(m->fence);
+  return TRUE;
+}
+
+const GstMetaInfo* gst_stitch_cuda_fence_meta_get_info(void) {
+  static const GstMetaInfo* info = NULL;
+  if (g_once_init_enter(&info)) {
+    const GstMetaInfo* mi = gst_meta_register(gst_stitch_cuda_fence_meta_api_get_type(), "GstStitchCudaFenceMeta",
+                                              sizeof(GstStitchCudaFenceMeta), fence_meta_init, fence_meta_free,
+                                              fence_meta_transform);
+    g_once_init_leave(&info, mi);
+  }
+  return info;
+}
+
+static FencePtr buffer_fence(GstBuffer* buffer) {
+  auto* m = reinterpret_cast<GstStitchCudaFenceMeta*>(gst_buffer_get_meta(buffer, gst_stitch_cuda_fence_meta_api_get_type()));
+  return m ? *static_cast<FencePtr*>(m->fence) : FencePtr();
+}
+
+/* Waits on the host for every event of `events`, with `ctx` current. */
+static void host_wait(GstCudaContext* ctx, const std::vector<stitch::CudaEvent>& events) {
+  if (events.empty()) return;
+  StitchCudaPush push(ctx);
+  stitch::cuda_events_sync(events);
+}
+
+gboolean stitch_cuda_fence_before_map(GstBuffer* buffer, gboolean all_on_device, std::string& error) {
+  FencePtr fence = buffer_fence(buffer);
+  if (!fence) return TRUE;
+  StitchCudaHandoff* h = StitchCudaHandoff::current();
+  if (h && h->active() && all_on_device) {
+    h->add_input(fence);
+    return TRUE;
+  }
+  std::vector<stitch::CudaEvent> events;
+  GstCudaContext* ctx = nullptr;
+  {
+    std::lock_guard<std::mutex> guard(fence->lock);
+    events = fence->ready;
+    events.insert(events.end(), fence->readers.begin(), fence->readers.end());
+    if (fence->ctx) ctx = static_cast<GstCudaContext*>(gst_object_ref(fence->ctx));
+  }
+  try {
+    host_wait(ctx, events);
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  if (ctx) gst_object_unref(ctx);
+  return error.empty();
+}
+
+gboolean stitch_pad_downstream_honours_fences(GstPad* srcpad) {
+  if (!srcpad) return FALSE;
+  GstQuery* q = gst_query_new_custom(GST_QUERY_CUSTOM, gst_structure_new_empty(STITCH_FENCE_QUERY));
+  const gboolean yes = gst_pad_peer_query(srcpad, q);
+  gst_query_unref(q);
+  return yes;
+}
+
+static thread_local StitchCudaHandoff* t_handoff = nullptr;
+
+StitchCudaHandoff::StitchCudaHandoff(StitchCudaContext& cuda, bool wait_previous)
+    : cuda_(cuda), previous_(t_handoff), wait_previous_(wait_previous) {
+  t_handoff = this;
+  if (!cuda.valid() || stitch::cuda_host_sync()) return;
+  core_ = std::make_unique<stitch::CudaHandoff>(cuda.events());
+  if (wait_previous && cuda.previous) {
+    try {
+      host_wait(cuda.get(), {cuda.previous});
+    } catch (...) {
+      /* a CUDA error: the stage's own calls report it */
+    }
+    cuda.previous.reset();
+  }
+}
+
+StitchCudaHandoff::~StitchCudaHandoff() {
+  if (core_ && !finished_ && core_->done()) {
+    /* an error path: nothing the device still uses may be released unfinished */
+    try {
+      host_wait(cuda_.get(), {core_->done()});
+    } catch (...) {
+    }
+  }
+  core_.reset();
+  t_handoff = previous_;
+}
+
+StitchCudaHandoff* StitchCudaHandoff::current() { return t_handoff; }
+
+bool StitchCudaHandoff::active() const { return bool(core_); }
+
+void StitchCudaHandoff::add_input(const FencePtr& fence) {
+  if (!core_) return;
+  for (const auto& f : inputs_)
+    if (f == fence) return;
+  inputs_.push_back(fence);
+  std::lock_guard<std::mutex> guard(fence->lock);
+  for (const auto& e : fence->ready) core_->wait_for(e);
+  for (const auto& e : fence->readers) core_->wait_for(e);
+}
+
+gboolean StitchCudaHandoff::finish(GstElement* element, GstBuffer* out, GstPad* srcpad) {
+  finished_ = true;
+  if (!core_) return TRUE;
+  const stitch::CudaEvent done = core_->done();
+  /* nothing ran on the device: what the inputs were written under passes on */
+  std::vector<stitch::CudaEvent> events = done ? std::vector<stitch::CudaEvent>{done} : core_->waits();
+  if (done) {
+    for (const auto& f : inputs_) {
+      std::lock_guard<std::mutex> guard(f->lock);
+      f->readers.push_back(done);
+    }
+    if (wait_previous_) cuda_.previous = done;
+  }
+  if (!out) return TRUE;
+  if (!events.empty() && !stitch_pad_downstream_honours_fences(srcpad)) {
+    try {
+      host_wait(cuda_.get(), events);
+    } catch (const std::exception& e) {
+      GST_ELEMENT_ERROR(element, STREAM, FAILED, ("%s: %s", GST_ELEMENT_NAME(element), e.what()), (NULL));
+      return FALSE;
+    }
+    events.clear();
+  }
+  FencePtr fence = buffer_fence(out);
+  if (!fence) {
+    if (events.empty()) return TRUE;
+    if (!gst_buffer_is_writable(out)) {
+      /* cannot carry the event: the host waits */
+      try {
+        host_wait(cuda_.get(), events);
+      } catch (const std::exception& e) {
+        GST_ELEMENT_ERROR(element, STREAM, FAILED, ("%s: %s", GST_ELEMENT_NAME(element), e.what()), (NULL));
+        return FALSE;
+      }
+      return TRUE;
+    }
+    GstMeta* meta = gst_buffer_add_meta(out, gst_stitch_cuda_fence_meta_get_info(), NULL);
+    /* pooled: it stays on the bundle in its pool, for the readers' events */
+    meta->flags = GstMetaFlags(meta->flags | GST_META_FLAG_POOLED);
+    fence = *static_cast<FencePtr*>(reinterpret_cast<GstStitchCudaFenceMeta*>(meta)->fence);
+  }
+  std::lock_guard<std::mutex> guard(fence->lock);
+  if (!fence->ctx && cuda_.get()) fence->ctx = static_cast<GstCudaContext*>(gst_object_ref(cuda_.get()));
+  fence->ready = std::move(events);
+  fence->readers.clear();
+  return TRUE;
+}
+
+#else
+
+gboolean stitch_cuda_fence_before_map(GstBuffer*, gboolean, std::string&) { return TRUE; }
+gboolean stitch_pad_downstream_honours_fences(GstPad*) { return FALSE; }
+StitchCudaHandoff::StitchCudaHandoff(StitchCudaContext&, bool) {}
+StitchCudaHandoff::~StitchCudaHandoff() = default;
+StitchCudaHandoff* StitchCudaHandoff::current() { return nullptr; }
+bool StitchCudaHandoff::active() const { return false; }
+gboolean StitchCudaHandoff::finish(GstElement*, GstBuffer*, GstPad*) { return TRUE; }
 
 #endif
 

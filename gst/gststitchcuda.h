@@ -16,6 +16,9 @@
 #include <vector>
 
 #include "stitch/backend.hpp"
+#ifdef STITCH_HAVE_GST_CUDA
+#include "stitch/cuda/handoff.hpp"
+#endif
 
 #ifdef STITCH_HAVE_GST_CUDA
 #include <gst/cuda/gstcudacontext.h>
@@ -75,9 +78,15 @@ class StitchCudaContext {
   gboolean owns(GstMemory* memory) const;
 #ifdef STITCH_HAVE_GST_CUDA
   GstCudaContext* get() const { return ctx_; }
+  /* The element's pool of CUDA events of this context (stream-ordered hand-off). */
+  std::shared_ptr<stitch::CudaEventPool> events();
+  /* The event of the element's last frame (StitchCudaHandoff with wait_previous). */
+  stitch::CudaEvent previous;
 
  private:
   GstCudaContext* ctx_ = nullptr;
+  GstCudaContext* events_ctx_ = nullptr;  /* the context `events_` belongs to (not a reference) */
+  std::shared_ptr<stitch::CudaEventPool> events_;
 #endif
 };
 
@@ -186,3 +195,65 @@ GstFlowReturn stitch_bundle_pool_acquire(GstElement* element, GstBufferPool* poo
 
 /* Deactivates and releases a pool made by stitch_bundle_pool_new (NULL is fine). */
 void stitch_bundle_pool_clear(GstBufferPool** pool);
+
+/* ---- stream-ordered hand-off between our elements (issue 17) ----
+ *
+ * A stage no longer synchronises its CUDA stream before pushing: it records a pooled CUDA event
+ * (stitch::CudaHandoff, src/stitch/cuda/handoff.hpp) and puts it on the output bundle in a
+ * GstStitchCudaFenceMeta; the next stage's streams wait on it (cudaStreamWaitEvent). The fence
+ * also collects the readers' events, so that a pooled bundle is rewritten only after every
+ * stage that read it is done (the meta is POOLED: it stays on the bundle in its pool).
+ *
+ * - StitchBundleMapping::map registers a bundle's fence with the element's hand-off when every
+ *   view is mapped on the device; a view mapped for the host (CPU stage, calibration, no
+ *   hand-off) makes the host wait for the fence first.
+ * - Only our elements honour fences: an element asks downstream (custom query
+ *   "stitch-cuda-fence", through queues) and synchronises before pushing when the answer is no
+ *   (cudadownload, appsink, fakesink, stitchblend's panorama).
+ * - STITCH_CUDA_HOST_SYNC=1 installs no hand-off: every stage synchronises, as before. */
+typedef struct {
+  GstMeta meta;
+  gpointer fence; /* std::shared_ptr<StitchCudaFence>* (gststitchcuda.cpp) */
+} GstStitchCudaFenceMeta;
+
+GType gst_stitch_cuda_fence_meta_api_get_type(void);
+const GstMetaInfo* gst_stitch_cuda_fence_meta_get_info(void);
+
+/* For StitchBundleMapping::map, before any view of `buffer` is mapped: with a hand-off on this
+ * thread and every view on the device, its fence joins the hand-off; otherwise the host waits
+ * for it. Throws nothing; FALSE with `error` on a CUDA error. */
+gboolean stitch_cuda_fence_before_map(GstBuffer* buffer, gboolean all_on_device, std::string& error);
+
+/* TRUE when the element downstream of `srcpad` honours fences (one of ours). */
+gboolean stitch_pad_downstream_honours_fences(GstPad* srcpad);
+
+/* One frame of an element's CUDA work, stream-ordered. Make it before mapping the bundles,
+ * run the core stage, then finish(). Inactive (every stage synchronises) without a context or
+ * with STITCH_CUDA_HOST_SYNC=1. */
+class StitchCudaHandoff {
+ public:
+  /* wait_previous: the host first waits for this element's previous frame (stitchsync: the
+   * decoder's input buffers it read are released one frame late, and must be read by then). */
+  explicit StitchCudaHandoff(StitchCudaContext& cuda, bool wait_previous = false);
+  ~StitchCudaHandoff();
+  StitchCudaHandoff(const StitchCudaHandoff&) = delete;
+  StitchCudaHandoff& operator=(const StitchCudaHandoff&) = delete;
+  static StitchCudaHandoff* current();
+  bool active() const;
+  /* The stage ran: its event goes on `out`'s fence when `srcpad`'s downstream honours fences
+   * (srcpad NULL: never), else the host waits for it here; the inputs' fences get it as a
+   * reader. FALSE after an element error (a CUDA error). */
+  gboolean finish(GstElement* element, GstBuffer* out, GstPad* srcpad);
+
+#ifdef STITCH_HAVE_GST_CUDA
+  void add_input(const std::shared_ptr<struct StitchCudaFence>& fence);
+
+ private:
+  StitchCudaContext& cuda_;
+  std::unique_ptr<stitch::CudaHandoff> core_;
+  std::vector<std::shared_ptr<struct StitchCudaFence>> inputs_;
+  StitchCudaHandoff* previous_ = nullptr;
+  bool finished_ = false;
+  bool wait_previous_ = false;
+#endif
+};

@@ -263,6 +263,7 @@ static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, Gst
   /* a CUDA warper reads and writes CUDA-memory views where they lie; a CPU one through host memory */
   const StitchCudaContext* device =
       st->cuda_memory && st->warper->backend() == stitch::Backend::Cuda ? &st->cuda : nullptr;
+  StitchCudaHandoff handoff(st->cuda);  /* stream-ordered: no host synchronisation before the push */
   StitchBundleMapping in, out;
   std::string error;
   if (!in.map(inbuf, n_views, GST_MAP_READ, error, device)) {
@@ -304,7 +305,8 @@ static GstFlowReturn gst_stitch_flow_warp_transform(GstBaseTransform* trans, Gst
     gst_buffer_add_stitch_flow_meta(outbuf, &flow);
     post_decisions(self, st->warper->stats());
   }
-  return ok ? GST_FLOW_OK : GST_FLOW_ERROR;
+  if (!ok || !handoff.finish(GST_ELEMENT(self), outbuf, GST_BASE_TRANSFORM_SRC_PAD(trans))) return GST_FLOW_ERROR;
+  return GST_FLOW_OK;
 }
 
 /* An element message for every overlap whose decision (flow on or off) changed. */

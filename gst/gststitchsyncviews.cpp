@@ -190,6 +190,9 @@ gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAg
                                       GstBuffer* outbuf, guint64 left_out, guint64& missing) {
   StitchSyncState* st = self->state;
   const guint n = guint(pads.size());  // NULL entries: views without an input
+  /* stream-ordered: the bundle is handed on with an event; the inputs (a decoder's buffers)
+   * are released one frame late, after the host waited for that frame (wait_previous) */
+  StitchCudaHandoff handoff(st->cuda, /*wait_previous=*/true);
   StitchBundleMapping out;
   std::string error;
   if (!out.map(outbuf, n, GST_MAP_WRITE, error, &st->cuda)) {
@@ -241,8 +244,9 @@ gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAg
     } catch (...) {
     }
   }
+  const gboolean handed = ok && handoff.finish(GST_ELEMENT(self), outbuf, GST_AGGREGATOR_SRC_PAD(self));
   for (guint i = 0; i < n_repeated; ++i) gst_video_frame_unmap(&repeated[i]);
-  return ok;
+  return handed;
 }
 
 /* Time alignment. The pads' offsets from load-file, then (time-alignment=auto) from the

@@ -5,7 +5,8 @@
 # 64 MiB a device call carries, so it holds only binaries that link no OpenCV
 # imgcodecs/videoio (their codec and GDAL trees are large).
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
-#        OUT=... scripts/gpu_check.sh [quick|blend|e2e] (on the GPU host; quick: tests only;
+#        OUT=... scripts/gpu_check.sh [quick|blend|e2e|handoff] (on the GPU host; quick: tests only;
+#                                                   handoff: tests, event vs host-sync hand-off A/B;
 #                                                   blend: tests, blend modes, decoded pipelines)
 set -uo pipefail
 GPU_TESTS="test_cuda test_flow_warp test_cuda_flow test_cuda_color test_cuda_convert test_cuda_memory test_gpu_faults test_projection test_cuda_blend test_lens_cuda"
@@ -41,6 +42,17 @@ if [ "${1:-}" = e2e ]; then
   echo "== end to end: NVDEC-decoded H.264/H.265 cameras into the chain, decode-only ceiling, rigs per process, live latency"
   timeout 560 $B/stitch-bench-e2e --photo "$STITCH_TEST_PPM" --frames ${E2E_FRAMES:-300} --dir /tmp/stitch-e2e \
     --json "$OUT/e2e.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee "$OUT/bench_e2e.txt"
+  exit
+fi
+if [ "${1:-}" = handoff ]; then
+  echo "== stream-ordered hand-off vs per-element host synchronisation (STITCH_CUDA_HOST_SYNC=1)"
+  Q="queue max-size-buffers=2 ! stitchcolor ! queue max-size-buffers=2 ! stitchflowwarp ! queue max-size-buffers=2 ! stitchblend"
+  for mode in "--cuda-input" "" "--system-output"; do
+    timeout 170 $B/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 400 --handoff both $mode \
+      --json "$OUT/handoff${mode//-/_}.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee -a "$OUT/bench_handoff.txt"
+  done
+  timeout 170 $B/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 400 --handoff both --cuda-input \
+    --chain "$Q" --json "$OUT/handoff_queues.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee -a "$OUT/bench_handoff.txt"
   exit
 fi
 if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi

@@ -83,10 +83,13 @@ struct CudaComposer::State {
     return d;
   }
   void finish(const ImageView& out, const stitch_cuda::DeviceImage& d) {
-    if (!out.on_device)
+    if (!out.on_device) {
       STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, d.data, d.pitch, std::size_t(out_w) * 4, out_h,
                                     cudaMemcpyDeviceToHost, stream.get()));
-    stream.sync();
+      stream.sync();  // the host reads it
+    } else {
+      stream.leave();  // handed on by event when the element installed a hand-off
+    }
   }
 };
 
@@ -122,6 +125,7 @@ void CudaComposer::prepare(const std::vector<ViewPlacement>& views, int out_widt
 
 void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView& out, const float* color) {
   if (frames.size() != s_->views.size()) throw std::invalid_argument("view count differs from prepare()");
+  s_->stream.enter();
   std::vector<stitch_cuda::DeviceImage> images(frames.size());
   for (std::size_t i = 0; i < frames.size(); ++i)
     if (!frames[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(frames[i], i);
@@ -156,6 +160,7 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
 void CudaComposer::fuse_resampled(const std::vector<ImageView>& views, const ImageView& out,
                                   const double canvas_to_output[6]) {
   if (views.size() != s_->views.size()) throw std::invalid_argument("view count differs from prepare()");
+  s_->stream.enter();
   std::vector<stitch_cuda::DeviceImage> images(views.size());
   for (std::size_t i = 0; i < views.size(); ++i)
     if (!views[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(views[i], i);
@@ -188,14 +193,18 @@ void CudaComposer::fuse_resampled(const std::vector<ImageView>& views, const Ima
     d_out.height = out.height;
   }
   stitch_cuda::launch_resample_affine(canvas, inv, d_out, s_->stream.get());
-  if (!out.on_device)
+  if (!out.on_device) {
     STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, d_out.data, d_out.pitch, std::size_t(out.width) * 4,
                                   out.height, cudaMemcpyDeviceToHost, s_->stream.get()));
-  s_->stream.sync();
+    s_->stream.sync();
+  } else {
+    s_->stream.leave();
+  }
 }
 
 void CudaComposer::fuse(const std::vector<ImageView>& views, const ImageView& out) {
   if (views.size() != s_->views.size()) throw std::invalid_argument("view count differs from prepare()");
+  s_->stream.enter();
   std::vector<stitch_cuda::DeviceImage> images(views.size());
   for (std::size_t i = 0; i < views.size(); ++i)
     if (!views[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(views[i], i);
@@ -221,11 +230,13 @@ void CudaComposer::draw_on_host(const ImageView& out, const std::function<void(c
     draw(out);
     return;
   }
+  s_->stream.sync();  // the panorama may still be in flight (stream-ordered hand-off)
   const std::size_t pitch = std::size_t(out.width) * 4;
   std::vector<uint8_t> host(pitch * out.height);
   STITCH_CUDA(cudaMemcpy2D(host.data(), pitch, out.data, out.pitch, pitch, out.height, cudaMemcpyDeviceToHost));
   draw(ImageView{host.data(), pitch, out.width, out.height, PixelFormat::RGBA8, false});
   STITCH_CUDA(cudaMemcpy2D(out.data, out.pitch, host.data(), pitch, pitch, out.height, cudaMemcpyHostToDevice));
+  STITCH_CUDA(cudaStreamSynchronize(cudaStreamLegacy));  // the DMA from pageable memory may still run
 }
 
 }  // namespace stitch

@@ -126,6 +126,7 @@ class ColorOpsCuda final : public ColorOps {
                                                : stitch_cuda::kColorMatchNone;
       any_match = any_match || m != HistogramMatch::None;
     }
+    stream_.enter();  // the views may still be written by the previous stage
     if (input_bytes)
       STITCH_CUDA(cudaMemcpyAsync(inputs_.data(), inputs_host_.data(), input_bytes, cudaMemcpyHostToDevice, stream_.get()));
 
@@ -195,9 +196,11 @@ class ColorOpsCuda final : public ColorOps {
       cpu_->apply_all(host_views, matrices, lut);
     }
     if (!any_device) return;
+    stream_.enter();
     const uint8_t* device_lut = nullptr;
     if (!is_identity(lut)) {
       if (!lut_uploaded_ || lut != uploaded_lut_) {
+        stream_.sync();  // the last upload from lut_host_ may still be queued (no per-frame sync now)
         lut_host_.resize(768);
         lut_.resize(768);
         for (int c = 0; c < 3; ++c) std::memcpy(lut_host_.data() + 256 * c, lut[c].data(), 256);
@@ -230,7 +233,7 @@ class ColorOpsCuda final : public ColorOps {
       if (batch.count == stitch_cuda::kColorApplyMaxViews) flush();  // more views than a chain carries
     }
     flush();
-    if (launched) stream_.sync();  // the next stage reads finished pixels
+    if (launched) stream_.leave();  // the next stage reads finished pixels (after the hand-off's event)
   }
 
   void gather(const ImageView& view, const std::vector<int32_t>& xy,
@@ -239,6 +242,7 @@ class ColorOpsCuda final : public ColorOps {
     const int count = int(xy.size() / 2);
     out.resize(std::size_t(count));
     if (count == 0) return;
+    stream_.enter();
     gather_xy_.resize(xy.size() * sizeof(int32_t));
     gather_out_.resize(std::size_t(count) * 3);
     STITCH_CUDA(cudaMemcpyAsync(gather_xy_.data(), xy.data(), xy.size() * sizeof(int32_t), cudaMemcpyHostToDevice,

@@ -19,6 +19,8 @@ class FrameConverterCuda final : public FrameConverter {
  public:
   void convert(const FrameView& in, const ImageView& out) override {
     check_frame(in, out);
+    stream_.enter();
+    host_out_ = host_out_ || !out.on_device;
     const std::size_t row = std::size_t(in.width) * 4;
     if (in.format == FrameFormat::RGBA) {
       STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, in.planes[0], in.pitches[0], row, std::size_t(in.height),
@@ -51,13 +53,21 @@ class FrameConverterCuda final : public FrameConverter {
   void clear(const ImageView& out) override {
     const std::size_t row = std::size_t(out.width) * 4;
     if (out.on_device) {
+      stream_.enter();
       STITCH_CUDA(cudaMemset2DAsync(out.data, out.pitch, 0, row, std::size_t(out.height), stream_.get()));
       return;
     }
     for (int y = 0; y < out.height; ++y) std::memset(out.row(y), 0, row);
   }
 
-  void finish() override { stream_.sync(); }
+  // Host outputs are read when this returns; device ones are handed on (CudaStream::leave).
+  void finish() override {
+    if (host_out_)
+      stream_.sync();
+    else
+      stream_.leave();
+    host_out_ = false;
+  }
   Backend backend() const override { return Backend::Cuda; }
 
  private:
@@ -98,6 +108,7 @@ class FrameConverterCuda final : public FrameConverter {
 
   CudaStream stream_;
   DeviceBuffer staging_in_, staging_out_;
+  bool host_out_ = false;  // a host output since the last finish()
 };
 
 }  // namespace

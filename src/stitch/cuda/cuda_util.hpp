@@ -7,6 +7,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "stitch/cuda/handoff.hpp"
+
 namespace stitch {
 
 // Every CUDA call goes through this: an error becomes an exception naming the call.
@@ -70,6 +72,19 @@ class CudaStream {
   }
   cudaStream_t get() const { return s_; }
   void sync() const { STITCH_CUDA(cudaStreamSynchronize(s_)); }
+  // A stage's entry: with a CudaHandoff on this thread (handoff.hpp) the stream waits on the
+  // events its inputs are written under; otherwise nothing (the producer synchronised).
+  void enter() const {
+    if (CudaHandoff* h = CudaHandoff::current()) h->enter(s_);
+  }
+  // A stage's exit, where its output is handed on: records the hand-off's event, or
+  // synchronises without one (or with STITCH_CUDA_HOST_SYNC=1, which installs none).
+  void leave() const {
+    if (CudaHandoff* h = CudaHandoff::current())
+      h->leave(s_);
+    else
+      sync();
+  }
 
  private:
   cudaStream_t s_ = nullptr;

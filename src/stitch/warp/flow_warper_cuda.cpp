@@ -58,6 +58,7 @@ class FlowWarperCuda final : public FlowWarper {
       throw std::invalid_argument("flow warp: view count differs from prepare()");
     const std::size_t n = views_.size();
     std::vector<stitch_cuda::DeviceImage> src(n), dst(n);
+    stream_.enter();  // the frames and the pooled outputs may still be in use by other stages
     for (std::size_t i = 0; i < n; ++i) {
       if (frames[i].empty() || views_[i].roi.empty()) continue;
       if (frames[i].width != views_[i].camera_width || frames[i].height != views_[i].camera_height)
@@ -140,6 +141,13 @@ class FlowWarperCuda final : public FlowWarper {
         history_[std::size_t(p)] = true;
       }
     }
+    // The statistics come back before the final warp is queued (the D2H copy into pageable
+    // memory returns when done), so the host waits for the flow only and the warp pass is
+    // handed on to the next stage without a host synchronisation.
+    std::vector<float>& sums = sums_;
+    sums.assign(plans_.size() * stitch_cuda::kFlowStats, 0.f);
+    if (any_active)
+      STITCH_CUDA(cudaMemcpyAsync(sums.data(), stats_dev_.data(), sums.size() * sizeof(float), cudaMemcpyDeviceToHost, s));
     // This frame is warped with the gains decided last frame (flow_gate_math.hpp): no round trip.
     gains_.assign(plans_.size(), 1.f);
     if (settings_.fallback)
@@ -150,11 +158,12 @@ class FlowWarperCuda final : public FlowWarper {
       if (dst[i].data && !warped[i].on_device)
         STITCH_CUDA(cudaMemcpy2DAsync(warped[i].data, warped[i].pitch, dst[i].data, dst[i].pitch,
                                       std::size_t(warped[i].width) * 4, warped[i].height, cudaMemcpyDeviceToHost, s));
-    std::vector<float>& sums = sums_;
-    sums.assign(plans_.size() * stitch_cuda::kFlowStats, 0.f);
-    if (any_active)
-      STITCH_CUDA(cudaMemcpyAsync(sums.data(), stats_dev_.data(), sums.size() * sizeof(float), cudaMemcpyDeviceToHost, s));
-    stream_.sync();
+    bool host_out = false;
+    for (std::size_t i = 0; i < n; ++i) host_out = host_out || (dst[i].data && !warped[i].on_device);
+    if (host_out)
+      stream_.sync();
+    else
+      stream_.leave();
     stats_.clear();
     const double scale = flow_scale(settings_.quality);
     for (int p = 0; p < np; ++p) {
