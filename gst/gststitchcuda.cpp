@@ -96,14 +96,7 @@ void StitchCudaContext::set_context(GstElement* element, GstContext* context) {
   gst_cuda_handle_set_context(element, context, -1, &ctx_);
 }
 
-#define STITCH_FENCE_QUERY "stitch-cuda-fence"
-
 gboolean StitchCudaContext::handle_query(GstElement* element, GstQuery* query) {
-  /* Every bundle consumer maps through StitchBundleMapping, which honours fences. stitchcalib
-   * passes the bundle on as it is: its base class forwards the question downstream. */
-  const GstStructure* s = GST_QUERY_TYPE(query) == GST_QUERY_CUSTOM ? gst_query_get_structure(query) : NULL;
-  if (s && gst_structure_has_name(s, STITCH_FENCE_QUERY))
-    return !g_str_equal(G_OBJECT_TYPE_NAME(element), "GstStitchCalib");
   return GST_QUERY_TYPE(query) == GST_QUERY_CONTEXT && ctx_ && gst_cuda_handle_context_query(element, query, ctx_);
 }
 
@@ -250,12 +243,57 @@ gboolean stitch_cuda_fence_before_map(GstBuffer* buffer, gboolean all_on_device,
   return error.empty();
 }
 
+/* Elements that take the bundle and map it through StitchBundleMapping (which honours fences),
+ * and elements that pass buffers on without reading them. Anything else (cudadownload,
+ * cudaconvert, tee, appsink, ...) may read the memory without waiting: the producer then
+ * synchronises. A walk over the links, not a query, because a reader such as cudadownload
+ * would forward a query to one of ours behind it. */
+static gboolean element_honours_fences(const gchar* type) {
+  return g_str_equal(type, "GstStitchColor") || g_str_equal(type, "GstStitchFlowWarp") ||
+         g_str_equal(type, "GstStitchBlend");
+}
+static gboolean element_passes_through(const gchar* type) {
+  return g_str_equal(type, "GstStitchCalib") || g_str_equal(type, "GstQueue") || g_str_equal(type, "GstQueue2") ||
+         g_str_equal(type, "GstCapsFilter");
+}
+
 gboolean stitch_pad_downstream_honours_fences(GstPad* srcpad) {
   if (!srcpad) return FALSE;
-  GstQuery* q = gst_query_new_custom(GST_QUERY_CUSTOM, gst_structure_new_empty(STITCH_FENCE_QUERY));
-  const gboolean yes = gst_pad_peer_query(srcpad, q);
-  gst_query_unref(q);
-  return yes;
+  GstPad* pad = GST_PAD(gst_object_ref(srcpad));
+  gboolean honours = FALSE;
+  for (int hop = 0; hop < 32 && pad; ++hop) {
+    GstPad* peer = gst_pad_get_peer(pad);
+    gst_object_unref(pad);
+    pad = NULL;
+    /* out of a bin: from the ghost src pad's internal pad to the ghost pad */
+    while (peer && GST_IS_PROXY_PAD(peer) && !GST_IS_GHOST_PAD(peer)) {
+      GstObject* ghost = gst_object_get_parent(GST_OBJECT(peer));
+      gst_object_unref(peer);
+      peer = NULL;
+      if (ghost && GST_IS_GHOST_PAD(ghost)) peer = gst_pad_get_peer(GST_PAD(ghost));
+      if (ghost) gst_object_unref(ghost);
+    }
+    /* into a bin: a ghost sink pad's target */
+    while (peer && GST_IS_GHOST_PAD(peer)) {
+      GstPad* target = gst_ghost_pad_get_target(GST_GHOST_PAD(peer));
+      gst_object_unref(peer);
+      peer = target;
+    }
+    if (!peer) break;
+    GstElement* element = gst_pad_get_parent_element(peer);
+    gst_object_unref(peer);
+    if (!element) break;
+    const gchar* type = G_OBJECT_TYPE_NAME(element);
+    if (element_honours_fences(type)) {
+      honours = TRUE;
+    } else if (element_passes_through(type)) {
+      pad = gst_element_get_static_pad(element, "src");
+    }
+    gst_object_unref(element);
+    if (honours) break;
+  }
+  if (pad) gst_object_unref(pad);
+  return honours;
 }
 
 static thread_local StitchCudaHandoff* t_handoff = nullptr;

@@ -207,9 +207,10 @@ void stitch_bundle_pool_clear(GstBufferPool** pool);
  * - StitchBundleMapping::map registers a bundle's fence with the element's hand-off when every
  *   view is mapped on the device; a view mapped for the host (CPU stage, calibration, no
  *   hand-off) makes the host wait for the fence first.
- * - Only our elements honour fences: an element asks downstream (custom query
- *   "stitch-cuda-fence", through queues) and synchronises before pushing when the answer is no
- *   (cudadownload, appsink, fakesink, stitchblend's panorama).
+ * - Only our elements honour fences: an element follows its src link (through queues,
+ *   capsfilters, stitchcalib and bins' ghost pads) and synchronises before pushing unless it
+ *   reaches stitchcolor, stitchflowwarp or stitchblend (cudadownload, appsink, tee, fakesink
+ *   and stitchblend's panorama get finished memory).
  * - STITCH_CUDA_HOST_SYNC=1 installs no hand-off: every stage synchronises, as before. */
 typedef struct {
   GstMeta meta;
@@ -224,7 +225,8 @@ const GstMetaInfo* gst_stitch_cuda_fence_meta_get_info(void);
  * for it. Throws nothing; FALSE with `error` on a CUDA error. */
 gboolean stitch_cuda_fence_before_map(GstBuffer* buffer, gboolean all_on_device, std::string& error);
 
-/* TRUE when the element downstream of `srcpad` honours fences (one of ours). */
+/* TRUE when the element downstream of `srcpad` honours fences (one of ours, maybe behind
+ * queues, capsfilters, stitchcalib or ghost pads). */
 gboolean stitch_pad_downstream_honours_fences(GstPad* srcpad);
 
 /* One frame of an element's CUDA work, stream-ordered. Make it before mapping the bundles,
