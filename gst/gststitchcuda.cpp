@@ -407,6 +407,7 @@ typedef struct {
   GstBufferPool parent;
   std::vector<std::array<int, 2>>* sizes;
   gboolean cuda_memory;
+  gboolean pin_host; /* system memory page-locked in `context` (pinned staging for downloads) */
 #ifdef STITCH_HAVE_GST_CUDA
   GstCudaContext* context;
 #endif
@@ -417,6 +418,42 @@ typedef struct {
 } GstStitchBundlePoolClass;
 
 G_DEFINE_TYPE(GstStitchBundlePool, gst_stitch_bundle_pool, GST_TYPE_BUFFER_POOL);
+
+#ifdef STITCH_HAVE_GST_CUDA
+/* System-memory bundles and panoramas of an element with a CUDA context are page-locked once,
+ * when the pool allocates them: the uploads and downloads of the CUDA stages then go straight
+ * to and from them by DMA (no pageable staging, no per-frame allocation). */
+struct PinnedMemory {
+  GstCudaContext* ctx;
+  void* ptr;
+};
+
+static void unpin_memory(gpointer data, GstMiniObject*) {
+  auto* p = static_cast<PinnedMemory*>(data);
+  try {
+    StitchCudaPush push(p->ctx);
+    stitch::cuda_host_unregister(p->ptr);
+  } catch (...) {
+  }
+  gst_object_unref(p->ctx);
+  delete p;
+}
+
+static void pin_memory(GstCudaContext* ctx, GstMemory* mem) {
+  GstMapInfo info;
+  if (!ctx || !gst_memory_map(mem, &info, GST_MAP_READ)) return;
+  bool pinned = false;
+  try {
+    StitchCudaPush push(ctx);
+    pinned = stitch::cuda_host_register(info.data, info.maxsize);
+  } catch (...) {
+  }
+  if (pinned)
+    gst_mini_object_weak_ref(GST_MINI_OBJECT(mem), unpin_memory,
+                             new PinnedMemory{static_cast<GstCudaContext*>(gst_object_ref(ctx)), info.data});
+  gst_memory_unmap(mem, &info);
+}
+#endif
 
 static GstMemory* alloc_view(GstStitchBundlePool* self, int width, int height, gint* stride) {
 #ifdef STITCH_HAVE_GST_CUDA
@@ -437,7 +474,11 @@ static GstMemory* alloc_view(GstStitchBundlePool* self, int width, int height, g
   gst_allocation_params_init(&params);
   params.align = 15;
   *stride = width * 4;
-  return gst_allocator_alloc(NULL, gsize(width) * 4 * gsize(height), &params);
+  GstMemory* mem = gst_allocator_alloc(NULL, gsize(width) * 4 * gsize(height), &params);
+#ifdef STITCH_HAVE_GST_CUDA
+  if (mem && self->pin_host) pin_memory(self->context, mem);
+#endif
+  return mem;
 }
 
 static gboolean gst_stitch_bundle_pool_set_config(GstBufferPool* pool, GstStructure* config) {
@@ -520,10 +561,9 @@ GstBufferPool* stitch_bundle_pool_new(const StitchCudaContext& cuda, gboolean cu
   *self->sizes = sizes;
   self->cuda_memory = cuda_memory;
 #ifdef STITCH_HAVE_GST_CUDA
-  if (cuda_memory) {
-    gst_cuda_memory_init_once();
-    self->context = static_cast<GstCudaContext*>(gst_object_ref(cuda.get()));
-  }
+  if (cuda_memory) gst_cuda_memory_init_once();
+  if (cuda.valid()) self->context = static_cast<GstCudaContext*>(gst_object_ref(cuda.get()));
+  self->pin_host = !cuda_memory && cuda.valid() && !g_getenv("STITCH_CUDA_NO_PINNED");
 #endif
   GstStructure* config = gst_buffer_pool_get_config(pool);
   gst_buffer_pool_config_set_params(config, caps, 0, 2, 0);

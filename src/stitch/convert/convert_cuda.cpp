@@ -1,5 +1,7 @@
+#include <cstdlib>
 #include <cstring>
 #include <stdexcept>
+#include <vector>
 
 #include "../../../cuda/convert/convert_kernels.hpp"
 #include "stitch/convert/convert_internal.hpp"
@@ -13,8 +15,67 @@ cudaMemcpyKind copy_kind(bool src_on_device, bool dst_on_device) {
   return dst_on_device ? cudaMemcpyHostToDevice : cudaMemcpyHostToHost;
 }
 
-// Frames in system memory are uploaded once into a buffer that only grows; RGBA needs no
-// kernel (one 2D copy to wherever the view lies), the other formats one kernel pass.
+// Page-locked staging for frames in system memory: a ring of slots that only grow, each reused
+// once the upload from it is done (an event per slot). A copy from pageable memory would make
+// the runtime synchronise the stream first and stage it itself; from a slot the upload is a
+// true asynchronous DMA, so the stream-ordered chain keeps going (issue 17).
+class PinnedRing {
+ public:
+  PinnedRing() = default;
+  PinnedRing(const PinnedRing&) = delete;
+  PinnedRing& operator=(const PinnedRing&) = delete;
+  ~PinnedRing() {
+    for (Slot& s : slots_) {
+      if (s.event) cudaEventDestroy(s.event);
+      if (s.data) cudaFreeHost(s.data);
+    }
+  }
+  // A slot of at least `bytes`; done(stream) after the uploads from it are queued.
+  uint8_t* take(std::size_t bytes) {
+    // The next slot whose last upload is done; a new slot rather than a wait, up to a bound.
+    std::size_t k = next_;
+    if (slots_.empty() || (slots_[k].used && cudaEventQuery(slots_[k].event) == cudaErrorNotReady)) {
+      cudaGetLastError();
+      if (slots_.size() < kMaxSlots) {
+        slots_.insert(slots_.begin() + std::ptrdiff_t(k), Slot());
+        STITCH_CUDA(cudaEventCreateWithFlags(&slots_[k].event, cudaEventDisableTiming));
+      } else {
+        STITCH_CUDA(cudaEventSynchronize(slots_[k].event));
+      }
+    }
+    Slot& s = slots_[k];
+    if (s.bytes < bytes) {
+      if (s.used) STITCH_CUDA(cudaEventSynchronize(s.event));
+      if (s.data) cudaFreeHost(s.data);
+      s.data = nullptr;
+      s.bytes = 0;
+      STITCH_CUDA(cudaMallocHost(reinterpret_cast<void**>(&s.data), bytes));
+      s.bytes = bytes;
+    }
+    current_ = k;
+    next_ = (k + 1) % slots_.size();
+    return s.data;
+  }
+  void done(cudaStream_t stream) {
+    Slot& s = slots_[current_];
+    STITCH_CUDA(cudaEventRecord(s.event, stream));
+    s.used = true;
+  }
+
+ private:
+  static constexpr std::size_t kMaxSlots = 64;  // 16 views, 4 frames in flight
+  struct Slot {
+    uint8_t* data = nullptr;
+    std::size_t bytes = 0;
+    cudaEvent_t event = nullptr;
+    bool used = false;
+  };
+  std::vector<Slot> slots_;
+  std::size_t next_ = 0, current_ = 0;
+};
+
+// Frames in system memory go through the pinned ring; RGBA needs no kernel (one 2D copy to
+// wherever the view lies), the other formats one kernel pass.
 class FrameConverterCuda final : public FrameConverter {
  public:
   void convert(const FrameView& in, const ImageView& out) override {
@@ -22,6 +83,14 @@ class FrameConverterCuda final : public FrameConverter {
     stream_.enter();
     host_out_ = host_out_ || !out.on_device;
     const std::size_t row = std::size_t(in.width) * 4;
+    if (in.format == FrameFormat::RGBA && !in.on_device && out.on_device && pinned_) {
+      uint8_t* slot = ring_.take(row * std::size_t(in.height));
+      copy_rows(slot, row, in.planes[0], in.pitches[0], row, in.height);
+      STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, slot, row, row, std::size_t(in.height),
+                                    cudaMemcpyHostToDevice, stream_.get()));
+      ring_.done(stream_.get());
+      return;
+    }
     if (in.format == FrameFormat::RGBA) {
       STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, in.planes[0], in.pitches[0], row, std::size_t(in.height),
                                     copy_kind(in.on_device, out.on_device), stream_.get()));
@@ -71,7 +140,16 @@ class FrameConverterCuda final : public FrameConverter {
   Backend backend() const override { return Backend::Cuda; }
 
  private:
-  // The frame's planes copied to the device, packed.
+  static void copy_rows(uint8_t* dst, std::size_t dst_pitch, const uint8_t* src, std::size_t src_pitch,
+                        std::size_t row, int rows) {
+    if (dst_pitch == src_pitch && row == src_pitch) {
+      std::memcpy(dst, src, row * std::size_t(rows));
+      return;
+    }
+    for (int y = 0; y < rows; ++y) std::memcpy(dst + std::size_t(y) * dst_pitch, src + std::size_t(y) * src_pitch, row);
+  }
+
+  // The frame's planes copied to the device, packed (through the pinned ring).
   FrameView upload(const FrameView& in) {
     const int cw = (in.width + 1) / 2, ch = (in.height + 1) / 2;
     std::size_t widths[3] = {std::size_t(in.width) * 4, 0, 0};
@@ -93,21 +171,35 @@ class FrameConverterCuda final : public FrameConverter {
       offsets[p] = total;
       total += (widths[p] * std::size_t(rows[p]) + 255) & ~std::size_t(255);
     }
-    staging_in_.resize(total);
+    // One device buffer: the stream runs the next upload after the kernel that reads this one.
+    DeviceBuffer& staging = staging_in_;
+    staging.resize(total);
     FrameView d = in;
     d.on_device = true;
+    uint8_t* slot = pinned_ ? ring_.take(total) : nullptr;
     for (int p = 0; p < planes; ++p) {
-      uint8_t* dst = staging_in_.data() + offsets[p];
-      STITCH_CUDA(cudaMemcpy2DAsync(dst, widths[p], in.planes[p], in.pitches[p], widths[p], std::size_t(rows[p]),
-                                    cudaMemcpyHostToDevice, stream_.get()));
+      uint8_t* dst = staging.data() + offsets[p];
+      if (slot) {
+        copy_rows(slot + offsets[p], widths[p], in.planes[p], in.pitches[p], widths[p], rows[p]);
+      } else {
+        STITCH_CUDA(cudaMemcpy2DAsync(dst, widths[p], in.planes[p], in.pitches[p], widths[p], std::size_t(rows[p]),
+                                      cudaMemcpyHostToDevice, stream_.get()));
+      }
       d.planes[p] = dst;
       d.pitches[p] = widths[p];
+    }
+    if (slot) {
+      STITCH_CUDA(cudaMemcpyAsync(staging.data(), slot, total, cudaMemcpyHostToDevice, stream_.get()));
+      ring_.done(stream_.get());
     }
     return d;
   }
 
   CudaStream stream_;
   DeviceBuffer staging_in_, staging_out_;
+  PinnedRing ring_;
+  // STITCH_CUDA_NO_PINNED=1: uploads from pageable memory as before (for the A/B)
+  const bool pinned_ = !std::getenv("STITCH_CUDA_NO_PINNED");
   bool host_out_ = false;  // a host output since the last finish()
 };
 

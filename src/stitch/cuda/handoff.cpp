@@ -72,6 +72,19 @@ bool cuda_host_sync() {
   return env && *env && std::strcmp(env, "0") != 0;
 }
 
+bool cuda_host_register(void* p, std::size_t bytes) {
+  if (!p || !bytes) return false;
+  if (cudaHostRegister(p, bytes, cudaHostRegisterDefault) != cudaSuccess) {
+    cudaGetLastError();  // e.g. a page shared with another registration: stays pageable
+    return false;
+  }
+  return true;
+}
+
+void cuda_host_unregister(void* p) {
+  if (p && cudaHostUnregister(p) != cudaSuccess) cudaGetLastError();
+}
+
 void set_cuda_host_sync(bool on) { g_host_sync.store(on ? 1 : 0); }
 
 CudaHandoff::CudaHandoff(std::shared_ptr<CudaEventPool> pool) : pool_(std::move(pool)), previous_(t_current) {

@@ -12,6 +12,7 @@
 // No CUDA headers here (the GStreamer layer includes it): streams and events are void*.
 // Only built with STITCH_HAVE_CUDA.
 #pragma once
+#include <cstddef>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -51,6 +52,12 @@ void cuda_events_sync(const std::vector<CudaEvent>& events);
 // library): every stage synchronises its stream before handing its output on, as before.
 bool cuda_host_sync();
 void set_cuda_host_sync(bool on);
+
+// Page-locks `bytes` of system memory at `p` for the context current on this thread, so that
+// copies to and from the device run at full speed without a staging pass (false, with the
+// memory left as it was, when the driver refuses). Undone by cuda_host_unregister.
+bool cuda_host_register(void* p, std::size_t bytes);
+void cuda_host_unregister(void* p);
 
 class CudaHandoff {
  public:
