@@ -136,3 +136,39 @@ TEST(Blend, DegenerateRigIsRefused) {
   Compositor comp(Backend::Cpu);
   EXPECT_THROW(comp.prepare(c.rig, CompositorSettings{}), RigError);
 }
+
+// Pre-warped views with crop=auto at the canvas' scale: the crop/scale pass is a plain row copy
+// of the fused canvas (issue 17), pixel for pixel what the canvas-sized fuse gives there.
+TEST(Blend, PrewarpedAutoCropIsTheCanvasSubRectangle) {
+  CropRig c = make_crop_rig();
+  Eigen::Matrix3d R;
+  const double a = 0.05;
+  R << std::cos(a), -std::sin(a), 0, std::sin(a), std::cos(a), 0, 0, 0, 1;
+  c.rig.cameras[1].homography = R * *c.rig.cameras[1].homography;
+  rig_layout_canvas(c.rig);
+  Compositor full(Backend::Cpu), cropped(Backend::Cpu);
+  full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
+  CompositorSettings s;
+  s.crop = CropMode::Auto;
+  cropped.prepare(c.rig, s, CompositorInput::Prewarped);
+  const auto& g = cropped.geometry();
+  ASSERT_LT(g.width, full.geometry().width);
+  ASSERT_NEAR(g.canvas_to_output(0, 0), 1.0, 1e-12);
+  std::vector<cv::Mat> warped;
+  std::vector<ImageView> views;
+  const std::vector<cv::Mat> cams = {c.cam0, c.cam1};
+  for (std::size_t i = 0; i < cams.size(); ++i) {
+    const ViewPlacement& p = full.prewarped_placements()[i];
+    cv::Mat w;  // any content will do: both compositors fuse the same views
+    cv::resize(cams[i], w, cv::Size(p.roi.width, p.roi.height));
+    warped.push_back(w);
+    views.push_back(as_view(warped.back()));
+  }
+  cv::Mat canvas(full.geometry().height, full.geometry().width, CV_8UC4);
+  cv::Mat out(g.height, g.width, CV_8UC4);
+  full.compose(views, as_view(canvas));
+  cropped.compose(views, as_view(out));
+  const int tx = int(std::lround(-g.canvas_to_output(0, 2))), ty = int(std::lround(-g.canvas_to_output(1, 2)));
+  const cv::Mat expect = canvas(cv::Rect(tx, ty, g.width, g.height));
+  EXPECT_EQ(cv::norm(out, expect, cv::NORM_INF), 0.0);
+}

@@ -1,9 +1,24 @@
 #include "stitch/blend/compositor.hpp"
 
+#include <cmath>
+#include <cstring>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
 
 namespace stitch {
+
+namespace {
+// True when output = canvas shifted by whole pixels and inside it: the crop/scale pass is a copy.
+bool crop_only(const Eigen::Matrix3d& A, const cv::Size& canvas, const cv::Size& out) {
+  auto whole = [](double v) { return std::abs(v - std::round(v)) < 1e-9; };
+  if (std::abs(A(0, 0) - 1) > 1e-12 || std::abs(A(1, 1) - 1) > 1e-12 || std::abs(A(0, 1)) > 1e-12 ||
+      std::abs(A(1, 0)) > 1e-12 || !whole(A(0, 2)) || !whole(A(1, 2)))
+    return false;
+  const long tx = std::lround(-A(0, 2)), ty = std::lround(-A(1, 2));
+  return tx >= 0 && ty >= 0 && tx + out.width <= canvas.width && ty + out.height <= canvas.height;
+}
+}  // namespace
 
 Compositor::Compositor(Backend backend) : backend_(resolve_backend(backend, /*stage_has_cuda=*/true)) {
 #ifdef STITCH_HAVE_CUDA
@@ -101,6 +116,16 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
   const cv::Mat src(canvas.height, canvas.width, CV_8UC4, canvas.data, canvas.pitch);
   cv::Mat dst(out.height, out.width, CV_8UC4, out.data, out.pitch);
   const Eigen::Matrix3d& A = geometry_.canvas_to_output;
+  if (crop_only(A, src.size(), dst.size())) {
+    // A crop (crop=auto at the canvas' scale, the default): rows copied on every core instead
+    // of a bilinear pass that would sample whole pixels anyway.
+    const int tx = int(std::lround(-A(0, 2))), ty = int(std::lround(-A(1, 2)));
+    cv::parallel_for_(cv::Range(0, dst.rows), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y)
+        std::memcpy(dst.ptr(y), src.ptr(y + ty) + 4 * tx, std::size_t(dst.cols) * 4);
+    });
+    return;
+  }
   const cv::Matx23d affine(A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2));
   if (A(0, 0) < 0.75) {
     // Area-average first so that a strong downscale does not alias; then the rest of the

@@ -1,3 +1,4 @@
+#include <cstring>
 #include <algorithm>
 #include <map>
 #include <opencv2/core.hpp>
@@ -255,7 +256,7 @@ class MultibandBlenderCpu final : public MultibandBlender {
     const std::vector<uint8_t>& labels = labels_for(mask);
     const int L = layout_.bands;
     std::vector<Level>& acc = acc_;
-    for (int k = 0; k <= L; ++k) acc[k].setTo(cv::Scalar::all(0));
+    for (int k = 0; k <= L; ++k) zero(acc[k]);
     std::vector<Level> g(L + 1);
     for (std::size_t i = 0; i < warped.size(); ++i) {
       if (!(mask >> i & 1)) continue;
@@ -288,7 +289,7 @@ class MultibandBlenderCpu final : public MultibandBlender {
     for (int k = L - 1; k >= 0; --k) {
       const Level upper = part(upper_, acc[k].rows, acc[k].cols);
       up(acc[k + 1], scratch_, upper);
-      acc[k] += upper;
+      add_rows(acc[k], upper);
     }
     const Level& img = acc[0];
     cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& r) {
@@ -305,6 +306,21 @@ class MultibandBlenderCpu final : public MultibandBlender {
   }
 
  private:
+  // Level-wide passes in whole rows on every core (cv::Mat's setTo and += run on one).
+  static void zero(Level& a) {
+    cv::parallel_for_(cv::Range(0, a.rows), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) std::memset(a.ptr<float>(y), 0, std::size_t(a.cols) * 4 * sizeof(float));
+    });
+  }
+  static void add_rows(Level& a, const Level& b) {
+    cv::parallel_for_(cv::Range(0, a.rows), [&](const cv::Range& r) {
+      for (int y = r.start; y < r.end; ++y) {
+        float* pa = a.ptr<float>(y);
+        const float* pb = b.ptr<float>(y);
+        for (int x = 0; x < a.cols * 4; ++x) pa[x] += pb[x];
+      }
+    });
+  }
   static void normalise(Level& a) {
     cv::parallel_for_(cv::Range(0, a.rows), [&](const cv::Range& r) {
       for (int y = r.start; y < r.end; ++y) {
