@@ -46,7 +46,15 @@ const std::vector<cv::Mat>& BlenderCpu::weights_for(uint64_t mask) {
     if (!(mask >> i & 1) || raw_[i].empty()) continue;
     const Rect& r = views_[i].roi;
     cv::Mat roi = sum(cv::Rect(r.x, r.y, r.width, r.height));
-    roi += raw_[i];
+    const cv::Mat& w = raw_[i];
+    // whole rows on every core (cv::Mat's += runs on one); the views stay in order per pixel
+    cv::parallel_for_(cv::Range(0, r.height), [&](const cv::Range& rows) {
+      for (int y = rows.start; y < rows.end; ++y) {
+        float* ps = roi.ptr<float>(y);
+        const float* pw = w.ptr<float>(y);
+        for (int x = 0; x < r.width; ++x) ps[x] += pw[x];
+      }
+    });
   }
   std::vector<cv::Mat> q(raw_.size());
   cv::Mat qsum(out_h_, out_w_, CV_32S, cv::Scalar(0));
@@ -56,7 +64,8 @@ const std::vector<cv::Mat>& BlenderCpu::weights_for(uint64_t mask) {
     if (!(mask >> i & 1) || raw_[i].empty()) continue;
     const Rect& r = views_[i].roi;
     q[i].create(r.height, r.width, CV_16U);
-    for (int y = 0; y < r.height; ++y) {
+    cv::parallel_for_(cv::Range(0, r.height), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
       const float* pw = raw_[i].ptr<float>(y);
       const float* ps = sum.ptr<float>(r.y + y) + r.x;
       uint16_t* pq = q[i].ptr<uint16_t>(y);
@@ -73,18 +82,21 @@ const std::vector<cv::Mat>& BlenderCpu::weights_for(uint64_t mask) {
         }
       }
     }
+    });
   }
   // Give the rounding remainder to the strongest view so covered pixels sum to exactly 1.
-  for (int y = 0; y < out_h_; ++y) {
-    const int32_t* pqs = qsum.ptr<int32_t>(y);
-    const int8_t* pb = best.ptr<int8_t>(y);
-    for (int x = 0; x < out_w_; ++x) {
-      if (pb[x] < 0 || pqs[x] == one) continue;
-      const Rect& r = views_[pb[x]].roi;
-      uint16_t& w = q[pb[x]].at<uint16_t>(y - r.y, x - r.x);
-      w = static_cast<uint16_t>(int(w) + one - pqs[x]);
+  cv::parallel_for_(cv::Range(0, out_h_), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      const int32_t* pqs = qsum.ptr<int32_t>(y);
+      const int8_t* pb = best.ptr<int8_t>(y);
+      for (int x = 0; x < out_w_; ++x) {
+        if (pb[x] < 0 || pqs[x] == one) continue;
+        const Rect& r = views_[pb[x]].roi;
+        uint16_t& w = q[pb[x]].at<uint16_t>(y - r.y, x - r.x);
+        w = static_cast<uint16_t>(int(w) + one - pqs[x]);
+      }
     }
-  }
+  });
   return normalised_.emplace(mask, std::move(q)).first->second;
 }
 
