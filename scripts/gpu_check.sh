@@ -53,6 +53,11 @@ if [ "${1:-}" = handoff ]; then
   done
   timeout 170 $B/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 400 --handoff both --cuda-input \
     --chain "$Q" --json "$OUT/handoff_queues.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee -a "$OUT/bench_handoff.txt"
+  echo "== CPU chain at 3x1080p on 1..16 threads (the host's idle cores)" | tee -a "$OUT/bench_handoff.txt"
+  for t in 1 2 4 8 16; do
+    timeout 100 $B/stitch-bench-chain --photo "$STITCH_TEST_PPM" --cpu-only --case 3x1920x1080 --cpu-frames 5 \
+      --threads $t 2>&1 | grep -E "threads|^3x" | tee -a "$OUT/bench_handoff.txt"
+  done
   exit
 fi
 if [ "${1:-}" = quick ]; then (cd "$OUT" && tar czf ../gpu_results.tgz . && rm -rf ./* && mv ../gpu_results.tgz .); exit; fi
