@@ -76,7 +76,9 @@ class FrameConverterCpu final : public FrameConverter {
 
   void clear(const ImageView& out) override {
     if (out.on_device) throw std::invalid_argument("the CPU frame converter takes system memory only");
-    for (int y = 0; y < out.height; ++y) std::memset(out.row(y), 0, std::size_t(out.width) * 4);
+    cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& rows) {
+      for (int y = rows.start; y < rows.end; ++y) std::memset(out.row(y), 0, std::size_t(out.width) * 4);
+    });
   }
 
   void finish() override {}
