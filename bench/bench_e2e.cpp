@@ -6,12 +6,16 @@
 // encoded by x264enc / x265enc on the host's cores.
 // usage: stitch-bench-e2e [--photo PPM] [--frames N] [--dir DIR] [--decoder nvh264dec|avdec_h264]
 //                         [--cases all|small] [--rigs 1,2,4,8] [--skip-latency] [--json FILE]
+//                         [--handoff event|host|both]
+// --handoff: the rigs-per-process runs with the stream-ordered hand-off (event, the default),
+// with every element synchronising as before (host: STITCH_CUDA_HOST_SYNC=1), or both.
 #include <gst/app/gstappsrc.h>
 #include <gst/gst.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <mutex>
@@ -285,6 +289,7 @@ int main(int argc, char** argv) {
   gst_init(&argc, &argv);
   std::string photo_path = "build/tests/boat1_1600.ppm", json_path, dir = "/tmp/stitch-e2e", decoder = "nv",
               cases_arg = "all", rigs_arg = "1,2,4,8";
+  std::vector<std::string> handoffs = {"event"};
   int frames = 300;
   bool latency = true;
   for (int i = 1; i < argc; ++i) {
@@ -296,6 +301,10 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--cases") && i + 1 < argc) cases_arg = argv[++i];
     else if (!std::strcmp(argv[i], "--rigs") && i + 1 < argc) rigs_arg = argv[++i];
     else if (!std::strcmp(argv[i], "--skip-latency")) latency = false;
+    else if (!std::strcmp(argv[i], "--handoff") && i + 1 < argc) {
+      const std::string m = argv[++i];
+      handoffs = m == "both" ? std::vector<std::string>{"host", "event"} : std::vector<std::string>{m};
+    }
     else {
       std::fprintf(stderr, "usage: %s [--photo PPM] [--frames N] [--dir DIR] [--decoder nv|avdec] "
                            "[--cases all|small] [--rigs 1,2,4,8] [--skip-latency] [--json FILE]\n", argv[0]);
@@ -360,8 +369,10 @@ int main(int argc, char** argv) {
       if (!comma) break;
       s = comma + 1;
     }
-    for (int n : counts) {
+    for (int n : counts)
+     for (const std::string& handoff : handoffs) {
       if (n < 1) continue;
+      setenv("STITCH_CUDA_HOST_SYNC", handoff == "host" ? "1" : "0", 1);  // read by the plugin per frame
       // Throughput: file inputs as fast as they decode. Aggregate = every rig's panoramas over
       // the span from the first rig's warm-up end to the last rig's end (rigs that finish early
       // do not inflate it).
@@ -398,11 +409,11 @@ int main(int argc, char** argv) {
         worst_p99 = std::max(worst_p99, r.latency_p99_ms);
         if (!r.error.empty()) errors += " live: " + r.error;
       }
-      std::printf("%d rig(s) of %s in one process: %7.1f panoramas/s in all, slowest rig %7.1f/s; live 30 fps: "
-                  "latency median %.1f ms, p99 %.1f ms (worst rig)%s\n",
-                  n, three_case.name.c_str(), total, slowest, worst_median, worst_p99, errors.c_str());
+      std::printf("%d rig(s) of %s in one process [%s hand-off]: %7.1f panoramas/s in all, slowest rig %7.1f/s; "
+                  "live 30 fps: latency median %.1f ms, p99 %.1f ms (worst rig)%s\n",
+                  n, three_case.name.c_str(), handoff.c_str(), total, slowest, worst_median, worst_p99, errors.c_str());
       std::fflush(stdout);
-      json += std::string(json.back() == '[' ? "" : ",") + "{\"rigs\":" + std::to_string(n) +
+      json += std::string(json.back() == '[' ? "" : ",") + "{\"rigs\":" + std::to_string(n) + ",\"handoff\":\"" + handoff + "\"" +
               ",\"total_fps\":" + std::to_string(total) + ",\"slowest_fps\":" + std::to_string(slowest) +
               ",\"live_latency_median_ms\":" + std::to_string(worst_median) +
               ",\"live_latency_p99_ms\":" + std::to_string(worst_p99) + "}";

@@ -40,7 +40,7 @@ for t in $GPU_TESTS; do
 done 2>&1 | tee "$OUT/tests.txt"
 if [ "${1:-}" = e2e ]; then
   echo "== end to end: NVDEC-decoded H.264/H.265 cameras into the chain, decode-only ceiling, rigs per process, live latency"
-  timeout 560 $B/stitch-bench-e2e --photo "$STITCH_TEST_PPM" --frames ${E2E_FRAMES:-300} --dir /tmp/stitch-e2e \
+  timeout 560 $B/stitch-bench-e2e --photo "$STITCH_TEST_PPM" --frames ${E2E_FRAMES:-300} --dir /tmp/stitch-e2e --handoff ${E2E_HANDOFF:-event} \
     --json "$OUT/e2e.json" 2>&1 | grep -v "nvrtc\|gldisplay" | tee "$OUT/bench_e2e.txt"
   exit
 fi
