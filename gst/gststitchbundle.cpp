@@ -276,7 +276,7 @@ gboolean StitchBundleMapping::map(GstBuffer* buffer, guint n_views, GstMapFlags 
   if (!stitch_bundle_view_sizes(buffer, n_views, sizes_, error)) return FALSE;
   /* where each view lies decides how it is mapped */
   std::vector<bool> device_view(n_views, false);
-  gboolean all_on_device = TRUE;
+  gboolean all_on_device = device != nullptr;
   for (guint i = 0; i < n_views; ++i) {
     if (missing >> i & 1) continue;
     GstVideoMeta* vm = gst_buffer_get_video_meta_id(buffer, gint(i));

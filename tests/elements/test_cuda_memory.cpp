@@ -5,7 +5,9 @@
 // With a GPU (skipped, with a message, without one): fed with CUDA memory (cudaupload) the
 // chain gives the system-memory chain's panorama (PSNR >= 45 dB), every link between our
 // elements is memory:CUDAMemory, NV12 from the GPU matches videoconvert's, and
-// nvh264dec ! stitchsync ... stitchblend ! cudadownload runs in one CUDA context.
+// nvh264dec ! stitchsync ... stitchblend ! cudadownload runs in one CUDA context, and the
+// stream-ordered hand-off (CUDA events, no host synchronisation between our elements) gives the
+// panoramas of STITCH_CUDA_HOST_SYNC=1 with a queue between every element.
 // Like test_cuda it links no imgcodecs (the photo is read as PPM), so it fits the GPU bundle.
 #include <gst/gst.h>
 #include <gtest/gtest.h>
