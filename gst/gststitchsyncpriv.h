@@ -11,10 +11,13 @@
 #include <string>
 #include <vector>
 
+#include <gst/audio/audio.h>
+
 #include "gststitchbundle.h"
 #include "gststitchcuda.h"
 #include "gststitchsync.h"
 #include "stitch/convert/convert.hpp"
+#include "stitch/sync/audio_align.hpp"
 #include "stitch/sync/policy.hpp"
 #include "stitch/sync/time_align.hpp"
 
@@ -69,6 +72,10 @@ struct StitchSyncState {
   gint64 first_ready_us = -1;
   /* time-alignment=auto (aggregate thread) */
   std::unique_ptr<stitch::sync::OffsetTracker> tracker;
+  /* the cameras' audio (stitchsyncaudio's streaming threads; its own lock, taken alone or inside
+   * `lock`, never the other way round) */
+  std::mutex audio_lock;
+  std::unique_ptr<stitch::sync::AudioAligner> audio;
   /* pads requested and released before the element started: gst_parse_launch does that for
    * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
    * bundle waits for them too (guarded by the element's object lock) */
@@ -80,6 +87,8 @@ struct StitchSyncState {
     started = GST_CLOCK_TIME_NONE;
     first_ready_us = -1;
     if (tracker) tracker->reset();
+    std::lock_guard<std::mutex> guard(audio_lock);
+    audio.reset();
   }
   void clear() {
     clear_run();
@@ -137,3 +146,9 @@ gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAg
 GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, bool automatic,
                            std::vector<guint>& no_signal);
 gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads);
+/* stitchsyncaudio: `frames` interleaved frames of `info` (F32 or S16) of view `view`'s audio, the
+ * first at running time `rt`; used with time-alignment=auto only. */
+void stitch_sync_add_audio(GstStitchSync* self, guint view, GstClockTime rt, const GstAudioInfo* info,
+                           const void* data, gsize frames);
+/* A view's audio flushed: its samples are forgotten. */
+void stitch_sync_reset_audio(GstStitchSync* self, guint view);

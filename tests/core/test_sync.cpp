@@ -6,11 +6,13 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
+#include <algorithm>
 #include <random>
 
 #include "stitch/rig/rig.hpp"
 #include "stitch/sync/policy.hpp"
 #include "stitch/sync/time_align.hpp"
+#include "synthetic_audio.hpp"
 #include "synthetic_rig.hpp"
 #include "test_data.hpp"
 
@@ -257,4 +259,115 @@ TEST(TimeAlign, RealClipWithoutCommonMotionIsNotGuessed) {
     EXPECT_FALSE(e.valid) << "trim " << trim << ": offset " << e.offset_ns / 1e6 << " ms, confidence " << e.confidence;
     EXPECT_EQ(e.offset_ns, 0);
   }
+}
+
+// ---- audio (AudioAligner, GCC-PHAT) ----
+
+namespace {
+
+// Feeds a camera's recording in 20 ms blocks, timestamped by its own running time from 0.
+void feed_audio(AudioAligner& a, int view, const std::vector<float>& x, int rate, int channels, bool as_s16 = false) {
+  const std::size_t block = std::size_t(rate / 50), frames = x.size() / std::size_t(channels);
+  for (std::size_t f = 0; f < frames; f += block) {
+    const std::size_t n = std::min(block, frames - f);
+    const int64_t t = int64_t(double(f) / rate * 1e9);
+    if (as_s16) {
+      std::vector<int16_t> s(n * std::size_t(channels));
+      for (std::size_t i = 0; i < s.size(); ++i)
+        s[i] = int16_t(std::clamp(x[f * std::size_t(channels) + i] * 32767.f, -32768.f, 32767.f));
+      a.add(view, t, s.data(), n, channels, rate);
+    } else {
+      a.add(view, t, x.data() + f * std::size_t(channels), n, channels, rate);
+    }
+  }
+}
+
+}  // namespace
+
+TEST(AudioAlign, RecoversOffsetsAcrossRatesFormatsAndChannels) {
+  const testdata::SoundScene scene(20);
+  AudioAligner a(3);
+  // camera 1 started 7 frames (of 30 fps) after camera 0, camera 2 0.4 s before it; each with
+  // its own microphone (gain, noise about 10 dB under the speech), rate and layout
+  feed_audio(a, 0, scene.record(0.0, 48000 * 15, 48000, 2, 1.0f, 0.03f, 1), 48000, 2);
+  feed_audio(a, 1, scene.record(7 / 30.0, 44100 * 15, 44100, 1, 0.6f, 0.03f, 2), 44100, 1, true);
+  feed_audio(a, 2, scene.record(-0.4, 16000 * 15, 16000, 2, 1.5f, 0.05f, 3), 16000, 2);
+  const auto& e = a.estimate();
+  ASSERT_EQ(e.size(), 3u);
+  ASSERT_TRUE(e[1].valid);
+  ASSERT_TRUE(e[2].valid);
+  // within a millisecond: a sample at 8 kHz is 0.125 ms
+  EXPECT_NEAR(e[1].offset_ns / 1e9, 7 / 30.0, 0.001);
+  EXPECT_NEAR(e[2].offset_ns / 1e9, -0.4, 0.001);
+  EXPECT_GT(e[1].confidence, 0.8);
+  EXPECT_GT(e[2].confidence, 0.8);
+}
+
+TEST(AudioAlign, SilenceAndUnrelatedSoundHaveNoConfidence) {
+  const testdata::SoundScene scene(12, 3), other(12, 99);
+  AudioAligner a(3);
+  std::vector<float> silence(48000 * 10, 0.f);
+  feed_audio(a, 0, scene.record(0.0, 48000 * 10, 48000, 1, 1.0f, 0.02f, 1), 48000, 1);
+  feed_audio(a, 1, silence, 48000, 1);
+  feed_audio(a, 2, other.record(0.0, 48000 * 10, 48000, 1, 1.0f, 0.02f, 2), 48000, 1);  // another room
+  const auto& e = a.estimate();
+  EXPECT_FALSE(e[1].valid);
+  EXPECT_LT(e[2].confidence, 0.2);
+}
+
+TEST(AudioAlign, APureToneIsAmbiguous) {
+  AudioAligner a(2);
+  std::vector<float> x0(48000 * 10), x1(48000 * 10);
+  for (std::size_t k = 0; k < x0.size(); ++k) {
+    x0[k] = 0.3f * std::sin(float(2 * M_PI * 1000.0 * double(k) / 48000));
+    x1[k] = 0.3f * std::sin(float(2 * M_PI * 1000.0 * (double(k) / 48000 + 0.1)));
+  }
+  feed_audio(a, 0, x0, 48000, 1);
+  feed_audio(a, 1, x1, 48000, 1);
+  // a 1 kHz tone matches every millisecond: whatever peak wins, it must not be trusted
+  EXPECT_LT(a.estimate()[1].confidence, 0.5);
+}
+
+TEST(AudioAlign, DiscontinuityIsSilenceNotAShift) {
+  const testdata::SoundScene scene(20, 5);
+  AudioAligner a(2);
+  feed_audio(a, 0, scene.record(0.0, 48000 * 15, 48000, 1, 1.0f, 0.02f, 1), 48000, 1);
+  // camera 1 (started 0.25 s late) loses 0.5 s at 5 s: the blocks after it are timestamped
+  // where they belong
+  const std::vector<float> x = scene.record(0.25, 48000 * 15, 48000, 1, 1.0f, 0.02f, 2);
+  std::vector<float> head(x.begin(), x.begin() + 48000 * 5), tail(x.begin() + 48000 * 5 + 24000, x.end());
+  feed_audio(a, 1, head, 48000, 1);
+  for (std::size_t f = 0; f < tail.size(); f += 960)
+    a.add(1, int64_t((5.5 + double(f) / 48000) * 1e9), tail.data() + f, std::min<std::size_t>(960, tail.size() - f), 1, 48000);
+  const auto& e = a.estimate();
+  ASSERT_TRUE(e[1].valid);
+  EXPECT_NEAR(e[1].offset_ns / 1e9, 0.25, 0.001);
+}
+
+// Audio takes over where it is sure: a static scene (no motion to align on) with sound.
+TEST(AudioAlign, TrackerTakesTheAudioOffsetWhereVisionHasNone) {
+  const testdata::SoundScene scene(14, 9);
+  AudioAligner audio(2);
+  feed_audio(audio, 0, scene.record(0.0, 48000 * 12, 48000, 1, 1.0f, 0.02f, 1), 48000, 1);
+  feed_audio(audio, 1, scene.record(0.3, 48000 * 12, 48000, 1, 1.0f, 0.02f, 2), 48000, 1);
+  OffsetTracker tr(2);
+  std::vector<uint8_t> img(64 * 36, 100);
+  std::vector<Estimate> est;
+  std::vector<int> quiet;
+  for (int f = 0; f < 360; ++f) {
+    for (int v = 0; v < 2; ++v) tr.add_frame(v, int64_t(f) * 33333333, img.data(), 64, 36, 64, 1, 0);
+    tr.update(est, quiet, &audio.estimate());
+  }
+  ASSERT_EQ(est.size(), 2u);
+  ASSERT_TRUE(est[1].valid);
+  EXPECT_EQ(est[1].source, OffsetSource::Audio);
+  EXPECT_NEAR(est[1].offset_ns / 1e9, 0.3, 0.001);
+  EXPECT_NEAR(tr.offset_at(1, 5000000000) / 1e9, 0.3, 0.001);
+  // without the audio, nothing to align on
+  OffsetTracker blind(2);
+  for (int f = 0; f < 360; ++f) {
+    for (int v = 0; v < 2; ++v) blind.add_frame(v, int64_t(f) * 33333333, img.data(), 64, 36, 64, 1, 0);
+    blind.update(est, quiet);
+  }
+  EXPECT_FALSE(est[1].valid);
 }

@@ -126,6 +126,11 @@ void TimeAligner::measure_windows(int v) {
   }
 }
 
+double TimeAligner::newest_s(int view) const {
+  if (view < 0 || view >= views() || signals_[std::size_t(view)].empty()) return 0;
+  return signals_[std::size_t(view)].back().t;
+}
+
 double TimeAligner::step_s() const {
   if (settings_.step_s > 0) return settings_.step_s;
   const auto& s = signals_[0];
@@ -289,6 +294,7 @@ std::vector<Estimate> TimeAligner::estimate() {
   const double t_from = std::max(signals_[0].front().t, t_end - settings_.window_s);
   out[0].valid = true;
   out[0].confidence = 1;
+  out[0].source = OffsetSource::Vision;
   for (int v = 1; v < views(); ++v) {
     Estimate& e = out[std::size_t(v)];
     if (signals_[std::size_t(v)].size() < 2) continue;
@@ -299,6 +305,7 @@ std::vector<Estimate> TimeAligner::estimate() {
     e.confidence = ok ? conf : 0;
     e.valid = ok && conf >= settings_.min_confidence;
     if (!e.valid) continue;
+    e.source = OffsetSource::Vision;
     e.offset_ns = int64_t(std::llround(off * 1e9));
     e.base_offset_ns = e.offset_ns;
     // drift: a weighted line through the windows' offsets, once they span long enough
@@ -358,17 +365,34 @@ void OffsetTracker::add_frame(int view, int64_t t_ns, const uint8_t* data, int w
   }
 }
 
-bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& no_signal) {
+bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& no_signal,
+                           const std::vector<AudioEstimate>* audio) {
   no_signal.clear();
   if (newest_t_ < 0 || (last_estimate_ >= 0 && newest_t_ - last_estimate_ < 1000000000)) return false;
   last_estimate_ = newest_t_;
   current_ = aligner_.estimate();
+  // audio, where it is sure, is the sharper measurement (a sample is 0.125 ms, a frame 33 ms);
+  // vision's rate (clock drift over minutes) is kept, the audio offset being the newest one
+  if (audio) {
+    for (std::size_t v = 1; v < current_.size() && v < audio->size(); ++v) {
+      const AudioEstimate& a = (*audio)[v];
+      if (!a.valid || a.confidence < settings_.audio_min_confidence) continue;
+      Estimate& e = current_[v];
+      if (!e.valid) e.rate = 1.0;
+      e.offset_ns = a.offset_ns;
+      e.base_offset_ns = a.offset_ns - int64_t(std::llround((e.rate - 1.0) * aligner_.newest_s(int(v)) * 1e9));
+      e.confidence = a.confidence;
+      e.valid = true;
+      e.source = OffsetSource::Audio;
+    }
+    if (!audio->empty() && (*audio)[0].valid) current_[0].valid = true;
+  }
   bool changed = false;
   const double window_ns = settings_.window_s * 1e9;
   for (std::size_t v = 1; v < current_.size(); ++v) {
     const Estimate &e = current_[v], &a = announced_[v];
     if (e.valid != a.valid || std::llabs(e.offset_ns - a.offset_ns) > 2000000 ||
-        std::fabs(e.confidence - a.confidence) > 0.1 || std::fabs(e.rate - a.rate) > 1e-4)
+        std::fabs(e.confidence - a.confidence) > 0.1 || std::fabs(e.rate - a.rate) > 1e-4 || e.source != a.source)
       changed = true;
     if (!e.valid && !warned_[v] && double(newest_t_ - first_t_) >= window_ns) {
       warned_[v] = true;
