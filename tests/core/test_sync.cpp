@@ -371,3 +371,57 @@ TEST(AudioAlign, TrackerTakesTheAudioOffsetWhereVisionHasNone) {
   }
   EXPECT_FALSE(est[1].valid);
 }
+
+// A real clip (../shared: the hallway stereo pair, a person walking) as three cameras: left,
+// right, and left again; cameras 1 and 2 trimmed by 4 and 9 frames at the start as if started
+// later. Each camera also records a synthetic sound track (speech-like noise over a tone, its own
+// microphone), trimmed like its video. Without audio (vision) the trims are recovered within a
+// frame (camera 1 relative to the untrimmed run: the stereo pair's own offset is not known;
+// camera 2 absolutely: it is camera 0's own video); with audio within half a frame, absolutely.
+TEST(AudioAlign, RealClipThreeCamerasTrimmedWithAndWithoutAudio) {
+  const std::string dir = testdata::shared_path("video/unrival_stereo_hallway");
+  if (dir.empty()) GTEST_SKIP() << "../shared/data is not here";
+  std::vector<std::vector<double>> sig[2];
+  for (int v = 0; v < 2; ++v) {
+    cv::VideoCapture cap(dir + (v == 0 ? "/left.mp4" : "/right.mp4"));
+    if (!cap.isOpened()) GTEST_SKIP() << "the clip does not decode here";
+    FrameSignal fs;
+    cv::Mat frame, rgba;
+    while (cap.read(frame)) {
+      cv::cvtColor(frame, rgba, cv::COLOR_BGR2RGBA);
+      sig[v].push_back(fs.update(rgba.data, rgba.cols, rgba.rows, rgba.step, 4, 1));
+    }
+  }
+  ASSERT_GT(sig[0].size(), 300u);
+  const std::vector<const std::vector<std::vector<double>>*> cams = {&sig[0], &sig[1], &sig[0]};
+  const double fps = 30;
+  auto vision = [&](const std::vector<int>& trim) {
+    TimeAligner a(3);
+    for (std::size_t f = 0; f < sig[0].size(); ++f)
+      for (int v = 0; v < 3; ++v)
+        if (f + std::size_t(trim[std::size_t(v)]) < cams[std::size_t(v)]->size())
+          a.add_sample(v, int64_t(double(f) / fps * 1e9), (*cams[std::size_t(v)])[f + std::size_t(trim[std::size_t(v)])]);
+    return a.estimate();
+  };
+  const std::vector<int> trim = {0, 4, 9};
+  const auto base = vision({0, 0, 0}), e = vision(trim);
+  ASSERT_TRUE(e[1].valid && e[2].valid && base[1].valid);
+  EXPECT_NEAR((e[1].offset_ns - base[1].offset_ns) / 1e9 * fps, 4.0, 1.0);
+  EXPECT_NEAR(e[2].offset_ns / 1e9 * fps, 9.0, 1.0);
+  // audio
+  const double seconds = double(sig[0].size()) / fps;
+  const testdata::SoundScene scene(seconds + 2, 11);
+  AudioAligner audio(3);
+  for (int v = 0; v < 3; ++v) {
+    const int rate = v == 1 ? 44100 : 48000;
+    const std::size_t n = std::size_t((double(cams[std::size_t(v)]->size()) - trim[std::size_t(v)]) / fps * rate);
+    feed_audio(audio, v, scene.record(trim[std::size_t(v)] / fps, n, rate, 1, 0.6f + 0.3f * float(v), 0.03f, unsigned(v + 1)),
+               rate, 1);
+  }
+  const auto& ae = audio.estimate();
+  for (int v = 1; v < 3; ++v) {
+    ASSERT_TRUE(ae[std::size_t(v)].valid) << v;
+    EXPECT_GE(ae[std::size_t(v)].confidence, AlignSettings{}.audio_min_confidence) << v;
+    EXPECT_NEAR(ae[std::size_t(v)].offset_ns / 1e9 * fps, trim[std::size_t(v)], 0.5) << v;
+  }
+}
