@@ -5,10 +5,12 @@
 
 #include <array>
 #include <atomic>
+#include <condition_variable>
 #include <memory>
 #include <mutex>
 #include <set>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <gst/audio/audio.h>
@@ -48,6 +50,10 @@ struct SyncPadState {
   gint64 applied_ns = 0;
   gint64 file_offset_ns = 0;
   GstClockTime signal_pts = GST_CLOCK_TIME_NONE;
+  /* a real frame came in (gaps do not count); the gaps sent in its stead while it had not */
+  bool delivered = false;
+  stitch::sync::StandIn standin;
+  bool standin_segment = false;  // a time segment was sent for the gaps
 
   void release() {
     gst_clear_buffer(&buffer);
@@ -80,12 +86,20 @@ struct StitchSyncState {
    * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
    * bundle waits for them too (guarded by the element's object lock) */
   std::set<std::string> expected;
+  /* non-live inputs that deliver nothing: a thread stands in for them with gaps
+   * (gststitchsyncwatch.cpp); monotonic time (us) the first real frame came in */
+  std::atomic<gint64> first_data_us{-1};
+  std::mutex watch_lock;
+  std::condition_variable watch_cv;
+  bool watch_run = false;  // watch_lock
+  std::thread watch;
 
   void clear_run() {
     for (GstMessage* m : pending_qos) gst_message_unref(m);
     pending_qos.clear();
     started = GST_CLOCK_TIME_NONE;
     first_ready_us = -1;
+    first_data_us = -1;
     if (tracker) tracker->reset();
     std::lock_guard<std::mutex> guard(audio_lock);
     audio.reset();
@@ -150,5 +164,12 @@ gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggreg
  * first at running time `rt`; used with time-alignment=auto only. */
 void stitch_sync_add_audio(GstStitchSync* self, guint view, GstClockTime rt, const GstAudioInfo* info,
                            const void* data, gsize frames);
+/* gststitchsyncwatch.cpp: the thread that stands in for silent non-live inputs, from start to
+ * stop (a live pipeline's own timeout does it there). */
+void watch_start(GstStitchSync* self);
+/* Notes each sink pad's first real frame (a probe: GstAggregator clips, and so shows us, a
+ * buffer only once every pad has one). */
+void watch_arrivals(GstPad* pad);
+void watch_stop(GstStitchSync* self);
 /* A view's audio flushed: its samples are forgotten. */
 void stitch_sync_reset_audio(GstStitchSync* self, guint view);

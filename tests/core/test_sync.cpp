@@ -425,3 +425,24 @@ TEST(AudioAlign, RealClipThreeCamerasTrimmedWithAndWithoutAudio) {
     EXPECT_NEAR(ae[std::size_t(v)].offset_ns / 1e9 * fps, trim[std::size_t(v)], 0.5) << v;
   }
 }
+
+// A silent non-live input: gaps only after the timeout, only while it has delivered nothing,
+// never in a live pipeline, kept just ahead of the output.
+TEST(SyncPolicy, StandInGapsForASilentNonLiveInput) {
+  const int64_t span = 250 * kMs, timeout = 500 * kMs;
+  StandIn s;
+  int64_t start = -1;
+  EXPECT_FALSE(standin_gap_due(s, false, false, kNoTime, timeout, kNoTime, span, start));  // nothing came in
+  EXPECT_FALSE(standin_gap_due(s, false, false, 400 * kMs, timeout, kNoTime, span, start));  // too early
+  EXPECT_FALSE(standin_gap_due(s, true, false, 900 * kMs, timeout, kNoTime, span, start));   // live
+  EXPECT_FALSE(standin_gap_due(s, false, true, 900 * kMs, timeout, kNoTime, span, start));   // delivered
+  ASSERT_TRUE(standin_gap_due(s, false, false, 600 * kMs, timeout, kNoTime, span, start));
+  EXPECT_EQ(start, 0);
+  EXPECT_FALSE(standin_gap_due(s, false, false, 600 * kMs, timeout, 0, span, start));  // a span ahead already
+  ASSERT_TRUE(standin_gap_due(s, false, false, 700 * kMs, timeout, 100 * kMs, span, start));
+  EXPECT_EQ(start, span);
+  EXPECT_FALSE(standin_gap_due(s, false, false, 700 * kMs, timeout, 200 * kMs, span, start));
+  // the output jumped ahead (a seek): the next gap starts there
+  ASSERT_TRUE(standin_gap_due(s, false, false, 800 * kMs, timeout, 5000 * kMs, span, start));
+  EXPECT_EQ(start, 5000 * kMs);
+}
