@@ -10,6 +10,10 @@
 #include <string>
 #include <vector>
 
+#include "stitch/rig/rig.hpp"
+#include "synthetic_rig.hpp"
+#include "test_data.hpp"
+
 namespace {
 
 class GstEnvironment : public ::testing::Environment {
@@ -61,10 +65,10 @@ struct DeadCamRun {
   bool eos = false;
   // two paced cameras (identity sleep-time: about 100 frames a second) and a third, appsrc, that
   // sends nothing unless told to
-  explicit DeadCamRun(int frames) {
+  explicit DeadCamRun(int frames, const std::string& after = "") {
     const std::string cam = "videotestsrc pattern=ball num-buffers=" + std::to_string(frames) +
                             " ! video/x-raw,format=RGBA,width=96,height=64,framerate=30/1 ! identity sleep-time=10000 ! ";
-    const std::string desc = "stitchsync name=s dropout-timeout=300000000 ! fakesink name=out sync=false " + cam +
+    const std::string desc = "stitchsync name=s dropout-timeout=300000000 ! " + after + "fakesink name=out sync=false " + cam +
                              "s.sink_0 " + cam + "s.sink_1 appsrc name=dead format=time is-live=false ! s.sink_2";
     GError* err = nullptr;
     pipe = gst_parse_launch(desc.c_str(), &err);
@@ -156,4 +160,20 @@ TEST(StitchSyncDeadCamera, JoinsWhenItStarts) {
   ASSERT_TRUE(r.errors.empty()) << r.errors[0];
   EXPECT_TRUE(r.eos);
   EXPECT_GT(r.counts.with_view2.load(), 30) << "the camera never joined";
+}
+
+// stitchcalib with a complete calibration file does not wait for the silent camera either: the
+// panoramas go through with the view marked missing.
+TEST(StitchSyncDeadCamera, CompleteLoadFileDoesNotWaitEither) {
+  const std::string path = testdata::temp_dir() + "/deadcam_rig.json";
+  stitch::rig_save(testdata::shifted_rig(3, 96, 64, 60), path);
+  DeadCamRun r(150, "stitchcalib load-file=" + path + " ! ");
+  ASSERT_NE(r.pipe, nullptr);
+  r.start();
+  r.pump(r.started_us + 20 * G_TIME_SPAN_SECOND);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  EXPECT_TRUE(r.eos);
+  EXPECT_GE(r.counts.bundles.load(), 140) << "stitchcalib held the bundles";
+  ASSERT_GE(r.counts.first_us.load(), 0);
+  EXPECT_LT(double(r.counts.first_us - r.started_us) / 1e6, 0.3 + 1.5);
 }
