@@ -28,8 +28,11 @@
  * reconnect, a dead camera that starts) it rejoins, with an info message and a
  * `stitchsync-dropout` message with dropped=false. A later frame already waiting is a gap in the
  * timestamps (variable frame rate, a file with holes), never a dropout. Live inputs are
- * aggregated on the `latency` timeout, so a stalled or dead live camera is seen; non-live inputs
- * that may stall need `force-live=true` (GstAggregator waits for every non-live input). A frame
+ * aggregated on the `latency` timeout, so a stalled or dead live camera is seen. A non-live input
+ * that delivers nothing at all (an appsrc or file branch that never starts) is stood in for with
+ * GAP events once `dropout-timeout` has passed since the first frame came in, so the others go on
+ * and it joins with its first frame; non-live inputs that stall after delivering need
+ * `force-live=true` (GstAggregator waits for every non-live input that has started). A frame
  * that ends before one its input already delivered comes from the past and is dropped with a
  * QoS message (at most one per input per second, carrying the totals).
  *
@@ -51,7 +54,10 @@
  * an element message `stitchsync-time-offsets` with `offset-N` (gint64 ns, relative to view 0),
  * `confidence-N` (0..1) and `rate-N` (seconds of view 0 per second of view N) for every view N,
  * and sent downstream as a custom event of the same structure (for stitchcalib to save). A view
- * with nothing to align on (a static scene) keeps offset 0 with a warning. `load-file` applies
+ * with nothing to align on (a static scene) keeps offset 0 with a warning. With the cameras'
+ * audio linked to a `stitchsyncaudio` element (`audio_N` for `sink_N`), a view whose sound gives a
+ * distinct cross-correlation peak takes its offset from the audio (`source-N`: audio, vision or
+ * none). `load-file` applies
  * the `time_offset_ns` saved per camera in a calibration JSON; offsets set by hand with
  * gst_pad_set_offset() on the sink pads add to either.
  *

@@ -82,6 +82,7 @@ struct StitchSyncState {
    * `lock`, never the other way round) */
   std::mutex audio_lock;
   std::unique_ptr<stitch::sync::AudioAligner> audio;
+  std::vector<stitch::sync::AudioEstimate> audio_seen;  // aggregate thread: the last taken
   /* pads requested and released before the element started: gst_parse_launch does that for
    * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
    * bundle waits for them too (guarded by the element's object lock) */
@@ -103,6 +104,7 @@ struct StitchSyncState {
     if (tracker) tracker->reset();
     std::lock_guard<std::mutex> guard(audio_lock);
     audio.reset();
+    audio_seen.clear();
   }
   void clear() {
     clear_run();

@@ -268,6 +268,7 @@ void stitch_sync_add_audio(GstStitchSync* self, guint view, GstClockTime rt, con
   else if (f == GST_AUDIO_FORMAT_S16)
     self->state->audio->add(int(view), gint64(rt), static_cast<const int16_t*>(data), frames,
                             GST_AUDIO_INFO_CHANNELS(info), GST_AUDIO_INFO_RATE(info));
+  self->state->audio->estimate();  // once a second of view 0's audio; a no-op otherwise
 }
 
 void stitch_sync_reset_audio(GstStitchSync* self, guint view) {
@@ -305,11 +306,13 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
                                std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0)), luma ? 1 : 4, luma ? 0 : 1);
     }
   }
-  std::vector<stitch::sync::AudioEstimate> audio;
+  /* the audio estimate is made on the audio's streaming thread (tens of ms once a second);
+   * this thread takes its result when the lock is free, never waits for one in progress */
   {
-    std::lock_guard<std::mutex> guard(st->audio_lock);
-    if (st->audio) audio = st->audio->estimate();  // recomputed once a second of audio
+    std::unique_lock<std::mutex> lk(st->audio_lock, std::try_to_lock);
+    if (lk.owns_lock()) st->audio_seen = st->audio ? st->audio->current() : std::vector<stitch::sync::AudioEstimate>{};
   }
+  const std::vector<stitch::sync::AudioEstimate>& audio = st->audio_seen;
   std::vector<stitch::sync::Estimate> est;
   std::vector<int> quiet;
   const bool changed = st->tracker->update(est, quiet, audio.empty() ? nullptr : &audio);

@@ -34,6 +34,8 @@ GstPadProbeReturn count_buffer(GstPad*, GstPadProbeInfo*, gpointer data) {
   return GST_PAD_PROBE_OK;
 }
 
+// The video is paced (about 100 frames a second): the audio estimate runs on the audio's own
+// threads, and unpaced still video would be through before the first estimate is made.
 // `starts[i]`: scene time (s) at which camera i started; `seconds` of still video at 30 fps and of
 // audio (48 kHz stereo F32 on even cameras, 44.1 kHz mono S16 on odd ones) per camera.
 void run(const std::string& extra, const std::vector<double>& starts, double seconds, bool with_audio, Result& r) {
@@ -43,7 +45,8 @@ void run(const std::string& extra, const std::vector<double>& starts, double sec
   const int frames = int(seconds * 30);
   for (std::size_t i = 0; i < starts.size(); ++i) {
     desc += "videotestsrc pattern=smpte num-buffers=" + std::to_string(frames) +
-            " ! video/x-raw,format=RGBA,width=96,height=64,framerate=30/1 ! s.sink_" + std::to_string(i) + " ";
+            " ! video/x-raw,format=RGBA,width=96,height=64,framerate=30/1 ! identity sleep-time=10000 ! s.sink_" +
+            std::to_string(i) + " ";
     if (with_audio)
       desc += "appsrc name=mic" + std::to_string(i) + " format=time ! a.audio_" + std::to_string(i) + " ";
   }

@@ -7,21 +7,22 @@
 namespace stitch::sync {
 
 AudioAligner::AudioAligner(int n_views, AudioAlignSettings settings)
-    : settings_(settings), views_(std::size_t(std::max(n_views, 1))), current_(views_.size()) {
+    : settings_(settings), views_(std::size_t(std::max(n_views, 1))), current_(views_.size()),
+      ends_at_estimate_(views_.size(), std::nan("")) {
   settings_.rate = std::max(settings_.rate, 100);
 }
 
 void AudioAligner::reset() {
   for (auto& v : views_) v = View{};
   current_.assign(views_.size(), AudioEstimate{});
-  last_estimate_end_ = -1e300;
+  ends_at_estimate_.assign(views_.size(), std::nan(""));
 }
 
 void AudioAligner::reset_view(int view) {
   if (view < 0 || view >= views()) return;
   views_[std::size_t(view)] = View{};
   current_[std::size_t(view)] = AudioEstimate{};
-  last_estimate_end_ = -1e300;
+  ends_at_estimate_[std::size_t(view)] = std::nan("");
 }
 
 bool AudioAligner::has_audio(int view) const {
@@ -213,9 +214,17 @@ const std::vector<AudioEstimate>& AudioAligner::estimate() {
     current_.assign(views_.size(), AudioEstimate{});
     return current_;
   }
-  const double now = end_s(views_[0]);
-  if (now - last_estimate_end_ < 1.0 && now >= last_estimate_end_) return current_;
-  last_estimate_end_ = now;
+  // due when any view has a second of new audio (the views' streaming threads run at their own
+  // pace: in a file pipeline one camera's audio may all be in before another's starts)
+  bool due = false;
+  for (int v = 0; v < views(); ++v) {
+    if (!has_audio(v)) continue;
+    const double was = ends_at_estimate_[std::size_t(v)], end = end_s(views_[std::size_t(v)]);
+    due = due || std::isnan(was) || end - was >= 1.0 || end < was;
+  }
+  if (!due) return current_;
+  for (int v = 0; v < views(); ++v)
+    ends_at_estimate_[std::size_t(v)] = has_audio(v) ? end_s(views_[std::size_t(v)]) : std::nan("");
   current_.assign(views_.size(), AudioEstimate{});
   current_[0] = {0, 1.0, true};
   for (int v = 1; v < views(); ++v) {

@@ -49,8 +49,9 @@ class AudioAligner {
   void add(int view, int64_t t_ns, const float* interleaved, std::size_t frames, int channels, int rate);
   void add(int view, int64_t t_ns, const int16_t* interleaved, std::size_t frames, int channels, int rate);
   // Estimates of every view against view 0 (view 0: valid, offset 0, confidence 1 when it has
-  // audio). Recomputed only when a second of new audio came since the last call.
+  // audio). Recomputed only when a view has a second of new audio since the last estimate.
   const std::vector<AudioEstimate>& estimate();
+  const std::vector<AudioEstimate>& current() const { return current_; }  // the last estimate
   bool has_audio(int view) const;
   void reset();
   void reset_view(int view);  // a flush on that camera's audio
@@ -75,7 +76,7 @@ class AudioAligner {
   AudioAlignSettings settings_;
   std::vector<View> views_;
   std::vector<AudioEstimate> current_;
-  double last_estimate_end_ = -1e300;
+  std::vector<double> ends_at_estimate_;  // each view's end (s) at the last estimate; NaN: none
 };
 
 }  // namespace stitch::sync
