@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "synthetic_audio.hpp"
+#include "test_data.hpp"
 
 namespace {
 
@@ -38,17 +39,23 @@ GstPadProbeReturn count_buffer(GstPad*, GstPadProbeInfo*, gpointer data) {
 // threads, and unpaced still video would be through before the first estimate is made.
 // `starts[i]`: scene time (s) at which camera i started; `seconds` of still video at 30 fps and of
 // audio (48 kHz stereo F32 on even cameras, 44.1 kHz mono S16 on odd ones) per camera.
-void run(const std::string& extra, const std::vector<double>& starts, double seconds, bool with_audio, Result& r) {
+// `bin`: through stitchbin (its audio_%u pads) instead of stitchsync + stitchsyncaudio.
+void run(const std::string& extra, const std::vector<double>& starts, double seconds, bool with_audio, Result& r,
+         bool bin = false) {
   const testdata::SoundScene scene(seconds + 1);
-  std::string desc = "stitchsync name=s time-alignment=auto " + extra + " ! fakesink name=out sync=false ";
-  if (with_audio) desc += "stitchsyncaudio name=a ";
+  std::string desc = (bin ? "stitchbin rig-file=" + testdata::repo_path("examples/testsrc_rig.json") + " refine=none"
+                          : std::string("stitchsync")) +
+                     " name=s time-alignment=auto " + extra + " ! fakesink name=out sync=false ";
+  if (with_audio && !bin) desc += "stitchsyncaudio name=a ";
+  const std::string size = bin ? "width=320,height=240" : "width=96,height=64";
   const int frames = int(seconds * 30);
   for (std::size_t i = 0; i < starts.size(); ++i) {
     desc += "videotestsrc pattern=smpte num-buffers=" + std::to_string(frames) +
-            " ! video/x-raw,format=RGBA,width=96,height=64,framerate=30/1 ! identity sleep-time=10000 ! s.sink_" +
+            " ! video/x-raw,format=RGBA," + size + ",framerate=30/1 ! identity sleep-time=10000 ! s.sink_" +
             std::to_string(i) + " ";
     if (with_audio)
-      desc += "appsrc name=mic" + std::to_string(i) + " format=time ! a.audio_" + std::to_string(i) + " ";
+      desc += "appsrc name=mic" + std::to_string(i) + " format=time ! " + (bin ? "s" : "a") + ".audio_" +
+              std::to_string(i) + " ";
   }
   GError* err = nullptr;
   GstElement* pipe = gst_parse_launch(desc.c_str(), &err);
@@ -145,6 +152,16 @@ TEST(StitchSyncAudio, OffsetsFromTheCamerasAudio) {
   gdouble conf = 0;
   gst_structure_get_double(last, "confidence-1", &conf);
   EXPECT_GT(conf, 0.5);
+}
+
+// The same through stitchbin's audio_%u pads.
+TEST(StitchSyncAudio, ThroughStitchbin) {
+  Result r;
+  run("", {0.0, 4 / 30.0}, 6, true, r, true);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_FALSE(r.offsets.empty()) << "no stitchsync-time-offsets message";
+  EXPECT_NEAR(frames_of(r.offsets.back(), 1), 4.0, 0.5);
+  EXPECT_STREQ(gst_structure_get_string(r.offsets.back(), "source-1"), "audio");
 }
 
 // The same cameras without their audio: nothing to align on, the offsets stay 0.
