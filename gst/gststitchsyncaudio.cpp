@@ -258,7 +258,6 @@ static GstPad* gst_stitch_sync_audio_request_new_pad(GstElement* element, GstPad
   reinterpret_cast<GstStitchSyncAudioPad*>(pad)->view = view;
   gst_pad_set_chain_function(pad, GST_DEBUG_FUNCPTR(gst_stitch_sync_audio_chain));
   gst_pad_set_event_function(pad, GST_DEBUG_FUNCPTR(gst_stitch_sync_audio_event));
-  GST_PAD_SET_PROXY_CAPS(pad);
   gst_pad_set_active(pad, TRUE);
   gst_element_add_pad(element, pad);
   return pad;
