@@ -4,7 +4,12 @@
 // rate difference, and the CPU cost of `time-alignment=auto` per frame (thumbnail signal) and per
 // estimate.
 //
-//   stitch-bench-sync DIR CAM0.mp4 CAM1.mp4 [CAM2.mp4 ...] [--trim N1,N2,...]
+// With --audio, each camera also gets a synthetic sound track (speech-like noise bursts over a
+// quiet tone, each microphone with its own gain, noise and rate, trimmed like the video) and the
+// audio estimate (AudioAligner), the combined one (audio where sure, else vision) and the audio
+// cost are reported too.
+//
+//   stitch-bench-sync DIR CAM0.mp4 CAM1.mp4 [CAM2.mp4 ...] [--trim N1,N2,...] [--audio]
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -14,7 +19,9 @@
 #include <string>
 #include <vector>
 
+#include "stitch/sync/audio_align.hpp"
 #include "stitch/sync/time_align.hpp"
+#include "../tests/common/synthetic_audio.hpp"
 
 using stitch::sync::Estimate;
 using stitch::sync::FrameSignal;
@@ -74,9 +81,12 @@ int main(int argc, char** argv) {
   const std::string dir = argv[1];
   std::vector<std::string> cams;
   std::vector<int> trim;
+  bool audio = false;
   for (int i = 2; i < argc; ++i) {
     const std::string a = argv[i];
-    if (a == "--trim" && i + 1 < argc) {
+    if (a == "--audio") {
+      audio = true;
+    } else if (a == "--trim" && i + 1 < argc) {
       std::stringstream ss(argv[++i]);
       std::string item;
       trim.push_back(0);
@@ -130,6 +140,37 @@ int main(int argc, char** argv) {
     const double got = (e[v].offset_ns - base[v].offset_ns) / 1e9 * fps;
     std::printf("  view %zu: offset change %+6.2f frames (expected %+d, error %+5.2f) confidence %.2f%s\n", v, got,
                 trim[v], got - trim[v], e[v].confidence, e[v].valid ? "" : "  (no signal)");
+  }
+  if (audio) {
+    // the sound each camera records, started where its video starts (trim[v] frames late)
+    const double seconds = double(sig[0].size()) / fps;
+    const testdata::SoundScene scene(seconds + 2, 11);
+    stitch::sync::AudioAligner aa(int(cams.size()));
+    double feed_ms = 0;
+    for (std::size_t v = 0; v < cams.size(); ++v) {
+      const int rate = v % 2 ? 44100 : 48000, channels = v % 2 ? 1 : 2;
+      const std::size_t n = std::size_t((double(sig[v].size()) - trim[v]) / fps * rate);
+      const std::vector<float> x =
+          scene.record(trim[v] / fps, n, rate, channels, 0.6f + 0.3f * float(v), 0.03f, unsigned(v + 1));
+      const auto t0 = Clock::now();
+      for (std::size_t f = 0; f < n; f += std::size_t(rate / 50))
+        aa.add(int(v), int64_t(double(f) / rate * 1e9), x.data() + f * std::size_t(channels),
+               std::min<std::size_t>(std::size_t(rate / 50), n - f), channels, rate);
+      feed_ms += ms_since(t0);
+    }
+    const auto t0 = Clock::now();
+    const auto ae = aa.estimate();
+    const double audio_est_ms = ms_since(t0);
+    std::printf("with a synthetic audio track (errors are absolute: the sound is in sync before the trim):\n");
+    for (std::size_t v = 1; v < e.size(); ++v) {
+      const double got = ae[v].offset_ns / 1e9 * fps;
+      const bool use_audio = ae[v].valid && ae[v].confidence >= stitch::sync::AlignSettings{}.audio_min_confidence;
+      std::printf("  view %zu: audio %+6.2f frames (expected %+d, error %+5.2f) confidence %.2f -> offset from %s\n", v,
+                  got, trim[v], got - trim[v], ae[v].confidence, use_audio ? "audio" : e[v].valid ? "vision" : "none");
+    }
+    std::printf("audio cost: %.3f ms per second of audio per camera (downmix, resample to 8 kHz), estimate %.2f ms "
+                "(%zu views, 8 s window, GCC-PHAT)\n",
+                feed_ms / (double(cams.size()) * seconds), audio_est_ms, cams.size());
   }
   std::printf("cost: thumbnail signal %.3f ms per frame (%dx%d RGBA), estimate %.3f ms each (%d views, %d estimates, "
               "one per second of video)\n",

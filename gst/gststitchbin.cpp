@@ -8,7 +8,9 @@
  * children is the bin's own, under the same name, with the same range, default, description
  * and mutability (a property that several children have, `backend`, is set on all of them;
  * construct-only ones such as `force-live` are passed to the child as it is made); the
- * `recalibrate` action signal is stitchcalib's. The children are named sync, calib, color,
+ * `recalibrate` action signal is stitchcalib's. Request pads `audio_%u` take the cameras' audio for
+ * `time-alignment=auto` (`audio_N` for the camera on `sink_N`; consumed by a stitchsyncaudio child
+ * named audio, made with the first such pad). The children are named sync, calib, color,
  * flowwarp and blend: gst_bin_get_by_name() finds them, and their properties can also be set
  * through them (GstChildProxy), e.g. `stitchbin calib::features=orb color::window=5`. Control
  * bindings (GstController) go on the children (`gst_child_proxy_lookup`), which sync them per
@@ -161,9 +163,36 @@ static GstStaticPadTemplate sink_template =
 static GstStaticPadTemplate src_template =
     GST_STATIC_PAD_TEMPLATE("src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS("video/x-raw(ANY)"));
 
-static GstPad* gst_stitch_bin_request_new_pad(GstElement* element, GstPadTemplate*, const gchar* name,
+static GstStaticPadTemplate audio_template =
+    GST_STATIC_PAD_TEMPLATE("audio_%u", GST_PAD_SINK, GST_PAD_REQUEST, GST_STATIC_CAPS("audio/x-raw"));
+
+/* A camera's audio: a pad of the stitchsyncaudio child (made with the first one), ghosted. */
+static GstPad* request_audio_pad(GstStitchBin* self, const gchar* name) {
+  GstElement* audio = gst_bin_get_by_name(GST_BIN(self), "audio");
+  if (!audio) {
+    audio = gst_element_factory_make("stitchsyncaudio", "audio");
+    if (!audio || !gst_bin_add(GST_BIN(self), GST_ELEMENT(gst_object_ref(audio)))) {
+      gst_clear_object(&audio);
+      return NULL;
+    }
+    gst_element_sync_state_with_parent(audio);
+  }
+  GstPad* target = gst_element_request_pad_simple(audio, name ? name : "audio_%u");
+  gst_object_unref(audio);
+  if (!target) return NULL;
+  gchar* pad_name = gst_pad_get_name(target);
+  GstPad* ghost = gst_ghost_pad_new_from_template(pad_name, target, gst_element_get_pad_template(GST_ELEMENT(self), "audio_%u"));
+  g_free(pad_name);
+  gst_object_unref(target);
+  gst_pad_set_active(ghost, TRUE);
+  gst_element_add_pad(GST_ELEMENT(self), ghost);
+  return ghost;
+}
+
+static GstPad* gst_stitch_bin_request_new_pad(GstElement* element, GstPadTemplate* templ, const gchar* name,
                                               const GstCaps* caps) {
   GstStitchBin* self = GST_STITCH_BIN(element);
+  if (templ && g_strcmp0(GST_PAD_TEMPLATE_NAME_TEMPLATE(templ), "audio_%u") == 0) return request_audio_pad(self, name);
   GstElement* sync = self->children[kSync];
   if (!sync) return NULL;
   GstPad* target = gst_element_request_pad_simple(sync, name ? name : "sink_%u");
@@ -186,7 +215,11 @@ static void gst_stitch_bin_release_pad(GstElement* element, GstPad* pad) {
   GstPad* target = gst_ghost_pad_get_target(GST_GHOST_PAD(pad));
   gst_element_remove_pad(element, pad);
   if (target) {
-    gst_element_release_request_pad(self->children[kSync], target);
+    GstElement* owner = gst_pad_get_parent_element(target);
+    if (owner) {
+      gst_element_release_request_pad(owner, target);
+      gst_object_unref(owner);
+    }
     gst_object_unref(target);
   }
 }
@@ -356,6 +389,7 @@ static void gst_stitch_bin_class_init(GstStitchBinClass* klass) {
                              NULL, NULL, NULL, G_TYPE_NONE, 0);
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
+  gst_element_class_add_static_pad_template(element_class, &audio_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);
   gst_element_class_set_static_metadata(element_class, "Stitch bin", "Video/Combiner",
       "Stitches the cameras on its sink_%u pads into one panorama: stitchsync, stitchcalib, "

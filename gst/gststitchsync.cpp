@@ -28,8 +28,11 @@
  * reconnect, a dead camera that starts) it rejoins, with an info message and a
  * `stitchsync-dropout` message with dropped=false. A later frame already waiting is a gap in the
  * timestamps (variable frame rate, a file with holes), never a dropout. Live inputs are
- * aggregated on the `latency` timeout, so a stalled or dead live camera is seen; non-live inputs
- * that may stall need `force-live=true` (GstAggregator waits for every non-live input). A frame
+ * aggregated on the `latency` timeout, so a stalled or dead live camera is seen. A non-live input
+ * that delivers nothing at all (an appsrc or file branch that never starts) is stood in for with
+ * GAP events once `dropout-timeout` has passed since the first frame came in, so the others go on
+ * and it joins with its first frame; non-live inputs that stall after delivering need
+ * `force-live=true` (GstAggregator waits for every non-live input that has started). A frame
  * that ends before one its input already delivered comes from the past and is dropped with a
  * QoS message (at most one per input per second, carrying the totals).
  *
@@ -51,7 +54,10 @@
  * an element message `stitchsync-time-offsets` with `offset-N` (gint64 ns, relative to view 0),
  * `confidence-N` (0..1) and `rate-N` (seconds of view 0 per second of view N) for every view N,
  * and sent downstream as a custom event of the same structure (for stitchcalib to save). A view
- * with nothing to align on (a static scene) keeps offset 0 with a warning. `load-file` applies
+ * with nothing to align on (a static scene) keeps offset 0 with a warning. With the cameras'
+ * audio linked to a `stitchsyncaudio` element (`audio_N` for `sink_N`), a view whose sound gives a
+ * distinct cross-correlation peak takes its offset from the audio (`source-N`: audio, vision or
+ * none). `load-file` applies
  * the `time_offset_ns` saved per camera in a calibration JSON; offsets set by hand with
  * gst_pad_set_offset() on the sink pads add to either.
  *
@@ -150,7 +156,10 @@ static void gst_stitch_sync_pad_class_init(GstStitchSyncPadClass* klass) {
   GST_VIDEO_AGGREGATOR_PAD_CLASS(klass)->prepare_frame = GST_DEBUG_FUNCPTR(gst_stitch_sync_pad_prepare_frame);
 }
 
-static void gst_stitch_sync_pad_init(GstStitchSyncPad* pad) { pad->st = new SyncPadState(); }
+static void gst_stitch_sync_pad_init(GstStitchSyncPad* pad) {
+  pad->st = new SyncPadState();
+  watch_arrivals(GST_PAD(pad));
+}
 
 
 #define GST_TYPE_STITCH_SYNC_INPUT_EOS (gst_stitch_sync_input_eos_get_type())
@@ -292,6 +301,8 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
  * base class would drop it silently, so it is dropped here, with a QoS message. */
 static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad, GstBuffer* buf) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
+  /* our own stand-in for a silent input (gststitchsyncwatch.cpp) is no frame */
+  if (GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0) return buf;
   if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
   GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
   if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
@@ -624,7 +635,10 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
                                      GstClockTime now, GstClockTime timeout) {
   StitchSyncState* st = self->state;
   if (GST_CLOCK_TIME_IS_VALID(st->started)) return GST_FLOW_OK;
-  if (st->first_ready_us < 0) st->first_ready_us = g_get_monotonic_time();
+  /* counted from the first frame that came in (a silent non-live input holds the base class
+   * until the stand-in gaps start) */
+  if (st->first_ready_us < 0)
+    st->first_ready_us = st->first_data_us >= 0 ? MIN(gint64(st->first_data_us), g_get_monotonic_time()) : g_get_monotonic_time();
   std::vector<stitch::sync::InputFacts> facts;
   for (GstVideoAggregatorPad* p : pads) facts.push_back(input_facts(p));
   GST_OBJECT_LOCK(self);
@@ -688,11 +702,16 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   bool all_ended = true;
   for (GstVideoAggregatorPad* pad : pads) {
     const bool ended = !gst_video_aggregator_pad_get_prepared_frame(pad) && gst_aggregator_pad_is_eos(GST_AGGREGATOR_PAD(pad));
+    bool silent;  // never delivered, stood in for by gaps: it does not keep the stream going
+    {
+      std::lock_guard<std::mutex> guard(st->lock);
+      silent = !pad_state(pad)->delivered && pad_state(pad)->standin.sent_until != stitch::sync::kNoTime;
+    }
     if (ended && input_eos == GST_STITCH_SYNC_INPUT_EOS_END_STREAM) {
       GST_INFO_OBJECT(self, "%s ended; ending the stream (input-eos=end-stream)", GST_PAD_NAME(pad));
       return GST_FLOW_EOS;
     }
-    all_ended = all_ended && ended;
+    all_ended = all_ended && (ended || silent);
   }
   /* Every input ended: the base class ends the stream itself only when it does not aggregate on
    * a timeout (live inputs, force-live), where it would repeat the end forever. */
@@ -739,8 +758,15 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   return GST_FLOW_OK;
 }
 
+static gboolean gst_stitch_sync_start(GstAggregator* agg) {
+  if (!GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->start(agg)) return FALSE;
+  watch_start(GST_STITCH_SYNC(agg));
+  return TRUE;
+}
+
 static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
+  watch_stop(self);
   {
     std::lock_guard<std::mutex> guard(self->state->lock);
     self->state->clear();
@@ -751,6 +777,9 @@ static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
       ps.track = {};
       ps.newest_end = GST_CLOCK_TIME_NONE;
       ps.applied_ns = 0;  // the segments go with the stop
+      ps.delivered = false;
+      ps.standin = {};
+      ps.standin_segment = false;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->stop(agg);
@@ -765,6 +794,8 @@ static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
     for (GstVideoAggregatorPad* p : sorted.pads) {
       pad_state(p)->release();
       pad_state(p)->track = {};
+      pad_state(p)->standin = {};
+      pad_state(p)->standin_segment = false;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);
@@ -945,6 +976,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   agg_class->src_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_src_query);
   agg_class->fixate_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_fixate_src_caps);
   agg_class->negotiated_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_negotiated_src_caps);
+  agg_class->start = GST_DEBUG_FUNCPTR(gst_stitch_sync_start);
   agg_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_sync_stop);
   agg_class->flush = GST_DEBUG_FUNCPTR(gst_stitch_sync_flush);
   vagg_class->update_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_update_caps);

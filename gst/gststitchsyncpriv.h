@@ -5,16 +5,21 @@
 
 #include <array>
 #include <atomic>
+#include <condition_variable>
 #include <memory>
 #include <mutex>
 #include <set>
 #include <string>
+#include <thread>
 #include <vector>
+
+#include <gst/audio/audio.h>
 
 #include "gststitchbundle.h"
 #include "gststitchcuda.h"
 #include "gststitchsync.h"
 #include "stitch/convert/convert.hpp"
+#include "stitch/sync/audio_align.hpp"
 #include "stitch/sync/policy.hpp"
 #include "stitch/sync/time_align.hpp"
 
@@ -45,6 +50,10 @@ struct SyncPadState {
   gint64 applied_ns = 0;
   gint64 file_offset_ns = 0;
   GstClockTime signal_pts = GST_CLOCK_TIME_NONE;
+  /* a real frame came in (gaps do not count); the gaps sent in its stead while it had not */
+  bool delivered = false;
+  stitch::sync::StandIn standin;
+  bool standin_segment = false;  // a time segment was sent for the gaps
 
   void release() {
     gst_clear_buffer(&buffer);
@@ -69,17 +78,33 @@ struct StitchSyncState {
   gint64 first_ready_us = -1;
   /* time-alignment=auto (aggregate thread) */
   std::unique_ptr<stitch::sync::OffsetTracker> tracker;
+  /* the cameras' audio (stitchsyncaudio's streaming threads; its own lock, taken alone or inside
+   * `lock`, never the other way round) */
+  std::mutex audio_lock;
+  std::unique_ptr<stitch::sync::AudioAligner> audio;
+  std::vector<stitch::sync::AudioEstimate> audio_seen;  // aggregate thread: the last taken
   /* pads requested and released before the element started: gst_parse_launch does that for
    * `decodebin ! s.sink_2` and links the pad again once decodebin exposes its own; the first
    * bundle waits for them too (guarded by the element's object lock) */
   std::set<std::string> expected;
+  /* non-live inputs that deliver nothing: a thread stands in for them with gaps
+   * (gststitchsyncwatch.cpp); monotonic time (us) the first real frame came in */
+  std::atomic<gint64> first_data_us{-1};
+  std::mutex watch_lock;
+  std::condition_variable watch_cv;
+  bool watch_run = false;  // watch_lock
+  std::thread watch;
 
   void clear_run() {
     for (GstMessage* m : pending_qos) gst_message_unref(m);
     pending_qos.clear();
     started = GST_CLOCK_TIME_NONE;
     first_ready_us = -1;
+    first_data_us = -1;
     if (tracker) tracker->reset();
+    std::lock_guard<std::mutex> guard(audio_lock);
+    audio.reset();
+    audio_seen.clear();
   }
   void clear() {
     clear_run();
@@ -137,3 +162,16 @@ gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAg
 GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, bool automatic,
                            std::vector<guint>& no_signal);
 gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads);
+/* stitchsyncaudio: `frames` interleaved frames of `info` (F32 or S16) of view `view`'s audio, the
+ * first at running time `rt`; used with time-alignment=auto only. */
+void stitch_sync_add_audio(GstStitchSync* self, guint view, GstClockTime rt, const GstAudioInfo* info,
+                           const void* data, gsize frames);
+/* gststitchsyncwatch.cpp: the thread that stands in for silent non-live inputs, from start to
+ * stop (a live pipeline's own timeout does it there). */
+void watch_start(GstStitchSync* self);
+/* Notes each sink pad's first real frame (a probe: GstAggregator clips, and so shows us, a
+ * buffer only once every pad has one). */
+void watch_arrivals(GstPad* pad);
+void watch_stop(GstStitchSync* self);
+/* A view's audio flushed: its samples are forgotten. */
+void stitch_sync_reset_audio(GstStitchSync* self, guint view);

@@ -252,6 +252,34 @@ gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAg
 /* Time alignment. The pads' offsets from load-file, then (time-alignment=auto) from the
  * tracker, fed one motion signal per new input frame at its uncorrected running time. Returns
  * the message to post when the estimates moved (state lock held). */
+static const char* source_name(const stitch::sync::Estimate& e) {
+  if (!e.valid) return "none";
+  return e.source == stitch::sync::OffsetSource::Audio ? "audio" : "vision";
+}
+
+void stitch_sync_add_audio(GstStitchSync* self, guint view, GstClockTime rt, const GstAudioInfo* info, const void* data,
+                           gsize frames) {
+  GST_OBJECT_LOCK(self);
+  const bool automatic = self->time_alignment == GST_STITCH_SYNC_TIME_ALIGNMENT_AUTO;
+  GST_OBJECT_UNLOCK(self);
+  if (!automatic || view >= STITCH_MAX_VIEWS || !GST_CLOCK_TIME_IS_VALID(rt)) return;
+  const GstAudioFormat f = GST_AUDIO_INFO_FORMAT(info);
+  std::lock_guard<std::mutex> guard(self->state->audio_lock);
+  if (!self->state->audio) self->state->audio = std::make_unique<stitch::sync::AudioAligner>(STITCH_MAX_VIEWS);
+  if (f == GST_AUDIO_FORMAT_F32)
+    self->state->audio->add(int(view), gint64(rt), static_cast<const float*>(data), frames, GST_AUDIO_INFO_CHANNELS(info),
+                            GST_AUDIO_INFO_RATE(info));
+  else if (f == GST_AUDIO_FORMAT_S16)
+    self->state->audio->add(int(view), gint64(rt), static_cast<const int16_t*>(data), frames,
+                            GST_AUDIO_INFO_CHANNELS(info), GST_AUDIO_INFO_RATE(info));
+  self->state->audio->estimate();  // once a second of view 0's audio; a no-op otherwise
+}
+
+void stitch_sync_reset_audio(GstStitchSync* self, guint view) {
+  std::lock_guard<std::mutex> guard(self->state->audio_lock);
+  if (self->state->audio) self->state->audio->reset_view(int(view));
+}
+
 GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, bool automatic,
                                   std::vector<guint>& no_signal) {
   StitchSyncState* st = self->state;
@@ -282,9 +310,16 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
                                std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0)), luma ? 1 : 4, luma ? 0 : 1);
     }
   }
+  /* the audio estimate is made on the audio's streaming thread (tens of ms once a second);
+   * this thread takes its result when the lock is free, never waits for one in progress */
+  {
+    std::unique_lock<std::mutex> lk(st->audio_lock, std::try_to_lock);
+    if (lk.owns_lock()) st->audio_seen = st->audio ? st->audio->current() : std::vector<stitch::sync::AudioEstimate>{};
+  }
+  const std::vector<stitch::sync::AudioEstimate>& audio = st->audio_seen;
   std::vector<stitch::sync::Estimate> est;
   std::vector<int> quiet;
-  const bool changed = st->tracker->update(est, quiet);
+  const bool changed = st->tracker->update(est, quiet, audio.empty() ? nullptr : &audio);
   for (int v : quiet) no_signal.push_back(guint(v));
   for (guint v = 0; v < n; ++v) {
     SyncPadState& ps = *pad_state(pads[v]);
@@ -312,6 +347,9 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
     g_free(k);
     k = g_strdup_printf("rate-%u", v);
     gst_structure_set(s, k, G_TYPE_DOUBLE, est[v].valid ? est[v].rate : 1.0, NULL);
+    g_free(k);
+    k = g_strdup_printf("source-%u", v);
+    gst_structure_set(s, k, G_TYPE_STRING, source_name(est[v]), NULL);
     g_free(k);
   }
   return s;

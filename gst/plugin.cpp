@@ -7,10 +7,12 @@
 #include "gststitchcolor.h"
 #include "gststitchflowwarp.h"
 #include "gststitchsync.h"
+#include "gststitchsyncaudio.h"
 
 static gboolean plugin_init(GstPlugin* plugin) {
   gboolean ok = FALSE;
   ok |= GST_ELEMENT_REGISTER(stitchsync, plugin);
+  ok |= GST_ELEMENT_REGISTER(stitchsyncaudio, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchcalib, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchcolor, plugin);
   ok |= GST_ELEMENT_REGISTER(stitchflowwarp, plugin);

@@ -35,8 +35,8 @@ gi.require_version("Gst", "1.0")
 from gi.repository import GObject, Gst  # noqa: E402
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
-ELEMENTS = ["stitchsync", "stitchcalib", "stitchcolor", "stitchflowwarp", "stitchblend", "stitchbin", "stitch360sink"]
-SOURCES = {"stitchsync": "gststitchsync.cpp", "stitchcalib": "gststitchcalib.cpp", "stitchcolor": "gststitchcolor.cpp",
+ELEMENTS = ["stitchsync", "stitchsyncaudio", "stitchcalib", "stitchcolor", "stitchflowwarp", "stitchblend", "stitchbin", "stitch360sink"]
+SOURCES = {"stitchsync": "gststitchsync.cpp", "stitchsyncaudio": "gststitchsyncaudio.cpp", "stitchcalib": "gststitchcalib.cpp", "stitchcolor": "gststitchcolor.cpp",
            "stitchflowwarp": "gststitchflowwarp.cpp", "stitchblend": "gststitchblend.cpp",
            "stitchbin": "gststitchbin.cpp", "stitch360sink": "gststitch360sink.cpp"}
 DOC = os.path.join(ROOT, "docs", "ELEMENTS.md")

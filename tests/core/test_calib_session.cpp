@@ -421,3 +421,43 @@ TEST(CalibSession, RoughRigFollowsASizeChangeBeforeTheFirstCalibration) {
   ASSERT_TRUE(job->rough);
   EXPECT_EQ(job->rough->cameras[0].width, 320);
 }
+
+// A complete calibration file needs no pixels: with a camera still missing (a dead camera, a slow
+// decoder) it is used at once, the missing view taking the file's size, and the camera joins it
+// when it starts: no waiting, no "resolution changed" recalibration.
+TEST(CalibSession, CompleteLoadFileDoesNotWaitForMissingViews) {
+  const std::string path = testdata::temp_dir() + "/three_rig.json";
+  rig_save(testdata::shifted_rig(3, 640, 480, 400), path);
+  SessionConfig c = quick();
+  c.load_file = path;
+  CalibSession s;
+  s.set_config(c);
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {640, 480}, {640, 480}};
+  fr.sizes[2] = {320, 240};  // stitchsync's placeholder for a view without caps
+  fr.missing_mask = 1u << 2;
+  fr.time_s = 0;
+  EXPECT_FALSE(s.on_frame(fr, {}));
+  ASSERT_TRUE(s.current()) << "waited for the missing camera";
+  const auto installed = s.take_events();
+  EXPECT_EQ(count(installed, SessionEvent::Type::Pending), 0);
+  EXPECT_EQ(count(installed, SessionEvent::Type::Installed), 1);
+  ASSERT_EQ(s.current()->cameras.size(), 3u);
+  EXPECT_EQ(s.current()->cameras[2].width, 640);  // the file's, not the placeholder's
+  const auto version = s.version();
+  // more bundles without it, then with it at its real size
+  for (int f = 1; f < 5; ++f) {
+    fr.time_s = f / 30.0;
+    s.on_frame(fr, {});
+  }
+  fr.sizes[2] = {640, 480};
+  fr.missing_mask = 0;
+  for (int f = 5; f < 10; ++f) {
+    fr.time_s = f / 30.0;
+    s.on_frame(fr, {});
+  }
+  const auto later = s.take_events();
+  EXPECT_EQ(count(later, SessionEvent::Type::Warning), 0);
+  EXPECT_EQ(s.version(), version);
+  EXPECT_TRUE(s.current());
+}

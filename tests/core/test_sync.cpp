@@ -6,11 +6,13 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
+#include <algorithm>
 #include <random>
 
 #include "stitch/rig/rig.hpp"
 #include "stitch/sync/policy.hpp"
 #include "stitch/sync/time_align.hpp"
+#include "synthetic_audio.hpp"
 #include "synthetic_rig.hpp"
 #include "test_data.hpp"
 
@@ -257,4 +259,193 @@ TEST(TimeAlign, RealClipWithoutCommonMotionIsNotGuessed) {
     EXPECT_FALSE(e.valid) << "trim " << trim << ": offset " << e.offset_ns / 1e6 << " ms, confidence " << e.confidence;
     EXPECT_EQ(e.offset_ns, 0);
   }
+}
+
+// ---- audio (AudioAligner, GCC-PHAT) ----
+
+namespace {
+
+// Feeds a camera's recording in 20 ms blocks, timestamped by its own running time from 0.
+void feed_audio(AudioAligner& a, int view, const std::vector<float>& x, int rate, int channels, bool as_s16 = false) {
+  const std::size_t block = std::size_t(rate / 50), frames = x.size() / std::size_t(channels);
+  for (std::size_t f = 0; f < frames; f += block) {
+    const std::size_t n = std::min(block, frames - f);
+    const int64_t t = int64_t(double(f) / rate * 1e9);
+    if (as_s16) {
+      std::vector<int16_t> s(n * std::size_t(channels));
+      for (std::size_t i = 0; i < s.size(); ++i)
+        s[i] = int16_t(std::clamp(x[f * std::size_t(channels) + i] * 32767.f, -32768.f, 32767.f));
+      a.add(view, t, s.data(), n, channels, rate);
+    } else {
+      a.add(view, t, x.data() + f * std::size_t(channels), n, channels, rate);
+    }
+  }
+}
+
+}  // namespace
+
+TEST(AudioAlign, RecoversOffsetsAcrossRatesFormatsAndChannels) {
+  const testdata::SoundScene scene(20);
+  AudioAligner a(3);
+  // camera 1 started 7 frames (of 30 fps) after camera 0, camera 2 0.4 s before it; each with
+  // its own microphone (gain, noise about 10 dB under the speech), rate and layout
+  feed_audio(a, 0, scene.record(0.0, 48000 * 15, 48000, 2, 1.0f, 0.03f, 1), 48000, 2);
+  feed_audio(a, 1, scene.record(7 / 30.0, 44100 * 15, 44100, 1, 0.6f, 0.03f, 2), 44100, 1, true);
+  feed_audio(a, 2, scene.record(-0.4, 16000 * 15, 16000, 2, 1.5f, 0.05f, 3), 16000, 2);
+  const auto& e = a.estimate();
+  ASSERT_EQ(e.size(), 3u);
+  ASSERT_TRUE(e[1].valid);
+  ASSERT_TRUE(e[2].valid);
+  // within a millisecond: a sample at 8 kHz is 0.125 ms
+  EXPECT_NEAR(e[1].offset_ns / 1e9, 7 / 30.0, 0.001);
+  EXPECT_NEAR(e[2].offset_ns / 1e9, -0.4, 0.001);
+  EXPECT_GT(e[1].confidence, 0.8);
+  EXPECT_GT(e[2].confidence, 0.8);
+}
+
+TEST(AudioAlign, SilenceAndUnrelatedSoundHaveNoConfidence) {
+  const testdata::SoundScene scene(12, 3), other(12, 99);
+  AudioAligner a(3);
+  std::vector<float> silence(48000 * 10, 0.f);
+  feed_audio(a, 0, scene.record(0.0, 48000 * 10, 48000, 1, 1.0f, 0.02f, 1), 48000, 1);
+  feed_audio(a, 1, silence, 48000, 1);
+  feed_audio(a, 2, other.record(0.0, 48000 * 10, 48000, 1, 1.0f, 0.02f, 2), 48000, 1);  // another room
+  const auto& e = a.estimate();
+  EXPECT_FALSE(e[1].valid);
+  EXPECT_LT(e[2].confidence, 0.2);
+}
+
+TEST(AudioAlign, APureToneIsAmbiguous) {
+  AudioAligner a(2);
+  std::vector<float> x0(48000 * 10), x1(48000 * 10);
+  for (std::size_t k = 0; k < x0.size(); ++k) {
+    x0[k] = 0.3f * std::sin(float(2 * M_PI * 1000.0 * double(k) / 48000));
+    x1[k] = 0.3f * std::sin(float(2 * M_PI * 1000.0 * (double(k) / 48000 + 0.1)));
+  }
+  feed_audio(a, 0, x0, 48000, 1);
+  feed_audio(a, 1, x1, 48000, 1);
+  // a 1 kHz tone matches every millisecond: whatever peak wins, it must not be trusted
+  EXPECT_LT(a.estimate()[1].confidence, 0.5);
+}
+
+TEST(AudioAlign, DiscontinuityIsSilenceNotAShift) {
+  const testdata::SoundScene scene(20, 5);
+  AudioAligner a(2);
+  feed_audio(a, 0, scene.record(0.0, 48000 * 15, 48000, 1, 1.0f, 0.02f, 1), 48000, 1);
+  // camera 1 (started 0.25 s late) loses 0.5 s at 5 s: the blocks after it are timestamped
+  // where they belong
+  const std::vector<float> x = scene.record(0.25, 48000 * 15, 48000, 1, 1.0f, 0.02f, 2);
+  std::vector<float> head(x.begin(), x.begin() + 48000 * 5), tail(x.begin() + 48000 * 5 + 24000, x.end());
+  feed_audio(a, 1, head, 48000, 1);
+  for (std::size_t f = 0; f < tail.size(); f += 960)
+    a.add(1, int64_t((5.5 + double(f) / 48000) * 1e9), tail.data() + f, std::min<std::size_t>(960, tail.size() - f), 1, 48000);
+  const auto& e = a.estimate();
+  ASSERT_TRUE(e[1].valid);
+  EXPECT_NEAR(e[1].offset_ns / 1e9, 0.25, 0.001);
+}
+
+// Audio takes over where it is sure: a static scene (no motion to align on) with sound.
+TEST(AudioAlign, TrackerTakesTheAudioOffsetWhereVisionHasNone) {
+  const testdata::SoundScene scene(14, 9);
+  AudioAligner audio(2);
+  feed_audio(audio, 0, scene.record(0.0, 48000 * 12, 48000, 1, 1.0f, 0.02f, 1), 48000, 1);
+  feed_audio(audio, 1, scene.record(0.3, 48000 * 12, 48000, 1, 1.0f, 0.02f, 2), 48000, 1);
+  OffsetTracker tr(2);
+  std::vector<uint8_t> img(64 * 36, 100);
+  std::vector<Estimate> est;
+  std::vector<int> quiet;
+  for (int f = 0; f < 360; ++f) {
+    for (int v = 0; v < 2; ++v) tr.add_frame(v, int64_t(f) * 33333333, img.data(), 64, 36, 64, 1, 0);
+    tr.update(est, quiet, &audio.estimate());
+  }
+  ASSERT_EQ(est.size(), 2u);
+  ASSERT_TRUE(est[1].valid);
+  EXPECT_EQ(est[1].source, OffsetSource::Audio);
+  EXPECT_NEAR(est[1].offset_ns / 1e9, 0.3, 0.001);
+  EXPECT_NEAR(tr.offset_at(1, 5000000000) / 1e9, 0.3, 0.001);
+  // without the audio, nothing to align on
+  OffsetTracker blind(2);
+  for (int f = 0; f < 360; ++f) {
+    for (int v = 0; v < 2; ++v) blind.add_frame(v, int64_t(f) * 33333333, img.data(), 64, 36, 64, 1, 0);
+    blind.update(est, quiet);
+  }
+  EXPECT_FALSE(est[1].valid);
+}
+
+// A real clip (../shared: the hallway stereo pair, a person walking) as three cameras: left,
+// right, and left again; cameras 1 and 2 trimmed by 4 and 9 frames at the start as if started
+// later. Each camera also records a synthetic sound track (speech-like noise over a tone, its own
+// microphone), trimmed like its video. Without audio (vision) camera 2 (camera 0's own video) is
+// recovered within a frame, camera 1 within a frame of the untrimmed run's estimate or not at all
+// (its strips disagree: low confidence); with audio both within half a frame, absolutely.
+TEST(AudioAlign, RealClipThreeCamerasTrimmedWithAndWithoutAudio) {
+  const std::string dir = testdata::shared_path("video/unrival_stereo_hallway");
+  if (dir.empty()) GTEST_SKIP() << "../shared/data is not here";
+  std::vector<std::vector<double>> sig[2];
+  for (int v = 0; v < 2; ++v) {
+    cv::VideoCapture cap(dir + (v == 0 ? "/left.mp4" : "/right.mp4"));
+    if (!cap.isOpened()) GTEST_SKIP() << "the clip does not decode here";
+    FrameSignal fs;
+    cv::Mat frame, rgba;
+    while (cap.read(frame)) {
+      cv::cvtColor(frame, rgba, cv::COLOR_BGR2RGBA);
+      sig[v].push_back(fs.update(rgba.data, rgba.cols, rgba.rows, rgba.step, 4, 1));
+    }
+  }
+  ASSERT_GT(sig[0].size(), 300u);
+  const std::vector<const std::vector<std::vector<double>>*> cams = {&sig[0], &sig[1], &sig[0]};
+  const double fps = 30;
+  auto vision = [&](const std::vector<int>& trim) {
+    TimeAligner a(3);
+    for (std::size_t f = 0; f < sig[0].size(); ++f)
+      for (int v = 0; v < 3; ++v)
+        if (f + std::size_t(trim[std::size_t(v)]) < cams[std::size_t(v)]->size())
+          a.add_sample(v, int64_t(double(f) / fps * 1e9), (*cams[std::size_t(v)])[f + std::size_t(trim[std::size_t(v)])]);
+    return a.estimate();
+  };
+  const std::vector<int> trim = {0, 4, 9};
+  const auto base = vision({0, 0, 0}), e = vision(trim);
+  ASSERT_TRUE(e[2].valid);
+  EXPECT_NEAR(e[2].offset_ns / 1e9 * fps, 9.0, 1.0);
+  // the stereo pair's strips disagree (a person seen by each camera at another time): vision
+  // must either find the trim or say it has nothing, never apply a confident wrong offset
+  if (e[1].valid && base[1].valid) EXPECT_NEAR((e[1].offset_ns - base[1].offset_ns) / 1e9 * fps, 4.0, 1.0);
+  if (!e[1].valid) EXPECT_EQ(e[1].offset_ns, 0);
+  // audio
+  const double seconds = double(sig[0].size()) / fps;
+  const testdata::SoundScene scene(seconds + 2, 11);
+  AudioAligner audio(3);
+  for (int v = 0; v < 3; ++v) {
+    const int rate = v == 1 ? 44100 : 48000;
+    const std::size_t n = std::size_t((double(cams[std::size_t(v)]->size()) - trim[std::size_t(v)]) / fps * rate);
+    feed_audio(audio, v, scene.record(trim[std::size_t(v)] / fps, n, rate, 1, 0.6f + 0.3f * float(v), 0.03f, unsigned(v + 1)),
+               rate, 1);
+  }
+  const auto& ae = audio.estimate();
+  for (int v = 1; v < 3; ++v) {
+    ASSERT_TRUE(ae[std::size_t(v)].valid) << v;
+    EXPECT_GE(ae[std::size_t(v)].confidence, AlignSettings{}.audio_min_confidence) << v;
+    EXPECT_NEAR(ae[std::size_t(v)].offset_ns / 1e9 * fps, trim[std::size_t(v)], 0.5) << v;
+  }
+}
+
+// A silent non-live input: gaps only after the timeout, only while it has delivered nothing,
+// never in a live pipeline, kept just ahead of the output.
+TEST(SyncPolicy, StandInGapsForASilentNonLiveInput) {
+  const int64_t span = 250 * kMs, timeout = 500 * kMs;
+  StandIn s;
+  int64_t start = -1;
+  EXPECT_FALSE(standin_gap_due(s, false, false, kNoTime, timeout, kNoTime, span, start));  // nothing came in
+  EXPECT_FALSE(standin_gap_due(s, false, false, 400 * kMs, timeout, kNoTime, span, start));  // too early
+  EXPECT_FALSE(standin_gap_due(s, true, false, 900 * kMs, timeout, kNoTime, span, start));   // live
+  EXPECT_FALSE(standin_gap_due(s, false, true, 900 * kMs, timeout, kNoTime, span, start));   // delivered
+  ASSERT_TRUE(standin_gap_due(s, false, false, 600 * kMs, timeout, kNoTime, span, start));
+  EXPECT_EQ(start, 0);
+  EXPECT_FALSE(standin_gap_due(s, false, false, 600 * kMs, timeout, 0, span, start));  // a span ahead already
+  ASSERT_TRUE(standin_gap_due(s, false, false, 700 * kMs, timeout, 100 * kMs, span, start));
+  EXPECT_EQ(start, span);
+  EXPECT_FALSE(standin_gap_due(s, false, false, 700 * kMs, timeout, 200 * kMs, span, start));
+  // the output jumped ahead (a seek): the next gap starts there
+  ASSERT_TRUE(standin_gap_due(s, false, false, 800 * kMs, timeout, 5000 * kMs, span, start));
+  EXPECT_EQ(start, 5000 * kMs);
 }

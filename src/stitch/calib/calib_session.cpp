@@ -373,12 +373,17 @@ void CalibSession::pending(const std::string& why) {
 
 bool CalibSession::handle_sizes(const Frame& frame) {
   if (!current_ || sizes_.empty() || sizes_ == frame.sizes) return true;
+  // a missing view's size is a placeholder, not its camera's (a loaded rig keeps the file's)
+  auto differs = [&](std::size_t i) { return frame.sizes[i] != sizes_[i] && !(i < 64 && (frame.missing_mask >> i & 1)); };
   std::string what;
   if (frame.sizes.size() != sizes_.size()) {
     what = std::to_string(sizes_.size()) + " -> " + std::to_string(frame.sizes.size()) + " cameras";
   } else {
+    bool any = false;
+    for (std::size_t i = 0; i < sizes_.size(); ++i) any = any || differs(i);
+    if (!any) return true;
     for (std::size_t i = 0; i < sizes_.size(); ++i)
-      if (frame.sizes[i] != sizes_[i])
+      if (differs(i))
         what += (what.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " " + size_text(sizes_[i]) +
                 " -> " + size_text(frame.sizes[i]);
   }
@@ -404,7 +409,7 @@ bool CalibSession::handle_sizes(const Frame& frame) {
   return true;
 }
 
-bool CalibSession::load_file() {
+bool CalibSession::load_file(uint64_t missing) {
   const SessionConfig& s = config_;
   Rig rig;
   try {
@@ -427,6 +432,8 @@ bool CalibSession::load_file() {
          std::to_string(sizes_.size()) + " streams are connected");
     return false;
   }
+  for (std::size_t i = 0; i < sizes_.size() && i < 64; ++i)
+    if (missing >> i & 1) sizes_[i] = {rig.cameras[i].width, rig.cameras[i].height};
   if (rig_adapt_to_sizes(rig, sizes_))
     warn("The calibration was made for other frame sizes; it was scaled to the streams");
   try {
@@ -575,15 +582,15 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
   if (!current_) {
     if (first_frame_at_ < 0) first_frame_at_ = now_;
     sizes_ = frame.sizes;
+    if (!config_.load_file.empty()) {
+      load_file(frame.missing_mask);
+      return nullptr;
+    }
     if (frame.missing_mask) {
       std::string who;
       for (std::size_t i = 0; i < frame.sizes.size() && i < 64; ++i)
         if (frame.missing_mask >> i & 1) who += (who.empty() ? "camera " : ", ") + std::to_string(i);
       pending(who + " has not delivered a frame yet");
-      return nullptr;
-    }
-    if (!config_.load_file.empty()) {
-      load_file();
       return nullptr;
     }
     if (!load_rough()) return nullptr;

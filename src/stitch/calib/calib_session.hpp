@@ -189,7 +189,9 @@ class CalibSession {
   void fail(const std::string& s);
   void pending(const std::string& why);
   bool handle_sizes(const Frame& frame);
-  bool load_file();
+  // `missing`: views without a frame yet; they take the file's sizes (a complete calibration
+  // needs no pixels, so it is used at once, and the late cameras join it)
+  bool load_file(uint64_t missing = 0);
   bool load_rough();
   void install(CalibReport report, CalibrationResult* result);
   void start_window(JobKind kind);

@@ -1,5 +1,7 @@
 #include "stitch/sync/policy.hpp"
 
+#include <algorithm>
+
 namespace stitch::sync {
 
 namespace {
@@ -58,6 +60,16 @@ bool RateLimit::allow(int64_t now, uint64_t* held_back) {
   if (held_back) *held_back = suppressed_;
   last_ = now;
   suppressed_ = 0;
+  return true;
+}
+
+bool standin_gap_due(StandIn& s, bool live, bool delivered, int64_t since_first, int64_t timeout, int64_t output,
+                     int64_t span, int64_t& start) {
+  if (live || delivered || since_first == kNoTime || since_first < timeout || span <= 0) return false;
+  const int64_t out = output == kNoTime ? 0 : output;
+  if (s.sent_until != kNoTime && s.sent_until >= out + span) return false;  // far enough ahead
+  start = s.sent_until == kNoTime ? 0 : std::max(s.sent_until, out);
+  s.sent_until = start + span;
   return true;
 }
 

@@ -50,6 +50,19 @@ enum class StartDecision {
 // passed since the first input was ready (`waited`).
 StartDecision may_start(const std::vector<InputFacts>& inputs, int64_t waited, int64_t timeout);
 
+// A non-live input that has delivered nothing holds GstAggregator, which waits for data on every
+// non-live pad: the other cameras would never go on. Once `timeout` has passed since the first
+// input delivered (`since_first`, any clock), the element stands in for it with gaps (GAP events:
+// "nothing for this span", which GstAggregator queues as empty GAP buffers), `span` long each and
+// kept a span ahead of the output (`output`, running time; kNoTime before the first).
+// A live pipeline needs none (the base class times out on its own), nor an input that delivered.
+// Returns true with `start` when the next gap [start, start + span) is due.
+struct StandIn {
+  int64_t sent_until = kNoTime;  // running time the gaps sent so far reach
+};
+bool standin_gap_due(StandIn& s, bool live, bool delivered, int64_t since_first, int64_t timeout, int64_t output,
+                     int64_t span, int64_t& start);
+
 // Rate limit for repeated messages (QoS): at most one per `interval` of `now` (any clock, ns).
 // When one is let through, `held_back` says how many were held back since the previous one.
 class RateLimit {

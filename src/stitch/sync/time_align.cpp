@@ -126,6 +126,11 @@ void TimeAligner::measure_windows(int v) {
   }
 }
 
+double TimeAligner::newest_s(int view) const {
+  if (view < 0 || view >= views() || signals_[std::size_t(view)].empty()) return 0;
+  return signals_[std::size_t(view)].back().t;
+}
+
 double TimeAligner::step_s() const {
   if (settings_.step_s > 0) return settings_.step_s;
   const auto& s = signals_[0];
@@ -171,7 +176,7 @@ Peak ncc_peak(const std::vector<double>& A, const std::vector<double>& B, int la
   const int n = int(A.size());
   int n_valid = 0;
   for (double v : A) n_valid += std::isnan(v) ? 0 : 1;
-  std::vector<double> r(std::size_t(2 * lag_max + 1), kNan);
+  std::vector<double> r(std::size_t(2 * lag_max + 1), kNan), z(r.size(), kNan);
   for (int L = -lag_max; L <= lag_max; ++L) {
     double sab = 0, saa = 0, sbb = 0, sa = 0, sb = 0;
     int m = 0;
@@ -193,10 +198,15 @@ Peak ncc_peak(const std::vector<double>& A, const std::vector<double>& B, int la
     const double cov = sab - sa * sb / m, va = saa - sa * sa / m, vb = sbb - sb * sb / m;
     if (va <= 1e-12 || vb <= 1e-12) continue;
     r[std::size_t(L + lag_max)] = cov / std::sqrt(va * vb);
+    // how unlikely this correlation is by chance over m pairs (Fisher): a lag near the edge of
+    // the search pairs fewer samples, so the same r means less there; picking by r alone lets a
+    // short overlap's chance correlation win (the hallway clip: a -3 s alias at trims >= 13)
+    z[std::size_t(L + lag_max)] = std::atanh(std::clamp(r[std::size_t(L + lag_max)], -0.999, 0.999)) *
+                                  std::sqrt(std::max(m - 3, 1));
   }
   int best = -1;
   for (int i = 0; i < int(r.size()); ++i)
-    if (!std::isnan(r[std::size_t(i)]) && (best < 0 || r[std::size_t(i)] > r[std::size_t(best)])) best = i;
+    if (!std::isnan(z[std::size_t(i)]) && (best < 0 || z[std::size_t(i)] > z[std::size_t(best)])) best = i;
   if (best < 0) return p;
   const double peak = r[std::size_t(best)];
   double sub = 0;
@@ -213,14 +223,16 @@ Peak ncc_peak(const std::vector<double>& A, const std::vector<double>& B, int la
     ++hi;
   lo = std::min(lo, best - 2);
   hi = std::max(hi, best + 2);
+  // the strongest other local maximum, by the same significance, in the peak's correlation units
   double second = 0;
+  const double zb = z[std::size_t(best)];
   for (int i = 0; i < int(r.size()); ++i) {
     if (i >= lo && i <= hi) continue;
-    const double y = r[std::size_t(i)];
+    const double y = z[std::size_t(i)];
     if (std::isnan(y)) continue;
-    const bool left_ok = i == 0 || std::isnan(r[std::size_t(i - 1)]) || y >= r[std::size_t(i - 1)];
-    const bool right_ok = i + 1 == int(r.size()) || std::isnan(r[std::size_t(i + 1)]) || y >= r[std::size_t(i + 1)];
-    if (left_ok && right_ok) second = std::max(second, y);
+    const bool left_ok = i == 0 || std::isnan(z[std::size_t(i - 1)]) || y >= z[std::size_t(i - 1)];
+    const bool right_ok = i + 1 == int(z.size()) || std::isnan(z[std::size_t(i + 1)]) || y >= z[std::size_t(i + 1)];
+    if (left_ok && right_ok && zb > 0) second = std::max(second, peak * y / zb);
   }
   p.lag = best - lag_max + sub;
   p.confidence = std::clamp(peak, 0.0, 1.0) * std::clamp((peak - second) / 0.2, 0.0, 1.0);
@@ -266,9 +278,30 @@ bool TimeAligner::correlate(int a, int b, double from_s, double to_s, double& of
     }
   }
   if (peaks.empty()) return false;
+  // Across pairs: the lag that most pairs back (their confidences summed within a step and a
+  // half) against the best other lag. A scene whose pairs point every which way (a person seen
+  // by each camera at another time, no event common to an overlap: the hallway clip gives peaks
+  // from -89 to -36 frames, each 0.4-0.6 sure in its own pair) is no estimate, however distinct
+  // each pair's own peak is.
+  auto support = [&](double lag) {
+    double s = 0;
+    for (const Peak& q : peaks)
+      if (std::fabs(q.lag - lag) <= 1.5) s += q.confidence;
+    return s;
+  };
   const Peak* best = &peaks[0];
+  double best_support = -1;
+  for (const Peak& p : peaks) {
+    const double sp = support(p.lag);
+    if (sp > best_support + 1e-12 || (std::fabs(sp - best_support) <= 1e-12 && p.confidence > best->confidence)) {
+      best = &p;
+      best_support = sp;
+    }
+  }
+  double rival = 0;
   for (const Peak& p : peaks)
-    if (p.confidence > best->confidence) best = &p;
+    if (std::fabs(p.lag - best->lag) > 3.0) rival = std::max(rival, support(p.lag));
+  const double agreement = best_support > 0 ? std::clamp((best_support - rival) / (0.5 * best_support), 0.0, 1.0) : 0.0;
   double sw = 0, sl = 0;
   for (const Peak& p : peaks)
     if (std::fabs(p.lag - best->lag) <= 1.0 && p.confidence >= 0.5 * best->confidence) {
@@ -278,7 +311,7 @@ bool TimeAligner::correlate(int a, int b, double from_s, double to_s, double& of
   offset_s = (sw > 0 ? sl / sw : best->lag) * h;
   // many pairs: the best of many noise peaks is higher than one; ask more of a single pair
   const double noise_floor = peaks.size() > 1 ? 0.1 : 0.0;
-  confidence = std::clamp((best->confidence - noise_floor) / (1.0 - noise_floor), 0.0, 1.0);
+  confidence = std::clamp((best->confidence - noise_floor) / (1.0 - noise_floor), 0.0, 1.0) * agreement;
   return true;
 }
 
@@ -289,6 +322,7 @@ std::vector<Estimate> TimeAligner::estimate() {
   const double t_from = std::max(signals_[0].front().t, t_end - settings_.window_s);
   out[0].valid = true;
   out[0].confidence = 1;
+  out[0].source = OffsetSource::Vision;
   for (int v = 1; v < views(); ++v) {
     Estimate& e = out[std::size_t(v)];
     if (signals_[std::size_t(v)].size() < 2) continue;
@@ -299,6 +333,7 @@ std::vector<Estimate> TimeAligner::estimate() {
     e.confidence = ok ? conf : 0;
     e.valid = ok && conf >= settings_.min_confidence;
     if (!e.valid) continue;
+    e.source = OffsetSource::Vision;
     e.offset_ns = int64_t(std::llround(off * 1e9));
     e.base_offset_ns = e.offset_ns;
     // drift: a weighted line through the windows' offsets, once they span long enough
@@ -358,17 +393,34 @@ void OffsetTracker::add_frame(int view, int64_t t_ns, const uint8_t* data, int w
   }
 }
 
-bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& no_signal) {
+bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& no_signal,
+                           const std::vector<AudioEstimate>* audio) {
   no_signal.clear();
   if (newest_t_ < 0 || (last_estimate_ >= 0 && newest_t_ - last_estimate_ < 1000000000)) return false;
   last_estimate_ = newest_t_;
   current_ = aligner_.estimate();
+  // audio, where it is sure, is the sharper measurement (a sample is 0.125 ms, a frame 33 ms);
+  // vision's rate (clock drift over minutes) is kept, the audio offset being the newest one
+  if (audio) {
+    for (std::size_t v = 1; v < current_.size() && v < audio->size(); ++v) {
+      const AudioEstimate& a = (*audio)[v];
+      if (!a.valid || a.confidence < settings_.audio_min_confidence) continue;
+      Estimate& e = current_[v];
+      if (!e.valid) e.rate = 1.0;
+      e.offset_ns = a.offset_ns;
+      e.base_offset_ns = a.offset_ns - int64_t(std::llround((e.rate - 1.0) * aligner_.newest_s(int(v)) * 1e9));
+      e.confidence = a.confidence;
+      e.valid = true;
+      e.source = OffsetSource::Audio;
+    }
+    if (!audio->empty() && (*audio)[0].valid) current_[0].valid = true;
+  }
   bool changed = false;
   const double window_ns = settings_.window_s * 1e9;
   for (std::size_t v = 1; v < current_.size(); ++v) {
     const Estimate &e = current_[v], &a = announced_[v];
     if (e.valid != a.valid || std::llabs(e.offset_ns - a.offset_ns) > 2000000 ||
-        std::fabs(e.confidence - a.confidence) > 0.1 || std::fabs(e.rate - a.rate) > 1e-4)
+        std::fabs(e.confidence - a.confidence) > 0.1 || std::fabs(e.rate - a.rate) > 1e-4 || e.source != a.source)
       changed = true;
     if (!e.valid && !warned_[v] && double(newest_t_ - first_t_) >= window_ns) {
       warned_[v] = true;

@@ -28,6 +28,8 @@
 #include <deque>
 #include <vector>
 
+#include "stitch/sync/audio_align.hpp"
+
 namespace stitch::sync {
 
 struct AlignSettings {
@@ -38,7 +40,10 @@ struct AlignSettings {
   double min_confidence = 0.3;  // below: the view has no usable signal (offset kept at 0)
   double drift_window_s = 20.0; // span of one offset measurement for the drift fit
   double min_drift_span_s = 40.0;  // rates are fitted once the measurements span this long
+  double audio_min_confidence = 0.5;  // an audio estimate at least this sure replaces vision's
 };
+
+enum class OffsetSource { None, Vision, Audio };
 
 struct Estimate {
   int64_t offset_ns = 0;  // at the newest time (drift included): add to the view's running time
@@ -46,6 +51,7 @@ struct Estimate {
   double rate = 1.0;      // view 0 seconds per view N second
   int64_t base_offset_ns = 0;  // the fitted line's value at view-N time 0 (what a file stores)
   bool valid = false;     // confidence >= min_confidence
+  OffsetSource source = OffsetSource::None;  // what the offset was measured from
 };
 
 // Motion energy of a frame: the mean absolute difference (0..255) of a grey thumbnail against
@@ -78,6 +84,8 @@ class TimeAligner {
   std::vector<Estimate> estimate();
   // Forgets the signals (a seek, a flush).
   void reset();
+  // Newest sample time (s) of a view; 0 without samples.
+  double newest_s(int view) const;
 
   // Lower level, exposed for the tests: offset of `b` relative to `a` (b's time + offset =
   // a's time) over [from, to) of a's time, with a confidence; false when there is too little.
@@ -118,7 +126,11 @@ class OffsetTracker {
   // Re-estimates when a second has passed since the last estimate; true when the estimates
   // moved enough to be announced again (or for the first time). `no_signal` turns true once,
   // when a view still has nothing to align on after a whole window.
-  bool update(std::vector<Estimate>& estimates, std::vector<int>& no_signal);
+  // `audio` (optional): the audio estimates (AudioAligner); a view whose audio estimate is at
+  // least `audio_min_confidence` sure takes its offset from the audio (sharper), otherwise the
+  // vision estimate stands. The vision rate is kept either way.
+  bool update(std::vector<Estimate>& estimates, std::vector<int>& no_signal,
+              const std::vector<AudioEstimate>* audio = nullptr);
   // The offset (ns) to add to `view`'s running time at its uncorrected time t_ns (drift
   // included); 0 while the view has no valid estimate.
   int64_t offset_at(int view, int64_t t_ns) const;
