@@ -337,9 +337,10 @@ TEST(Seam, KeepsClearOfANearObjectsParallaxCopies) {
     }
     return worst;
   };
-  SeamSettings off;
-  off.clearance_radius = 0;
-  const int with = clearance(SeamSettings{}), without = clearance(off);
+  SeamSettings on, off;
+  on.clearance_weight = 4.f;
+  off.clearance_weight = 0.f;
+  const int with = clearance(on), without = clearance(off);
   std::printf("seam's distance from the object's copies: %d px with the clearance term, %d px without\n", with,
               without);
   EXPECT_GE(with, 12);
