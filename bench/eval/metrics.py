@@ -177,3 +177,49 @@ def alignment(frames, camera_to_reference, min_matches=20):
     if not distances:
         return float("nan"), 0
     return float(np.median(distances)), len(distances)
+
+
+# StabStitch-style warp measures (Jia et al., StabStitch, ECCV 2024). The local warp of a chain
+# is measured on its output: the dense flow from the homography-only output to the chain's
+# output (both on the same canvas), on pixels where both show the same static scene.
+
+def warp_field(base, out, mask):
+    """Displacement (H x W x 2, px) that takes `base` to `out` (Farneback flow on the luma);
+    0 outside `mask`."""
+    f = cv2.calcOpticalFlowFarneback(luma(base).astype(np.uint8), luma(out).astype(np.uint8), None,
+                                     0.5, 4, 15, 3, 5, 1.1, 0)
+    f[~mask] = 0
+    return f
+
+
+def warp_stability(fields, masks):
+    """Mean |d(t+1) - 2 d(t) + d(t-1)| (px) over the pixels in all three frames' masks: how much
+    the local warp shakes over time (0 for a fixed warp or one that moves at constant speed)."""
+    vals = []
+    for t in range(1, len(fields) - 1):
+        dd = fields[t + 1] - 2 * fields[t] + fields[t - 1]
+        vals.append(np.linalg.norm(dd, axis=2)[masks[t - 1] & masks[t] & masks[t + 1]])
+    return float(np.concatenate(vals).mean()) if vals and sum(v.size for v in vals) else float("nan")
+
+
+def line_distortion(field, mask, stride=8, min_run=32):
+    """How far the warp bends straight lines: every row (and column) `stride` px apart, in runs of
+    at least `min_run` px inside `mask`, is moved by the field; the worst distance of the moved
+    line from the straight chord through its moved ends, per run. Returns (mean, 95th
+    percentile) over the runs, px (0 for a homography: it keeps lines straight)."""
+    devs = []
+    for axis in (0, 1):
+        m = mask if axis == 0 else mask.T
+        d = field[..., 1] if axis == 0 else field[..., 0].T  # displacement across the line
+        for i in range(0, m.shape[0], stride):
+            row = m[i]
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], row.astype(np.int8), [0]])))
+            for a, b in zip(edges[0::2], edges[1::2]):
+                if b - a < min_run:
+                    continue
+                v = d[i, a:b].astype(np.float64)
+                chord = np.linspace(v[0], v[-1], b - a)
+                devs.append(float(np.abs(v - chord).max()))
+    if not devs:
+        return float("nan"), float("nan")
+    return float(np.mean(devs)), float(np.percentile(devs, 95))

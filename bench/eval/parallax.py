@@ -447,6 +447,10 @@ def object_footprint(scene, ob, t, W, H):
     return _footprints[key]
 
 
+# Bands of distance (px) from the nearest copy of an object, for the background PSNR profile.
+RINGS = [(3, 8), (8, 15), (15, 30), (30, 60), (60, 120), (120, 100000)]
+
+
 def evaluate_output(run_dir, render_dir, scene, frames):
     W, H = scene["canvas"]
     rng = np.random.default_rng(7)
@@ -459,6 +463,10 @@ def evaluate_output(run_dir, render_dir, scene, frames):
     band = band >= 2
     f = d = bf = bd = 0
     psnr_bg, psnr_bg_far, psnr_bg_all, psnr_all, flick = [], [], [], [], []
+    mad_ov, ssim_ov, fields, field_masks = [], [], [], []
+    ring_err = np.zeros(len(RINGS))
+    ring_n = np.zeros(len(RINGS))
+    base_dir = os.path.join(os.path.dirname(run_dir), "homography")
     prev = prev_t = None
     for t in range(frames):
         img = cv2.imread(os.path.join(run_dir, "pano_%04d.png" % t), cv2.IMREAD_UNCHANGED)
@@ -477,6 +485,23 @@ def evaluate_output(run_dir, render_dir, scene, frames):
         psnr_bg_far.append(metrics.psnr(out, g[:, :, :3], far & band))
         psnr_bg_all.append(metrics.psnr(out, g[:, :, :3], background))
         psnr_all.append(metrics.psnr(out, g[:, :, :3], valid))
+        # Overlap alignment against the truth (StabStitch reports PSNR/SSIM in the overlaps).
+        ov = valid & band
+        mad_ov.append(float(np.abs(out.astype(np.float64) - g[:, :, :3]).mean(axis=2)[ov].mean()))
+        ssim_ov.append(metrics.ssim(out, g[:, :, :3], ov))
+        # Background error by distance from the objects' copies: where a halo comes from.
+        dist = cv2.distanceTransform((~objs).astype(np.uint8), cv2.DIST_L2, 5)
+        err = ((out.astype(np.float64) - g[:, :, :3]) ** 2).mean(axis=2)
+        for k, (lo, hi) in enumerate(RINGS):
+            sel = ov & (dist >= lo) & (dist < hi)
+            ring_err[k] += err[sel].sum()
+            ring_n[k] += sel.sum()
+        # The local warp, measured against the homography-only output on the static background.
+        base = cv2.imread(os.path.join(base_dir, "pano_%04d.png" % t), cv2.IMREAD_UNCHANGED)
+        if base is not None and base.shape == img.shape:
+            fm = far & band
+            fields.append(metrics.warp_field(base[:, :, :3], out, fm))
+            field_masks.append(fm)
         if t >= 1:
             a, b, c, e = ghost_stats(out, scene, t, g[:, :, :3], bg_bgr, rng)
             f, d, bf, bd = f + a, d + b, bf + c, bd + e
@@ -485,7 +510,16 @@ def evaluate_output(run_dir, render_dir, scene, frames):
             static = (cv2.dilate(moved, np.ones((7, 7), np.uint8)) == 0) & valid
             flick.append(metrics.flicker([prev, out], static)[0])
         prev, prev_t = out, g[:, :, :3]
+    warp = dict(stability=float("nan"), distortion=float("nan"), distortion_p95=float("nan"))
+    if len(fields) >= 3:
+        dmean, dp95 = zip(*[metrics.line_distortion(fl, fm) for fl, fm in zip(fields, field_masks)])
+        warp = dict(stability=metrics.warp_stability(fields, field_masks), distortion=float(np.nanmean(dmean)),
+                    distortion_p95=float(np.nanmax(dp95)))
+    rings = {"%d-%d" % r: (10 * math.log10(255.0 ** 2 / (e / n)) if n and e else float("nan"))
+             for r, e, n in zip(RINGS, ring_err, ring_n)}
     return dict(ghost_ratio=d / f if f else float("nan"), object_samples=f,
+                mad_overlap=float(np.nanmean(mad_ov)), ssim_overlap=float(np.nanmean(ssim_ov)),
+                psnr_by_distance=rings, **warp,
                 distant_ghost_ratio=bd / bf if bf else float("nan"), background_samples=bf,
                 psnr_overlap_background=float(np.nanmean(psnr_bg)),
                 psnr_overlap_background_far=float(np.nanmean(psnr_bg_far)),
@@ -556,7 +590,8 @@ def main():
             if args.render_only:
                 continue
             res = {"truth": truth_self_check(rd, scene, args.frames)}
-            for name, chain, blend in chains:
+            # the homography baseline first: the warp measures compare every chain with it
+            for name, chain, blend in sorted(chains, key=lambda c: c[0] != "homography"):
                 od = os.path.join(args.out, key, name)
                 done = os.path.exists(os.path.join(od, "pano_%04d.png" % (args.frames - 1)))
                 if not (args.reuse and done) and not run_chain(args.build, rd, od, args.frames, len(scene["cameras"]), chain, blend, args.backend):
@@ -575,6 +610,12 @@ def main():
                     "%.2f" % r["psnr_overlap_background_far"] if "psnr" in r else "-",
                     "%.2f" % r["psnr"] if "psnr" in r else "-",
                     "%.3f" % r["flicker"] if "flicker" in r else "-"), flush=True)
+                if "mad_overlap" in r:
+                    print("%-14s %-24s overlap MAD %.2f SSIM %.4f  warp stability %.3f px  distortion %.3f (p95 "
+                          "%.3f) px  bg PSNR by distance %s" % (
+                        key, name, r["mad_overlap"], r["ssim_overlap"], r["stability"], r["distortion"],
+                        r["distortion_p95"], " ".join("%s:%.1f" % kv for kv in r["psnr_by_distance"].items())),
+                          flush=True)
     if results:
         json.dump(results, open(os.path.join(args.out, "results.json"), "w"), indent=1)
         print("%.0f s; %s" % (time.time() - t0, os.path.join(args.out, "results.json")))

@@ -20,7 +20,8 @@ __global__ void luma_kernel(DeviceImage view, uint8_t* luma) {
 }
 
 __global__ void cost_kernel(SeamPairGeometry p, DeviceImage va, DeviceImage vb, const uint8_t* la, const uint8_t* lb,
-                            const uint8_t* pa, const uint8_t* pb, const float* centre_map, sm::Weights w, float* cost) {
+                            const uint8_t* pa, const uint8_t* pb, const float* centre_map, sm::Weights w, float* cost,
+                            int* diff) {
   const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
   if (bx >= p.box_w || by >= p.box_h) return;
   const int row = p.vertical ? by : bx, col = p.vertical ? bx : by, cols = p.vertical ? p.box_w : p.box_h;
@@ -28,6 +29,7 @@ __global__ void cost_kernel(SeamPairGeometry p, DeviceImage va, DeviceImage vb, 
   const float centre = centre_map[size_t(by) * p.box_w + bx];
   if (centre < 0.f) {
     out = sm::kOutside;
+    if (diff) diff[size_t(row) * cols + col] = 0;
     return;
   }
   const int x = p.box_x + bx, y = p.box_y + by;
@@ -41,6 +43,31 @@ __global__ void cost_kernel(SeamPairGeometry p, DeviceImage va, DeviceImage vb, 
       sm::color_difference(va.data + size_t(y - p.roi_a[1]) * va.pitch + size_t(x - p.roi_a[0]) * 4,
                            vb.data + size_t(y - p.roi_b[1]) * vb.pitch + size_t(x - p.roi_b[0]) * 4);
   out = sm::pixel_cost(w, difference, gradients, motion, centre);
+  if (diff)
+    diff[size_t(row) * cols + col] =
+        sm::color_difference_sum(va.data + size_t(y - p.roi_a[1]) * va.pitch + size_t(x - p.roi_a[0]) * 4,
+                                 vb.data + size_t(y - p.roi_b[1]) * vb.pitch + size_t(x - p.roi_b[0]) * 4);
+}
+
+// The clearance term's window sums (seam frame, rows x cols), as SeamFinder::cut: across the
+// seam first, then along it, in integers.
+__global__ void clearance_across_kernel(const int* diff, int rows, int cols, int radius, int* across) {
+  const int c = blockIdx.x * blockDim.x + threadIdx.x, r = blockIdx.y * blockDim.y + threadIdx.y;
+  if (c >= cols || r >= rows) return;
+  int sum = 0;
+  for (int k = max(0, c - radius); k <= min(cols - 1, c + radius); ++k) sum += diff[size_t(r) * cols + k];
+  across[size_t(r) * cols + c] = sum;
+}
+
+__global__ void clearance_along_kernel(const int* across, int rows, int cols, sm::Weights w, float* cost) {
+  const int c = blockIdx.x * blockDim.x + threadIdx.x, r = blockIdx.y * blockDim.y + threadIdx.y;
+  if (c >= cols || r >= rows) return;
+  float& v = cost[size_t(r) * cols + c];
+  if (v == sm::kOutside) return;
+  int sum = 0;
+  for (int k = max(0, r - w.clearance_radius); k <= min(rows - 1, r + w.clearance_radius); ++k)
+    sum += across[size_t(k) * cols + c];
+  v = sm::add(v, sm::clearance_cost(w, sum));
 }
 
 // One block per pair: the rows one after the other (each depends on the one before), the columns
@@ -100,10 +127,18 @@ void launch_seam_luma(const DeviceImage& view, uint8_t* luma, cudaStream_t strea
 void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, const DeviceImage& view_b,
                       const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
                       const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
-                      float* cost, cudaStream_t stream) {
+                      float* cost, int* diff, int* across, cudaStream_t stream) {
+  const bool clearance = weights.clearance_radius > 0 && weights.clearance > 0.f && diff && across;
   cost_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, view_a, view_b, luma_a, luma_b, previous_a,
-                                                                      previous_b, centre, weights, cost);
+                                                                      previous_b, centre, weights, cost,
+                                                                      clearance ? diff : nullptr);
   check_launch("seam cost_kernel");
+  if (!clearance) return;
+  const int rows = pair.vertical ? pair.box_h : pair.box_w, cols = pair.vertical ? pair.box_w : pair.box_h;
+  clearance_across_kernel<<<grid_for(cols, rows), kBlock, 0, stream>>>(diff, rows, cols, weights.clearance_radius, across);
+  check_launch("seam clearance_across_kernel");
+  clearance_along_kernel<<<grid_for(cols, rows), kBlock, 0, stream>>>(across, rows, cols, weights, cost);
+  check_launch("seam clearance_along_kernel");
 }
 
 void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream) {

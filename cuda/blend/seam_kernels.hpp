@@ -19,11 +19,12 @@ struct SeamPairGeometry {
 // luma (width x height, packed) = (r + 2g + b + 2) / 4 of an RGBA view.
 void launch_seam_luma(const DeviceImage& view, uint8_t* luma, cudaStream_t stream);
 // cost (rows x cols in the seam's frame) of every box pixel; centre (box-sized) < 0 outside
-// the overlap. previous lumas may equal the current ones (no motion).
+// the overlap. previous lumas may equal the current ones (no motion). diff and across (rows x
+// cols ints, scratch) hold the clearance term's sums; nullptr or a radius of 0: no clearance.
 void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, const DeviceImage& view_b,
                       const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
                       const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
-                      float* cost, cudaStream_t stream);
+                      float* cost, int* diff, int* across, cudaStream_t stream);
 // One pair's dynamic programming: the least-energy path through cost (rows x cols);
 // previous == nullptr: no pull; steps: rows x cols scratch; path: rows.
 struct SeamDpJob {

@@ -111,8 +111,12 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
   testdata::RotatingRig s = rig_scene();
   const OutputGeometry g = canvas_geometry(s.rig);
   const std::vector<ViewPlacement> views = place_views(s.rig, g);
-  SeamFinder cpu;
-  SeamFinderCuda gpu;
+  // With the default costs and with the clearance term on (its integer window sums).
+  SeamSettings clear;
+  clear.clearance_weight = 4.f;
+  for (const SeamSettings& settings : {SeamSettings{}, clear}) {
+  SeamFinder cpu(settings);
+  SeamFinderCuda gpu(settings);
   cpu.prepare(views, g.width, g.height);
   gpu.prepare(views, g.width, g.height);
   ASSERT_GE(gpu.pairs().size(), 2u);  // neighbours (and the outer views, where they meet)
@@ -145,6 +149,7 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
                 100.0 * same_rows / rows, 100.0 * same_labels / got.size());
     EXPECT_GE(double(same_rows) / rows, 0.99);
     EXPECT_GE(double(same_labels) / got.size(), 0.999);
+  }
   }
 #endif
 }

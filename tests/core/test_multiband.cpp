@@ -315,3 +315,34 @@ TEST(Seam, MultibandWithSeamsShowsTheSquareWholeOrNotAtAll) {
   EXPECT_NE(magenta(b, 284), magenta(b, 316));
   EXPECT_EQ(magenta(a, 284), magenta(a, 316));
 }
+
+// A near object seen by both views with parallax: view 0 shows the square at x, view 1 at
+// x + 24 (its copy). The cut keeps clear of both copies by about the reach of multiband's
+// coarse bands (the clearance term), not just off the pixels that differ; without the term it
+// may pass right beside them, where the coarse bands leak the object's colour into the
+// background (a halo) and show part of its copy.
+TEST(Seam, KeepsClearOfANearObjectsParallaxCopies) {
+  SeamScene s(250);  // view 1: canvas x 250..289
+  cv::Mat cam0 = s.cam0.clone();
+  cv::rectangle(cam0, cv::Rect(226, 100, 40, 80), cv::Scalar(255, 0, 255, 255), cv::FILLED);  // x 226..265
+  auto clearance = [&](const SeamSettings& settings) {
+    SeamFinder finder(settings);
+    finder.prepare(s.views, s.geometry.width, s.geometry.height);
+    finder.find({as_view(cam0), as_view(s.cam1)});
+    const SeamFinder::Pair& p = finder.pairs()[0];
+    int worst = 1 << 20;
+    for (int y = 100; y < 180; ++y) {
+      const int x = p.box.x + p.path[std::size_t(y - p.box.y)];
+      worst = std::min(worst, x < 226 ? 226 - x : x >= 290 ? x - 289 : 0);
+    }
+    return worst;
+  };
+  SeamSettings on, off;
+  on.clearance_weight = 4.f;
+  off.clearance_weight = 0.f;
+  const int with = clearance(on), without = clearance(off);
+  std::printf("seam's distance from the object's copies: %d px with the clearance term, %d px without\n", with,
+              without);
+  EXPECT_GE(with, 12);
+  EXPECT_GE(with, without);
+}

@@ -125,6 +125,26 @@ class SeamAndRegistration(unittest.TestCase):
         median, _ = metrics.alignment([left, right], off)
         self.assertAlmostEqual(median, 5.0, delta=0.5)
 
+    def test_warp_measures(self):
+        img = photo()[:200, :300]
+        mask = np.ones(img.shape[:2], bool)
+        # a homography-only chain: no local warp, straight lines, no shake
+        same = metrics.warp_field(img, img, mask)
+        self.assertLess(np.abs(same).mean(), 0.02)
+        self.assertLess(metrics.line_distortion(same, mask)[1], 0.3)
+        # a local bump bends rows by ~3 px; a constant shift bends nothing
+        bump = np.zeros(img.shape[:2] + (2,), np.float32)
+        yy, xx = np.mgrid[0:200, 0:300]
+        bump[..., 1] = 3.0 * np.exp(-((xx - 150) ** 2) / (2 * 20.0 ** 2))
+        self.assertAlmostEqual(metrics.line_distortion(bump, mask)[1], 3.0, delta=0.2)
+        shift = np.full(img.shape[:2] + (2,), 2.0, np.float32)
+        self.assertLess(metrics.line_distortion(shift, mask)[1], 1e-6)
+        # a warp moving at constant speed is stable; one that jumps back and forth is not
+        steady = [shift * t for t in range(4)]
+        self.assertLess(metrics.warp_stability(steady, [mask] * 4), 1e-6)
+        jitter = [shift * (t % 2) for t in range(4)]
+        self.assertAlmostEqual(metrics.warp_stability(jitter, [mask] * 4), 2 * 2 * np.sqrt(2), delta=1e-4)
+
 
 if __name__ == "__main__":
     unittest.main()

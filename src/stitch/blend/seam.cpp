@@ -123,19 +123,50 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
     return seam::pixel_cost(w, difference, gradients, motion, centre);
   };
   const bool has_previous = int(p.previous_path.size()) == rows;
+  // Every cell's cost once (the DP and last frame's path read it), then the clearance term.
+  std::vector<float> costs(std::size_t(rows) * cols);
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) costs[std::size_t(r) * cols + c] = cost(r, c);
+  if (w.clearance_radius > 0 && w.clearance > 0.f) {
+    std::vector<int> diff(costs.size(), 0), across(costs.size());
+    for (int r = 0; r < rows; ++r)
+      for (int c = 0; c < cols; ++c) {
+        if (costs[std::size_t(r) * cols + c] == seam::kOutside) continue;
+        const int bx = p.vertical ? c : r, by = p.vertical ? r : c, x = p.box.x + bx, y = p.box.y + by;
+        diff[std::size_t(r) * cols + c] = seam::color_difference_sum(warped[p.a].row(y - ra.y) + 4 * (x - ra.x),
+                                                                     warped[p.b].row(y - rb.y) + 4 * (x - rb.x));
+      }
+    const int R = w.clearance_radius;
+    for (int r = 0; r < rows; ++r)  // window sums across the seam, then along it (integers: exact)
+      for (int c = 0; c < cols; ++c) {
+        int sum = 0;
+        for (int k = std::max(0, c - R); k <= std::min(cols - 1, c + R); ++k) sum += diff[std::size_t(r) * cols + k];
+        across[std::size_t(r) * cols + c] = sum;
+      }
+    for (int r = 0; r < rows; ++r)
+      for (int c = 0; c < cols; ++c) {
+        float& v = costs[std::size_t(r) * cols + c];
+        if (v == seam::kOutside) continue;
+        int sum = 0;
+        for (int k = std::max(0, r - R); k <= std::min(rows - 1, r + R); ++k) sum += across[std::size_t(k) * cols + c];
+        v = seam::add(v, seam::clearance_cost(w, sum));
+      }
+  }
   std::vector<float> energy(cols), next(cols);
   std::vector<int8_t> step(std::size_t(rows) * cols);
   for (int r = 0; r < rows; ++r) {
     for (int c = 0; c < cols; ++c)
-      step[std::size_t(r) * cols + c] = int8_t(seam::dp_cell(energy.data(), c, cols, r == 0, cost(r, c), w.stability,
-                                                             has_previous ? p.previous_path[r] : -1, next[c]));
+      step[std::size_t(r) * cols + c] =
+          int8_t(seam::dp_cell(energy.data(), c, cols, r == 0, costs[std::size_t(r) * cols + c], w.stability,
+                               has_previous ? p.previous_path[r] : -1, next[c]));
     std::swap(energy, next);
   }
   std::vector<int> path(rows);
   int c = int(std::min_element(energy.begin(), energy.end()) - energy.begin());
   float previous_cost = 0.f;
   if (has_previous)  // the seam holds still until something crosses it
-    for (int r = 0; r < rows; ++r) previous_cost = seam::add(previous_cost, cost(r, p.previous_path[r]));
+    for (int r = 0; r < rows; ++r)
+      previous_cost = seam::add(previous_cost, costs[std::size_t(r) * cols + p.previous_path[r]]);
   if (has_previous && seam::keep_previous(previous_cost, energy[std::size_t(c)], rows, w.hold)) {
     path = p.previous_path;
   } else {

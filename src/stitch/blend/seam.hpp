@@ -25,6 +25,10 @@ struct SeamSettings {
   float stability = 2.f;          // per pixel the path moves away from the last frame's path, per row
   float hold = 1.f;               // per row: the new path must be this much cheaper than last frame's
                                   // path is now, or that one is kept (seam_math.hpp keep_previous)
+  float clearance_weight = 0.f;   // per level of the views' mean difference within clearance_radius (0: off;
+                                  // 4 measured in BENCHMARKS.md "Parallax seams": not a clear win)
+  int clearance_radius = 16;      // px: about the reach of multiband's coarse bands (seam_math.hpp
+                                  // clearance_cost); 0 turns the term off
 };
 
 class SeamFinder {
@@ -52,7 +56,7 @@ class SeamFinder {
   void cut(Pair& p, const std::vector<ImageView>& warped);
   seam::Weights weights() const {
     return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
-            settings_.hold};
+            settings_.hold, settings_.clearance_weight, settings_.clearance_radius};
   }
 
   SeamSettings settings_;

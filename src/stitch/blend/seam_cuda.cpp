@@ -16,7 +16,7 @@ struct SeamFinderCuda::State {
   struct PairState {
     stitch_cuda::SeamPairGeometry geometry;
     int rows = 0, cols = 0;
-    DeviceBuffer centre, cost, steps, path, previous;
+    DeviceBuffer centre, cost, steps, path, previous, diff, across;  // diff, across: clearance sums
     bool has_previous = false, cut = false;
   };
   std::vector<PairState> pairs;
@@ -57,6 +57,8 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
     ps.centre.resize(cells * sizeof(float));
     STITCH_CUDA(cudaMemcpy(ps.centre.data(), p.centre_cost.data(), cells * sizeof(float), cudaMemcpyHostToDevice));
     ps.cost.resize(cells * sizeof(float));
+    ps.diff.resize(cells * sizeof(int));
+    ps.across.resize(cells * sizeof(int));
     ps.steps.resize(cells);
     ps.path.resize(ps.rows * sizeof(int));
     ps.previous.resize(ps.rows * sizeof(int));
@@ -104,7 +106,7 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
                               cudaMemcpyDeviceToDevice, st));
   const SeamSettings& settings = s.planner.settings();
   const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability,
-                        settings.hold};
+                        settings.hold, settings.clearance_weight, settings.clearance_radius};
   // Costs of every cut pair, then all their DP sweeps in one launch, then the labels pair by pair
   // (in the CPU's order: boxes of different pairs may overlap).
   s.host_jobs.clear();
@@ -119,7 +121,8 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
     stitch_cuda::launch_seam_cost(p.geometry, to_device_image(warped[a]), to_device_image(warped[b]),
                                   s.luma[a].data(), s.luma[b].data(), s.previous_luma[a].data(),
                                   s.previous_luma[b].data(), reinterpret_cast<const float*>(p.centre.data()), w,
-                                  reinterpret_cast<float*>(p.cost.data()), st);
+                                  reinterpret_cast<float*>(p.cost.data()), reinterpret_cast<int*>(p.diff.data()),
+                                  reinterpret_cast<int*>(p.across.data()), st);
     s.host_jobs.push_back({reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
                            p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
                            reinterpret_cast<int8_t*>(p.steps.data()), reinterpret_cast<int*>(p.path.data())});

@@ -12,6 +12,8 @@ namespace seam {
 struct Weights {  // SeamSettings, for the kernels
   float difference, edge, motion, stability;
   float hold;  // per row: how much cheaper the new path must be to replace last frame's
+  float clearance;     // per level of the views' mean difference within clearance_radius
+  int clearance_radius;  // px; 0: no clearance term
 };
 
 
@@ -32,6 +34,13 @@ STITCH_HD float add(float a, float b) {
 #endif
 }
 STITCH_HD int absi(int v) { return v < 0 ? -v : v; }
+STITCH_HD float div(float a, float b) {
+#ifdef __CUDA_ARCH__
+  return __fdiv_rn(a, b);
+#else
+  return a / b;
+#endif
+}
 
 STITCH_HD uint8_t luma(const uint8_t* rgba) {
   return uint8_t((rgba[0] + 2 * rgba[1] + rgba[2] + 2) >> 2);
@@ -48,6 +57,24 @@ STITCH_HD float pixel_cost(const Weights& w, float difference, int gradients, in
   return add(add(add(mul(w.difference, difference), mul(mul(w.edge, 0.25f), float(gradients))),
                  mul(w.motion, float(motion))),
              centre);
+}
+
+// |dr| + |dg| + |db| of two RGBA pixels: the integer the clearance term sums (exact on both
+// backends, whatever the summation order).
+STITCH_HD int color_difference_sum(const uint8_t* a, const uint8_t* b) {
+  return absi(a[0] - b[0]) + absi(a[1] - b[1]) + absi(a[2] - b[2]);
+}
+
+// The clearance term: multiband's coarse bands mix the two views up to ~2^bands px from the
+// cut, so a cut beside a near object (where the views disagree: the object in one, its
+// parallax copy or the background in the other) leaks the object's colour into the background
+// around it as a halo, and shows half of its copy. Adding the views' mean difference over the
+// (2r+1)^2 window around each pixel keeps the cut that far from any disagreement: it goes
+// around a near object, which then comes whole from one view. `sum` is the window's sum of
+// color_difference_sum (pixels outside the overlap count 0).
+STITCH_HD float clearance_cost(const Weights& w, int sum) {
+  const int side = 2 * w.clearance_radius + 1;
+  return mul(w.clearance, div(float(sum), float(3 * side * side)));
 }
 
 // One DP cell: the cheapest of the three cells above (ties: straight, then left), plus this
