@@ -24,7 +24,8 @@
  * `stabilize` holds each applied correction until the estimate stays more than `hold` grey
  * levels away for `keyframe-interval` frames, then moves it to the new keyframe at `max-rate`
  * levels per frame; a step that every view shows at once (`step-threshold`, or a cut) is
- * followed on the same frame.
+ * followed on the same frame. Above `highlight-knee` the correction fades out, so clipped
+ * highlights stay white and still.
  *
  * The default, `method=3dm smoothing=0.8`, was chosen by measurement on two real clip sets
  * (BENCHMARKS.md): best or tied overlap PSNR on both, the lowest flicker on the 3-camera set;
@@ -89,6 +90,7 @@ enum {
   PROP_KEYFRAME_INTERVAL,
   PROP_MAX_RATE,
   PROP_STEP_THRESHOLD,
+  PROP_HIGHLIGHT_KNEE,
 };
 
 #define DEFAULT_METHOD stitch::ColorMethod::Matrix3D
@@ -262,6 +264,7 @@ static void gst_stitch_color_set_property(GObject* object, guint prop_id, const 
     case PROP_KEYFRAME_INTERVAL: o.keyframe = g_value_get_int(value); break;
     case PROP_MAX_RATE: o.max_rate = g_value_get_double(value); break;
     case PROP_STEP_THRESHOLD: o.step_threshold = g_value_get_double(value); break;
+    case PROP_HIGHLIGHT_KNEE: o.highlight_knee = g_value_get_int(value); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -286,6 +289,7 @@ static void gst_stitch_color_get_property(GObject* object, guint prop_id, GValue
     case PROP_KEYFRAME_INTERVAL: g_value_set_int(value, o.keyframe); break;
     case PROP_MAX_RATE: g_value_set_double(value, o.max_rate); break;
     case PROP_STEP_THRESHOLD: g_value_set_double(value, o.step_threshold); break;
+    case PROP_HIGHLIGHT_KNEE: g_value_set_int(value, o.highlight_knee); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -365,6 +369,11 @@ static void gst_stitch_color_class_init(GstStitchColorClass* klass) {
                           "Relative brightness change between two frames that every view must show for a global "
                           "illumination step (the corrections are re-estimated from that frame at once)",
                           0.01, 10.0, defaults.step_threshold, controllable));
+  g_object_class_install_property(gobject_class, PROP_HIGHLIGHT_KNEE,
+      g_param_spec_int("highlight-knee", "Highlight knee",
+                       "Pixels whose brightest channel is above this level keep a growing share of their input "
+                       "(all of it at 255): clipped highlights stay white and do not follow the correction "
+                       "(255: off)", 0, 255, defaults.highlight_knee, controllable));
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);

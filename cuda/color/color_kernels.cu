@@ -17,11 +17,20 @@ __global__ void apply_batch_kernel(const __grid_constant__ ColorApplyBatch batch
   uchar4* p = reinterpret_cast<uchar4*>(view.data + size_t(y) * view.pitch) + x;
   uchar4 c = *p;
   if (view.has_matrix) {
+    const uchar4 in = c;
     const float* M = view.M;
     const float r = c.x, g = c.y, b = c.z;
     c.x = uint8_t(fminf(fmaxf(r * M[0] + g * M[3] + b * M[6] + 0.5f, 0.f), 255.f));
     c.y = uint8_t(fminf(fmaxf(r * M[1] + g * M[4] + b * M[7] + 0.5f, 0.f), 255.f));
     c.z = uint8_t(fminf(fmaxf(r * M[2] + g * M[5] + b * M[8] + 0.5f, 0.f), 255.f));
+    // stitch::highlight_blend: clipped highlights keep their input.
+    const int k = batch.highlight_knee, m = max(max(int(in.x), int(in.y)), int(in.z));
+    if (k < 255 && m > k) {
+      const float w = __fdiv_rn(float(m - k), float(255 - k));
+      c.x = uint8_t(__fadd_rn(__fadd_rn(float(c.x), __fmul_rn(w, float(int(in.x) - int(c.x)))), 0.5f));
+      c.y = uint8_t(__fadd_rn(__fadd_rn(float(c.y), __fmul_rn(w, float(int(in.y) - int(c.y)))), 0.5f));
+      c.z = uint8_t(__fadd_rn(__fadd_rn(float(c.z), __fmul_rn(w, float(int(in.z) - int(c.z)))), 0.5f));
+    }
   }
   if (lut) {
     c.x = lut[c.x];
@@ -369,6 +378,7 @@ void launch_color_apply(uint8_t* data, size_t pitch, int width, int height, cons
   if (width <= 0 || height <= 0 || (!M && !lut)) return;
   ColorApplyBatch batch{};
   batch.count = 1;
+  batch.highlight_knee = 255;
   ColorApplyView& v = batch.views[0];
   v.data = data;
   v.pitch = pitch;

@@ -23,6 +23,7 @@ struct ColorApplyView {
 struct ColorApplyBatch {
   ColorApplyView views[kColorApplyMaxViews];
   int count;
+  int highlight_knee;  // < 255: stitch::highlight_blend above it (255: off)
 };
 void launch_color_apply_batch(const ColorApplyBatch& batch, const uint8_t* lut, cudaStream_t stream);
 

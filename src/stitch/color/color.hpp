@@ -58,6 +58,10 @@ struct ColorOptions {
   double hold = 2.0;          // grey levels the wanted correction may differ from the held one
   int keyframe = 8;           // frames a difference beyond `hold` must last before a new keyframe
   double max_rate = 1.0;      // grey levels the applied correction moves per frame toward a keyframe
+  // Clipped highlights (issue 16): their true colour is unknown, and a gain below 1 turns a
+  // clipped white grey and makes it follow every change of the correction. Above this level
+  // (brightest channel) the correction fades out, reaching none at 255. 255: off.
+  int highlight_knee = 235;
   double step_threshold = 0.12;  // relative brightness change seen by every view at once: a
                                  // global illumination step (or cut): the correction jumps
 };
@@ -125,6 +129,12 @@ inline bool mask_moved(const uint8_t* now, const uint8_t* before, int threshold)
     if (std::abs(int(now[c]) - int(before[c])) > threshold) return true;
   return false;
 }
+// The highlight roll-off (CPU and CUDA): the corrected level t of a channel whose input
+// pixel's brightest channel is m and own level p, with the knee k < m.
+inline uint8_t highlight_blend(int t, int p, int m, int k) {
+  const float w = float(m - k) / float(255 - k);
+  return uint8_t(float(t) + w * float(p - t) + 0.5f);
+}
 inline bool mask_aligned(int grad_a, int grad_b, int tolerance) {
   return std::abs(grad_a - grad_b) <= tolerance + std::max(grad_a, grad_b) / 3;
 }
@@ -154,8 +164,10 @@ class ColorOps {
                       ColorStats& out) = 0;
   // Every non-empty view in place: out = clamp(lut[c](round(sum_k in_k * M_i(k, c)))), alpha
   // untouched. The CUDA backend runs one launch for all views and returns once they are done.
+  // highlight_knee < 255: a pixel whose brightest channel is above the knee keeps a growing
+  // share of its input (all of it at 255): clipped highlights stay white and still.
   virtual void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
-                         const std::array<std::array<uint8_t, 256>, 3>& lut) = 0;
+                         const std::array<std::array<uint8_t, 256>, 3>& lut, int highlight_knee = 255) = 0;
   // One view: apply_all of a single view.
   void apply(const ImageView& view, const Eigen::Matrix3d& M, const std::array<std::array<uint8_t, 256>, 3>& lut) {
     apply_all({view}, {M}, lut);

@@ -1,4 +1,5 @@
 #include <opencv2/core.hpp>
+#include <algorithm>
 #include <stdexcept>
 
 #include "stitch/color/color.hpp"
@@ -142,7 +143,7 @@ class ColorOpsCpu final : public ColorOps {
   }
 
   void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
-                 const std::array<std::array<uint8_t, 256>, 3>& lut) override {
+                 const std::array<std::array<uint8_t, 256>, 3>& lut, int highlight_knee) override {
     if (matrices.size() < views.size()) throw std::invalid_argument("color: a matrix per view is needed");
     bool identity_lut = true;
     for (int c = 0; c < 3 && identity_lut; ++c)
@@ -152,18 +153,38 @@ class ColorOpsCpu final : public ColorOps {
       table.create(1, 256, CV_8UC4);
       for (int v = 0; v < 256; ++v) table.at<cv::Vec4b>(0, v) = {lut[0][v], lut[1][v], lut[2][v], uint8_t(v)};
     }
+    const int knee = std::clamp(highlight_knee, 0, 255);
     for (std::size_t i = 0; i < views.size(); ++i) {
       if (views[i].empty()) continue;
       cv::Mat img = as_mat(views[i]);
       const Eigen::Matrix3d& M = matrices[i];
-      if (!M.isIdentity(1e-9)) {
-        // out_c = sum_k in_k M(k, c): cv::transform's matrix is M transposed; alpha passes.
-        cv::Matx44f T = cv::Matx44f::eye();
-        for (int c = 0; c < 3; ++c)
-          for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
-        cv::transform(img, img, T);
-      }
-      if (!identity_lut) cv::LUT(img, table, img);
+      const bool matrix = !M.isIdentity(1e-9);
+      if (!matrix && identity_lut) continue;
+      // out_c = sum_k in_k M(k, c): cv::transform's matrix is M transposed; alpha passes.
+      cv::Matx44f T = cv::Matx44f::eye();
+      for (int c = 0; c < 3; ++c)
+        for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
+      // Row bands in parallel (issue 17: the CPU chain scales with cores); each band keeps a
+      // copy of its input rows for the highlight roll-off.
+      cv::parallel_for_(cv::Range(0, img.rows), [&](const cv::Range& rows) {
+        cv::Mat band = img.rowRange(rows);
+        if (matrix) {
+          cv::Mat input;
+          if (knee < 255) band.copyTo(input);
+          cv::transform(band, band, T);
+          if (knee < 255)
+            for (int y = 0; y < band.rows; ++y) {
+              const uint8_t* p = input.ptr<uint8_t>(y);
+              uint8_t* o = band.ptr<uint8_t>(y);
+              for (int x = 0; x < band.cols; ++x, p += 4, o += 4) {
+                const int m = std::max({p[0], p[1], p[2]});
+                if (m <= knee) continue;
+                for (int c = 0; c < 3; ++c) o[c] = highlight_blend(o[c], p[c], m, knee);
+              }
+            }
+        }
+        if (!identity_lut) cv::LUT(band, table, band);
+      }, std::max(1.0, img.rows / 32.0));
     }
   }
 

@@ -218,7 +218,7 @@ class ColorOpsCuda final : public ColorOps {
   }
 
   void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
-                 const std::array<std::array<uint8_t, 256>, 3>& lut) override {
+                 const std::array<std::array<uint8_t, 256>, 3>& lut, int highlight_knee) override {
     if (matrices.size() < views.size()) throw std::invalid_argument("color: a matrix per view is needed");
     bool any_device = false, any_host = false;
     for (const ImageView& v : views)
@@ -227,7 +227,7 @@ class ColorOpsCuda final : public ColorOps {
       std::vector<ImageView> host_views(views.size());
       for (std::size_t i = 0; i < views.size(); ++i)
         if (!views[i].on_device) host_views[i] = views[i];
-      cpu_->apply_all(host_views, matrices, lut);
+      cpu_->apply_all(host_views, matrices, lut, highlight_knee);
     }
     if (!any_device) return;
     const uint8_t* device_lut = nullptr;
@@ -243,6 +243,7 @@ class ColorOpsCuda final : public ColorOps {
       device_lut = lut_.data();
     }
     stitch_cuda::ColorApplyBatch batch{};
+    batch.highlight_knee = std::clamp(highlight_knee, 0, 255);
     bool launched = false;
     auto flush = [&] {
       if (batch.count == 0) return;
