@@ -110,6 +110,7 @@ int main(int argc, char** argv) {
     ColorOptions before = now;
     before.static_mask = false;
     before.stabilize = false;
+    before.highlight_knee = 255;
     ColorOptions none = now;
     none.method = ColorMethod::None;
     variants = {{"none", none}, {"before", before}, {"now", now}};
