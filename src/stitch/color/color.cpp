@@ -6,8 +6,6 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <opencv2/imgproc.hpp>
 
 namespace stitch {
@@ -550,16 +548,6 @@ void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::ve
     case ColorMethod::Gain: estimate_gains(views); break;
   }
   if (fit) stabilize(views, was_established);
-  if (std::getenv("STITCH_COLOR_DEBUG")) {
-    std::fprintf(stderr, "color: step %d rekey %d static %.3f", int(report_.step), int(report_.rekeyed), report_.static_fraction);
-    for (std::size_t i = 0; i < current_.size(); ++i)
-      std::fprintf(stderr, " | v%zu f%d o%d sv%d off %.2f d %.2f", i, follow_[i], over_[i], int(step_view_[i]),
-                   effect_levels(int(i), wanted_[i] - current_[i]), effect_levels(int(i), current_[i] - Eigen::Matrix3d::Identity()));
-    for (const PairStats& p : stats_.pairs)
-      std::fprintf(stderr, " | in %llu mov %llu mis %llu gc %llu n %llu", (unsigned long long)p.inview, (unsigned long long)p.moving,
-                   (unsigned long long)p.misaligned, (unsigned long long)p.global_change, (unsigned long long)p.count);
-    std::fprintf(stderr, "\n");
-  }
   if (options_.balance) {
     if (established() > established_before) {
       // A correction was set outright (its first fit, after a start or reset): the views under
