@@ -77,6 +77,7 @@ int main(int argc, char** argv) {
     // none vs stitchcolor's defaults before issue 16 (3dm, smoothing 0.8, no mask, no hold)
     // vs now (the same with static-mask and stabilize).
     else if (!std::strcmp(argv[i], "--element-defaults")) element_defaults = true;
+    else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) cv::setNumThreads(std::atoi(argv[++i]));
     else clips.push_back(argv[i]);
   }
   if (clips.size() < 2) {
