@@ -62,6 +62,7 @@ int main(int argc, char** argv) {
   ColorOptions base;
   std::string calib_path, json_path;
   std::vector<std::string> clips;
+  bool element_defaults = false;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--step") && i + 1 < argc) step = std::atoi(argv[++i]);
@@ -73,6 +74,10 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--follow") && i + 1 < argc) base.follow = std::atof(argv[++i]);
     else if (!std::strcmp(argv[i], "--pixels")) base.pairing = ColorPairing::Pixels;
     else if (!std::strcmp(argv[i], "--balance")) base.balance = true;
+    // none vs stitchcolor's defaults before issue 16 (3dm, smoothing 0.8, no mask, no hold)
+    // vs now (the same with static-mask and stabilize).
+    else if (!std::strcmp(argv[i], "--element-defaults")) element_defaults = true;
+    else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) cv::setNumThreads(std::atoi(argv[++i]));
     else clips.push_back(argv[i]);
   }
   if (clips.size() < 2) {
@@ -99,15 +104,32 @@ int main(int argc, char** argv) {
   }
   // Pairs of the reference chain: (view, parent), as ColorCorrector chains them.
   ColorCorrector probe(Backend::Cpu);
-  const char* names[] = {"none", "2dm", "3dm", "gain"};
-  const ColorMethod methods[] = {ColorMethod::None, ColorMethod::Matrix2D, ColorMethod::Matrix3D, ColorMethod::Gain};
+  std::vector<std::pair<std::string, ColorOptions>> variants;
+  if (element_defaults) {
+    ColorOptions now = base;
+    now.follow = 0.2;  // the element's smoothing=0.8
+    ColorOptions before = now;
+    before.static_mask = false;
+    before.stabilize = false;
+    before.highlight_knee = 255;
+    ColorOptions none = now;
+    none.method = ColorMethod::None;
+    variants = {{"none", none}, {"before", before}, {"now", now}};
+  } else {
+    const char* names[] = {"none", "2dm", "3dm", "gain"};
+    const ColorMethod methods[] = {ColorMethod::None, ColorMethod::Matrix2D, ColorMethod::Matrix3D, ColorMethod::Gain};
+    for (int m = 0; m < 4; ++m) {
+      ColorOptions o = base;
+      o.method = methods[m];
+      variants.emplace_back(names[m], o);
+    }
+  }
   std::string json = "{\"clips\":" + std::to_string(clips.size()) + ",\"frames\":" + std::to_string(seq.size()) + ",\"methods\":[";
   std::printf("%-6s %-10s %8s %8s %8s %8s %10s %10s\n", "method", "pair", "PSNR", "sigma", "SSIM", "sigma", "flicker", "ms/frame");
-  for (int m = 0; m < 4; ++m) {
+  for (int m = 0; m < int(variants.size()); ++m) {
+    const char* name = variants[std::size_t(m)].first.c_str();
     ColorCorrector corrector(Backend::Cpu);
-    ColorOptions o = base;
-    o.method = methods[m];
-    corrector.set_options(o);
+    corrector.set_options(variants[std::size_t(m)].second);
     Compositor comp(Backend::Cpu);
     comp.prepare(rig, CompositorSettings{});
     std::vector<Series> psnr, ssim;
@@ -168,12 +190,12 @@ int main(int argc, char** argv) {
       prev_pano = pano;
       prev_raw = raw;
     }
-    json += std::string(m ? "," : "") + "{\"method\":\"" + names[m] + "\",\"ms_per_frame\":" +
+    json += std::string(m ? "," : "") + "{\"method\":\"" + name + "\",\"ms_per_frame\":" +
             std::to_string(ms / seq.size()) + ",\"flicker\":" + std::to_string(flicker.mean()) + ",\"pairs\":[";
     for (std::size_t k = 0; k < psnr.size(); ++k) {
       char pair[32];
       std::snprintf(pair, sizeof pair, "%d-%d", pair_ids[k].first, pair_ids[k].second);
-      std::printf("%-6s %-10s %8.3f %8.3f %8.4f %8.4f %10.4f %10.2f\n", names[m], pair, psnr[k].mean(), psnr[k].sigma(),
+      std::printf("%-6s %-10s %8.3f %8.3f %8.4f %8.4f %10.4f %10.2f\n", name, pair, psnr[k].mean(), psnr[k].sigma(),
                   ssim[k].mean(), ssim[k].sigma(), flicker.mean(), ms / seq.size());
       json += std::string(k ? "," : "") + "{\"pair\":\"" + pair + "\",\"psnr\":[";
       for (std::size_t t = 0; t < psnr[k].v.size(); ++t)

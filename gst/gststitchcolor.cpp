@@ -17,6 +17,16 @@
  * - `smoothing` (beyond the paper) moves each correction only part of the way to the new
  *   estimate per frame, so estimation noise does not flicker; `smoothing=0` is the paper.
  *
+ * Robust and still (issue 16, defaults on): `static-mask` fits only overlap samples that
+ * have not moved for a while (a per-sample difference against the previous frame, held for
+ * ten frames) and whose two views' luma gradients agree; the colour stage runs before
+ * stitchflowwarp, so it computes this cheap mask itself at its sample positions.
+ * `stabilize` holds each applied correction until the estimate stays more than `hold` grey
+ * levels away for `keyframe-interval` frames, then moves it to the new keyframe at `max-rate`
+ * levels per frame; a step that every view shows at once (`step-threshold`, or a cut) is
+ * followed on the same frame. Above `highlight-knee` the correction fades out, so clipped
+ * highlights stay white and still.
+ *
  * The default, `method=3dm smoothing=0.8`, was chosen by measurement on two real clip sets
  * (BENCHMARKS.md): best or tied overlap PSNR on both, the lowest flicker on the 3-camera set;
  * `gain` costs half as much and is within 0.25 dB.
@@ -64,7 +74,24 @@
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_color_debug);
 #define GST_CAT_DEFAULT gst_stitch_color_debug
 
-enum { PROP_0, PROP_METHOD, PROP_PAIRING, PROP_WINDOW, PROP_BALANCE, PROP_LAMBDA, PROP_SMOOTHING, PROP_BACKEND };
+enum {
+  PROP_0,
+  PROP_METHOD,
+  PROP_PAIRING,
+  PROP_WINDOW,
+  PROP_BALANCE,
+  PROP_LAMBDA,
+  PROP_SMOOTHING,
+  PROP_BACKEND,
+  PROP_STATIC_MASK,
+  PROP_MOTION_THRESHOLD,
+  PROP_STABILIZE,
+  PROP_HOLD,
+  PROP_KEYFRAME_INTERVAL,
+  PROP_MAX_RATE,
+  PROP_STEP_THRESHOLD,
+  PROP_HIGHLIGHT_KNEE,
+};
 
 #define DEFAULT_METHOD stitch::ColorMethod::Matrix3D
 #define DEFAULT_PAIRING stitch::ColorPairing::Histogram
@@ -232,6 +259,14 @@ static void gst_stitch_color_set_property(GObject* object, guint prop_id, const 
     case PROP_LAMBDA: o.lambda = g_value_get_double(value); break;
     case PROP_SMOOTHING: o.follow = 1.0 - g_value_get_double(value); break;
     case PROP_BACKEND: self->state->backend = stitch::Backend(g_value_get_enum(value)); break;
+    case PROP_STATIC_MASK: o.static_mask = g_value_get_boolean(value); break;
+    case PROP_MOTION_THRESHOLD: o.motion_threshold = g_value_get_int(value); break;
+    case PROP_STABILIZE: o.stabilize = g_value_get_boolean(value); break;
+    case PROP_HOLD: o.hold = g_value_get_double(value); break;
+    case PROP_KEYFRAME_INTERVAL: o.keyframe = g_value_get_int(value); break;
+    case PROP_MAX_RATE: o.max_rate = g_value_get_double(value); break;
+    case PROP_STEP_THRESHOLD: o.step_threshold = g_value_get_double(value); break;
+    case PROP_HIGHLIGHT_KNEE: o.highlight_knee = g_value_get_int(value); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -249,6 +284,14 @@ static void gst_stitch_color_get_property(GObject* object, guint prop_id, GValue
     case PROP_LAMBDA: g_value_set_double(value, o.lambda); break;
     case PROP_SMOOTHING: g_value_set_double(value, 1.0 - o.follow); break;
     case PROP_BACKEND: g_value_set_enum(value, int(self->state->backend)); break;
+    case PROP_STATIC_MASK: g_value_set_boolean(value, o.static_mask); break;
+    case PROP_MOTION_THRESHOLD: g_value_set_int(value, o.motion_threshold); break;
+    case PROP_STABILIZE: g_value_set_boolean(value, o.stabilize); break;
+    case PROP_HOLD: g_value_set_double(value, o.hold); break;
+    case PROP_KEYFRAME_INTERVAL: g_value_set_int(value, o.keyframe); break;
+    case PROP_MAX_RATE: g_value_set_double(value, o.max_rate); break;
+    case PROP_STEP_THRESHOLD: g_value_set_double(value, o.step_threshold); break;
+    case PROP_HIGHLIGHT_KNEE: g_value_set_int(value, o.highlight_knee); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -296,6 +339,43 @@ static void gst_stitch_color_class_init(GstStitchColorClass* klass) {
                         "the CPU; cpu: on the CPU (CUDA-memory bundles are mapped through host "
                         "memory); cuda: on the GPU, or an error when no device opens",
                         GST_TYPE_STITCH_BACKEND, int(stitch::Backend::Auto), GParamFlags(rw | GST_PARAM_MUTABLE_READY)));
+  /* Issue 16: statistics from static, well-aligned pixels, and a correction held over time. */
+  const stitch::ColorOptions defaults;
+  g_object_class_install_property(gobject_class, PROP_STATIC_MASK,
+      g_param_spec_boolean("static-mask", "Static mask",
+                           "Fit only overlap samples that have not moved for a while and whose two views' "
+                           "gradients agree (people crossing an overlap and parallax leave the statistics)",
+                           defaults.static_mask, per_frame));
+  g_object_class_install_property(gobject_class, PROP_MOTION_THRESHOLD,
+      g_param_spec_int("motion-threshold", "Motion threshold",
+                       "A sample whose colour changed by more than this (levels, any channel) since the last "
+                       "frame is moving (static-mask)", 1, 255, defaults.motion_threshold, controllable));
+  g_object_class_install_property(gobject_class, PROP_STABILIZE,
+      g_param_spec_boolean("stabilize", "Stabilize",
+                           "Hold each applied correction still; move it (to a keyframe, at max-rate) only when the "
+                           "estimate stays beyond hold for keyframe-interval frames; jump on a global "
+                           "illumination step or cut; follow at once when one camera's exposure steps",
+                           defaults.stabilize, per_frame));
+  g_object_class_install_property(gobject_class, PROP_HOLD,
+      g_param_spec_double("hold", "Hold", "Grey levels the estimate may differ from the applied correction "
+                          "before it counts as a change (stabilize)", 0.0, 64.0, defaults.hold, controllable));
+  g_object_class_install_property(gobject_class, PROP_KEYFRAME_INTERVAL,
+      g_param_spec_int("keyframe-interval", "Keyframe interval",
+                       "Frames a change beyond hold must last before a new keyframe (stabilize)", 1, 300,
+                       defaults.keyframe, controllable));
+  g_object_class_install_property(gobject_class, PROP_MAX_RATE,
+      g_param_spec_double("max-rate", "Max rate", "Grey levels per frame the applied correction moves toward a "
+                          "new keyframe (stabilize)", 0.01, 255.0, defaults.max_rate, controllable));
+  g_object_class_install_property(gobject_class, PROP_STEP_THRESHOLD,
+      g_param_spec_double("step-threshold", "Step threshold",
+                          "Relative brightness change between two frames that every view must show for a global "
+                          "illumination step (the corrections are re-estimated from that frame at once)",
+                          0.01, 10.0, defaults.step_threshold, controllable));
+  g_object_class_install_property(gobject_class, PROP_HIGHLIGHT_KNEE,
+      g_param_spec_int("highlight-knee", "Highlight knee",
+                       "Pixels whose brightest channel is above this level keep a growing share of their input "
+                       "(all of it at 255): clipped highlights stay white and do not follow the correction "
+                       "(255: off)", 0, 255, defaults.highlight_knee, controllable));
 
   gst_element_class_add_static_pad_template(element_class, &sink_template);
   gst_element_class_add_static_pad_template(element_class, &src_template);

@@ -53,7 +53,11 @@ def main():
         info, images, valid = ev.load_run(d, frames)
         if canvas_static is None:
             _, Hs, sizes = ev.rig_homographies(os.path.join(d, "calib.json"))
-            shape = images[frames - 1].shape[:2]
+            last = [img for img in images if img is not None]  # a chain may drop frames
+            if not last:
+                results[name] = None
+                continue
+            shape = last[-1].shape[:2]
             covered = ev.coverage_count(Hs, sizes, shape)
             moving = np.zeros(shape, np.int32)
             for H, s in zip(Hs, static_cam):

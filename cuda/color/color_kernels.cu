@@ -17,11 +17,20 @@ __global__ void apply_batch_kernel(const __grid_constant__ ColorApplyBatch batch
   uchar4* p = reinterpret_cast<uchar4*>(view.data + size_t(y) * view.pitch) + x;
   uchar4 c = *p;
   if (view.has_matrix) {
+    const uchar4 in = c;
     const float* M = view.M;
     const float r = c.x, g = c.y, b = c.z;
     c.x = uint8_t(fminf(fmaxf(r * M[0] + g * M[3] + b * M[6] + 0.5f, 0.f), 255.f));
     c.y = uint8_t(fminf(fmaxf(r * M[1] + g * M[4] + b * M[7] + 0.5f, 0.f), 255.f));
     c.z = uint8_t(fminf(fmaxf(r * M[2] + g * M[5] + b * M[8] + 0.5f, 0.f), 255.f));
+    // stitch::highlight_blend: clipped highlights keep their input.
+    const int k = batch.highlight_knee, m = max(max(int(in.x), int(in.y)), int(in.z));
+    if (k < 255 && m > k) {
+      const float w = __fdiv_rn(float(m - k), float(255 - k));
+      c.x = uint8_t(__fadd_rn(__fadd_rn(float(c.x), __fmul_rn(w, float(int(in.x) - int(c.x)))), 0.5f));
+      c.y = uint8_t(__fadd_rn(__fadd_rn(float(c.y), __fmul_rn(w, float(int(in.y) - int(c.y)))), 0.5f));
+      c.z = uint8_t(__fadd_rn(__fadd_rn(float(c.z), __fmul_rn(w, float(int(in.z) - int(c.z)))), 0.5f));
+    }
   }
   if (lut) {
     c.x = lut[c.x];
@@ -71,12 +80,26 @@ __device__ __forceinline__ bool usable(const Rgb& p, int dark, int bright) {
   return !is_dark && !is_bright;
 }
 
-// Both pixels of sample k of a pair, when both lie inside their views and are usable.
+// Both pixels of sample k of a pair, when the mask kernel let it into the fit.
 __device__ __forceinline__ bool load_pair_sample(const ColorReduceArgs& args, const ColorSamplePair& pair, int k,
                                                  Rgb& a, Rgb& b) {
+  if (!args.use[pair.first + k]) return false;
   const int4 s = args.pair_samples[pair.first + k];
-  return load_rgb(args.views[pair.a], s.x, s.y, a) && load_rgb(args.views[pair.b], s.z, s.w, b) &&
-         usable(a, args.dark_level, args.bright_level) && usable(b, args.dark_level, args.bright_level);
+  return load_rgb(args.views[pair.a], s.x, s.y, a) && load_rgb(args.views[pair.b], s.z, s.w, b);
+}
+
+// stitch::mask_luma / mask_moved / luma_gradient / mask_aligned, the same integers.
+__device__ __forceinline__ int luma_at(const ColorFrameView& v, int x, int y) {
+  const uint8_t* p = v.data + size_t(y) * v.pitch + size_t(x) * 4;
+  return (77 * int(p[0]) + 150 * int(p[1]) + 29 * int(p[2]) + 128) >> 8;
+}
+__device__ __forceinline__ int luma_gradient(const ColorFrameView& v, int x, int y) {
+  const int x0 = max(0, x - 1), x1 = min(v.width - 1, x + 1), y0 = max(0, y - 1), y1 = min(v.height - 1, y + 1);
+  return abs(luma_at(v, x1, y) - luma_at(v, x0, y)) + abs(luma_at(v, x, y1) - luma_at(v, x, y0));
+}
+__device__ __forceinline__ bool moved_since(const Rgb& p, uchar4 q, int threshold) {
+  return abs(int(p.c[0]) - int(q.x)) > threshold || abs(int(p.c[1]) - int(q.y)) > threshold ||
+         abs(int(p.c[2]) - int(q.z)) > threshold;
 }
 
 // Sums v[i] over the block into totals[i] (shared), visible to every thread on return. Every
@@ -104,6 +127,87 @@ __device__ void block_sum(unsigned long long (&v)[N], unsigned long long* totals
 __device__ __forceinline__ void add_histogram(const unsigned int* block_hist, unsigned int* global_hist, int bins) {
   for (int i = threadIdx.x; i < bins; i += blockDim.x)
     if (block_hist[i]) atomicAdd(global_hist + i, block_hist[i]);
+}
+
+// Grid (sample blocks, pairs), pass 1 of the mask: in-view samples, which moved since the last
+// frame (against the stored pixels, then replaced), raw RGB sums.
+__global__ void motion_kernel(const __grid_constant__ ColorReduceArgs args) {
+  const ColorSamplePair pair = args.pairs[blockIdx.y];
+  const int begin = blockIdx.x * kSamplesPerBlock, end = min(begin + kSamplesPerBlock, pair.count);
+  if (begin >= end || !args.views[pair.a].data || !args.views[pair.b].data) return;  // whole block
+  // [0] in view, [1] moved now, [2, 5) sum a, [5, 8) sum b.
+  unsigned long long sums[8] = {};
+  for (int k = begin + threadIdx.x; k < end; k += blockDim.x) {
+    const int idx = pair.first + k;
+    const int4 s = args.pair_samples[idx];
+    Rgb a, b;
+    args.moved[idx] = 0;
+    if (!load_rgb(args.views[pair.a], s.x, s.y, a) || !load_rgb(args.views[pair.b], s.z, s.w, b)) continue;
+    sums[0] += 1;
+    if (!args.fresh && (moved_since(a, args.prev_a[idx], args.motion_threshold) ||
+                        moved_since(b, args.prev_b[idx], args.motion_threshold))) {
+      args.moved[idx] = 1;
+      sums[1] += 1;
+    }
+    args.prev_a[idx] = make_uchar4(uint8_t(a.c[0]), uint8_t(a.c[1]), uint8_t(a.c[2]), 0);
+    args.prev_b[idx] = make_uchar4(uint8_t(b.c[0]), uint8_t(b.c[1]), uint8_t(b.c[2]), 0);
+#pragma unroll
+    for (int c = 0; c < 3; ++c) {
+      sums[2 + c] += a.c[c];
+      sums[5 + c] += b.c[c];
+    }
+  }
+  __shared__ unsigned long long totals[8];
+  block_sum<8>(sums, totals);
+  ColorPairResult& out = args.pair_results[blockIdx.y];
+  if (threadIdx.x == 0) {
+    if (totals[0]) atomicAdd(&out.inview, totals[0]);
+    if (totals[1]) atomicAdd(&out.moved_now, totals[1]);
+  }
+  if (threadIdx.x < 3) {
+    atomicAdd(&out.sum_a[threadIdx.x], totals[2 + threadIdx.x]);
+    atomicAdd(&out.sum_b[threadIdx.x], totals[5 + threadIdx.x]);
+  }
+}
+
+// Grid (sample blocks, pairs), pass 2: ages (restarted when most of the overlap moved at
+// once), the alignment test, and which samples go into the fit.
+__global__ void mask_kernel(const __grid_constant__ ColorReduceArgs args) {
+  const ColorSamplePair pair = args.pairs[blockIdx.y];
+  const int begin = blockIdx.x * kSamplesPerBlock, end = min(begin + kSamplesPerBlock, pair.count);
+  if (begin >= end || !args.views[pair.a].data || !args.views[pair.b].data) {
+    for (int k = begin + threadIdx.x; k < end; k += blockDim.x) args.use[pair.first + k] = 0;
+    return;  // whole block
+  }
+  ColorPairResult& out = args.pair_results[blockIdx.y];
+  const unsigned long long inview = out.inview, moved_now = out.moved_now;
+  const bool restart = args.fresh || moved_now * 2 > inview;
+  if (blockIdx.x == 0 && threadIdx.x == 0) out.global_change = (!args.fresh && restart && inview > 0) ? 1 : 0;
+  unsigned long long sums[2] = {};  // not static, misaligned
+  for (int k = begin + threadIdx.x; k < end; k += blockDim.x) {
+    const int idx = pair.first + k;
+    args.use[idx] = 0;
+    const int4 s = args.pair_samples[idx];
+    const ColorFrameView &va = args.views[pair.a], &vb = args.views[pair.b];
+    Rgb a, b;
+    if (!load_rgb(va, s.x, s.y, a) || !load_rgb(vb, s.z, s.w, b)) continue;
+    const int age = restart ? args.static_frames : args.moved[idx] ? 0 : min(255, int(args.age[idx]) + 1);
+    args.age[idx] = uint8_t(age);
+    const bool still = age >= args.static_frames;
+    const int ga = luma_gradient(va, s.x, s.y), gb = luma_gradient(vb, s.z, s.w);
+    const bool aligned = abs(ga - gb) <= args.align_tolerance + max(ga, gb) / 3;
+    sums[0] += !still;
+    sums[1] += !aligned;
+    if (!usable(a, args.dark_level, args.bright_level) || !usable(b, args.dark_level, args.bright_level)) continue;
+    if (args.static_mask && (!still || !aligned)) continue;
+    args.use[idx] = 1;
+  }
+  __shared__ unsigned long long totals[2];
+  block_sum<2>(sums, totals);
+  if (threadIdx.x == 0) {
+    if (totals[0]) atomicAdd(&out.moving, totals[0]);
+    if (totals[1]) atomicAdd(&out.misaligned, totals[1]);
+  }
 }
 
 // Grid (sample blocks, pairs): usable count, both sides' histograms, sum a a^T, b b^T, a b^T.
@@ -274,6 +378,7 @@ void launch_color_apply(uint8_t* data, size_t pitch, int width, int height, cons
   if (width <= 0 || height <= 0 || (!M && !lut)) return;
   ColorApplyBatch batch{};
   batch.count = 1;
+  batch.highlight_knee = 255;
   ColorApplyView& v = batch.views[0];
   v.data = data;
   v.pitch = pitch;
@@ -295,6 +400,10 @@ void launch_color_reduce(const ColorReduceArgs& args, cudaStream_t stream) {
   const bool pairs = args.want_pairs && args.pair_count > 0 && args.max_pair_samples > 0;
   if (pairs) {
     const dim3 grid(blocks_for(args.max_pair_samples), args.pair_count);
+    motion_kernel<<<grid, kThreads, 0, stream>>>(args);
+    check_launch("color motion kernel");
+    mask_kernel<<<grid, kThreads, 0, stream>>>(args);
+    check_launch("color mask kernel");
     pair_moments_kernel<<<grid, kThreads, 0, stream>>>(args);
     check_launch("color pair moments kernel");
     if (args.want_match) {

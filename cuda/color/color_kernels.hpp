@@ -23,6 +23,7 @@ struct ColorApplyView {
 struct ColorApplyBatch {
   ColorApplyView views[kColorApplyMaxViews];
   int count;
+  int highlight_knee;  // < 255: stitch::highlight_blend above it (255: off)
 };
 void launch_color_apply_batch(const ColorApplyBatch& batch, const uint8_t* lut, cudaStream_t stream);
 
@@ -59,6 +60,10 @@ enum : int32_t { kColorMatchNone = 0, kColorMatchAOntoB = 1, kColorMatchBOntoA =
 struct ColorPairResult {
   unsigned long long count;
   unsigned long long aa[9], bb[9], ab[9], matched[9];
+  // The static/aligned mask (stitch::PairStats): in-view samples, those that moved this
+  // frame, those not yet static, the misaligned ones, the restart flag, raw RGB sums.
+  unsigned long long inview, moved_now, moving, misaligned, global_change;
+  unsigned long long sum_a[3], sum_b[3];
   unsigned int hist_a[3 * 256], hist_b[3 * 256];
 };
 
@@ -74,6 +79,15 @@ struct ColorReduceArgs {
   int max_grid_samples;
   int dark_level, bright_level;  // usable: not every channel <= dark, no channel >= bright
   int want_pairs, want_match, want_balance;
+  // The mask: per pair sample (indexed like pair_samples) the pixels of the last frame, the
+  // frames since it last moved, whether it moved now, and whether it goes into the fit.
+  uchar4* prev_a;
+  uchar4* prev_b;
+  uint8_t* age;
+  uint8_t* moved;
+  uint8_t* use;
+  int fresh;  // no motion history: every in-view sample counts as static
+  int static_mask, motion_threshold, static_frames, align_tolerance;
   ColorPairResult* pair_results;  // pair_count entries, zeroed before the launch
   unsigned int* balance_results;  // view_count x 3 x 256, zeroed before the launch
   uint8_t* match_luts;            // scratch: pair_count x 3 x 256

@@ -230,3 +230,163 @@ TEST(ColorRobustness, TooFewValidPixelsKeepTheLastCorrection) {
   cc.reset();
   EXPECT_TRUE(cc.corrections()[1].isIdentity());
 }
+
+// ---- Issue 16: statistics from static, aligned pixels; corrections that hold still ----
+
+namespace {
+
+// A "person": a block of changing colour crossing the overlap, drawn at the same canvas place
+// in both views of a TwoViews rig (the other view is shifted 320 px).
+void draw_walker(cv::Mat& ref, cv::Mat& other, int frame) {
+  const int x = 330 + 14 * frame, y = 120;
+  const cv::Scalar colour((frame * 53) % 200 + 40, (frame * 97) % 200 + 30, (frame * 31) % 200 + 50, 255);
+  cv::rectangle(ref, cv::Rect(x, y, 90, 260), colour, cv::FILLED);
+  cv::rectangle(other, cv::Rect(x - 320, y, 90, 260), colour, cv::FILLED);
+}
+
+std::vector<Eigen::Matrix3d> run_walker(const ColorOptions& o, int frames, std::vector<double>* static_fraction) {
+  TwoViews t = two_views(photos()[0]);
+  ColorCorrector cc(Backend::Cpu);
+  cc.set_options(o);
+  std::vector<Eigen::Matrix3d> seen;
+  const Eigen::Matrix3d cast = Eigen::Vector3d(0.85, 0.95, 0.8).asDiagonal();
+  for (int f = 0; f < frames; ++f) {
+    cv::Mat ref = t.ref.clone(), other = t.other_truth.clone();
+    if (f >= 3) draw_walker(ref, other, f);  // enters after the first estimate
+    distort(other, cast);
+    std::vector<ImageView> v = {as_view(ref), as_view(other)};
+    cc.process(t.rig, 1, v);
+    seen.push_back(cc.corrections()[1]);
+    if (static_fraction) static_fraction->push_back(cc.report().static_fraction);
+  }
+  return seen;
+}
+
+double largest_change(const std::vector<Eigen::Matrix3d>& seen, std::size_t from) {
+  double worst = 0;
+  for (std::size_t f = from; f < seen.size(); ++f) worst = std::max(worst, (seen[f] - seen[f - 1]).norm());
+  return worst;
+}
+
+}  // namespace
+
+TEST(ColorStability, WalkerInTheOverlapDoesNotMoveTheCorrection) {
+  // The paper's behaviour: the walker's colours enter the overlap statistics and move M.
+  ColorOptions paper;
+  paper.static_mask = false;
+  paper.stabilize = false;
+  const auto moved = run_walker(paper, 16, nullptr);
+  // The default: the walker's samples are masked as moving, the correction holds still.
+  std::vector<double> fraction;
+  const auto held = run_walker(ColorOptions{}, 16, &fraction);
+  const double paper_change = largest_change(moved, 1), held_change = largest_change(held, 1);
+  std::printf("largest per-frame change of M: paper %.4f, default %.6f\n", paper_change, held_change);
+  EXPECT_GT(paper_change, 0.01);
+  EXPECT_EQ(held_change, 0.0);  // bit-identical: nothing to flicker
+  // The mask saw the walker (fewer samples fitted while it crosses).
+  EXPECT_NEAR(fraction[1], fraction[0], 0.02);
+  EXPECT_LT(*std::min_element(fraction.begin() + 4, fraction.end()), fraction[0] - 0.03);
+  // The held correction is the clean scene's estimate (the walker happens to improve the
+  // paper's histogram fit on this photo, so only sanity is asked of the error here).
+  const Eigen::Matrix3d inverse = Eigen::Vector3d(1 / 0.85, 1 / 0.95, 1 / 0.8).asDiagonal();
+  const double held_error = (held.back() - inverse).norm(), paper_error = (moved.back() - inverse).norm();
+  std::printf("|M - cast^-1|: default %.4f, paper %.4f\n", held_error, paper_error);
+  EXPECT_LT(held_error, 0.5 * (Eigen::Matrix3d::Identity() - inverse).norm());
+  EXPECT_EQ((held.back() - moved[0]).norm(), 0.0);
+}
+
+TEST(ColorStability, MaskLeavesOutMisalignedEdges) {
+  // The same view content, but the other view shifted by 6 px (a calibration error): edges no
+  // longer coincide, so the alignment test drops a good share of the overlap's samples.
+  TwoViews t = two_views(photos()[0]);
+  ColorCorrector cc(Backend::Cpu);
+  cc.set_options(ColorOptions{});
+  std::vector<ImageView> v = {as_view(t.ref), as_view(t.other)};
+  cc.process(t.rig, 1, v);
+  const double aligned = cc.report().static_fraction;
+  ColorCorrector shifted(Backend::Cpu);
+  shifted.set_options(ColorOptions{});
+  cv::Mat other(t.other.size(), t.other.type());
+  const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 6, 0, 1, 0);
+  cv::warpAffine(t.other, other, shift, other.size(), cv::INTER_NEAREST, cv::BORDER_REPLICATE);
+  std::vector<ImageView> vs = {as_view(t.ref), as_view(other)};
+  shifted.process(t.rig, 1, vs);
+  std::printf("fitted share: aligned %.3f, shifted by 6 px %.3f\n", aligned, shifted.report().static_fraction);
+  EXPECT_GT(aligned, 0.8);
+  EXPECT_LT(shifted.report().static_fraction, aligned - 0.03);
+}
+
+TEST(ColorStability, GlobalIlluminationStepIsFollowedWithinTwoFrames) {
+  // Three cameras over a real photo. At frame k the light drops to 60% for every camera and
+  // camera 0's white balance jumps as well (real auto exposure/white balance react so). The
+  // held correction must reach the fresh estimate of the new light within 2 frames.
+  cv::Mat photo = testdata::load_rgba(photos()[0]);
+  std::vector<cv::Mat> truth;
+  for (int i = 0; i < 3; ++i) truth.push_back(photo(cv::Rect(400 * i, 200, 640, 480)).clone());
+  Rig rig = testdata::shifted_rig(3, 640, 480, 400);
+  rig.reference = 1;
+  const int k = 8;
+  const auto frame = [&](int f, int cam) {
+    cv::Mat img = truth[std::size_t(cam)].clone();
+    const double light = f < k ? 1.0 : 0.6;
+    Eigen::Vector3d wb = cam == 0 ? (f < k ? Eigen::Vector3d(0.8, 0.85, 0.9) : Eigen::Vector3d(1.1, 0.9, 0.7))
+                         : cam == 2 ? Eigen::Vector3d(0.75, 0.8, 0.7)
+                                    : Eigen::Vector3d(1, 1, 1);
+    distort(img, Eigen::Matrix3d((wb * light).asDiagonal()));
+    return img;
+  };
+  ColorCorrector cc(Backend::Cpu);
+  cc.set_options(ColorOptions{});  // the defaults: stabilised, smoothing as the element's default
+  for (int f = 0; f < k + 4; ++f) {
+    std::vector<cv::Mat> views = {frame(f, 0), frame(f, 1), frame(f, 2)};
+    std::vector<ImageView> v = {as_view(views[0]), as_view(views[1]), as_view(views[2])};
+    const std::vector<Eigen::Matrix3d> before = cc.corrections();
+    cc.process(rig, 1, v);
+    if (f > 1 && f < k) {
+      EXPECT_FALSE(cc.report().step) << "frame " << f;
+      EXPECT_EQ((cc.corrections()[0] - before[0]).norm(), 0.0) << "held before the step, frame " << f;
+    }
+    if (f == k) EXPECT_TRUE(cc.report().step);
+    if (f >= k + 1) {
+      // What a corrector that only ever saw the new light would apply.
+      ColorCorrector fresh(Backend::Cpu);
+      fresh.set_options(ColorOptions{});
+      std::vector<cv::Mat> again = {frame(f, 0), frame(f, 1), frame(f, 2)};
+      std::vector<ImageView> va = {as_view(again[0]), as_view(again[1]), as_view(again[2])};
+      fresh.process(rig, 1, va);
+      for (int cam : {0, 2}) {
+        const double psnr = testdata::psnr_rgb(views[std::size_t(cam)], again[std::size_t(cam)]);
+        std::printf("frame %d camera %d: output vs fresh estimate %.2f dB\n", f, cam, psnr);
+        EXPECT_GE(psnr, 40.0) << "frame " << f << " camera " << cam;
+      }
+    }
+  }
+}
+
+TEST(ColorStability, SlowDriftIsFollowedByKeyframesAtBoundedRate) {
+  // One camera's gain drifts 0.4% per frame for 25 frames (auto exposure creeping), then stays:
+  // no step, so the held correction waits for a lasting change, moves at most max_rate levels
+  // per frame, and holds still again once the drift stopped.
+  TwoViews t = two_views(photos()[0]);
+  ColorCorrector cc(Backend::Cpu);
+  ColorOptions o;
+  cc.set_options(o);
+  const auto gain = [](int f) { return 0.9 - 0.004 * std::min(f, 25); };
+  std::vector<Eigen::Matrix3d> seen;
+  for (int f = 0; f < 50; ++f) {
+    cv::Mat ref = t.ref.clone(), other = t.other_truth.clone();
+    distort(other, Eigen::Matrix3d(Eigen::Vector3d::Constant(gain(f)).asDiagonal()));
+    std::vector<ImageView> v = {as_view(ref), as_view(other)};
+    cc.process(t.rig, 1, v);
+    seen.push_back(cc.corrections()[1]);
+  }
+  int moves = 0;
+  for (std::size_t f = 1; f < seen.size(); ++f) {
+    const double levels = 255.0 * (seen[f] - seen[f - 1]).cwiseAbs().maxCoeff();
+    EXPECT_LE(levels, 255.0 / 192.0 * o.max_rate + 1e-6) << "frame " << f;  // the bright probe moves <= max_rate
+    moves += levels > 0.0;
+    if (f >= 40) EXPECT_EQ(levels, 0.0) << "still after the drift, frame " << f;
+  }
+  EXPECT_GT(moves, 3);  // it did follow
+  EXPECT_NEAR(seen.back()(0, 0), 1.0 / gain(49), 0.04);
+}

@@ -107,6 +107,12 @@ void expect_same_stats(const ColorStats& cpu, const ColorStats& gpu) {
     EXPECT_EQ(c.bb, g.bb) << "pair " << k;
     EXPECT_EQ(c.ab, g.ab) << "pair " << k;
     EXPECT_EQ(c.matched, g.matched) << "pair " << k;
+    EXPECT_EQ(c.inview, g.inview) << "pair " << k;
+    EXPECT_EQ(c.moving, g.moving) << "pair " << k;
+    EXPECT_EQ(c.misaligned, g.misaligned) << "pair " << k;
+    EXPECT_EQ(c.global_change, g.global_change) << "pair " << k;
+    EXPECT_EQ(c.sum_a, g.sum_a) << "pair " << k;
+    EXPECT_EQ(c.sum_b, g.sum_b) << "pair " << k;
   }
   for (std::size_t i = 0; i < cpu.balance.size(); ++i) EXPECT_EQ(cpu.balance[i], gpu.balance[i]) << "view " << i;
 }
@@ -168,6 +174,58 @@ TEST(CudaColorOps, ReductionsMatchCpuExactly) {
   cpu->reduce(host_views, request, from_cpu);
   gpu->reduce(device_views, request, from_gpu);
   expect_same_stats(from_cpu, from_gpu);
+#endif
+}
+
+TEST(CudaColorOps, StaticMaskMatchesCpuOverAMovingSequence) {
+  // Issue 16: the motion/alignment mask keeps per-sample state across frames; a block of
+  // changing colour crosses every camera, then all cameras' exposure steps (a restart).
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  const ColorScene s = color_scene(1);
+  const ColorSampling sampling = make_color_sampling(s.rig, 16384);
+  auto cpu = ColorOps::create(Backend::Cpu), gpu = ColorOps::create(Backend::Cuda);
+  cpu->set_sampling(sampling);
+  gpu->set_sampling(sampling);
+  ColorReductionRequest request;
+  request.pairs = true;
+  request.static_mask = true;
+  for (std::size_t k = 0; k < sampling.pairs.size(); ++k) request.match.push_back(HistogramMatch::AOntoB);
+  uint64_t moving = 0, misaligned = 0, restarts = 0;
+  for (int frame = 0; frame < 14; ++frame) {
+    if (frame == 9) {
+      cpu->reset_motion();
+      gpu->reset_motion();
+    }
+    std::vector<cv::Mat> frames;
+    std::vector<std::unique_ptr<DeviceMat>> device;
+    std::vector<ImageView> host_views, device_views;
+    for (int i = 0; i < 3; ++i) {
+      cv::Mat f = camera_frame(s, i, 0);
+      const cv::Scalar colour((frame * 53) % 200 + 40, (frame * 97) % 200 + 30, (frame * 31) % 200 + 50, 255);
+      cv::rectangle(f, cv::Rect(20 + 30 * frame, 60, 70, 200), colour, cv::FILLED);
+      if (frame >= 6) f.convertTo(f, -1, 0.6);  // every camera at once
+      frames.push_back(f);
+    }
+    for (auto& f : frames) {
+      host_views.push_back(as_view(f));
+      device.push_back(std::make_unique<DeviceMat>(f));
+      device_views.push_back(device.back()->view());
+    }
+    ColorStats from_cpu, from_gpu;
+    cpu->reduce(host_views, request, from_cpu);
+    gpu->reduce(device_views, request, from_gpu);
+    expect_same_stats(from_cpu, from_gpu);
+    for (const PairStats& p : from_cpu.pairs) {
+      moving += p.moving;
+      misaligned += p.misaligned;
+      restarts += p.global_change;
+    }
+  }
+  std::printf("COLOR mask: %llu moving, %llu misaligned sample-frames, %llu restarts\n", (unsigned long long)moving,
+              (unsigned long long)misaligned, (unsigned long long)restarts);
+  EXPECT_GT(moving, 100u);      // the block was seen moving
+  EXPECT_GT(restarts, 0u);      // the exposure step restarted the state
 #endif
 }
 

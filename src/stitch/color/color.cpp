@@ -129,7 +129,14 @@ void ColorCorrector::reset() {
     h.AtB.clear();
   }
   std::fill(current_.begin(), current_.end(), Eigen::Matrix3d::Identity());
+  std::fill(wanted_.begin(), wanted_.end(), Eigen::Matrix3d::Identity());
+  std::fill(key_.begin(), key_.end(), Eigen::Matrix3d::Identity());
+  std::fill(over_.begin(), over_.end(), 0);
+  std::fill(follow_.begin(), follow_.end(), 0);
+  std::fill(last_rgb_.begin(), last_rgb_.end(), Eigen::Vector3d::Constant(-1.0));
   std::fill(has_current_.begin(), has_current_.end(), false);
+  report_ = FrameReport{};
+  if (ops_) ops_->reset_motion();
   std::fill(gains_.begin(), gains_.end(), Eigen::Vector3d::Ones());
   thresholds_.clear();
   for (int c = 0; c < 3; ++c)
@@ -195,9 +202,130 @@ void ColorCorrector::prepare_geometry(const Rig& rig) {
   history_.assign(chain_.size(), PairHistory{});
   if (int(current_.size()) != n) {
     current_.assign(n, Eigen::Matrix3d::Identity());
+    wanted_.assign(n, Eigen::Matrix3d::Identity());
+    key_.assign(n, Eigen::Matrix3d::Identity());
+    over_.assign(n, 0);
+    follow_.assign(n, 0);
+    step_view_.assign(n, false);
+    last_wanted_.assign(n, Eigen::Matrix3d::Identity());
+    probe_.assign(n, Eigen::Vector3d::Constant(128));
+    last_rgb_.assign(n, Eigen::Vector3d::Constant(-1.0));
     has_current_.assign(n, false);
     gains_.assign(n, Eigen::Vector3d::Ones());
   }
+}
+
+double ColorCorrector::effect_levels(int view, const Eigen::Matrix3d& d) const {
+  // How far a change of the 3x3 moves an output colour, in grey levels: the worst channel
+  // over the view's mean overlap colour and a dark and a bright grey.
+  double worst = 0;
+  const Eigen::Vector3d probes[3] = {probe_[std::size_t(view)], Eigen::Vector3d::Constant(64),
+                                     Eigen::Vector3d::Constant(192)};
+  for (const Eigen::Vector3d& p : probes) worst = std::max(worst, (p.transpose() * d).cwiseAbs().maxCoeff());
+  return worst;
+}
+
+bool ColorCorrector::detect_step(const std::vector<ImageView>& views) {
+  const int n = int(views.size());
+  // Per view: mean raw luma over all its overlap samples (no mask), and whether an overlap
+  // of it changed almost everywhere at once.
+  std::vector<Eigen::Vector3d> rgb(n, Eigen::Vector3d::Zero());
+  std::vector<double> count(n, 0);
+  std::vector<bool> changed(n, false);
+  bool every_pair_changed = true;
+  int pairs_seen = 0;
+  for (std::size_t k = 0; k < sampling_.pairs.size() && k < stats_.pairs.size(); ++k) {
+    const ColorSampling::Pair& g = sampling_.pairs[k];
+    const PairStats& s = stats_.pairs[k];
+    if (s.inview == 0) continue;
+    ++pairs_seen;
+    every_pair_changed = every_pair_changed && s.global_change;
+    if (s.global_change) changed[g.a] = changed[g.b] = true;
+    for (int c = 0; c < 3; ++c) {
+      rgb[g.a][c] += double(s.sum_a[c]);
+      rgb[g.b][c] += double(s.sum_b[c]);
+    }
+    count[g.a] += double(s.inview);
+    count[g.b] += double(s.inview);
+    // The mean colour each view shows on its overlaps, for effect_levels.
+    if (s.count > 0) {
+      probe_[g.a] = channel_means(s.hist_a, s.count);
+      probe_[g.b] = channel_means(s.hist_b, s.count);
+    }
+  }
+  const double limit = std::log1p(std::max(0.0, options_.step_threshold));
+  int up = 0, down = 0, seen = 0, recoloured = 0;
+  for (int i = 0; i < n; ++i) {
+    step_view_[i] = false;
+    if (views[i].empty() || count[i] <= 0) continue;
+    const Eigen::Vector3d now = rgb[i] / count[i];
+    const Eigen::Vector3d before = last_rgb_[i];
+    last_rgb_[i] = now;
+    ++seen;
+    if (before.minCoeff() < 0) continue;
+    const auto luma = [](const Eigen::Vector3d& v) { return std::max(0.5, 0.30 * v[0] + 0.59 * v[1] + 0.11 * v[2]); };
+    const double r = std::log(luma(now) / luma(before));
+    if (r > limit) ++up;
+    if (r < -limit) ++down;
+    // A cut: the view's mean colour moved by the step threshold (any channel).
+    const Eigen::Vector3d rel = (now - before).cwiseAbs().cwiseQuotient(before.cwiseMax(1.0));
+    if (rel.maxCoeff() > limit) ++recoloured;
+    // One camera's own step (its auto exposure): it follows at once, within max_step.
+    step_view_[i] = changed[i] || std::abs(r) > limit;
+  }
+  // Global: every view brightened or darkened beyond the threshold, or every overlap changed
+  // almost everywhere and every view's mean colour moved (a cut).
+  const bool global = seen >= 2 && (up == seen || down == seen ||
+                                    (pairs_seen > 0 && every_pair_changed && recoloured == seen));
+  report_.step = global;
+  report_.frames_since_step = global ? 0 : report_.frames_since_step + 1;
+  return global;
+}
+
+void ColorCorrector::stabilize(const std::vector<ImageView>& views, const std::vector<bool>& was_established) {
+  report_.rekeyed = false;
+  uint64_t inview = 0, used = 0;
+  for (const PairStats& s : stats_.pairs) {
+    inview += s.inview;
+    used += s.count;
+  }
+  report_.static_fraction = inview ? double(used) / double(inview) : 1.0;
+  const int n = int(current_.size());
+  for (int i = 0; i < n; ++i) {
+    if (views[std::size_t(i)].empty() || !has_current_[std::size_t(i)]) continue;
+    Eigen::Matrix3d& applied = current_[std::size_t(i)];
+    const Eigen::Matrix3d& want = wanted_[std::size_t(i)];
+    if (!options_.stabilize || !was_established[std::size_t(i)]) {
+      // The paper's behaviour, or a first estimate (start, reset, global step): applied as is.
+      applied = want;
+      key_[std::size_t(i)] = want;
+      over_[std::size_t(i)] = 0;
+      follow_[std::size_t(i)] = 0;
+      continue;
+    }
+    if (step_view_[std::size_t(i)]) follow_[std::size_t(i)] = 2;  // its camera changed: follow now
+    const double off = effect_levels(i, want - applied);
+    if (follow_[std::size_t(i)] == 0) {
+      // Hold: estimation noise (people crossing, codec noise) must not move a static scene.
+      over_[std::size_t(i)] = off > options_.hold ? over_[std::size_t(i)] + 1 : 0;
+      if (over_[std::size_t(i)] >= std::max(1, options_.keyframe)) {
+        follow_[std::size_t(i)] = 1;  // a lasting change: a new keyframe, reached at max_rate
+        report_.rekeyed = true;
+      }
+    }
+    if (follow_[std::size_t(i)] == 0) continue;
+    key_[std::size_t(i)] = want;
+    const double rate = follow_[std::size_t(i)] == 2 ? 1e9 : std::max(1e-3, options_.max_rate);
+    if (off <= rate) applied = want;
+    else applied += (want - applied) * (rate / off);
+    // Reached and settled: hold again.
+    if (effect_levels(i, want - applied) < 1e-9 && effect_levels(i, want - last_wanted_[std::size_t(i)]) < 0.25) {
+      follow_[std::size_t(i)] = 0;
+      over_[std::size_t(i)] = 0;
+    }
+  }
+  last_wanted_ = wanted_;
+  current_[std::size_t(reference_)] = Eigen::Matrix3d::Identity();
 }
 
 Eigen::Matrix3d ColorCorrector::limited_update(const Eigen::Matrix3d& previous, const Eigen::Matrix3d& wanted,
@@ -233,7 +361,8 @@ void ColorCorrector::estimate_matrices(const std::vector<ImageView>& views) {
     // need no Mp and all of them run in one pass before any fit. Normalised per sample so
     // frames weigh the same whatever their overlap's valid count.
     const double norm = unit / double(s.count);
-    const Eigen::Matrix3d AtA = XtX * norm, AtB = XtY * current_[p] * norm;
+    // The chain of estimates (not the held corrections): each view is held on its own.
+    const Eigen::Matrix3d AtA = XtX * norm, AtB = XtY * wanted_[p] * norm;
     PairHistory& h = history_[e];
     h.AtA.push_back(AtA);
     h.AtB.push_back(AtB);
@@ -251,10 +380,10 @@ void ColorCorrector::estimate_matrices(const std::vector<ImageView>& views) {
     // Ridge toward the identity: an ill-conditioned overlap (one colour) cannot explode M.
     const double r = options_.ridge * std::max(1e-6, A.trace() / 3.0);
     const Eigen::Matrix3d M = (A + r * Eigen::Matrix3d::Identity()).ldlt().solve(B + r * Eigen::Matrix3d::Identity());
-    current_[c] = limited_update(current_[c], M, !has_current_[c]);
+    wanted_[c] = limited_update(wanted_[c], M, !has_current_[c]);
     has_current_[c] = true;
   }
-  current_[reference_] = Eigen::Matrix3d::Identity();
+  wanted_[reference_] = Eigen::Matrix3d::Identity();
 }
 
 void ColorCorrector::estimate_gains(const std::vector<ImageView>& views) {
@@ -309,7 +438,7 @@ void ColorCorrector::estimate_gains(const std::vector<ImageView>& views) {
     Eigen::Vector3d g;
     for (int ch = 0; ch < 3; ++ch) g[ch] = std::clamp(gains(i, ch) / gains(reference_, ch), 0.25, 4.0);
     gains_[i] = has_current_[i] ? Eigen::Vector3d(gains_[i] + alpha * (g - gains_[i])) : g;
-    current_[i] = limited_update(current_[i], gains_[i].asDiagonal().toDenseMatrix(), !has_current_[i]);
+    wanted_[i] = limited_update(wanted_[i], gains_[i].asDiagonal().toDenseMatrix(), !has_current_[i]);
     has_current_[i] = true;
   }
 }
@@ -393,15 +522,32 @@ void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::ve
   request_.balance_matrices = current_;
   request_.dark_level = options_.dark_level;
   request_.bright_level = options_.bright_level;
+  request_.static_mask = options_.static_mask;
+  request_.motion_threshold = std::clamp(options_.motion_threshold, 0, 255);
+  request_.static_frames = std::clamp(options_.static_frames, 0, 255);
+  request_.align_tolerance = std::clamp(options_.align_tolerance, 0, 1 << 20);
   ops_->reduce(views, request_, stats_);
+  const bool step = fit && detect_step(views);
+  if (step) {
+    // A global illumination step or a cut: what came before no longer describes the scene.
+    // Every estimate starts again from this frame and is applied at once (no ramp).
+    for (auto& h : history_) {
+      h.AtA.clear();
+      h.AtB.clear();
+    }
+    thresholds_.clear();
+    std::fill(has_current_.begin(), has_current_.end(), false);
+  }
   const auto established = [this] { return std::count(has_current_.begin(), has_current_.end(), true); };
   const auto established_before = established();
+  std::vector<bool> was_established = has_current_;
   switch (options_.method) {
     case ColorMethod::None: break;
     case ColorMethod::Matrix2D:
     case ColorMethod::Matrix3D: estimate_matrices(views); break;
     case ColorMethod::Gain: estimate_gains(views); break;
   }
+  if (fit) stabilize(views, was_established);
   if (options_.balance) {
     if (established() > established_before) {
       // A correction was set outright (its first fit, after a start or reset): the views under
@@ -414,7 +560,7 @@ void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::ve
     }
     update_balance(views);
   }
-  ops_->apply_all(views, current_, lut_);
+  ops_->apply_all(views, current_, lut_, fit ? std::clamp(options_.highlight_knee, 0, 255) : 255);
 }
 
 }  // namespace stitch

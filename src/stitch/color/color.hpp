@@ -8,6 +8,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
 #include <deque>
 #include <memory>
 #include <vector>
@@ -47,6 +48,22 @@ struct ColorOptions {
   int dark_level = 8;         // pixels with every channel <= this are left out of fits
   int bright_level = 250;     // pixels with any channel >= this are left out of fits
   int max_samples_per_pair = 16384;
+  // Robust statistics (issue 16): fit only samples that are static and well aligned.
+  bool static_mask = true;    // leave out moving and badly aligned overlap samples
+  int motion_threshold = 12;  // a channel changing more than this since the last frame: moving
+  int static_frames = 10;     // frames a sample must stay still before it is used again
+  int align_tolerance = 12;   // |grad_a - grad_b| above this + max/3 (luma, L1): misaligned
+  // Stabilisation over time (stitchEm-style sampled exposure/WB stabilisation).
+  bool stabilize = true;      // hold the applied correction; re-key only on a lasting change
+  double hold = 2.0;          // grey levels the wanted correction may differ from the held one
+  int keyframe = 8;           // frames a difference beyond `hold` must last before a new keyframe
+  double max_rate = 1.0;      // grey levels the applied correction moves per frame toward a keyframe
+  // Clipped highlights (issue 16): their true colour is unknown, and a gain below 1 turns a
+  // clipped white grey and makes it follow every change of the correction. Above this level
+  // (brightest channel) the correction fades out, reaching none at 255. 255: off.
+  int highlight_knee = 235;
+  double step_threshold = 0.12;  // relative brightness change seen by every view at once: a
+                                 // global illumination step (or cut): the correction jumps
 };
 
 // Where the color statistics are read, fixed per rig geometry (a backend uploads it once).
@@ -81,6 +98,10 @@ struct ColorReductionRequest {
   bool balance = false;                // per view: histograms of the balance grid ...
   std::vector<Eigen::Matrix3d> balance_matrices;  // ... of pixel * M, rounded and clamped
   int dark_level = 8, bright_level = 250;  // a sample is usable unless dark or bright on either side
+  // Static/aligned mask (pairs only). The per-sample motion state lives in the ColorOps and is
+  // advanced by every reduce() that asks for pairs.
+  bool static_mask = false;
+  int motion_threshold = 12, static_frames = 10, align_tolerance = 12;
 };
 
 // One pair's statistics over its usable samples (both pixels inside their views, neither
@@ -92,7 +113,31 @@ struct PairStats {
   // Sum s lut(s)^T for the matched side s, lut = histogram_specification of s's histogram
   // onto the other side's, per channel. Zero when not asked for.
   Moments3 matched{};
+  // The mask (issue 16). Counted over samples inside both views, before any other test.
+  uint64_t inview = 0;      // samples inside both views
+  uint64_t moving = 0;      // ... that moved within the last static_frames frames
+  uint64_t misaligned = 0;  // ... whose two views' gradients disagree
+  uint64_t global_change = 0;  // 1: most samples moved at once (exposure step, cut): state restarted
+  std::array<uint64_t, 3> sum_a{}, sum_b{};  // raw RGB sums over the in-view samples
 };
+
+// The per-sample motion and alignment test shared by the CPU and the CUDA kernels (same
+// integers, same result). Luma in 8-bit integer arithmetic.
+inline int mask_luma(const uint8_t* p) { return (77 * p[0] + 150 * p[1] + 29 * p[2] + 128) >> 8; }
+inline bool mask_moved(const uint8_t* now, const uint8_t* before, int threshold) {
+  for (int c = 0; c < 3; ++c)
+    if (std::abs(int(now[c]) - int(before[c])) > threshold) return true;
+  return false;
+}
+// The highlight roll-off (CPU and CUDA): the corrected level t of a channel whose input
+// pixel's brightest channel is m and own level p, with the knee k < m.
+inline uint8_t highlight_blend(int t, int p, int m, int k) {
+  const float w = float(m - k) / float(255 - k);
+  return uint8_t(float(t) + w * float(p - t) + 0.5f);
+}
+inline bool mask_aligned(int grad_a, int grad_b, int tolerance) {
+  return std::abs(grad_a - grad_b) <= tolerance + std::max(grad_a, grad_b) / 3;
+}
 
 struct ColorStats {
   std::vector<PairStats> pairs;             // per sampling pair (zero unless asked for)
@@ -119,8 +164,10 @@ class ColorOps {
                       ColorStats& out) = 0;
   // Every non-empty view in place: out = clamp(lut[c](round(sum_k in_k * M_i(k, c)))), alpha
   // untouched. The CUDA backend runs one launch for all views and returns once they are done.
+  // highlight_knee < 255: a pixel whose brightest channel is above the knee keeps a growing
+  // share of its input (all of it at 255): clipped highlights stay white and still.
   virtual void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
-                         const std::array<std::array<uint8_t, 256>, 3>& lut) = 0;
+                         const std::array<std::array<uint8_t, 256>, 3>& lut, int highlight_knee = 255) = 0;
   // One view: apply_all of a single view.
   void apply(const ImageView& view, const Eigen::Matrix3d& M, const std::array<std::array<uint8_t, 256>, 3>& lut) {
     apply_all({view}, {M}, lut);
@@ -128,6 +175,8 @@ class ColorOps {
   // Reads the pixels at the given integer coordinates (x, y pairs) of a view (tests, tools).
   virtual void gather(const ImageView& view, const std::vector<int32_t>& xy,
                       std::vector<std::array<uint8_t, 3>>& out) = 0;
+  // Forgets the per-sample motion state: the next frame's samples count as static.
+  virtual void reset_motion() = 0;
   virtual Backend backend() const = 0;
   static std::unique_ptr<ColorOps> create(Backend backend);
 };
@@ -156,6 +205,15 @@ class ColorCorrector {
 
   const std::vector<Eigen::Matrix3d>& corrections() const { return current_; }
   const std::array<std::array<uint8_t, 256>, 3>& balance_lut() const { return lut_; }
+  // What the last frame did (bus messages, tests).
+  struct FrameReport {
+    bool step = false;        // a global illumination step or cut was detected
+    bool rekeyed = false;     // a view got a new keyframe (its applied correction moves)
+    double static_fraction = 1;  // usable samples after the mask / in-view samples, all pairs
+    int frames_since_step = 0;
+  };
+  const FrameReport& report() const { return report_; }
+  const std::vector<Eigen::Matrix3d>& wanted() const { return wanted_; }
 
  private:
   struct PairHistory {
@@ -172,6 +230,9 @@ class ColorCorrector {
   void update_balance(const std::vector<ImageView>& views);
   Eigen::Matrix3d limited_update(const Eigen::Matrix3d& previous, const Eigen::Matrix3d& wanted,
                                  bool first) const;
+  bool detect_step(const std::vector<ImageView>& views);
+  void stabilize(const std::vector<ImageView>& views, const std::vector<bool>& was_established);
+  double effect_levels(int view, const Eigen::Matrix3d& d) const;
 
   std::unique_ptr<ColorOps> ops_;
   ColorOptions options_;
@@ -182,8 +243,17 @@ class ColorCorrector {
   std::vector<PairHistory> history_;       // per chain edge
   ColorReductionRequest request_;          // reused every frame
   ColorStats stats_;                       // this frame's reductions
-  std::vector<Eigen::Matrix3d> current_;
+  std::vector<Eigen::Matrix3d> current_;   // applied (held) corrections
+  std::vector<Eigen::Matrix3d> wanted_;    // this frame's smoothed estimates
+  std::vector<Eigen::Matrix3d> key_;       // the keyframe each applied correction moves toward
+  std::vector<Eigen::Matrix3d> last_wanted_;
+  std::vector<int> over_;                  // frames the wanted has been beyond `hold`
+  std::vector<int> follow_;                // 0 hold, 1 ramp to a keyframe, 2 follow (camera step)
+  std::vector<bool> step_view_;            // this frame: the view's camera stepped
+  std::vector<Eigen::Vector3d> probe_;     // mean overlap colour per view (levels)
+  std::vector<Eigen::Vector3d> last_rgb_;  // per view: mean raw colour of its overlaps last frame
   std::vector<bool> has_current_;
+  FrameReport report_;
   std::vector<Eigen::Vector3d> gains_;
   std::deque<std::array<double, 6>> thresholds_;  // (m1, m2) per channel, last 3 frames
   std::array<std::array<uint8_t, 256>, 3> lut_{};

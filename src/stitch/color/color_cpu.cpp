@@ -1,4 +1,5 @@
 #include <opencv2/core.hpp>
+#include <algorithm>
 #include <stdexcept>
 
 #include "stitch/color/color.hpp"
@@ -23,6 +24,14 @@ const uint8_t* pixel(const ImageView& view, int32_t x, int32_t y) {
   return view.row(y) + 4 * std::size_t(x);
 }
 
+// L1 luma gradient at (x, y), central differences clamped to the view.
+int luma_gradient(const ImageView& v, int x, int y) {
+  const int x0 = std::max(0, x - 1), x1 = std::min(v.width - 1, x + 1);
+  const int y0 = std::max(0, y - 1), y1 = std::min(v.height - 1, y + 1);
+  const auto at = [&](int px, int py) { return mask_luma(v.row(py) + 4 * std::size_t(px)); };
+  return std::abs(at(x1, y) - at(x0, y)) + std::abs(at(x, y1) - at(x, y0));
+}
+
 void add_moments(Moments3& m, const uint8_t* x, const uint8_t* y) {
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) m[3 * r + c] += uint64_t(x[r]) * y[c];
@@ -30,7 +39,13 @@ void add_moments(Moments3& m, const uint8_t* x, const uint8_t* y) {
 
 class ColorOpsCpu final : public ColorOps {
  public:
-  void set_sampling(const ColorSampling& sampling) override { sampling_ = sampling; }
+  void set_sampling(const ColorSampling& sampling) override {
+    sampling_ = sampling;
+    motion_.assign(sampling_.pairs.size(), {});
+    for (std::size_t k = 0; k < sampling_.pairs.size(); ++k) motion_[k].assign(std::size_t(sampling_.pairs[k].count()), {});
+    fresh_ = true;
+  }
+  void reset_motion() override { fresh_ = true; }
 
   // Plain loops over the samples; the CUDA kernels compute exactly these integers.
   void reduce(const std::vector<ImageView>& views, const ColorReductionRequest& request,
@@ -45,10 +60,47 @@ class ColorOpsCpu final : public ColorOps {
       const ColorSampling::Pair& g = sampling_.pairs[k];
       if (!request.pairs || views[g.a].empty() || views[g.b].empty()) continue;
       usable_.clear();
+      std::vector<SampleState>& state = motion_[k];
+      // Pass 1 (the mask): which samples changed since the last frame, and how many.
+      uint64_t moved_now = 0;
+      if (request.pairs) {
+        for (int i = 0; i < g.count(); ++i) {
+          const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
+          const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
+          SampleState& st = state[std::size_t(i)];
+          st.moved = 0;
+          if (!a || !b) continue;
+          ++s.inview;
+          if (!fresh_ && (mask_moved(a, st.a, request.motion_threshold) || mask_moved(b, st.b, request.motion_threshold))) {
+            st.moved = 1;
+            ++moved_now;
+          }
+          for (int c = 0; c < 3; ++c) {
+            st.a[c] = a[c];
+            st.b[c] = b[c];
+            s.sum_a[c] += a[c];
+            s.sum_b[c] += b[c];
+          }
+        }
+      }
+      // Most of the overlap changed at once: an exposure step or a cut, not people walking.
+      // Motion cannot be told there, so the state restarts (every sample static).
+      const bool restart = fresh_ || moved_now * 2 > s.inview;
+      s.global_change = !fresh_ && restart && s.inview > 0;
       for (int i = 0; i < g.count(); ++i) {
         const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
         const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
-        if (!a || !b || !usable(a, request) || !usable(b, request)) continue;
+        if (!a || !b) continue;
+        SampleState& st = state[std::size_t(i)];
+        st.age = uint8_t(restart ? request.static_frames : st.moved ? 0 : std::min(255, st.age + 1));
+        const bool still = st.age >= request.static_frames;
+        const bool aligned = mask_aligned(luma_gradient(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]),
+                                          luma_gradient(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]),
+                                          request.align_tolerance);
+        s.moving += !still;
+        s.misaligned += !aligned;
+        if (!usable(a, request) || !usable(b, request)) continue;
+        if (request.static_mask && (!still || !aligned)) continue;
         usable_.push_back(i);
         ++s.count;
         for (int ch = 0; ch < 3; ++ch) {
@@ -74,6 +126,7 @@ class ColorOpsCpu final : public ColorOps {
         add_moments(s.matched, x, y);
       }
     }
+    if (request.pairs) fresh_ = false;
     out.balance.resize(views.size());
     for (std::size_t i = 0; i < views.size(); ++i) {
       ChannelHistograms& h = out.balance[i];
@@ -90,7 +143,7 @@ class ColorOpsCpu final : public ColorOps {
   }
 
   void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
-                 const std::array<std::array<uint8_t, 256>, 3>& lut) override {
+                 const std::array<std::array<uint8_t, 256>, 3>& lut, int highlight_knee) override {
     if (matrices.size() < views.size()) throw std::invalid_argument("color: a matrix per view is needed");
     bool identity_lut = true;
     for (int c = 0; c < 3 && identity_lut; ++c)
@@ -100,18 +153,38 @@ class ColorOpsCpu final : public ColorOps {
       table.create(1, 256, CV_8UC4);
       for (int v = 0; v < 256; ++v) table.at<cv::Vec4b>(0, v) = {lut[0][v], lut[1][v], lut[2][v], uint8_t(v)};
     }
+    const int knee = std::clamp(highlight_knee, 0, 255);
     for (std::size_t i = 0; i < views.size(); ++i) {
       if (views[i].empty()) continue;
       cv::Mat img = as_mat(views[i]);
       const Eigen::Matrix3d& M = matrices[i];
-      if (!M.isIdentity(1e-9)) {
-        // out_c = sum_k in_k M(k, c): cv::transform's matrix is M transposed; alpha passes.
-        cv::Matx44f T = cv::Matx44f::eye();
-        for (int c = 0; c < 3; ++c)
-          for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
-        cv::transform(img, img, T);
-      }
-      if (!identity_lut) cv::LUT(img, table, img);
+      const bool matrix = !M.isIdentity(1e-9);
+      if (!matrix && identity_lut) continue;
+      // out_c = sum_k in_k M(k, c): cv::transform's matrix is M transposed; alpha passes.
+      cv::Matx44f T = cv::Matx44f::eye();
+      for (int c = 0; c < 3; ++c)
+        for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
+      // Row bands in parallel (issue 17: the CPU chain scales with cores); each band keeps a
+      // copy of its input rows for the highlight roll-off.
+      cv::parallel_for_(cv::Range(0, img.rows), [&](const cv::Range& rows) {
+        cv::Mat band = img.rowRange(rows);
+        if (matrix) {
+          cv::Mat input;
+          if (knee < 255) band.copyTo(input);
+          cv::transform(band, band, T);
+          if (knee < 255)
+            for (int y = 0; y < band.rows; ++y) {
+              const uint8_t* p = input.ptr<uint8_t>(y);
+              uint8_t* o = band.ptr<uint8_t>(y);
+              for (int x = 0; x < band.cols; ++x, p += 4, o += 4) {
+                const int m = std::max({p[0], p[1], p[2]});
+                if (m <= knee) continue;
+                for (int c = 0; c < 3; ++c) o[c] = highlight_blend(o[c], p[c], m, knee);
+              }
+            }
+        }
+        if (!identity_lut) cv::LUT(band, table, band);
+      }, std::max(1.0, img.rows / 32.0));
     }
   }
 
@@ -127,7 +200,15 @@ class ColorOpsCpu final : public ColorOps {
   Backend backend() const override { return Backend::Cpu; }
 
  private:
+  // Per pair sample: its pixels last frame, frames since it last moved (saturating), whether
+  // it moved this frame.
+  struct SampleState {
+    uint8_t a[3] = {0, 0, 0}, b[3] = {0, 0, 0};
+    uint8_t age = 0, moved = 0;
+  };
   ColorSampling sampling_;
+  std::vector<std::vector<SampleState>> motion_;
+  bool fresh_ = true;
   std::vector<int> usable_;  // this pair's usable sample indices (reused)
 };
 

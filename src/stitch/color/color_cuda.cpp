@@ -86,6 +86,24 @@ class ColorOpsCuda final : public ColorOps {
     upload(grid_samples_, grid_samples, stream_.get());
     pair_count_ = int(pairs.size());
     view_count_ = int(grids.size());
+    // The mask's per-sample state, zeroed; the next frame starts it.
+    const std::size_t samples = pair_samples.size();
+    prev_a_.resize(std::max<std::size_t>(1, samples) * 4);
+    prev_b_.resize(std::max<std::size_t>(1, samples) * 4);
+    age_.resize(std::max<std::size_t>(1, samples));
+    moved_.resize(std::max<std::size_t>(1, samples));
+    use_.resize(std::max<std::size_t>(1, samples));
+    if (samples) {
+      STITCH_CUDA(cudaMemsetAsync(prev_a_.data(), 0, samples * 4, stream_.get()));
+      STITCH_CUDA(cudaMemsetAsync(prev_b_.data(), 0, samples * 4, stream_.get()));
+      STITCH_CUDA(cudaMemsetAsync(age_.data(), 0, samples, stream_.get()));
+    }
+    fresh_ = true;
+  }
+
+  void reset_motion() override {
+    cpu_->reset_motion();
+    fresh_ = true;
   }
 
   void reduce(const std::vector<ImageView>& views, const ColorReductionRequest& request,
@@ -153,6 +171,17 @@ class ColorOpsCuda final : public ColorOps {
     args.want_pairs = request.pairs;
     args.want_match = request.pairs && any_match;
     args.want_balance = request.balance;
+    args.prev_a = reinterpret_cast<uchar4*>(prev_a_.data());
+    args.prev_b = reinterpret_cast<uchar4*>(prev_b_.data());
+    args.age = age_.data();
+    args.moved = moved_.data();
+    args.use = use_.data();
+    args.fresh = fresh_ ? 1 : 0;
+    args.static_mask = request.static_mask ? 1 : 0;
+    args.motion_threshold = request.motion_threshold;
+    args.static_frames = request.static_frames;
+    args.align_tolerance = request.align_tolerance;
+    if (request.pairs) fresh_ = false;
     args.pair_results = reinterpret_cast<stitch_cuda::ColorPairResult*>(results_.data());
     args.balance_results = reinterpret_cast<unsigned int*>(results_.data() + pair_bytes);
     args.match_luts = match_luts_.data();
@@ -171,6 +200,12 @@ class ColorOpsCuda final : public ColorOps {
       std::copy(r.bb, r.bb + 9, s.bb.begin());
       std::copy(r.ab, r.ab + 9, s.ab.begin());
       std::copy(r.matched, r.matched + 9, s.matched.begin());
+      s.inview = r.inview;
+      s.moving = r.moving;
+      s.misaligned = r.misaligned;
+      s.global_change = r.global_change;
+      std::copy(r.sum_a, r.sum_a + 3, s.sum_a.begin());
+      std::copy(r.sum_b, r.sum_b + 3, s.sum_b.begin());
       for (int ch = 0; ch < 3; ++ch) {
         std::copy(r.hist_a + 256 * ch, r.hist_a + 256 * (ch + 1), s.hist_a[ch].begin());
         std::copy(r.hist_b + 256 * ch, r.hist_b + 256 * (ch + 1), s.hist_b[ch].begin());
@@ -184,7 +219,7 @@ class ColorOpsCuda final : public ColorOps {
   }
 
   void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
-                 const std::array<std::array<uint8_t, 256>, 3>& lut) override {
+                 const std::array<std::array<uint8_t, 256>, 3>& lut, int highlight_knee) override {
     if (matrices.size() < views.size()) throw std::invalid_argument("color: a matrix per view is needed");
     bool any_device = false, any_host = false;
     for (const ImageView& v : views)
@@ -193,7 +228,7 @@ class ColorOpsCuda final : public ColorOps {
       std::vector<ImageView> host_views(views.size());
       for (std::size_t i = 0; i < views.size(); ++i)
         if (!views[i].on_device) host_views[i] = views[i];
-      cpu_->apply_all(host_views, matrices, lut);
+      cpu_->apply_all(host_views, matrices, lut, highlight_knee);
     }
     if (!any_device) return;
     stream_.enter();
@@ -211,6 +246,7 @@ class ColorOpsCuda final : public ColorOps {
       device_lut = lut_.data();
     }
     stitch_cuda::ColorApplyBatch batch{};
+    batch.highlight_knee = std::clamp(highlight_knee, 0, 255);
     bool launched = false;
     auto flush = [&] {
       if (batch.count == 0) return;
@@ -262,6 +298,9 @@ class ColorOpsCuda final : public ColorOps {
   // Per geometry.
   DeviceBuffer pairs_, pair_samples_, grids_, grid_samples_;
   int pair_count_ = 0, view_count_ = 0, max_pair_samples_ = 0, max_grid_samples_ = 0;
+  // The mask's state, per pair sample.
+  DeviceBuffer prev_a_, prev_b_, age_, moved_, use_;
+  bool fresh_ = true;
   // Per frame, reused.
   PinnedBuffer inputs_host_, results_host_, lut_host_;
   DeviceBuffer inputs_, results_, match_luts_, lut_;
