@@ -359,9 +359,12 @@ FeatureSets detect_all(const std::vector<std::vector<ImageView>>& sets, int n, c
 
 // `predicted`: the rough a -> b homography; matches farther than `tolerance` px from it are
 // dropped (a repeated texture elsewhere in the view would pull the pair together wrongly).
+constexpr double kLensUnknownRansacScale = 4.0;
+
 // `lens_rig`: cameras whose lenses undistort the keypoints before every fit (null: pinhole).
 PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOptions& o,
-                    const Eigen::Matrix3d* predicted, double tolerance, const Rig* lens_rig = nullptr) {
+                    const Eigen::Matrix3d* predicted, double tolerance, const Rig* lens_rig = nullptr,
+                    double ransac_scale = 1.0) {
   PairData p;
   p.a = a;
   p.b = b;
@@ -385,7 +388,7 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
     return p;
   }
   std::vector<uchar> inl;
-  cv::Mat H = cv::findHomography(pa, pb, cv::RANSAC, o.ransac_threshold_px, inl, 2000, 0.995);
+  cv::Mat H = cv::findHomography(pa, pb, cv::RANSAC, o.ransac_threshold_px * ransac_scale, inl, 2000, 0.995);
   if (H.empty()) {
     p.note = "no consistent homography in " + std::to_string(pa.size()) + " matches";
     return p;
@@ -1040,7 +1043,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // Matches of every pair that the start says may overlap, checked against it.
   const FeatureSets feats = detect_all(sets, n, o);
   // `lens_rig`: whose lenses undistort the keypoints (the start; again with estimated lenses).
-  auto match_all = [&](const Rig& lens_rig) {
+  auto match_all = [&](const Rig& lens_rig, double ransac_scale = 1.0) {
     std::vector<PairData> out;
     for (int a = 0; a < n; ++a)
       for (int b = a + 1; b < n; ++b) {
@@ -1053,13 +1056,17 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
         }
         const Eigen::Matrix3d predicted = start.planar() ? Eigen::Matrix3d(B.homography->inverse() * *A.homography)
                                                          : rough_pairwise_homography(start, a, b);
-        out.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), &lens_rig));
+        out.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), &lens_rig,
+                                 ransac_scale));
       }
     return out;
   };
-  std::vector<PairData> pairs = match_all(start);
   bool estimating = false;
   for (const auto& c : rough.cameras) estimating |= c.lens.estimate && !c.lens.pinhole();
+  // Lenses still unknown: the distorted periphery is off any homography by pixels, and a tight
+  // RANSAC keeps only the matches that fit a wrong (undistorted) model, which then pulls the
+  // lens estimate to a wrong focal. Match loosely; the adjustment drops the outliers.
+  std::vector<PairData> pairs = match_all(start, estimating ? kLensUnknownRansacScale : 1.0);
   std::vector<bool> matched(n, false);
   int held = 0;
   auto count_matched = [&] {
