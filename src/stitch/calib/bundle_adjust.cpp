@@ -4,8 +4,6 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <unsupported/Eigen/NonLinearOptimization>
 #include <unsupported/Eigen/NumericalDiff>
 
@@ -256,7 +254,6 @@ double sweep_lens_start(const Problem& full, Eigen::VectorXd& x, double cap_px, 
   Eigen::VectorXd best_x = x, xo;
   auto consider = [&](double d) {
     const double c = try_d(d, xo);
-    if (std::getenv("STITCH_DEBUG_SWEEP")) std::fprintf(stderr, "sweep d %+.3f cost %.1f\n", d, c);
     if (c < best) best = c, best_d = d, best_x = xo;
   };
   for (double d = -0.32; d <= 0.161; d += 0.04) consider(d);
@@ -350,6 +347,10 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     // Drop the matches the fit does not explain (false matches, parallax) and fit again.
     f.resize(4 * p.pa.size());
     p.residuals(x, f);
+    // Estimating lenses: sub-pixel fits, where matches a few pixels off (kept by the loose
+    // first-pass RANSAC) bias k2 and the focal; cut at 4x the rms (at least 1 px) instead.
+    const double cut_px =
+        p.layout.lens_k.empty() ? o.outlier_px : std::min(o.outlier_px, std::max(1.0, 4 * rms(f)));
     Problem kept = p;
     kept.cams.clear();
     kept.pa.clear();
@@ -358,7 +359,7 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     kept.ra.clear();
     kept.rb.clear();
     for (std::size_t k = 0; k < p.pa.size(); ++k) {
-      if (f.segment<4>(4 * k).norm() > o.outlier_px * std::sqrt(2.0) * p.w[k]) continue;
+      if (f.segment<4>(4 * k).norm() > cut_px * std::sqrt(2.0) * p.w[k]) continue;
       kept.cams.push_back(p.cams[k]);
       kept.pa.push_back(p.pa[k]);
       kept.pb.push_back(p.pb[k]);
@@ -389,12 +390,6 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
         r2.lens_warning = "camera " + std::to_string(i) + ": the estimated lens was dropped (" + why + ")";
         return r2;
       }
-  }
-  if (std::getenv("STITCH_DEBUG_SWEEP")) {
-    const Model m = p.model(x);
-    for (int i : rep.lens_estimated)
-      std::fprintf(stderr, "BA cam %d f %.1f k1 %.4f k2 %.4f rms %.3f -> %.3f\n", i, m.cam[i].fx, m.cam[i].lens.k1,
-                   m.cam[i].lens.k2, rep.rms_before_px, rep.rms_after_px);
   }
   if (rep.ok) apply(rig, p, x);
   return rep;

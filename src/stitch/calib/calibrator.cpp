@@ -1013,6 +1013,9 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   for (const auto& c : rough.cameras) have_all &= bool(c.homography);
 
   CalibrationResult res;
+  for (int i = 0; i < n; ++i)
+    if (const std::string w = lens_warning(rough.cameras[i]); !w.empty())
+      res.warnings.push_back("camera " + std::to_string(i) + ": " + w);
   res.rig = rough;
   if (o.refinement == Refinement::None || n < 2) {
     // Rough geometry only.
@@ -1225,8 +1228,48 @@ CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, in
   return calibrate_from_images(std::vector<std::vector<ImageView>>{frames}, reference, o);
 }
 
+namespace {
+CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                const CalibrationOptions& o);
+}  // namespace
+
+// The held-out error of a lens fit must fall below this share of the pinhole one (and by at
+// least kLensEvidenceMinPx) before images alone are taken as evidence of distortion.
+constexpr double kLensEvidenceRatio = 0.7, kLensEvidenceMinPx = 0.2;
+
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
+  CalibrationResult pin = calibrate_from_images_pinhole(sets, reference, o);
+  if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
+  // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.
+  Rig rough = pin.rig;
+  for (auto& c : rough.cameras) {
+    c.lens = Lens{};
+    c.lens.model = Lens::Model::Radtan;
+    c.lens.estimate = true;
+  }
+  CalibrationResult lens;
+  try {
+    CalibrationOptions lo = o;
+    lo.model = CameraModel::Rotation;
+    lens = calibrate_from_rig(rough, sets, lo);
+  } catch (const std::exception&) {
+    return pin;  // no usable lens fit: the pinhole result stands
+  }
+  bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
+  for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
+  const double hp = pin.rotation_heldout_px, hl = lens.rotation_heldout_px;
+  if (usable && hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
+    lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(hp) + " px pinhole, " +
+                            std::to_string(hl) + " px with radtan k1/k2): the cameras get radtan lenses");
+    return lens;
+  }
+  return pin;
+}
+
+namespace {
+CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                const CalibrationOptions& o) {
   if (sets.empty()) throw RigError("no frames to calibrate on");
   const std::vector<ImageView>& frames = sets[0];
   const int n = int(frames.size());
@@ -1381,6 +1424,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   fill_reports(res, pairs, use_rotation);
   return res;
 }
+}  // namespace
 
 AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& frames) {
   AlignmentReport rep;

@@ -42,4 +42,10 @@ bool lens_sees(const Camera& c, double u, double v);
 // the image, an image circle outside the frame, a negative radius).
 std::string lens_problem(const Camera& c);
 
+// Empty when nothing looks odd; else a warning (not an error: the lens is usable): a fisheye
+// whose frame sees less than `kFisheyeMinDiagonalFovDeg` across its diagonal is most likely a
+// rectilinear image given the fisheye model (its focal length in pixels is that of a normal lens).
+constexpr double kFisheyeMinDiagonalFovDeg = 100.0;
+std::string lens_warning(const Camera& c);
+
 }  // namespace stitch
