@@ -82,7 +82,7 @@ TEST(CalibLensEvidence, PinholeCamerasStayPinhole) {
 TEST(CalibLensEvidence, FisheyeModelOnARectilinearCameraWarns) {
   Camera rect;
   rect.width = 1920, rect.height = 1080;
-  rect.fx = rect.fy = 1000;  // a normal lens: 95 degrees across the diagonal
+  rect.fx = rect.fy = 1000;  // a normal lens: 95 degrees across the diagonal (126 read as a fisheye)
   rect.cx = 959.5, rect.cy = 539.5;
   rect.lens.model = Lens::Model::Fisheye;
   const std::string w = lens_warning(rect);
