@@ -51,6 +51,20 @@ Eigen::Vector2d project(const Eigen::Matrix3d& K, const Eigen::Matrix3d& R, cons
   return p.head<2>() / p.z();
 }
 
+// (half diagonal / f)^2: k1 times this is the radial bend at the frame's half diagonal.
+double bend_scale(const Camera& c) { return 0.25 * (double(c.width) * c.width + double(c.height) * c.height) / (c.fx * c.fy); }
+
+// How far (pixels) the lens of `c` folds inside its frame: 0 while the radius still grows at the
+// farthest corner. A barrier residual keeps the adjustment out of folding lenses.
+double fold_inside_px(const Camera& c) {
+  const auto lp = lens_params(c);
+  if (c.lens.model != Lens::Model::Radtan || !(lp.limit < 1e29)) return 0;
+  const double r2 = lp.limit, r = std::sqrt(r2);
+  const double rd = r * (1 + r2 * (c.lens.k1 + r2 * (c.lens.k2 + r2 * c.lens.k3)));
+  const double far = std::sqrt(bend_scale(c));
+  return std::max(0.0, 1.05 * far - rd) * c.fx;
+}
+
 struct Problem {
   const Rig* start;
   Layout layout;
@@ -59,6 +73,11 @@ struct Problem {
   std::vector<Eigen::Vector2d> ra, rb;  // raw pixels (the lens path); empty: pinhole residuals
   std::vector<double> w;
   bool lens() const { return !ra.empty(); }
+  int barriers() const {
+    int b = 0;
+    for (int i = 0; i < layout.n; ++i) b += layout.lens_index(i) >= 0 && layout.lens_group[i] == i;
+    return b;
+  }
 
   Model model(const Eigen::VectorXd& x) const {
     Model m;
@@ -81,8 +100,12 @@ struct Problem {
       cc.fx = K(0, 0);
       cc.fy = K(1, 1);
       if (const int l = layout.lens_index(i); l >= 0) {
-        cc.lens.k1 = x[l];
-        if (layout.lens_count(i) > 1) cc.lens.k2 = x[l + 1];
+        // The unknowns are the bend at the half diagonal under the current focal (d1 = k1 s^2,
+        // d2 = k2 s^4, s = half diagonal / f): a focal change then leaves the raw-pixel
+        // distortion as it was instead of trading off against k1.
+        const double s2 = bend_scale(cc);
+        cc.lens.k1 = x[l] / s2;
+        if (layout.lens_count(i) > 1) cc.lens.k2 = x[l + 1] / (s2 * s2);
       }
       m.cam.push_back(cc);
     }
@@ -126,9 +149,16 @@ struct Functor {
   enum { InputsAtCompileTime = Eigen::Dynamic, ValuesAtCompileTime = Eigen::Dynamic };
   const Problem* problem;
   int inputs() const { return problem->layout.size(); }
-  int values() const { return int(4 * problem->pa.size()); }
+  int values() const { return int(4 * problem->pa.size() + problem->barriers()); }
   int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
     problem->residuals(x, f);
+    if (const int b = problem->barriers()) {
+      const Model m = problem->model(x);
+      int k = int(4 * problem->pa.size());
+      for (int i = 0; i < problem->layout.n; ++i)
+        if (problem->layout.lens_index(i) >= 0 && problem->layout.lens_group[i] == i) f[k++] = 10 * fold_inside_px(m.cam[i]);
+      (void)b;
+    }
     return 0;
   }
 };
@@ -162,6 +192,77 @@ bool spread_for_k2(const Camera& c, const Problem& p, int group) {
         outer += std::hypot(q.x() - c.cx, q.y() - c.cy) > 0.6 * half_diag;
       }
   return outer >= 20;
+}
+
+// Robust cost of a fit over all its matches: squared transfer errors truncated at `cap_px`,
+// so that matches a candidate cannot explain (or cannot unproject) count the same for every one.
+double truncated_cost(const Problem& p, const Eigen::VectorXd& x, double cap_px) {
+  Eigen::VectorXd f(4 * p.pa.size());
+  p.residuals(x, f);
+  double cost = 0;
+  for (std::size_t k = 0; k < p.pa.size(); ++k) {
+    const double e2 = f.segment<4>(4 * k).squaredNorm() / (2 * p.w[k] * p.w[k]);
+    cost += std::isfinite(e2) ? std::min(e2, cap_px * cap_px) : cap_px * cap_px;
+  }
+  return cost;
+}
+
+// Distortion and focal length trade off, and from k = 0 a strong barrel lens runs the focal off
+// (k1 -0.35: f x60 and a folding lens). So before the joint fit, sweep one distortion for every
+// estimating camera, as d = k1 (r/f)^2 at the half diagonal r (the same bend whatever the focal),
+// fit rotations and focal lengths with the lens held, and start from the candidate whose
+// truncated cost is lowest (coarse grid, then a finer one around the best).
+double sweep_lens_start(const Problem& full, Eigen::VectorXd& x, double cap_px, int max_iterations) {
+  std::vector<int> est;
+  for (int i = 0; i < full.layout.n; ++i)
+    if (full.layout.lens_index(i) >= 0 && full.layout.lens_group[i] == i) est.push_back(i);
+  if (est.empty()) return 0;
+  auto k1_of = [&](int i, double d) {
+    const Camera& c = full.start->cameras[i];
+    return d / bend_scale(c);
+  };
+  auto try_d = [&](double d, Eigen::VectorXd& xo) {
+    Rig held = *full.start;
+    for (int i = 0; i < full.layout.n; ++i) {
+      const int g = full.layout.lens_group.empty() ? i : full.layout.lens_group[i];
+      if (full.layout.lens_index(i) < 0) continue;
+      held.cameras[i].lens.k1 = k1_of(g, d);
+      held.cameras[i].lens.k2 = 0;
+    }
+    Problem q = full;
+    q.start = &held;
+    q.layout.lens_k.clear();
+    q.layout.lens_group.clear();
+    Eigen::VectorXd xq = x.head(q.layout.base_size());
+    Functor fn{&q};
+    Eigen::NumericalDiff<Functor> numdiff(fn);
+    Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
+    lm.parameters.maxfev = std::min(max_iterations, 30) * (q.layout.size() + 1);  // a ranking, not the fit
+    lm.minimize(xq);
+    if (!xq.allFinite()) return 1e300;
+    const double cost = truncated_cost(q, xq, cap_px);
+    xo = x;
+    xo.head(q.layout.base_size()) = xq;
+    for (int i = 0; i < full.layout.n; ++i)
+      if (const int l = full.layout.lens_index(i); l >= 0 && full.layout.lens_group[i] == i) {
+        xo[l] = d;  // the bend is what was held (k1 follows the fitted focal)
+        if (full.layout.lens_count(i) > 1) xo[l + 1] = 0;
+      }
+    return cost;
+  };
+  double best_d = 0, best = 1e300;
+  Eigen::VectorXd best_x = x, xo;
+  auto consider = [&](double d) {
+    const double c = try_d(d, xo);
+    if (c < best) best = c, best_d = d, best_x = xo;
+  };
+  for (double d = -0.32; d <= 0.161; d += 0.04) consider(d);
+  const double centre = best_d;
+  for (double d : {centre - 0.02, centre + 0.02}) consider(d);
+  const double centre2 = best_d;
+  for (double d : {centre2 - 0.01, centre2 + 0.01}) consider(d);
+  x = best_x;
+  return best_d;
 }
 
 }  // namespace
@@ -224,12 +325,17 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
   Eigen::VectorXd x = Eigen::VectorXd::Zero(p.layout.size());
   for (int i = 0; i < n; ++i)
     if (const int l = p.layout.lens_index(i); l >= 0) {
-      x[l] = rig.cameras[i].lens.k1;
-      if (p.layout.lens_count(i) > 1) x[l + 1] = rig.cameras[i].lens.k2;
+      const double s2 = bend_scale(rig.cameras[i]);
+      x[l] = rig.cameras[i].lens.k1 * s2;
+      if (p.layout.lens_count(i) > 1) x[l + 1] = rig.cameras[i].lens.k2 * s2 * s2;
     }
   Eigen::VectorXd f(4 * p.pa.size());
   p.residuals(x, f);
   rep.rms_before_px = rms(f);
+  bool from_zero = !p.layout.lens_k.empty();
+  for (int i = 0; i < n; ++i)
+    if (const int l = p.layout.lens_index(i); l >= 0) from_zero &= x[l] == 0 && (p.layout.lens_count(i) < 2 || x[l + 1] == 0);
+  if (from_zero && o.sweep_lens) rep.lens_sweep_d = sweep_lens_start(p, x, o.outlier_px, o.max_iterations);
   for (int round = 0; round < 2; ++round) {
     Functor fn{&p};
     Eigen::NumericalDiff<Functor> numdiff(fn);
@@ -241,6 +347,10 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     // Drop the matches the fit does not explain (false matches, parallax) and fit again.
     f.resize(4 * p.pa.size());
     p.residuals(x, f);
+    // Estimating lenses: sub-pixel fits, where matches a few pixels off (kept by the loose
+    // first-pass RANSAC) bias k2 and the focal; cut at 4x the rms (at least 1 px) instead.
+    const double cut_px =
+        p.layout.lens_k.empty() ? o.outlier_px : std::min(o.outlier_px, std::max(1.0, 4 * rms(f)));
     Problem kept = p;
     kept.cams.clear();
     kept.pa.clear();
@@ -249,7 +359,7 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     kept.ra.clear();
     kept.rb.clear();
     for (std::size_t k = 0; k < p.pa.size(); ++k) {
-      if (f.segment<4>(4 * k).norm() > o.outlier_px * std::sqrt(2.0) * p.w[k]) continue;
+      if (f.segment<4>(4 * k).norm() > cut_px * std::sqrt(2.0) * p.w[k]) continue;
       kept.cams.push_back(p.cams[k]);
       kept.pa.push_back(p.pa[k]);
       kept.pb.push_back(p.pb[k]);

@@ -35,6 +35,9 @@ struct BundleAdjustOptions {
   // Cameras of the same lens model and frame size that all estimate share one k1 (k2): fewer
   // unknowns for a rig of identical cameras. Off by default (per-camera lenses measured as well).
   bool shared_lens = false;
+  // Lenses estimated from zero coefficients start from a 1-D sweep of the distortion (the focal
+  // and rotations fitted for each candidate) instead of k = 0.
+  bool sweep_lens = true;
 };
 
 struct BundleAdjustReport {
@@ -43,6 +46,7 @@ struct BundleAdjustReport {
   bool ok = false;
   bool lens = false;                 // the residuals went through the cameras' lenses (raw pixels)
   std::vector<int> lens_estimated;   // cameras whose k1 (k2) the adjustment estimated
+  double lens_sweep_d = 0;            // the sweep's pick: k1 (r/f)^2 at the half diagonal (0: no sweep)
   std::string lens_warning;          // an estimate that folded the image and was dropped
 };
 

@@ -229,6 +229,9 @@ CalibrationResult calibrate(const SessionConfig& s, const std::optional<Rig>& ro
   // from the rig's field of view.
   CalibrationOptions options = s.options;
   options.projection = s.projection;
+  // The lens-from-evidence fit is a second whole calibration: too slow for a live session's
+  // attempts (2x per attempt). Sessions calibrate pinhole unless the rig gives a lens.
+  options.lens_from_evidence = false;
   return calibrate_from_images(sets, s.reference, options);
 }
 

@@ -359,9 +359,12 @@ FeatureSets detect_all(const std::vector<std::vector<ImageView>>& sets, int n, c
 
 // `predicted`: the rough a -> b homography; matches farther than `tolerance` px from it are
 // dropped (a repeated texture elsewhere in the view would pull the pair together wrongly).
+constexpr double kLensUnknownRansacScale = 4.0;
+
 // `lens_rig`: cameras whose lenses undistort the keypoints before every fit (null: pinhole).
 PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOptions& o,
-                    const Eigen::Matrix3d* predicted, double tolerance, const Rig* lens_rig = nullptr) {
+                    const Eigen::Matrix3d* predicted, double tolerance, const Rig* lens_rig = nullptr,
+                    double ransac_scale = 1.0) {
   PairData p;
   p.a = a;
   p.b = b;
@@ -385,7 +388,7 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
     return p;
   }
   std::vector<uchar> inl;
-  cv::Mat H = cv::findHomography(pa, pb, cv::RANSAC, o.ransac_threshold_px, inl, 2000, 0.995);
+  cv::Mat H = cv::findHomography(pa, pb, cv::RANSAC, o.ransac_threshold_px * ransac_scale, inl, 2000, 0.995);
   if (H.empty()) {
     p.note = "no consistent homography in " + std::to_string(pa.size()) + " matches";
     return p;
@@ -1010,6 +1013,9 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   for (const auto& c : rough.cameras) have_all &= bool(c.homography);
 
   CalibrationResult res;
+  for (int i = 0; i < n; ++i)
+    if (const std::string w = lens_warning(rough.cameras[i]); !w.empty())
+      res.warnings.push_back("camera " + std::to_string(i) + ": " + w);
   res.rig = rough;
   if (o.refinement == Refinement::None || n < 2) {
     // Rough geometry only.
@@ -1040,7 +1046,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // Matches of every pair that the start says may overlap, checked against it.
   const FeatureSets feats = detect_all(sets, n, o);
   // `lens_rig`: whose lenses undistort the keypoints (the start; again with estimated lenses).
-  auto match_all = [&](const Rig& lens_rig) {
+  auto match_all = [&](const Rig& lens_rig, double ransac_scale = 1.0) {
     std::vector<PairData> out;
     for (int a = 0; a < n; ++a)
       for (int b = a + 1; b < n; ++b) {
@@ -1053,13 +1059,17 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
         }
         const Eigen::Matrix3d predicted = start.planar() ? Eigen::Matrix3d(B.homography->inverse() * *A.homography)
                                                          : rough_pairwise_homography(start, a, b);
-        out.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), &lens_rig));
+        out.push_back(match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), &lens_rig,
+                                 ransac_scale));
       }
     return out;
   };
-  std::vector<PairData> pairs = match_all(start);
   bool estimating = false;
   for (const auto& c : rough.cameras) estimating |= c.lens.estimate && !c.lens.pinhole();
+  // Lenses still unknown: the distorted periphery is off any homography by pixels, and a tight
+  // RANSAC keeps only the matches that fit a wrong (undistorted) model, which then pulls the
+  // lens estimate to a wrong focal. Match loosely; the adjustment drops the outliers.
+  std::vector<PairData> pairs = match_all(start, estimating ? kLensUnknownRansacScale : 1.0);
   std::vector<bool> matched(n, false);
   int held = 0;
   auto count_matched = [&] {
@@ -1218,8 +1228,48 @@ CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, in
   return calibrate_from_images(std::vector<std::vector<ImageView>>{frames}, reference, o);
 }
 
+namespace {
+CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                const CalibrationOptions& o);
+}  // namespace
+
+// The held-out error of a lens fit must fall below this share of the pinhole one (and by at
+// least kLensEvidenceMinPx) before images alone are taken as evidence of distortion.
+constexpr double kLensEvidenceRatio = 0.7, kLensEvidenceMinPx = 0.2;
+
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
+  CalibrationResult pin = calibrate_from_images_pinhole(sets, reference, o);
+  if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
+  // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.
+  Rig rough = pin.rig;
+  for (auto& c : rough.cameras) {
+    c.lens = Lens{};
+    c.lens.model = Lens::Model::Radtan;
+    c.lens.estimate = true;
+  }
+  CalibrationResult lens;
+  try {
+    CalibrationOptions lo = o;
+    lo.model = CameraModel::Rotation;
+    lens = calibrate_from_rig(rough, sets, lo);
+  } catch (const std::exception&) {
+    return pin;  // no usable lens fit: the pinhole result stands
+  }
+  bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
+  for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
+  const double hp = pin.rotation_heldout_px, hl = lens.rotation_heldout_px;
+  if (usable && hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
+    lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(hp) + " px pinhole, " +
+                            std::to_string(hl) + " px with radtan k1/k2): the cameras get radtan lenses");
+    return lens;
+  }
+  return pin;
+}
+
+namespace {
+CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                const CalibrationOptions& o) {
   if (sets.empty()) throw RigError("no frames to calibrate on");
   const std::vector<ImageView>& frames = sets[0];
   const int n = int(frames.size());
@@ -1374,6 +1424,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   fill_reports(res, pairs, use_rotation);
   return res;
 }
+}  // namespace
 
 AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& frames) {
   AlignmentReport rep;

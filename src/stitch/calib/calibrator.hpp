@@ -35,6 +35,10 @@ struct CalibrationOptions {
   double overlap_margin = 0.15;    // widen overlaps by this fraction of the view width
   int min_inliers = 20;            // fewer: keep the previous homography for that view
   double ransac_threshold_px = 3.0;
+  // calibrate_from_images (no rig, so no lens): also fit a radtan k1/k2 lens to every camera and
+  // keep it only when the held-out error clearly drops (issue 15: "when evidence shows
+  // distortion"); undistorted cameras stay pinhole.
+  bool lens_from_evidence = true;
   int max_features = 4000;         // per image and overlap
   double feature_megapixels = 1.0; // larger frames are downscaled for detection
   // Planar canvases: which camera model (see CameraModel). Non-planar rigs: always rotation.

@@ -225,4 +225,25 @@ std::string lens_problem(const Camera& c) {
   return {};
 }
 
+std::string lens_warning(const Camera& c) {
+  if (c.lens.model != Lens::Model::Fisheye || !(c.fx > 0) || !(c.fy > 0)) return {};
+  // theta of the farthest frame corner (or the circle's rim) through the lens.
+  double far = 0;
+  const double xs[2] = {-0.5, c.width - 0.5}, ys[2] = {-0.5, c.height - 0.5};
+  for (double x : xs)
+    for (double y : ys) far = std::max(far, std::hypot((x - c.cx) / c.fx, (y - c.cy) / c.fy));
+  if (c.lens.circle)
+    far = std::min(far, (std::hypot(c.lens.circle->cx - c.cx, c.lens.circle->cy - c.cy) + c.lens.circle->radius) /
+                            std::min(c.fx, c.fy));
+  Eigen::Vector3d ray;
+  const double u = c.cx + far * c.fx, v = c.cy;
+  double theta = far;  // equidistant: theta = theta_d
+  if (lens_unproject(c, {u, v}, ray)) theta = std::acos(std::clamp(ray.z(), -1.0, 1.0));
+  const double fov = 2 * theta * 180 / kPi;
+  if (fov >= kFisheyeMinDiagonalFovDeg) return {};
+  return "the fisheye lens sees only " + std::to_string(int(std::lround(fov))) +
+         " degrees across the frame's diagonal (focal " + std::to_string(int(std::lround(c.fx))) +
+         " px): a rectilinear image given the fisheye model? Use \"radtan\" or \"pinhole\"";
+}
+
 }  // namespace stitch

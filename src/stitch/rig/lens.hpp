@@ -42,4 +42,12 @@ bool lens_sees(const Camera& c, double u, double v);
 // the image, an image circle outside the frame, a negative radius).
 std::string lens_problem(const Camera& c);
 
+// Empty when nothing looks odd; else a warning (not an error: the lens is usable): a fisheye
+// whose frame sees less than `kFisheyeMinDiagonalFovDeg` across its diagonal is most likely a
+// rectilinear image given the fisheye model (its focal length in pixels is that of a normal lens:
+// a rectilinear lens of up to ~100 degrees reads as under 140 through the equidistant model, while
+// fisheyes see 150-220 degrees).
+constexpr double kFisheyeMinDiagonalFovDeg = 140.0;
+std::string lens_warning(const Camera& c);
+
 }  // namespace stitch
