@@ -21,7 +21,10 @@
 #include <string>
 #include <vector>
 
+#include "stitch/cv_interop.hpp"
 #include "stitch/rig/lens.hpp"
+#include "stitch/warp/geometry.hpp"
+#include "stitch/warp/warper.hpp"
 #include "stitch/rig/rig.hpp"
 
 namespace surround {
@@ -74,7 +77,14 @@ inline stitch::Camera load_camera(const std::string& dir, const std::string& nam
   Eigen::Matrix3d Pe;
   cv::cv2eigen(P.reshape(1, 3), Pe);
   Eigen::Matrix3d H = placement(name) * Pe * Kn * c.K().inverse();
-  c.homography = H / H(2, 2);
+  H /= std::abs(H(2, 2));
+  // The set's matrices carry no sign (cv::warpPerspective ignores it); ours must map the ground
+  // in front of the camera to positive w: the image's bottom middle looks down at the ground.
+  Eigen::Vector3d ray;
+  if (stitch::lens_unproject(c, {c.cx, c.height - 1.0}, ray) && ray.z() > 0 &&
+      (H * c.K() * (ray / ray.z())).z() < 0)
+    H = -H;
+  c.homography = H;
   // These lenses' polynomials fold back (theta_d peaks near 109 degrees for `back`) inside the
   // frame's black corners: the image circle ends just before the fold.
   double td_max = 0;
@@ -100,6 +110,50 @@ inline stitch::Rig load_rig(const std::string& dir) {
   return rig;
 }
 
+// Each view warped onto the canvas by our CPU warper (lens + homography), 1:1.
+inline std::vector<cv::Mat> warp_views(const stitch::Rig& rig, std::vector<cv::Mat>& rgba) {
+  const std::vector<stitch::ViewPlacement> views = stitch::place_views(rig, stitch::canvas_geometry(rig));
+  auto warper = stitch::Warper::create(stitch::Backend::Cpu);
+  warper->prepare(views);
+  std::vector<cv::Mat> out;
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    cv::Mat full(rig.canvas_height, rig.canvas_width, CV_8UC4, cv::Scalar::all(0));
+    const stitch::Rect& r = views[i].roi;
+    if (!r.empty()) {
+      cv::Mat roi = full(cv::Rect(r.x, r.y, r.width, r.height));
+      warper->warp(int(i), stitch::as_view(rgba[i]), stitch::as_view(roi));
+    }
+    out.push_back(full);
+  }
+  return out;
+}
+
+// The bird's-eye image the set's way: every camera sees the whole ground plane (the car's body
+// is not in the model), so each is kept to its side (front: y < yt, back: y >= yb, left: x < xl,
+// right: x >= xr) and the four corners, where two sides meet, blend them by distance to the
+// sides' inner edges (the set's own corner blend is by masks drawn for this car). The default
+// compositor picks by lens position weight, which on this rig favours far-field views.
+inline cv::Mat compose_birdseye(const std::vector<cv::Mat>& warped) {
+  cv::Mat out(kTotalH, kTotalW, CV_8UC4, cv::Scalar::all(0));
+  const int xr = kTotalW - kXl, yb = kTotalH - kYt;
+  for (int y = 0; y < kTotalH; ++y)
+    for (int x = 0; x < kTotalW; ++x) {
+      // front 0, back 1, left 2, right 3: how far inside each side's strip.
+      const double in[4] = {double(kYt - y), double(y - yb + 1), double(kXl - x), double(x - xr + 1)};
+      double wsum = 0, acc[4] = {0, 0, 0, 0};
+      for (int c = 0; c < 4; ++c) {
+        if (in[c] <= 0) continue;
+        const cv::Vec4b v = warped[c].at<cv::Vec4b>(y, x);
+        if (v[0] == 0 && v[1] == 0 && v[2] == 0) continue;  // that view has nothing here
+        for (int k = 0; k < 4; ++k) acc[k] += in[c] * v[k];
+        wsum += in[c];
+      }
+      if (wsum > 0)
+        for (int k = 0; k < 4; ++k) out.at<cv::Vec4b>(y, x)[k] = cv::saturate_cast<uchar>(acc[k] / wsum);
+    }
+  return out;
+}
+
 // The camera's image undistorted to a pinhole of focal `f` (same size, same centre) with our lens
 // model (stitch::lens_project), for measuring straightness.
 inline cv::Mat undistort(const stitch::Camera& c, const cv::Mat& raw, double f) {
@@ -121,14 +175,54 @@ struct Straightness {
   int lines = 0;            // long edge segments measured
   double median_px = 0;     // median over the lines of the worst deviation from the fitted line
   double worst_px = 0;      // the worst
+  std::vector<std::vector<cv::Point2f>> points;  // each line's edge points
 };
+
+// How far `pts` stray from their line (a robust fit): the 90th percentile of the distances, so
+// that a stray gradient peak (a checker corner, texture) does not count as a bend.
+inline double line_deviation(const std::vector<cv::Point2f>& pts) {
+  cv::Vec4f l;
+  cv::fitLine(pts, l, cv::DIST_HUBER, 0, 0.01, 0.01);
+  std::vector<double> d;
+  for (const auto& p : pts) d.push_back(std::abs((p.x - l[2]) * -l[1] + (p.y - l[3]) * l[0]));
+  std::nth_element(d.begin(), d.begin() + d.size() * 9 / 10, d.end());
+  return d[d.size() * 9 / 10];
+}
+
+inline void summarise(Straightness& r, std::vector<double> worst) {
+  r.lines = int(worst.size());
+  if (worst.empty()) return;
+  std::sort(worst.begin(), worst.end());
+  r.median_px = worst[worst.size() / 2];
+  r.worst_px = worst.back();
+}
+
+// The same edge points with the lens ignored: the undistorted image's lines (pinhole of focal f)
+// taken back to the raw image, where they bend.
+inline Straightness raw_straightness(const stitch::Camera& c, double f, const Straightness& undistorted) {
+  Straightness r;
+  std::vector<double> worst;
+  for (const auto& line : undistorted.points) {
+    std::vector<cv::Point2f> raw;
+    for (const auto& p : line) {
+      Eigen::Vector2d q;
+      if (stitch::lens_project(c, Eigen::Vector3d((p.x - c.cx) / f, (p.y - c.cy) / f, 1.0), q))
+        raw.emplace_back(float(q.x()), float(q.y()));
+    }
+    if (raw.size() < 10) continue;
+    worst.push_back(line_deviation(raw));
+    r.points.push_back(raw);
+  }
+  summarise(r, worst);
+  return r;
+}
 
 // Straightness of the long edges of `img` (a calibration mat's checker edges): line segments
 // (cv::HoughLinesP on Canny edges, >= min_len px); along each, the sub-pixel position of the edge
 // (the gradient peak across the line, +-band px) at every pixel; a least-squares line through
 // those; each line's worst deviation from it. A curved edge (a lens left in) deviates by its
 // sagitta, up to the band.
-inline Straightness measure_straightness(const cv::Mat& img, double min_len = 120, int band = 8) {
+inline Straightness measure_straightness(const cv::Mat& img, double min_len = 100, int band = 6) {
   cv::Mat gray, blur, edges, gx, gy;
   if (img.channels() == 4) cv::cvtColor(img, gray, cv::COLOR_BGRA2GRAY);
   else if (img.channels() == 3) cv::cvtColor(img, gray, cv::COLOR_BGR2GRAY);
@@ -157,6 +251,7 @@ inline Straightness measure_straightness(const cv::Mat& img, double min_len = 12
     if (!dup) kept.push_back(s);
   }
   std::vector<double> worst;
+  std::vector<std::vector<cv::Point2f>> lines;
   for (const auto& s : kept) {
     const Eigen::Vector2d p0(s[0], s[1]), p1(s[2], s[3]);
     const double len = (p1 - p0).norm();
@@ -182,19 +277,12 @@ inline Straightness measure_straightness(const cv::Mat& img, double min_len = 12
       pts.emplace_back(float(q.x()), float(q.y()));
     }
     if (pts.size() < 0.6 * len) continue;  // the edge is not there along most of the segment
-    cv::Vec4f l;
-    cv::fitLine(pts, l, cv::DIST_L2, 0, 0.01, 0.01);
-    double w = 0;
-    for (const auto& p : pts) w = std::max(w, double(std::abs((p.x - l[2]) * -l[1] + (p.y - l[3]) * l[0])));
-    worst.push_back(w);
+    worst.push_back(line_deviation(pts));
+    lines.push_back(pts);
   }
   Straightness r;
-  r.lines = int(worst.size());
-  if (!worst.empty()) {
-    std::sort(worst.begin(), worst.end());
-    r.median_px = worst[worst.size() / 2];
-    r.worst_px = worst.back();
-  }
+  r.points = lines;
+  summarise(r, worst);
   return r;
 }
 

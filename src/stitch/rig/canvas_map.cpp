@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 
 #include "stitch/rig/lens.hpp"
 #include "stitch/rig/projection_math.hpp"
@@ -210,9 +211,10 @@ std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
     const Camera& c = rig.cameras[static_cast<std::size_t>(cam)];
     const Eigen::Matrix3d HK = *c.homography * c.K();
     std::vector<Eigen::Vector2d> out;
-    for (const auto& p : border_samples(c)) {
+    bool lost = false;
+    auto add = [&](const Eigen::Vector2d& p) {
       Eigen::Vector3d ray;
-      if (!lens_unproject(c, p, ray)) continue;
+      if (!lens_unproject(c, p, ray)) return;
       const double theta = std::atan2(ray.head<2>().norm(), ray.z());
       if (theta > kPlaneMaxTheta) {
         const Eigen::Vector2d dir = ray.head<2>().normalized();
@@ -220,6 +222,20 @@ std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
       }
       Eigen::Vector2d q;
       if (apply_in_front(HK, (ray.head<2>() / ray.z()).eval(), q)) out.push_back(q);
+      else lost = true;
+    };
+    for (const auto& p : border_samples(c)) add(p);
+    if (lost) {
+      // Part of the view lies past the plane's horizon (a fisheye over the ground): its border
+      // no longer bounds what lands on the canvas. The convex hull of a grid over the image does.
+      for (int j = 1; j < kOutlineSteps; ++j)
+        for (int i = 1; i < kOutlineSteps; ++i)
+          add({(c.width - 1.0) * i / kOutlineSteps, (c.height - 1.0) * j / kOutlineSteps});
+      std::vector<cv::Point2f> pts, hull;
+      for (const auto& q : out) pts.emplace_back(float(q.x()), float(q.y()));
+      if (pts.size() >= 3) cv::convexHull(pts, hull);
+      out.clear();
+      for (const auto& h : hull) out.emplace_back(h.x, h.y);
     }
     return out;
   }

@@ -383,13 +383,15 @@ std::string camera_homography_problem(const Camera& c) {
   const Eigen::Matrix3d& H = *c.homography;
   if (c.lens.pinhole() && !c.lens.circle) return homography_problem(H, c.width, c.height);
   // A lens: H maps ideal pixels, and a wide lens may see past the plane's horizon (a fisheye
-  // over the ground): the frame's corners need not land on the canvas, its centre must.
+  // over the ground): the frame's corners need not land on the canvas, some of the image must
+  // (its centre, or a corner or edge middle).
   if (!H.allFinite()) return "contains NaN or Inf";
   const double det = H.determinant();
   if (!std::isfinite(det) || std::abs(det) < 1e-12) return "singular";
-  const Eigen::Vector3d p = H * Eigen::Vector3d(c.cx, c.cy, 1.0);
-  if (!(p.z() > 1e-9)) return "maps the image centre behind the canvas";
-  return {};
+  for (double y : {0.0, 0.5, 1.0})
+    for (double x : {0.0, 0.5, 1.0})
+      if ((H * Eigen::Vector3d(x * (c.width - 1), y * (c.height - 1), 1.0)).z() > 1e-9) return {};
+  return "maps the whole image behind the canvas";
 }
 
 std::string homography_problem(const Eigen::Matrix3d& H, int width, int height) {
