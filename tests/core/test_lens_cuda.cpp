@@ -1,5 +1,6 @@
 // Lenses on the GPU (issue 15): the CUDA warp and compose of radtan and fisheye rigs (planar
-// and spherical, image circles; cubemap canvases, pinhole too) against the CPU, >= 45 dB. Exits 77 (skipped) without a device.
+// and spherical, image circles; cubemap canvases, pinhole too) against the CPU, >= 45 dB.
+// Exits 77 (skipped) without a device.
 // Links no imgcodecs: it goes to the GPU host with the bundle.
 #include <gtest/gtest.h>
 

@@ -118,8 +118,8 @@ bool rig_adapt_to_sizes(Rig& rig, const std::vector<std::array<int, 2>>& sizes);
 // Empty string when H maps a width x height image to a sane, non-mirrored, finite quad.
 std::string homography_problem(const Eigen::Matrix3d& H, int width, int height);
 // The same for a camera's homography; with a lens (issue 15) H maps ideal pixels and may see past
-// the plane's horizon (a fisheye over the ground), so only a finite, regular H that keeps the
-// image centre in front is asked for.
+// the plane's horizon (a fisheye over the ground), so only a finite, regular H that keeps some of
+// the image (its centre, a corner or an edge's middle) in front is asked for.
 std::string camera_homography_problem(const Camera& c);
 
 Eigen::Vector2d apply_homography(const Eigen::Matrix3d& H, const Eigen::Vector2d& p);
