@@ -21,6 +21,9 @@
  * `stitchsync name=s ! stitchcalib load-file=dual_fisheye.json ! stitchblend ! videoconvert !
  * video/x-raw,format=I420 ! x264enc ! stitch360sink location=sphere.mp4` with the two cameras
  * linked to `s.sink_0` and `s.sink_1`.
+ *
+ * `projection=cubemap` marks a `"projection": "cubemap"` rig's 3x2 output (V2 `cbmp` layout 0;
+ * V1 has no cubemap, so `metadata=both` writes V2 alone).
  */
 #include "gststitch360sink.h"
 
@@ -31,7 +34,7 @@
 GST_DEBUG_CATEGORY_STATIC(gst_stitch_360_sink_debug);
 #define GST_CAT_DEFAULT gst_stitch_360_sink_debug
 
-enum { PROP_0, PROP_LOCATION, PROP_METADATA };
+enum { PROP_0, PROP_LOCATION, PROP_METADATA, PROP_PROJECTION };
 
 enum Stitch360Metadata { METADATA_BOTH = 0, METADATA_V2 = 1, METADATA_V1 = 2 };
 #define DEFAULT_METADATA METADATA_BOTH
@@ -43,10 +46,23 @@ struct _GstStitch360Sink {
   GstPad* ghost;
   gchar* location;  // settings
   int metadata;
+  int projection;  // stitch::SphericalMetadata::Projection
 };
 
 G_DEFINE_TYPE(GstStitch360Sink, gst_stitch_360_sink, GST_TYPE_BIN);
 GST_ELEMENT_REGISTER_DEFINE(stitch360sink, "stitch360sink", GST_RANK_NONE, GST_TYPE_STITCH_360_SINK);
+
+static GType stitch_360_projection_get_type() {
+  static GType type = 0;
+  static const GEnumValue values[] = {
+      {int(stitch::SphericalMetadata::Projection::Equirectangular), "Equirectangular (2:1 sphere, V2 equi + V1)",
+       "equirectangular"},
+      {int(stitch::SphericalMetadata::Projection::Cubemap),
+       "Cubemap, 3x2 faces right left up / down front back (a \"cubemap\" rig; V2 cbmp layout 0, no V1)", "cubemap"},
+      {0, nullptr, nullptr}};
+  if (g_once_init_enter(&type)) g_once_init_leave(&type, g_enum_register_static("GstStitch360Projection", values));
+  return type;
+}
 
 static GType stitch_360_metadata_get_type() {
   static GType type = 0;
@@ -67,6 +83,7 @@ static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
 
 static void gst_stitch_360_sink_init(GstStitch360Sink* self) {
   self->metadata = DEFAULT_METADATA;
+  self->projection = int(stitch::SphericalMetadata::Projection::Equirectangular);
   self->location = nullptr;
   self->mux = gst_element_factory_make("mp4mux", "mux");
   self->sink = gst_element_factory_make("filesink", "sink");
@@ -108,6 +125,11 @@ static void gst_stitch_360_sink_set_property(GObject* object, guint id, const GV
       self->metadata = g_value_get_enum(value);
       GST_OBJECT_UNLOCK(self);
       break;
+    case PROP_PROJECTION:
+      GST_OBJECT_LOCK(self);
+      self->projection = g_value_get_enum(value);
+      GST_OBJECT_UNLOCK(self);
+      break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, id, pspec);
   }
 }
@@ -118,6 +140,7 @@ static void gst_stitch_360_sink_get_property(GObject* object, guint id, GValue* 
   switch (id) {
     case PROP_LOCATION: g_value_set_string(value, self->location); break;
     case PROP_METADATA: g_value_set_enum(value, self->metadata); break;
+    case PROP_PROJECTION: g_value_set_enum(value, self->projection); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, id, pspec);
   }
   GST_OBJECT_UNLOCK(self);
@@ -142,8 +165,13 @@ static void gst_stitch_360_sink_handle_message(GstBin* bin, GstMessage* message)
     GST_OBJECT_LOCK(self);
     const std::string location = self->location ? self->location : "";
     const int which = self->metadata;
+    const int projection = self->projection;
     GST_OBJECT_UNLOCK(self);
     stitch::SphericalMetadata meta;
+    meta.projection = stitch::SphericalMetadata::Projection(projection);
+    if (which == METADATA_V1 && meta.projection == stitch::SphericalMetadata::Projection::Cubemap)
+      GST_ELEMENT_WARNING(self, STREAM, FORMAT, ("metadata=v1 cannot describe a cubemap: the file gets no metadata"),
+                          ("use metadata=v2 or both (V2 cbmp)"));
     meta.v1 = which != METADATA_V2;
     meta.v2 = which != METADATA_V1;
     negotiated_size(self, meta.source_width, meta.source_height);
@@ -194,6 +222,12 @@ static void gst_stitch_360_sink_class_init(GstStitch360SinkClass* klass) {
       g_param_spec_enum("metadata", "Metadata", "Which Spherical Video metadata to write", stitch_360_metadata_get_type(),
                         DEFAULT_METADATA,
                         GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS | GST_PARAM_MUTABLE_READY)));
+  g_object_class_install_property(
+      gobject_class, PROP_PROJECTION,
+      g_param_spec_enum("projection", "Projection",
+                        "The panorama's projection: equirectangular (a spherical rig) or cubemap (a cubemap rig)",
+                        stitch_360_projection_get_type(), int(stitch::SphericalMetadata::Projection::Equirectangular),
+                        GParamFlags(G_PARAM_READWRITE | G_PARAM_STATIC_STRINGS | GST_PARAM_MUTABLE_READY)));
   element_class->change_state = gst_stitch_360_sink_change_state;
   bin_class->handle_message = gst_stitch_360_sink_handle_message;
   gst_element_class_add_static_pad_template(element_class, &sink_template);
@@ -202,5 +236,6 @@ static void gst_stitch_360_sink_class_init(GstStitch360SinkClass* klass) {
                                         "360-degree video that players recognise",
                                         "gst-stitch");
   gst_type_mark_as_plugin_api(stitch_360_metadata_get_type(), GstPluginAPIFlags(0));
+  gst_type_mark_as_plugin_api(stitch_360_projection_get_type(), GstPluginAPIFlags(0));
   GST_DEBUG_CATEGORY_INIT(gst_stitch_360_sink_debug, "stitch360sink", 0, "360-degree MP4 sink");
 }

@@ -255,6 +255,7 @@ static GType projection_get_type(void) {
       {int(stitch::Projection::Plane), "The reference camera's image plane (homographies)", "plane"},
       {int(stitch::Projection::Cylindrical), "Cylinder about the rig's vertical axis", "cylindrical"},
       {int(stitch::Projection::Spherical), "Sphere, equirectangular", "spherical"},
+      {int(stitch::Projection::Cubemap), "Cube, 3x2 faces (Spherical Video V2 cbmp layout 0)", "cubemap"},
       {0, NULL, NULL}};
   if (g_once_init_enter(&type)) {
     GType t = g_enum_register_static("GstStitchCalibProjection", values);

@@ -63,6 +63,36 @@ inline cv::Mat equirect_ground_truth(const cv::Mat& pano, const stitch::Rig& rig
   return out;
 }
 
+// The ground truth of a cubemap canvas (laid out, issue 15): each canvas pixel's ray looked up in
+// the panorama; black off the cube's layout.
+inline cv::Mat cubemap_ground_truth(const cv::Mat& pano, const stitch::Rig& rig) {
+  cv::Mat mx(rig.canvas_height, rig.canvas_width, CV_32F), my(rig.canvas_height, rig.canvas_width, CV_32F);
+  for (int y = 0; y < mx.rows; ++y)
+    for (int x = 0; x < mx.cols; ++x) {
+      double rx, ry, rz, a, b;
+      stitch_projection::angles_to_ray(stitch_projection::kCubemap, (x - rig.canvas_origin_x) / rig.canvas_scale,
+                                       (y - rig.canvas_origin_y) / rig.canvas_scale, rx, ry, rz);
+      if (!stitch_projection::ray_to_angles(stitch_projection::kSpherical, rx, ry, rz, a, b)) {
+        mx.at<float>(y, x) = my.at<float>(y, x) = -1e6f;
+        continue;
+      }
+      equirect_pixel(pano, a, b, mx.at<float>(y, x), my.at<float>(y, x));
+    }
+  cv::Mat out;
+  cv::remap(pano, out, mx, my, cv::INTER_LINEAR, cv::BORDER_WRAP);
+  return out;
+}
+
+// A laid-out copy of `rig` on another canvas projection (its own scale unless `scale` > 0).
+inline stitch::Rig reprojected(stitch::Rig rig, const std::string& projection, double scale = 0) {
+  rig.projection = projection;
+  rig.canvas_scale = scale;
+  rig.canvas_width = rig.canvas_height = 0;
+  rig.canvas_wrap = false;
+  stitch::rig_layout_canvas(rig);
+  return rig;
+}
+
 // The ground truth of a plane canvas (laid out): canvas pixel -> reference ideal pixel -> ray -> the panorama.
 inline cv::Mat plane_ground_truth(const cv::Mat& pano, const stitch::Rig& rig) {
   const stitch::Camera& ref = rig.cameras[rig.reference];

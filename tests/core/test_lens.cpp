@@ -394,3 +394,139 @@ TEST(Lens, OverlapAndOutlinesFollowTheLens) {
   rig_compute_rough_homographies(plain);
   for (const auto& v : place_views(plain, canvas_geometry(plain))) EXPECT_FALSE(v.has_lens());
 }
+
+// Cubemap canvas (issue 15): Spherical Video V2 cbmp layout 0, every face where the layout says,
+// rays round-trip, neighbouring faces meet pixel to pixel at all 12 cube edges, and a dual
+// fisheye stitched to a cubemap matches the cubemap ground truth of the photo.
+TEST(Lens, CubemapFacesRoundTripAndMeetAtTheirEdges) {
+  using namespace stitch_projection;
+  // The layout: right left up / down front back; up's top towards the front, down's to the back.
+  const struct {
+    double a, b;
+    Eigen::Vector3d ray;
+  } spec[] = {{1, 1, {1, 0, 0}},          {3, 1, {-1, 0, 0}},         {5, 1, {0, -1, 0}},
+              {1, 3, {0, 1, 0}},          {3, 3, {0, 0, 1}},          {5, 3, {0, 0, -1}},
+              {5, 1e-9, {0, -1, 1}},      {1, 2 + 1e-9, {0, 1, -1}},  {4 - 1e-9, 3, {1, 0, 1}},
+              {1e-9, 1, {1, 0, 1}},       {2 + 1e-9, 3, {-1, 0, 1}},  {3, 4 - 1e-9, {0, 1, 1}}};
+  for (const auto& e : spec) {
+    Eigen::Vector3d r;
+    angles_to_ray(kCubemap, e.a, e.b, r.x(), r.y(), r.z());
+    EXPECT_LT((r.normalized() - e.ray.normalized()).norm(), 1e-6) << e.a << "," << e.b;
+  }
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g(0, 1);
+  for (int i = 0; i < 2000; ++i) {
+    const Eigen::Vector3d r(g(rng), g(rng), g(rng));
+    double a, b;
+    ASSERT_TRUE(ray_to_angles(kCubemap, r.x(), r.y(), r.z(), a, b));
+    EXPECT_TRUE(a >= 0 && a <= 6 && b >= 0 && b <= 4);
+    Eigen::Vector3d back;
+    angles_to_ray(kCubemap, a, b, back.x(), back.y(), back.z());
+    EXPECT_LT((back.normalized() - r.normalized()).norm(), 1e-12);
+  }
+  double off_x, off_y, off_z;
+  angles_to_ray(kCubemap, 6.1, 1.0, off_x, off_y, off_z);
+  EXPECT_EQ(off_x * off_x + off_y * off_y + off_z * off_z, 0.0) << "off the layout: no ray";
+
+  const cv::Mat photo = testdata::test_photo();
+  const Rig sphere = testdata::dual_fisheye_rig(240, 200);
+  const Rig rig = testdata::reprojected(sphere, "cubemap");
+  const int F = rig.canvas_height / 2;
+  EXPECT_EQ(rig.canvas_width, 3 * F);
+  EXPECT_EQ(F % 2, 0);
+  EXPECT_DOUBLE_EQ(rig.canvas_scale, 0.5 * F);
+  // crop=auto keeps the whole cubemap; each view's rectangle covers what it sees.
+  const Rect crop = largest_covered_rect(rig);
+  EXPECT_EQ(crop.width, rig.canvas_width);
+  EXPECT_EQ(crop.height, rig.canvas_height);
+  const OutputGeometry auto_geom = plan_output(rig, 0, 0, CropMode::Auto);
+  EXPECT_EQ(auto_geom.width, rig.canvas_width);
+  EXPECT_EQ(auto_geom.height, rig.canvas_height);
+  // The JSON keeps it.
+  const Rig loaded = rig_from_json_string(rig_to_json_string(rig));
+  EXPECT_EQ(loaded.projection, "cubemap");
+  EXPECT_DOUBLE_EQ(loaded.canvas_scale, rig.canvas_scale);
+
+  std::vector<cv::Mat> frames;
+  for (const auto& c : rig.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+  const cv::Mat cube = testdata::compose_cpu(rig, frames);
+  ASSERT_EQ(cube.cols, rig.canvas_width);
+  ASSERT_EQ(cube.rows, rig.canvas_height);
+  const cv::Mat gt = testdata::cubemap_ground_truth(photo, rig);
+  cv::Mat all(cube.size(), CV_8U, cv::Scalar(255));
+  const double psnr = testdata::masked_psnr_rgb(cube, gt, all);
+  cv::Mat gray, gt_gray;
+  cv::cvtColor(cube, gray, cv::COLOR_RGBA2GRAY);
+  cv::cvtColor(gt, gt_gray, cv::COLOR_RGBA2GRAY);
+  const int black = cv::countNonZero((gray <= 2) & (gt_gray > 10));  // black where the photo is not
+
+  // Every border pixel of every face: one pixel further along its face's plane lands on the
+  // neighbouring face, within a pixel of its edge, and the border's consecutive pixels stay one
+  // pixel apart there (no jump, no flip). Colours across the edge agree as in the ground truth.
+  auto canvas_of = [&](const Eigen::Vector3d& r) {
+    double a, b;
+    ray_to_angles(kCubemap, r.x(), r.y(), r.z(), a, b);
+    return Eigen::Vector2d(rig.canvas_origin_x + rig.canvas_scale * a, rig.canvas_origin_y + rig.canvas_scale * b);
+  };
+  cv::Mat cube_f, gt_f;
+  gray.convertTo(cube_f, CV_32F);
+  cv::cvtColor(gt, gt_f, cv::COLOR_RGBA2GRAY);
+  gt_f.convertTo(gt_f, CV_32F);
+  auto bilinear = [](const cv::Mat& m, const Eigen::Vector2d& p) {
+    cv::Mat patch;
+    cv::getRectSubPix(m, cv::Size(1, 1), cv::Point2f(float(p.x()), float(p.y())), patch);
+    return double(patch.at<float>(0, 0));
+  };
+  double worst_step = 0, worst_edge = 0, diff_cube = 0, diff_gt = 0;
+  int samples = 0;
+  for (int face = 0; face < 6; ++face)
+    for (int side = 0; side < 4; ++side) {
+      Eigen::Vector2d prev(0, 0);
+      for (int k = 0; k < F; ++k) {
+        // Border pixel (px, py) of the face, and the face coordinates' step across the edge.
+        int px = (face % 3) * F, py = (face / 3) * F;
+        double ds = 0, dt = 0;
+        switch (side) {
+          case 0: px += k, ds = 0, dt = -1; break;             // top
+          case 1: px += F - 1, py += k, ds = 1, dt = 0; break;  // right
+          case 2: px += k, py += F - 1, ds = 0, dt = 1; break;  // bottom
+          default: py += k, ds = -1, dt = 0; break;             // left
+        }
+        const double a = (px - rig.canvas_origin_x) / rig.canvas_scale, b = (py - rig.canvas_origin_y) / rig.canvas_scale;
+        const double s = a - 2 * (face % 3) - 1 + ds * 2.0 / F, t = b - 2 * (face / 3) - 1 + dt * 2.0 / F;
+        Eigen::Vector3d r;
+        cube_face_ray(face, s, t, r.x(), r.y(), r.z());
+        const Eigen::Vector2d q = canvas_of(r);
+        const int qf = int(std::floor((q.x() + 0.5) / F)) + 3 * int(std::floor((q.y() + 0.5) / F));
+        EXPECT_NE(qf, face) << "face " << face << " side " << side;
+        const double fx = std::fmod(q.x() + 0.5, F), fy = std::fmod(q.y() + 0.5, F);
+        const double to_edge = std::min(std::min(fx, F - fx), std::min(fy, F - fy));
+        worst_edge = std::max(worst_edge, to_edge);
+        if (k > 0) worst_step = std::max(worst_step, std::abs((q - prev).norm() - 1.0));
+        prev = q;
+        diff_cube += std::abs(bilinear(cube_f, {double(px), double(py)}) - bilinear(cube_f, q));
+        diff_gt += std::abs(bilinear(gt_f, {double(px), double(py)}) - bilinear(gt_f, q));
+        ++samples;
+      }
+    }
+  diff_cube /= samples;
+  diff_gt /= samples;
+  std::printf("cubemap %dx%d (faces %d) from a dual fisheye 200 deg, 2x 240x240: PSNR vs ground truth %.2f dB, "
+              "black px %d; face edges: neighbour within %.3f px of its edge, along-edge step error %.3f px, "
+              "mean |colour across the edge| %.2f (ground truth %.2f)\n",
+              cube.cols, cube.rows, F, psnr, black, worst_edge, worst_step, diff_cube, diff_gt);
+  EXPECT_LE(worst_edge, 1.0);
+  EXPECT_LE(worst_step, 0.5);
+  EXPECT_LT(std::abs(diff_cube - diff_gt), 3.0);
+  EXPECT_GT(psnr, 24.0);
+  EXPECT_EQ(black, 0) << "the whole cube is covered";
+  // Outlines and overlaps on the cubemap: the back-to-back views share the band at 90 degrees.
+  float area = 0;
+  const auto inter = canvas_overlap(rig, 0, 1, &area);
+  EXPECT_GT(area, 0.f);
+  EXPECT_EQ(inter.size(), 4u);
+  for (int i = 0; i < 2; ++i) {
+    const auto outline = camera_canvas_outline(rig, i);
+    ASSERT_EQ(outline.size(), 4u);
+  }
+}

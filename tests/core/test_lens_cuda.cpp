@@ -1,5 +1,6 @@
 // Lenses on the GPU (issue 15): the CUDA warp and compose of radtan and fisheye rigs (planar
-// and spherical, image circles) against the CPU, >= 45 dB. Exits 77 (skipped) without a device.
+// and spherical, image circles; cubemap canvases, pinhole too) against the CPU, >= 45 dB.
+// Exits 77 (skipped) without a device.
 // Links no imgcodecs: it goes to the GPU host with the bundle.
 #include <gtest/gtest.h>
 
@@ -33,6 +34,21 @@ Rig radtan_plane_rig() {
   return rig;
 }
 
+// Pinhole cameras (no lens: the kernels' plain curved path) around the horizon, on a cubemap.
+Rig pinhole_cubemap_rig() {
+  Rig rig;
+  rig.projection = "cubemap";
+  for (int i = 0; i < 4; ++i) {
+    Camera c;
+    c.width = 400, c.height = 300, c.fx = c.fy = 170, c.cx = 199.5, c.cy = 149.5;
+    c.yaw_deg = 90.0 * i - (i > 1 ? 360.0 : 0.0);
+    c.pitch_deg = i % 2 ? 20.0 : -20.0;
+    rig.cameras.push_back(c);
+  }
+  rig_layout_canvas(rig);
+  return rig;
+}
+
 }  // namespace
 
 TEST(LensCuda, WarpAndComposeMatchCpuForEveryLensModel) {
@@ -44,7 +60,9 @@ TEST(LensCuda, WarpAndComposeMatchCpuForEveryLensModel) {
   };
   std::vector<Case> cases = {{"radtan plane", radtan_plane_rig()},
                              {"dual fisheye 200 sphere", testdata::dual_fisheye_rig(400, 200)},
-                             {"fisheye ring of 4 sphere", testdata::fisheye_ring(4, 300, 190)}};
+                             {"fisheye ring of 4 sphere", testdata::fisheye_ring(4, 300, 190)},
+                             {"dual fisheye 200 cubemap", testdata::reprojected(testdata::dual_fisheye_rig(400, 200), "cubemap")},
+                             {"pinhole ring of 4 cubemap", pinhole_cubemap_rig()}};
   for (auto& cs : cases) {
     std::vector<cv::Mat> frames;
     for (const auto& c : cs.rig.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));

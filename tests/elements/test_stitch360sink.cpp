@@ -135,6 +135,28 @@ TEST(Stitch360Sink, WritesSphericalV1AndV2Boxes) {
   }
 }
 
+// A cubemap rig's 3x2 output: V2 sv3d/proj/cbmp (layout 0, padding 0), no equi, no V1 box.
+TEST(Stitch360Sink, WritesCubemapV2Box) {
+  if (!have("x264enc") || !have("mp4mux")) GTEST_SKIP() << "x264enc or mp4mux missing";
+  const std::string path = (std::filesystem::temp_directory_path() / ("stitch360_cbmp_" + std::to_string(::getpid()) + ".mp4")).string();
+  const std::string err = run("videotestsrc num-buffers=10 ! video/x-raw,width=384,height=256,format=I420 ! x264enc ! "
+                              "stitch360sink projection=cubemap location=" + path);
+  ASSERT_EQ(err, "");
+  const std::vector<uint8_t> d = read_all(path);
+  std::vector<Box> boxes;
+  parse(d, 0, d.size(), "", boxes);
+  const std::string entry = "moov/trak/mdia/minf/stbl/stsd/avc1";
+  EXPECT_TRUE(find(boxes, entry + "/st3d"));
+  EXPECT_TRUE(find(boxes, entry + "/sv3d/proj/prhd"));
+  EXPECT_FALSE(find(boxes, entry + "/sv3d/proj/equi"));
+  const Box* cbmp = find(boxes, entry + "/sv3d/proj/cbmp");
+  ASSERT_TRUE(cbmp);
+  ASSERT_EQ(cbmp->size, 8u + 4u + 8u);
+  for (int k = 12; k < 20; ++k) EXPECT_EQ(d[cbmp->offset + k], 0) << "layout 0, padding 0";
+  EXPECT_FALSE(find(boxes, "moov/trak/uuid")) << "V1 has no cubemap";
+  std::filesystem::remove(path);
+}
+
 TEST(Stitch360Sink, NoLocationIsAnError) {
   if (!have("x264enc")) GTEST_SKIP() << "x264enc missing";
   EXPECT_NE(run("videotestsrc num-buffers=2 ! x264enc ! stitch360sink"), "");

@@ -26,6 +26,7 @@
 
 #include "stitch/calib/calibrator.hpp"
 #include "stitch/cv_interop.hpp"
+#include "lens_rig.hpp"
 #include "stitch/rig/rig.hpp"
 #include "test_data.hpp"
 
@@ -545,6 +546,48 @@ TEST(Ring, SixCamerasAroundStitchOnACylinder) {
   EXPECT_EQ(a.pair_median_px.size(), 6u) << "every neighbouring pair, the one across the wrap too";
   EXPECT_GE(a.median_px, 0);
   EXPECT_LE(a.median_px, 1.0);
+}
+
+// Issue 15: a back-to-back dual fisheye (200 degrees each) rendered from the repository photo
+// taken as a 360-degree panorama, stitched through the elements onto a "cubemap" rig's canvas:
+// the 3x2 cube (Spherical Video V2 cbmp layout 0) against its ground truth.
+TEST(Lens360, DualFisheyeStitchesToACubemap) {
+  if (!std::filesystem::exists(renderer_path())) GTEST_SKIP() << "renderer not built";
+  std::string missing;
+  ASSERT_TRUE(elements_available(missing)) << "GStreamer elements missing: " << missing;
+  const std::string dir = testdata::temp_dir() + "/cubemap";
+  std::filesystem::create_directories(dir);
+  const std::string photo_path = testdata::repo_path("data/photos/boat1_1600.jpg");
+  const int rc = run_command(shell_quote(renderer_path()) + " --photo " + shell_quote(photo_path) +
+                             " --equirect 1 --lens fisheye --fov 200 --cameras 2 --width 320 --height 320 --frames 2 "
+                             "--out " + shell_quote(dir));
+  ASSERT_EQ(rc, 0);
+  const stitch::Rig cube = testdata::reprojected(stitch::rig_load(dir + "/rig_true.json"), "cubemap");
+  stitch::rig_save(cube, dir + "/cube.json");
+  for (int k = 0; k < 2; ++k) std::filesystem::remove(dir + "/cube_" + std::to_string(k) + ".png");
+  const std::string desc = "stitchsync name=s ! stitchcalib load-file=\"" + dir +
+                           "/cube.json\" ! stitchblend name=blend ! videoconvert ! pngenc ! multifilesink location=\"" +
+                           dir + "/cube_%d.png\"" + inputs_avi(dir, 2);
+  const PipelineRun run = run_to_eos(desc, kPipelineTimeoutS);
+  ASSERT_RAN_TO_EOS(run);
+  EXPECT_EQ(run.output_frames, 2);
+  const cv::Mat got = testdata::load_rgba(dir + "/cube_1.png");
+  ASSERT_FALSE(got.empty());
+  EXPECT_EQ(got.cols, cube.canvas_width);
+  EXPECT_EQ(got.rows, cube.canvas_height);
+  EXPECT_EQ(2 * got.cols, 3 * got.rows) << "3x2 square faces";
+  const cv::Mat gt = testdata::cubemap_ground_truth(testdata::load_rgba(photo_path), cube);
+  cv::Mat all(gt.size(), CV_8U, cv::Scalar(255));
+  const double psnr = testdata::masked_psnr_rgb(got, gt, all);
+  cv::Mat gray, gt_gray;
+  cv::cvtColor(got, gray, cv::COLOR_RGBA2GRAY);
+  cv::cvtColor(gt, gt_gray, cv::COLOR_RGBA2GRAY);
+  const int black = cv::countNonZero((gray <= 2) & (gt_gray > 10));  // black where the photo is not
+  std::printf("FIGURE: dual fisheye 200 deg 2x 320x320 (MJPEG) -> cubemap %dx%d through the elements: PSNR vs "
+              "ground truth %.2f dB, black px %d\n",
+              got.cols, got.rows, psnr, black);
+  EXPECT_GT(psnr, 22.0);
+  EXPECT_LT(black, int(gray.total() / 1000)) << "the whole cube is covered";
 }
 
 TEST(RealClips, KarthikThreeCamHouse) {

@@ -34,7 +34,7 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   if (!rig.calibrated()) throw RigError("the rig carries no calibration (homographies and canvas)");
   for (std::size_t i = 0; i < rig.cameras.size() && rig.planar(); ++i) {
     const Camera& c = rig.cameras[i];
-    std::string problem = homography_problem(*c.homography, c.width, c.height);
+    std::string problem = camera_homography_problem(c);  // lens-aware (issue 15)
     if (!problem.empty())
       throw RigError("camera " + std::to_string(i) + ": degenerate homography: " + problem);
   }

@@ -45,8 +45,10 @@ std::vector<uint8_t> v2_boxes(const SphericalMetadata& m) {
   svhd_payload.push_back(0);
   std::vector<uint8_t> prhd_payload(12, 0);  // pose yaw, pitch, roll = 0 (16.16 fixed)
   std::vector<uint8_t> equi_payload(16, 0);  // no crop: bounds top, bottom, left, right = 0
+  std::vector<uint8_t> cbmp_payload(8, 0);   // layout 0 (3 x 2), padding 0
   std::vector<uint8_t> proj_payload = full_box("prhd", prhd_payload);
-  const auto equi = full_box("equi", equi_payload);
+  const auto equi = m.projection == SphericalMetadata::Projection::Cubemap ? full_box("cbmp", cbmp_payload)
+                                                                           : full_box("equi", equi_payload);
   proj_payload.insert(proj_payload.end(), equi.begin(), equi.end());
   std::vector<uint8_t> sv3d_payload = full_box("svhd", svhd_payload);
   const auto proj = box("proj", proj_payload);
@@ -197,7 +199,8 @@ std::string edit_moov(std::vector<uint8_t>& moov, const SphericalMetadata& meta,
     q += h.size;
   }
   const std::vector<uint8_t> v2 = meta.v2 ? v2_boxes(meta) : std::vector<uint8_t>();
-  const std::vector<uint8_t> v1 = meta.v1 ? v1_box(meta) : std::vector<uint8_t>();
+  const bool v1_fits = meta.projection == SphericalMetadata::Projection::Equirectangular;
+  const std::vector<uint8_t> v1 = meta.v1 && v1_fits ? v1_box(meta) : std::vector<uint8_t>();
   // Insert V2 at the end of the sample entry, V1 at the end of the trak (later first, so the
   // earlier offsets stay valid).
   const size_t trak_end = path.trak + rd32(base + path.trak);

@@ -14,6 +14,10 @@
 namespace stitch {
 
 struct SphericalMetadata {
+  // Cubemap (issue 15): V2 `cbmp` layout 0 (3 x 2 faces: right left up / down front back, as a
+  // "cubemap" rig's canvas) instead of `equi`. V1 knows equirectangular only: no V1 box then.
+  enum class Projection { Equirectangular, Cubemap };
+  Projection projection = Projection::Equirectangular;
   bool v1 = true;  // the XML uuid box
   bool v2 = true;  // sv3d + st3d
   std::string software = "gst-stitch";

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 
 #include "stitch/rig/lens.hpp"
 #include "stitch/rig/projection_math.hpp"
@@ -141,6 +142,7 @@ bool CameraCanvasMap::to_camera(const Eigen::Vector2d& canvas, Eigen::Vector2d& 
     Eigen::Vector3d ray;
     stitch_projection::angles_to_ray(static_cast<int>(kind), (canvas.x() - origin_x) / scale, (canvas.y() - origin_y) / scale,
                                      ray.x(), ray.y(), ray.z());
+    if (ray.isZero()) return false;  // off a cubemap's layout
     return lens_project(camera, camera.R().transpose() * ray, pixel);
   }
   if (kind == Projection::Plane) return apply_in_front(H_inv, canvas, pixel);
@@ -162,7 +164,46 @@ CameraCanvasMap camera_canvas_map(const Rig& rig, int cam) {
   return m;
 }
 
+CubeCoverage cube_coverage(const Rig& rig, int cam, int cells_per_face) {
+  const Camera& c = rig.cameras.at(static_cast<std::size_t>(cam));
+  CubeCoverage g;
+  g.cols = 3 * cells_per_face;
+  g.rows = 2 * cells_per_face;
+  g.cell = 2 * rig.canvas_scale / cells_per_face;
+  g.x0 = rig.canvas_origin_x;
+  g.y0 = rig.canvas_origin_y;
+  g.seen.assign(std::size_t(g.cols) * g.rows, 0);
+  for (int j = 0; j < g.rows; ++j)
+    for (int i = 0; i < g.cols; ++i) {
+      Eigen::Vector3d ray;
+      stitch_projection::cube_angles_to_ray(2.0 * (i + 0.5) / cells_per_face, 2.0 * (j + 0.5) / cells_per_face, ray.x(),
+                                            ray.y(), ray.z());
+      g.seen[std::size_t(j) * g.cols + i] = sees(c, ray) ? 1 : 0;
+    }
+  return g;
+}
+
+std::vector<Eigen::Vector2d> cube_cells_box(const CubeCoverage& g, const std::vector<uint8_t>& seen) {
+  int i0 = g.cols, i1 = -1, j0 = g.rows, j1 = -1;
+  for (int j = 0; j < g.rows; ++j)
+    for (int i = 0; i < g.cols; ++i)
+      if (seen[std::size_t(j) * g.cols + i]) {
+        i0 = std::min(i0, i), i1 = std::max(i1, i);
+        j0 = std::min(j0, j), j1 = std::max(j1, j);
+      }
+  if (i1 < 0) return {};
+  // Cell i spans [x0 + i cell, x0 + (i + 1) cell); pixel centres lie half a pixel inside the layout.
+  const double x_lo = g.x0 + 0.5, y_lo = g.y0 + 0.5, x_hi = g.x0 + g.cols * g.cell - 0.5, y_hi = g.y0 + g.rows * g.cell - 0.5;
+  const double xa = std::max(x_lo, g.x0 + (i0 - 1) * g.cell), xb = std::min(x_hi, g.x0 + (i1 + 2) * g.cell);
+  const double ya = std::max(y_lo, g.y0 + (j0 - 1) * g.cell), yb = std::min(y_hi, g.y0 + (j1 + 2) * g.cell);
+  return {{xa, ya}, {xb, ya}, {xb, yb}, {xa, yb}};
+}
+
 std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
+  if (rig.projection_kind() == Projection::Cubemap) {
+    const CubeCoverage g = cube_coverage(rig, cam);
+    return cube_cells_box(g, g.seen);
+  }
   if (rig.planar() && stitch_projection::has_lens(lens_params(rig.cameras.at(static_cast<std::size_t>(cam))))) {
     // The border, undistorted: curved on the canvas. A plane holds no ray at 90 degrees or more,
     // so rays are pulled in to kPlaneMaxTheta from the camera's axis.
@@ -170,9 +211,10 @@ std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
     const Camera& c = rig.cameras[static_cast<std::size_t>(cam)];
     const Eigen::Matrix3d HK = *c.homography * c.K();
     std::vector<Eigen::Vector2d> out;
-    for (const auto& p : border_samples(c)) {
+    bool lost = false;
+    auto add = [&](const Eigen::Vector2d& p) {
       Eigen::Vector3d ray;
-      if (!lens_unproject(c, p, ray)) continue;
+      if (!lens_unproject(c, p, ray)) return;
       const double theta = std::atan2(ray.head<2>().norm(), ray.z());
       if (theta > kPlaneMaxTheta) {
         const Eigen::Vector2d dir = ray.head<2>().normalized();
@@ -180,6 +222,20 @@ std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
       }
       Eigen::Vector2d q;
       if (apply_in_front(HK, (ray.head<2>() / ray.z()).eval(), q)) out.push_back(q);
+      else lost = true;
+    };
+    for (const auto& p : border_samples(c)) add(p);
+    if (lost) {
+      // Part of the view lies past the plane's horizon (a fisheye over the ground): its border
+      // no longer bounds what lands on the canvas. The convex hull of a grid over the image does.
+      for (int j = 1; j < kOutlineSteps; ++j)
+        for (int i = 1; i < kOutlineSteps; ++i)
+          add({(c.width - 1.0) * i / kOutlineSteps, (c.height - 1.0) * j / kOutlineSteps});
+      std::vector<cv::Point2f> pts, hull;
+      for (const auto& q : out) pts.emplace_back(float(q.x()), float(q.y()));
+      if (pts.size() >= 3) cv::convexHull(pts, hull);
+      out.clear();
+      for (const auto& h : hull) out.emplace_back(h.x, h.y);
     }
     return out;
   }
@@ -199,6 +255,18 @@ void layout_projected_canvas(Rig& rig) {
     for (const auto& c : rig.cameras) f.push_back(0.5 * (c.fx + c.fy));
     std::nth_element(f.begin(), f.begin() + n / 2, f.end());
     scale = f[n / 2];
+  }
+  if (rig.projection_kind() == Projection::Cubemap) {
+    // The whole cube, always (a cubemap is only one whole): faces of an even side 2 scale (so
+    // that both canvas sides are even), the layout's top-left pixel edge at the canvas's.
+    const int face = 2 * std::max(1, int(std::lround(scale)));
+    if (3 * face > kMaxSide) throw RigError("degenerate geometry: the cubemap faces would be " + std::to_string(face) + " pixels");
+    rig.canvas_scale = 0.5 * face;
+    rig.canvas_origin_x = rig.canvas_origin_y = -0.5;
+    rig.canvas_wrap = false;
+    rig.canvas_width = 3 * face;
+    rig.canvas_height = 2 * face;
+    return;
   }
   // Outlines with the origin at angles (0, 0), each unwrapped next to the reference view.
   const CameraCanvasMap ref_map = projected_map(rig, rig.cameras[rig.reference], scale, 0, 0);

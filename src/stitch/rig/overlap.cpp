@@ -23,6 +23,18 @@ std::vector<cv::Point2f> canvas_overlap(const Rig& rig, int a, int b, float* are
   if (rig.planar() && rig.cameras.at(a).lens.pinhole() && rig.cameras.at(b).lens.pinhole() &&
       !rig.cameras[a].lens.circle && !rig.cameras[b].lens.circle)
     return canvas_overlap(rig.cameras.at(a), rig.cameras.at(b), area);
+  if (rig.projection_kind() == Projection::Cubemap) {
+    // Footprints fall apart over the faces: the cells both views see, their area and bounding box.
+    const CubeCoverage ga = cube_coverage(rig, a), gb = cube_coverage(rig, b);
+    std::vector<uint8_t> both(ga.seen.size());
+    std::size_t count = 0;
+    for (std::size_t k = 0; k < both.size(); ++k) count += (both[k] = uint8_t(ga.seen[k] && gb.seen[k]));
+    std::vector<cv::Point2f> box;
+    if (count > 0)
+      for (const auto& p : cube_cells_box(ga, both)) box.emplace_back(float(p.x()), float(p.y()));
+    if (area) *area = box.empty() ? 0.f : float(count * ga.cell * ga.cell);
+    return box;
+  }
   // Lenses (curved borders) and non-planar footprints: convex hulls of the outlines.
   auto hull = [&](int cam, double shift) {
     std::vector<cv::Point2f> pts, h;

@@ -16,6 +16,8 @@ std::vector<cv::Point2f> canvas_overlap(const Camera& a, const Camera& b, float*
 // The same for views a and b of a calibrated rig of any projection: non-planar footprints are
 // taken as their convex hulls, and on a wrapping canvas the overlap across the wrap counts
 // (the polygon then reaches outside [0, width); canvas_to_camera maps it periodically).
+// Cubemaps: the area both see (cube_coverage cells) and its bounding box, which may hold pixels
+// only one of them sees: callers check each sample against both views.
 std::vector<cv::Point2f> canvas_overlap(const Rig& rig, int a, int b, float* area = nullptr);
 
 struct OverlapEdge {

@@ -3,7 +3,11 @@
 //
 // Canvas angles (a, b) in radians, rig frame (x right, y down, z forward):
 //   cylindrical: a = longitude (atan2(x, z)), b = height on the unit cylinder (y / hypot(x, z));
-//   spherical (equirectangular): a = longitude, b = latitude (atan2(y, hypot(x, z))), +b is down.
+//   spherical (equirectangular): a = longitude, b = latitude (atan2(y, hypot(x, z))), +b is down;
+//   cubemap: a in [0, 6), b in [0, 4) lay out 3 x 2 cube faces of side 2 (Spherical Video V2
+//     `cbmp` layout 0; cube_face_ray below): face (col, row) = (floor(a / 2), floor(b / 2)), its
+//     point (s, t) = (a - 2 col - 1, b - 2 row - 1) in [-1, 1]^2 (s right, t down on the face).
+//     scale = pixels per unit of a face's tangent plane (half a face side): a face's focal length.
 // A canvas pixel (X, Y) has angles a = (X - origin_x) / scale, b = (Y - origin_y) / scale.
 #pragma once
 
@@ -13,7 +17,7 @@
 
 namespace stitch_projection {
 
-enum Kind : int { kPlane = 0, kCylindrical = 1, kSpherical = 2 };
+enum Kind : int { kPlane = 0, kCylindrical = 1, kSpherical = 2, kCubemap = 3 };
 
 STITCH_HD float p_sin(float x) { return sinf(x); }
 STITCH_HD double p_sin(double x) { return sin(x); }
@@ -25,10 +29,74 @@ STITCH_HD float p_sqrt(float x) { return sqrtf(x); }
 STITCH_HD double p_sqrt(double x) { return sqrt(x); }
 STITCH_HD float p_abs(float x) { return fabsf(x); }
 STITCH_HD double p_abs(double x) { return fabs(x); }
+STITCH_HD float p_floor(float x) { return floorf(x); }
+STITCH_HD double p_floor(double x) { return floor(x); }
+
+// --- cubemap (issue 15) ------------------------------------------------------------------------
+// Faces in the 3 x 2 grid (index col + 3 row), Spherical Video V2 `cbmp` layout 0:
+//   right | left  | up
+//   down  | front | back
+// Each face is what a viewer at the centre sees looking at it; front, left, right and back
+// upright, the up face with its top towards the front, the down face with its top towards the back.
+enum CubeFace : int { kFaceRight = 0, kFaceLeft = 1, kFaceUp = 2, kFaceDown = 3, kFaceFront = 4, kFaceBack = 5 };
+
+// Ray (not normalised; rig frame x right, y down, z forward) of point (s, t) of a face.
+template <typename T>
+STITCH_HD void cube_face_ray(int face, T s, T t, T& x, T& y, T& z) {
+  switch (face) {
+    case kFaceRight: x = T(1), y = t, z = -s; break;
+    case kFaceLeft: x = T(-1), y = t, z = s; break;
+    case kFaceUp: x = -s, y = T(-1), z = -t; break;
+    case kFaceDown: x = -s, y = T(1), z = t; break;
+    case kFaceFront: x = s, y = t, z = T(1); break;
+    default: x = -s, y = t, z = T(-1); break;  // back
+  }
+}
+
+// Cubemap angles (a, b) of the ray (x, y, z): the face its largest component points at.
+template <typename T>
+STITCH_HD bool cube_ray_to_angles(T x, T y, T z, T& a, T& b) {
+  const T ax = p_abs(x), ay = p_abs(y), az = p_abs(z);
+  int face;
+  T s, t;
+  if (ax >= ay && ax >= az) {
+    if (!(ax > T(0))) return false;
+    face = x > T(0) ? kFaceRight : kFaceLeft;
+    s = (x > T(0) ? -z : z) / ax;
+    t = y / ax;
+  } else if (ay >= az) {
+    face = y > T(0) ? kFaceDown : kFaceUp;
+    s = -x / ay;
+    t = y > T(0) ? z / ay : -z / ay;
+  } else {
+    face = z > T(0) ? kFaceFront : kFaceBack;
+    s = z > T(0) ? x / az : -x / az;
+    t = y / az;
+  }
+  a = T(2 * (face % 3) + 1) + s;
+  b = T(2 * (face / 3) + 1) + t;
+  return true;
+}
+
+// The ray of cubemap angles (a, b); the zero ray outside the 3 x 2 layout (no ray there).
+template <typename T>
+STITCH_HD void cube_angles_to_ray(T a, T b, T& x, T& y, T& z) {
+  const T col = p_floor(a * T(0.5)), row = p_floor(b * T(0.5));
+  if (!(col >= T(0) && col <= T(2) && row >= T(0) && row <= T(1))) {
+    x = y = z = T(0);
+    return;
+  }
+  cube_face_ray(int(col) + 3 * int(row), a - T(2) * col - T(1), b - T(2) * row - T(1), x, y, z);
+}
+// --- end cubemap -------------------------------------------------------------------------------
 
 // Direction (not normalised) of the ray with canvas angles (a, b).
 template <typename T>
 STITCH_HD void angles_to_ray(int kind, T a, T b, T& x, T& y, T& z) {
+  if (kind == kCubemap) {
+    cube_angles_to_ray(a, b, x, y, z);
+    return;
+  }
   const T sa = p_sin(a), ca = p_cos(a);
   if (kind == kCylindrical) {
     x = sa;
@@ -45,6 +113,7 @@ STITCH_HD void angles_to_ray(int kind, T a, T b, T& x, T& y, T& z) {
 // Canvas angles of the ray (x, y, z); false on the cylinder's axis (no longitude there).
 template <typename T>
 STITCH_HD bool ray_to_angles(int kind, T x, T y, T z, T& a, T& b) {
+  if (kind == kCubemap) return cube_ray_to_angles(x, y, z, a, b);
   const T r = p_sqrt(x * x + z * z);
   if (kind == kCylindrical && !(r > T(1e-12))) return false;
   a = p_atan2(x, z);
@@ -126,7 +195,10 @@ template <typename T>
 STITCH_HD bool canvas_to_lens_camera(int kind, const T* angle, const T* m, const LensParams<T>& L, T x, T y, T& u,
                                      T& v) {
   T rx = x, ry = y, rz = T(1);
-  if (kind != kPlane) angles_to_ray(kind, angle[0] * x + angle[1], angle[2] * y + angle[3], rx, ry, rz);
+  if (kind != kPlane) {
+    angles_to_ray(kind, angle[0] * x + angle[1], angle[2] * y + angle[3], rx, ry, rz);
+    if (kind == kCubemap && rx == T(0) && ry == T(0) && rz == T(0)) return false;  // off the cube's layout
+  }
   const T X = m[0] * rx + m[1] * ry + m[2] * rz;
   const T Y = m[3] * rx + m[4] * ry + m[5] * rz;
   const T Z = m[6] * rx + m[7] * ry + m[8] * rz;

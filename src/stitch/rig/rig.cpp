@@ -135,9 +135,7 @@ Camera camera_from_json(const json& j, int index) {
       if (!(*it)[k].is_number()) fail(where, "\"homography\" must hold numbers");
       H(k / 3, k % 3) = (*it)[k].get<double>();
     }
-    std::string problem = homography_problem(H, c.width, c.height);
-    if (!problem.empty()) fail(where, "degenerate homography: " + problem);
-    c.homography = H;
+    c.homography = H;  // checked below, with the lens
   }
   // time alignment (stitchsync): an optional integer number of ns, within a day
   if (auto it = j.find("time_offset_ns"); it != j.end()) {
@@ -152,6 +150,10 @@ Camera camera_from_json(const json& j, int index) {
     if (!problem.empty()) fail(where, problem);
   }
   // --- end lens
+  if (c.homography) {
+    const std::string problem = camera_homography_problem(c);
+    if (!problem.empty()) fail(where, "degenerate homography: " + problem);
+  }
   return c;
 }
 
@@ -205,6 +207,7 @@ const char* projection_name(Projection p) {
     case Projection::Plane: return "plane";
     case Projection::Cylindrical: return "cylindrical";
     case Projection::Spherical: return "spherical";
+    case Projection::Cubemap: return "cubemap";
   }
   return "?";
 }
@@ -213,7 +216,8 @@ Projection projection_from_name(const std::string& name) {
   if (name == "plane") return Projection::Plane;
   if (name == "cylindrical") return Projection::Cylindrical;
   if (name == "spherical") return Projection::Spherical;
-  throw RigError("projection \"" + name + "\" is not supported (supported: plane, cylindrical, spherical)");
+  if (name == "cubemap") return Projection::Cubemap;
+  throw RigError("projection \"" + name + "\" is not supported (supported: plane, cylindrical, spherical, cubemap)");
 }
 
 bool Rig::calibrated() const {
@@ -374,6 +378,22 @@ std::array<Eigen::Vector2d, 4> camera_canvas_corners(const Camera& cam) {
           apply_homography(H, {0, h})};
 }
 
+std::string camera_homography_problem(const Camera& c) {
+  if (!c.homography) return "none";
+  const Eigen::Matrix3d& H = *c.homography;
+  if (c.lens.pinhole() && !c.lens.circle) return homography_problem(H, c.width, c.height);
+  // A lens: H maps ideal pixels, and a wide lens may see past the plane's horizon (a fisheye
+  // over the ground): the frame's corners need not land on the canvas, some of the image must
+  // (its centre, or a corner or edge middle).
+  if (!H.allFinite()) return "contains NaN or Inf";
+  const double det = H.determinant();
+  if (!std::isfinite(det) || std::abs(det) < 1e-12) return "singular";
+  for (double y : {0.0, 0.5, 1.0})
+    for (double x : {0.0, 0.5, 1.0})
+      if ((H * Eigen::Vector3d(x * (c.width - 1), y * (c.height - 1), 1.0)).z() > 1e-9) return {};
+  return "maps the whole image behind the canvas";
+}
+
 std::string homography_problem(const Eigen::Matrix3d& H, int width, int height) {
   if (!H.allFinite()) return "contains NaN or Inf";
   const double det = H.determinant();
@@ -408,7 +428,7 @@ void rig_layout_canvas(Rig& rig) {
   for (std::size_t i = 0; i < rig.cameras.size(); ++i) {
     const Camera& c = rig.cameras[i];
     if (!c.homography) throw RigError("camera " + std::to_string(i) + " has no homography");
-    std::string problem = homography_problem(*c.homography, c.width, c.height);
+    std::string problem = camera_homography_problem(c);
     if (!problem.empty())
       throw RigError("camera " + std::to_string(i) + ": degenerate homography: " + problem);
     std::vector<Eigen::Vector2d> outline;  // lens (issue 15): the undistorted border

@@ -8,7 +8,8 @@
 //  * "homography" maps camera pixels to canvas pixels (row-major, 9 numbers), planar rigs only;
 //  * non-planar rigs ("cylindrical", "spherical") map canvas pixels to cameras through K and R:
 //    canvas (X, Y) -> angles a = (X - origin_x) / scale, b = (Y - origin_y) / scale -> rig ray
-//    (projection_math.hpp) -> camera ray R^T ray -> pixel K (R^T ray) (when in front, z > 0).
+//    (projection_math.hpp) -> camera ray R^T ray -> pixel K (R^T ray) (when in front, z > 0);
+//  * "cubemap" (issue 15) the same with cube-face angles: 3 x 2 faces of 2 scale pixels a side.
 #pragma once
 
 #include <Eigen/Core>
@@ -61,7 +62,9 @@ struct Camera {
   void set_R(const Eigen::Matrix3d& R);  // stores R as yaw/pitch/roll (R = Ry Rx Rz)
 };
 
-enum class Projection { Plane, Cylindrical, Spherical };
+// Cubemap (issue 15, optional contract addition): 3 x 2 cube faces, Spherical Video V2 `cbmp`
+// layout 0 (projection_math.hpp); canvas_scale is half a face's side, the origin (-0.5, -0.5).
+enum class Projection { Plane, Cylindrical, Spherical, Cubemap };
 const char* projection_name(Projection p);
 Projection projection_from_name(const std::string& name);  // throws RigError naming the choices
 
@@ -114,6 +117,10 @@ bool rig_adapt_to_sizes(Rig& rig, const std::vector<std::array<int, 2>>& sizes);
 
 // Empty string when H maps a width x height image to a sane, non-mirrored, finite quad.
 std::string homography_problem(const Eigen::Matrix3d& H, int width, int height);
+// The same for a camera's homography; with a lens (issue 15) H maps ideal pixels and may see past
+// the plane's horizon (a fisheye over the ground), so only a finite, regular H that keeps some of
+// the image (its centre, a corner or an edge's middle) in front is asked for.
+std::string camera_homography_problem(const Camera& c);
 
 Eigen::Vector2d apply_homography(const Eigen::Matrix3d& H, const Eigen::Vector2d& p);
 

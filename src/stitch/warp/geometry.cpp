@@ -21,6 +21,8 @@ float view_position_weight(const ViewPlacement& v, double u, double w) {
 }
 
 Rect largest_covered_rect(const Rig& rig) {
+  // A cubemap is only one whole (its faces' layout fixed): never cropped.
+  if (rig.projection_kind() == Projection::Cubemap) return {0, 0, rig.canvas_width, rig.canvas_height};
   // Rasterise the coverage at a reduced scale, then the classic max-rectangle-in-histogram.
   const double scale = std::min(1.0, 1024.0 / std::max(rig.canvas_width, rig.canvas_height));
   const int w = std::max(1, int(rig.canvas_width * scale)), h = std::max(1, int(rig.canvas_height * scale));
