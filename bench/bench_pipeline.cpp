@@ -97,6 +97,8 @@ struct Result {
   std::string error;
 };
 
+std::string g_sync_props;  // --sync PROPS: stitchsync's properties (e.g. time-alignment=auto)
+
 Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, bool cuda_input, bool system_output,
                 const std::string& chain, void* cuda_ctx) {
   Result r;
@@ -105,7 +107,7 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
   stitch::rig_save(rig, rig_path);
   const std::vector<cv::Mat> views = stitch_bench::ring_views(photo, c);
   const int out_w = int(0.85 * c.cameras * c.width) / 2 * 2;
-  std::string desc = "stitchsync name=s ! stitchcalib rig-file=\"" + rig_path + "\" refine=none ! " + chain +
+  std::string desc = "stitchsync name=s " + g_sync_props + " ! stitchcalib rig-file=\"" + rig_path + "\" refine=none ! " + chain +
                      " crop=auto output-width=" + std::to_string(out_w) + " output-height=" + std::to_string(c.height) +
                      (system_output ? " ! video/x-raw" : "") + " ! fakesink name=sink sync=false";
   for (int i = 0; i < c.cameras; ++i)
@@ -196,6 +198,7 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--json") && i + 1 < argc) json_path = argv[++i];
     else if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::max(8, std::atoi(argv[++i]));
     else if (!std::strcmp(argv[i], "--chain") && i + 1 < argc) chain = argv[++i];
+    else if (!std::strcmp(argv[i], "--sync") && i + 1 < argc) g_sync_props = argv[++i];
     else if (!std::strcmp(argv[i], "--cuda-input")) cuda_input = true;
     else if (!std::strcmp(argv[i], "--system-output")) system_output = true;
     else if (!std::strcmp(argv[i], "--small")) cases = {{3, 640, 480}};
@@ -204,7 +207,7 @@ int main(int argc, char** argv) {
       handoffs = m == "both" ? std::vector<std::string>{"host", "event"} : std::vector<std::string>{m};
     } else {
       std::fprintf(stderr, "usage: %s [--photo PPM] [--frames N] [--cuda-input] [--system-output] [--small] "
-                           "[--chain DESC] [--handoff event|host|both] [--json FILE]\n", argv[0]);
+                           "[--chain DESC] [--sync PROPS] [--handoff event|host|both] [--json FILE]\n", argv[0]);
       return 2;
     }
   }

@@ -21,6 +21,7 @@
 #include "stitch/convert/convert.hpp"
 #include "stitch/sync/audio_align.hpp"
 #include "stitch/sync/policy.hpp"
+#include "stitch/sync/thumbnail.hpp"
 #include "stitch/sync/time_align.hpp"
 
 GST_DEBUG_CATEGORY_EXTERN(gst_stitch_sync_debug);
@@ -68,6 +69,8 @@ struct StitchSyncState {
   std::atomic<bool> out_cuda{false};
   StitchCudaContext cuda;
   StitchCudaOwned<stitch::FrameConverter> converter;
+  /* time-alignment=auto on CUDA-memory inputs: each frame's thumbnail made on the device */
+  StitchCudaOwned<stitch::sync::FrameThumbnailerCuda> thumbnailer;
   GstBufferPool* pool = nullptr;
   std::vector<std::array<int, 2>> pool_sizes;
   /* QoS messages for frames dropped in clip, posted from aggregate_frames (clip runs under the
@@ -110,6 +113,7 @@ struct StitchSyncState {
     clear_run();
     tracker.reset();
     converter.reset();
+    thumbnailer.reset();
     stitch_bundle_pool_clear(&pool);
     pool_sizes.clear();
   }

@@ -295,19 +295,36 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
     GstVideoAggregatorPad* pad = pads[v];
     SyncPadState& ps = *pad_state(pad);
     GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
-    if (frame && GST_BUFFER_PTS(frame->buffer) != ps.signal_pts &&
-        !(STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA))) {
+    if (frame && GST_BUFFER_PTS(frame->buffer) != ps.signal_pts) {
       ps.signal_pts = GST_BUFFER_PTS(frame->buffer);
       GST_OBJECT_LOCK(pad);
       const GstClockTime rt =
           gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(frame->buffer));
       GST_OBJECT_UNLOCK(pad);
+      if (!GST_CLOCK_TIME_IS_VALID(rt)) continue;
       const GstVideoFormat f = GST_VIDEO_FRAME_FORMAT(frame);
       const bool luma = f == GST_VIDEO_FORMAT_NV12 || f == GST_VIDEO_FORMAT_I420;  // the Y plane; else RGBA-like
-      if (GST_CLOCK_TIME_IS_VALID(rt))
-        st->tracker->add_frame(int(v), gint64(rt) - ps.applied_ns, static_cast<const uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(frame, 0)),
-                               GST_VIDEO_FRAME_WIDTH(frame), GST_VIDEO_FRAME_HEIGHT(frame),
-                               std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0)), luma ? 1 : 4, luma ? 0 : 1);
+      const auto* plane = static_cast<const uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(frame, 0));
+      const int width = GST_VIDEO_FRAME_WIDTH(frame), height = GST_VIDEO_FRAME_HEIGHT(frame);
+      const std::size_t pitch = std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
+      if (STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA)) {
+        /* CUDA memory: reduced where it lies, 9 KB back to the host */
+        try {
+          if (!st->thumbnailer.made_with(st->cuda))
+            st->thumbnailer.make(st->cuda, []() { return std::make_unique<stitch::sync::FrameThumbnailerCuda>(); });
+          float thumb[stitch::sync::kThumbnailW * stitch::sync::kThumbnailH];
+          st->thumbnailer.run([&](stitch::sync::FrameThumbnailerCuda& t) {
+            t.thumbnail(plane, width, height, pitch, luma ? 1 : 4, luma ? 0 : 1, thumb);
+          });
+          st->tracker->add_thumbnail(int(v), gint64(rt) - ps.applied_ns, thumb);
+        } catch (const std::exception& e) {
+          GST_ELEMENT_WARNING(self, STREAM, FAILED, ("time-alignment: cannot read %s's frame on the device", GST_PAD_NAME(pad)),
+                              ("%s", e.what()));
+        }
+      } else {
+        st->tracker->add_frame(int(v), gint64(rt) - ps.applied_ns, plane, width, height, pitch, luma ? 1 : 4,
+                               luma ? 0 : 1);
+      }
     }
   }
   /* the audio estimate is made on the audio's streaming thread (tens of ms once a second);

@@ -330,3 +330,28 @@ TEST(CudaConvert, ClearIsTransparentBlack) {
   EXPECT_EQ(cv::countNonZero(download(v).reshape(1)), 0);
 #endif
 }
+
+// Time alignment's vision signal on CUDA-memory inputs: the frame is reduced to its 64x36
+// thumbnail on the device (stitch/sync/thumbnail.hpp). It must equal the CPU's bit for bit,
+// or the two paths would estimate different offsets from the same cameras.
+#include "stitch/sync/thumbnail.hpp"
+
+TEST(CudaConvert, TimeAlignThumbnailEqualsCpu) {
+  REQUIRE_CUDA_FOR("the time-alignment thumbnail");
+#ifdef STITCH_HAVE_CUDA
+  for (const cv::Size size : {cv::Size(1920, 1080), cv::Size(641, 359), cv::Size(50, 20)}) {
+    cv::Mat rgba(size, CV_8UC4);
+    cv::randu(rgba, cv::Scalar::all(0), cv::Scalar::all(256));
+    testdata::DeviceMat dev(rgba);
+    for (int channel : {0, 1}) {
+      std::vector<float> cpu(stitch::sync::kThumbnailW * stitch::sync::kThumbnailH),
+          gpu(cpu.size(), -1.f);
+      stitch::sync::frame_thumbnail_cpu(rgba.data, size.width, size.height, rgba.step, 4, channel, cpu.data());
+      stitch::sync::FrameThumbnailerCuda thumbnailer;
+      thumbnailer.thumbnail(dev.ptr, size.width, size.height, dev.pitch, 4, channel, gpu.data());
+      for (std::size_t i = 0; i < cpu.size(); ++i)
+        ASSERT_EQ(cpu[i], gpu[i]) << size << " channel " << channel << " cell " << i;
+    }
+  }
+#endif
+}

@@ -11,6 +11,7 @@
 
 #include "stitch/rig/rig.hpp"
 #include "stitch/sync/policy.hpp"
+#include "stitch/sync/thumbnail.hpp"
 #include "stitch/sync/time_align.hpp"
 #include "synthetic_audio.hpp"
 #include "synthetic_rig.hpp"
@@ -229,6 +230,20 @@ TEST(FrameSignalTest, MotionEnergyOfAThumbnail) {
   ASSERT_EQ(strips.size(), std::size_t(FrameSignal::kStrips));
   for (int i = 0; i < FrameSignal::kStrips; ++i)
     EXPECT_NEAR(strips[std::size_t(i)], i < FrameSignal::kStrips / 2 ? 0.0 : 10.0, 1e-6) << i;
+}
+
+// A thumbnail made elsewhere (the device, for CUDA-memory inputs) gives the same strips as the
+// frame itself: OffsetTracker::add_thumbnail and add_frame feed the same signal.
+TEST(FrameSignalTest, ThumbnailPathGivesTheSameStrips) {
+  FrameSignal from_frame, from_thumbnail;
+  std::vector<uint8_t> img(200 * 90 * 4);
+  std::vector<float> thumb(std::size_t(FrameSignal::kThumbW) * FrameSignal::kThumbH);
+  for (int k = 0; k < 3; ++k) {
+    for (std::size_t i = 0; i < img.size(); ++i) img[i] = uint8_t((i * 7 + std::size_t(k) * 31 * (i % 13)) & 255);
+    stitch::sync::frame_thumbnail_cpu(img.data(), 200, 90, 200 * 4, 4, 1, thumb.data());
+    EXPECT_EQ(from_frame.update(img.data(), 200, 90, 200 * 4, 4, 1), from_thumbnail.update_thumbnail(thumb.data()))
+        << "frame " << k;
+  }
 }
 
 // A real clip (the repository's two phones), camera 1 trimmed at its start as if started later.

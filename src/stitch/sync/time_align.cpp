@@ -1,5 +1,7 @@
 #include "stitch/sync/time_align.hpp"
 
+#include "stitch/sync/thumbnail.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -41,28 +43,19 @@ std::vector<double> high_pass(const std::vector<double>& x, int half) {
 
 std::vector<double> FrameSignal::update(const uint8_t* data, int width, int height, std::size_t pitch,
                                        int bytes_per_pixel, int channel) {
-  std::vector<double> strips(kStrips, 0.0);
   cur_.assign(std::size_t(kThumbW) * kThumbH, 0.f);
-  if (!data || width <= 0 || height <= 0) return strips;
-  // box average of each thumbnail cell, sampled on a sparse lattice (at most 4x4 per cell)
-  for (int ty = 0; ty < kThumbH; ++ty) {
-    const int y0 = ty * height / kThumbH, y1 = std::max(y0 + 1, (ty + 1) * height / kThumbH);
-    const int sy = std::max(1, (y1 - y0) / 4);
-    for (int tx = 0; tx < kThumbW; ++tx) {
-      const int x0 = tx * width / kThumbW, x1 = std::max(x0 + 1, (tx + 1) * width / kThumbW);
-      const int sx = std::max(1, (x1 - x0) / 4);
-      double sum = 0;
-      int n = 0;
-      for (int y = y0; y < y1 && y < height; y += sy) {
-        const uint8_t* row = data + std::size_t(y) * pitch + channel;
-        for (int x = x0; x < x1 && x < width; x += sx) {
-          sum += row[std::size_t(x) * std::size_t(bytes_per_pixel)];
-          ++n;
-        }
-      }
-      cur_[std::size_t(ty) * kThumbW + tx] = n ? float(sum / n) : 0.f;
-    }
-  }
+  if (!data || width <= 0 || height <= 0) return std::vector<double>(kStrips, 0.0);
+  frame_thumbnail_cpu(data, width, height, pitch, bytes_per_pixel, channel, cur_.data());
+  return strips_from_current();
+}
+
+std::vector<double> FrameSignal::update_thumbnail(const float* thumbnail) {
+  cur_.assign(thumbnail, thumbnail + std::size_t(kThumbW) * kThumbH);
+  return strips_from_current();
+}
+
+std::vector<double> FrameSignal::strips_from_current() {
+  std::vector<double> strips(kStrips, 0.0);
   if (prev_.size() == cur_.size()) {
     constexpr int per_strip = kThumbW / kStrips;
     for (int ty = 0; ty < kThumbH; ++ty)
@@ -386,7 +379,16 @@ void OffsetTracker::reset() {
 void OffsetTracker::add_frame(int view, int64_t t_ns, const uint8_t* data, int width, int height, std::size_t pitch,
                               int bytes_per_pixel, int channel) {
   if (view < 0 || view >= views()) return;
-  aligner_.add_sample(view, t_ns, signals_[std::size_t(view)].update(data, width, height, pitch, bytes_per_pixel, channel));
+  add_strips(view, t_ns, signals_[std::size_t(view)].update(data, width, height, pitch, bytes_per_pixel, channel));
+}
+
+void OffsetTracker::add_thumbnail(int view, int64_t t_ns, const float* thumbnail) {
+  if (view < 0 || view >= views() || !thumbnail) return;
+  add_strips(view, t_ns, signals_[std::size_t(view)].update_thumbnail(thumbnail));
+}
+
+void OffsetTracker::add_strips(int view, int64_t t_ns, const std::vector<double>& strips) {
+  aligner_.add_sample(view, t_ns, strips);
   if (view == 0) {
     if (first_t_ < 0) first_t_ = t_ns;
     newest_t_ = std::max(newest_t_, t_ns);

@@ -29,6 +29,7 @@
 #include <vector>
 
 #include "stitch/sync/audio_align.hpp"
+#include "stitch/sync/thumbnail_math.hpp"
 
 namespace stitch::sync {
 
@@ -62,12 +63,15 @@ struct Estimate {
 // for a Y plane). The first frame of a view gives zeros.
 class FrameSignal {
  public:
-  static constexpr int kThumbW = 64, kThumbH = 36, kStrips = 8;
+  static constexpr int kThumbW = kThumbnailW, kThumbH = kThumbnailH, kStrips = 8;
   std::vector<double> update(const uint8_t* data, int width, int height, std::size_t pitch, int bytes_per_pixel,
                              int channel);
+  // The same from a thumbnail made elsewhere (kThumbW x kThumbH cells, e.g. on the device).
+  std::vector<double> update_thumbnail(const float* thumbnail);
   void reset() { prev_.clear(); }
 
  private:
+  std::vector<double> strips_from_current();
   std::vector<float> prev_, cur_;
 };
 
@@ -123,6 +127,8 @@ class OffsetTracker {
   // A new frame of `view` at its uncorrected running time (8-bit plane as FrameSignal reads it).
   void add_frame(int view, int64_t t_ns, const uint8_t* data, int width, int height, std::size_t pitch,
                  int bytes_per_pixel, int channel);
+  // The same from the frame's thumbnail (FrameThumbnailer, on the device for CUDA memory).
+  void add_thumbnail(int view, int64_t t_ns, const float* thumbnail);
   // Re-estimates when a second has passed since the last estimate; true when the estimates
   // moved enough to be announced again (or for the first time). `no_signal` turns true once,
   // when a view still has nothing to align on after a whole window.
@@ -138,6 +144,7 @@ class OffsetTracker {
   void reset();
 
  private:
+  void add_strips(int view, int64_t t_ns, const std::vector<double>& strips);
   TimeAligner aligner_;
   AlignSettings settings_;
   std::vector<FrameSignal> signals_;
