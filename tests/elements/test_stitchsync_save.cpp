@@ -202,3 +202,46 @@ TEST_F(SyncSave, WithoutOffsetsTheFileIsUnchanged) {
   EXPECT_EQ(text.find("time_offset_ns"), std::string::npos) << text;
   EXPECT_TRUE(rig_load(saved).calibrated());
 }
+
+// time-alignment=auto: camera 1 started 7 frames after camera 0 (its frame f shows the scene's
+// f + 7, the scene flashing at random). The estimate stitchsync applies reaches the saved file.
+namespace {
+cv::Mat flash_view(const cv::Mat& base, int scene_frame) {
+  static const std::vector<guint32> scene = []() {
+    std::vector<guint32> v(4000);
+    guint32 x = 42;
+    for (auto& s : v) s = x = x * 1664525u + 1013904223u;
+    return v;
+  }();
+  const guint32 h = scene[std::size_t(scene_frame) % scene.size()] >> 8;
+  const double gain = h % 9 == 0 ? 1.6 : 0.6 + 0.02 * double((h >> 8) % 8);
+  cv::Mat out;
+  base.convertTo(out, -1, gain);
+  out.forEach<cv::Vec4b>([](cv::Vec4b& p, const int*) { p[3] = 255; });
+  return out;
+}
+}  // namespace
+
+TEST_F(SyncSave, AutoAlignmentEstimateIsSaved) {
+  static const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  static const std::vector<cv::Mat> base = {photo(cv::Rect(400, 300, 320, 240)).clone(),
+                                            photo(cv::Rect(600, 300, 320, 240)).clone()};
+  const std::string exact = dir_ + "/exact2.json", saved = dir_ + "/auto2.json";
+  rig_save(testdata::shifted_rig(2, 320, 240, 200), exact);
+  gsttest::RunResult r;
+  gsttest::run_pipeline_frames(
+      "stitchsync name=s time-alignment=auto ! stitchcalib load-file=" + exact + " save-file=" + saved +
+          " ! fakesink sync=false" + gsttest::appsrc_inputs(2),
+      [](int f) { return std::vector<cv::Mat>{flash_view(base[0], f), flash_view(base[1], f + 7)}; }, 360, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_TRUE(r.eos);
+  gint64 announced = 0;
+  for (auto* s : r.element_messages)
+    if (gst_structure_has_name(s, "stitchsync-time-offsets")) gst_structure_get_int64(s, "offset-1", &announced);
+  ASSERT_NE(announced, 0) << "time-alignment found no offset";
+  const Rig out = rig_load(saved);
+  ASSERT_EQ(out.cameras.size(), 2u);
+  EXPECT_EQ(out.cameras[0].time_offset_ns.value_or(0), 0);
+  ASSERT_TRUE(out.cameras[1].time_offset_ns.has_value());
+  EXPECT_NEAR(double(*out.cameras[1].time_offset_ns) / 1e9 * 30, 7.0, 0.5);
+}
