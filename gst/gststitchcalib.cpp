@@ -56,7 +56,8 @@
  * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `fit-rms-px`, `inliers`, ... It is
- * written to `save-file` when set. The canvas is always the panorama size (even sizes, as
+ * written to `save-file` when set, with the time offsets stitchsync applies (time-alignment,
+ * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
  * stitchblend outputs them, and fitted into the current panorama on recalibration).
  *
  * Calibration runs in a worker thread that holds no lock of the element: results are picked up
