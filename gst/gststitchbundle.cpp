@@ -22,6 +22,9 @@ static gboolean bundle_meta_init(GstMeta* meta, gpointer, GstBuffer*) {
   auto* m = reinterpret_cast<GstStitchBundleMeta*>(meta);
   m->n_views = 0;
   m->missing_mask = 0;
+  m->has_time_offsets = FALSE;
+  m->estimated_mask = 0;
+  std::memset(m->time_offsets_ns, 0, sizeof(m->time_offsets_ns));
   return TRUE;
 }
 
@@ -29,7 +32,12 @@ static gboolean bundle_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*
                                       gpointer) {
   if (!GST_META_TRANSFORM_IS_COPY(type)) return FALSE;
   auto* m = reinterpret_cast<GstStitchBundleMeta*>(meta);
-  return gst_buffer_add_stitch_bundle_meta(dest, m->n_views, m->missing_mask) != NULL;
+  GstStitchBundleMeta* d = gst_buffer_add_stitch_bundle_meta(dest, m->n_views, m->missing_mask);
+  if (!d) return FALSE;
+  d->has_time_offsets = m->has_time_offsets;
+  d->estimated_mask = m->estimated_mask;
+  std::memcpy(d->time_offsets_ns, m->time_offsets_ns, sizeof(d->time_offsets_ns));
+  return TRUE;
 }
 
 const GstMetaInfo* gst_stitch_bundle_meta_get_info(void) {
@@ -57,6 +65,19 @@ GstStitchBundleMeta* gst_buffer_add_stitch_bundle_meta(GstBuffer* buffer, guint 
 GstStitchBundleMeta* gst_buffer_get_stitch_bundle_meta(GstBuffer* buffer) {
   return reinterpret_cast<GstStitchBundleMeta*>(
       gst_buffer_get_meta(buffer, gst_stitch_bundle_meta_api_get_type()));
+}
+
+void gst_stitch_bundle_meta_set_time_offsets(GstStitchBundleMeta* meta, const gint64* offsets_ns, guint n,
+                                             guint64 estimated_mask) {
+  if (!meta) return;
+  n = MIN(n, guint(STITCH_MAX_VIEWS));
+  std::memset(meta->time_offsets_ns, 0, sizeof(meta->time_offsets_ns));
+  meta->estimated_mask = estimated_mask;
+  meta->has_time_offsets = estimated_mask != 0;
+  for (guint v = 0; v < n; ++v) {
+    meta->time_offsets_ns[v] = offsets_ns[v];
+    if (offsets_ns[v] != 0) meta->has_time_offsets = TRUE;
+  }
 }
 
 /* ---- rig meta ---- */

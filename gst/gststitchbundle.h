@@ -33,11 +33,19 @@ G_BEGIN_DECLS
 
 #define STITCH_MAX_VIEWS 16
 
-/* Per-bundle facts from stitchsync: which views hold no real frame (camera missing). */
+/* Per-bundle facts from stitchsync: which views hold no real frame (camera missing), and the
+ * time offsets it applies to the inputs (ns added to each view's running time: the pad's own
+ * offset plus load-file's or time-alignment's; view 0 is the reference under time-alignment=auto).
+ * `has_time_offsets`: some offset is non-zero or time-alignment estimated one; stitchcalib then
+ * saves them as the cameras' "time_offset_ns". `estimated_mask`: views time-alignment estimated
+ * (saved even when 0). Appended fields: the first ones keep their layout. */
 typedef struct {
   GstMeta meta;
   guint n_views;
   guint64 missing_mask;
+  gboolean has_time_offsets;
+  guint64 estimated_mask;
+  gint64 time_offsets_ns[STITCH_MAX_VIEWS];
 } GstStitchBundleMeta;
 
 /* The rig (geometry) attached by stitchcalib. `version` changes whenever the calibration
@@ -53,6 +61,9 @@ const GstMetaInfo* gst_stitch_bundle_meta_get_info(void);
 GstStitchBundleMeta* gst_buffer_add_stitch_bundle_meta(GstBuffer* buffer, guint n_views,
                                                        guint64 missing_mask);
 GstStitchBundleMeta* gst_buffer_get_stitch_bundle_meta(GstBuffer* buffer);
+/* Sets the meta's time offsets (n <= STITCH_MAX_VIEWS values; has_time_offsets is derived). */
+void gst_stitch_bundle_meta_set_time_offsets(GstStitchBundleMeta* meta, const gint64* offsets_ns, guint n,
+                                             guint64 estimated_mask);
 
 GType gst_stitch_rig_meta_api_get_type(void);
 const GstMetaInfo* gst_stitch_rig_meta_get_info(void);

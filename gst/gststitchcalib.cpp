@@ -56,7 +56,8 @@
  * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `fit-rms-px`, `inliers`, ... It is
- * written to `save-file` when set. The canvas is always the panorama size (even sizes, as
+ * written to `save-file` when set, with the time offsets stitchsync applies (time-alignment,
+ * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
  * stitchblend outputs them, and fitted into the current panorama on recalibration).
  *
  * Calibration runs in a worker thread that holds no lock of the element: results are picked up
@@ -171,6 +172,17 @@ static struct WorkersAtExit {
   }
 } workers_at_exit;
 
+/* stitchsync's offsets as the bundle meta carries them. */
+struct TimeOffsets {
+  bool present = false;  // some offset non-zero, or estimated by time-alignment
+  guint64 estimated_mask = 0;
+  std::vector<gint64> ns;
+  bool operator==(const TimeOffsets& o) const {
+    return present == o.present && estimated_mask == o.estimated_mask && ns == o.ns;
+  }
+  bool operator!=(const TimeOffsets& o) const { return !(*this == o); }
+};
+
 struct CalibSettings {
   stitch::SessionConfig config;
   stitch::Backend backend = stitch::Backend::Auto;
@@ -192,6 +204,19 @@ struct CalibState {
                drop_duration = GST_CLOCK_TIME_NONE;
   /* shared with the neighbours; calibration itself reads views through host memory */
   StitchCudaContext cuda;
+  /* save-file is written here, not by the session, so that stitchsync's time offsets (the
+   * bundle meta's) go in as the cameras' "time_offset_ns" (streaming thread only) */
+  std::string save_path;
+  TimeOffsets offsets, saved_offsets;
+  std::shared_ptr<const stitch::Rig> saved_rig;
+  double saved_at_s = -1, now_s = 0;  // running time (s) of the last write, of the last bundle
+
+  void forget_saved() {
+    offsets = saved_offsets = TimeOffsets();
+    saved_rig.reset();
+    saved_at_s = -1;
+    now_s = 0;
+  }
 
   void cancel_worker() {
     if (worker) worker->cancel = true;
@@ -312,6 +337,42 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
   return s;
 }
 
+/* Writes `rig` to save-file, with stitchsync's time offsets as the cameras' "time_offset_ns"
+ * when the bundles carry some (a camera whose offset is 0 and not estimated has none); without
+ * offsets the rig is written as it is. A failure is a warning, as in the session. */
+static void save_rig(GstStitchCalib* self, const std::shared_ptr<const stitch::Rig>& rig, double now_s) {
+  CalibState* st = self->state;
+  if (st->save_path.empty() || !rig) return;
+  try {
+    if (st->offsets.present) {
+      stitch::Rig out = *rig;
+      for (std::size_t v = 0; v < out.cameras.size() && v < st->offsets.ns.size(); ++v) {
+        const gint64 ns = st->offsets.ns[v];
+        if (ns != 0 || (st->offsets.estimated_mask >> v & 1)) out.cameras[v].time_offset_ns = ns;
+        else out.cameras[v].time_offset_ns.reset();
+      }
+      stitch::rig_save(out, st->save_path);
+    } else {
+      stitch::rig_save(*rig, st->save_path);
+    }
+    st->saved_rig = rig;
+    st->saved_offsets = st->offsets;
+    st->saved_at_s = now_s;
+  } catch (const std::exception& e) {
+    GST_ELEMENT_WARNING(self, RESOURCE, WRITE, ("save-file: %s", e.what()), (NULL));
+  }
+}
+
+/* The offsets moved since the file was written (time-alignment refines them, drift makes them
+ * move every frame): written again at most once a second of running time, and at the end. */
+static void save_moved_offsets(GstStitchCalib* self, double now_s, bool at_end) {
+  CalibState* st = self->state;
+  std::shared_ptr<const stitch::Rig> rig = st->session.current();
+  if (st->save_path.empty() || !rig || rig != st->saved_rig || st->offsets == st->saved_offsets) return;
+  if (!at_end && st->saved_at_s >= 0 && now_s - st->saved_at_s < 1.0) return;
+  save_rig(self, rig, now_s);
+}
+
 /* Posts what the session says; the caller holds no lock. FALSE when it reported an error. */
 static gboolean post_events(GstStitchCalib* self) {
   CalibState* st = self->state;
@@ -319,6 +380,7 @@ static gboolean post_events(GstStitchCalib* self) {
   for (const stitch::SessionEvent& e : st->session.take_events()) {
     switch (e.type) {
       case stitch::SessionEvent::Type::Installed:
+        save_rig(self, e.report.rig, st->now_s);
         GST_INFO_OBJECT(self, "calibration %" G_GUINT64_FORMAT " from %s: canvas %dx%d, alignment %.2f px",
                         guint64(e.report.version), e.report.source.c_str(), e.report.rig->canvas_width,
                         e.report.rig->canvas_height, e.report.residuals.median_px);
@@ -446,6 +508,8 @@ static void snapshot_settings(CalibState* st) {
     config = st->settings.config;
     config.resize_is_error = st->settings.on_resize == ON_RESIZE_ERROR;
   }
+  st->save_path = config.save_file;
+  config.save_file.clear();  // saved by save_rig, with the time offsets
   st->session.set_config(config);
 }
 
@@ -465,6 +529,12 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   const GstStitchBundleMeta* bundle = gst_buffer_get_stitch_bundle_meta(buf);
   frame.missing_mask = bundle ? bundle->missing_mask : 0;
   frame.time_s = running_time_s(self, buf);
+  st->now_s = frame.time_s;
+  if (bundle) {
+    st->offsets.present = bundle->has_time_offsets;
+    st->offsets.estimated_mask = bundle->estimated_mask;
+    st->offsets.ns.assign(bundle->time_offsets_ns, bundle->time_offsets_ns + MIN(bundle->n_views, guint(STITCH_MAX_VIEWS)));
+  }
   snapshot_settings(st);
   if (st->recalibrate_requested.exchange(false)) st->session.request_recalibration();
 
@@ -502,6 +572,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   gst_buffer_add_stitch_rig_meta(buf, rig, st->session.version());
   st->session.bundle_passed();
   post_events(self);
+  save_moved_offsets(self, frame.time_s, false);
   return GST_FLOW_OK;
 }
 
@@ -519,6 +590,7 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
       if (st->worker && wait_for_worker(st)) collect_outcome(st);
       st->session.on_eos();
       post_events(self);
+      save_moved_offsets(self, st->now_s, true);
       break;
     default: break;
   }
@@ -538,6 +610,7 @@ static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
   CalibState* st = GST_STITCH_CALIB(trans)->state;
   st->cancel_worker();
   st->session.reset();
+  st->forget_saved();
   st->started_us = g_get_monotonic_time();
   st->unblock = false;
   return TRUE;

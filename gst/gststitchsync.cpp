@@ -727,10 +727,13 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   std::vector<guint> no_signal;
   GstStructure* offsets = NULL;
   guint64 missing = 0;
+  gint64 applied[STITCH_MAX_VIEWS] = {0};
+  guint64 estimated = 0;
   {
     std::lock_guard<std::mutex> guard(st->lock);
     qos.swap(st->pending_qos);
     offsets = align_inputs(self, pads, automatic, no_signal);
+    applied_offsets(self, pads, n, automatic, applied, estimated);
     const guint64 left_out = track_dropouts(self, pads, facts, now, mode, timeout, changes);
     const gboolean ok = st->out_cuda ? bundle_in_cuda_memory(self, pads, outbuf, left_out, missing)
                                      : bundle_in_system_memory(self, pads, outbuf, left_out, missing);
@@ -754,7 +757,8 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
     gst_pad_push_event(GST_AGGREGATOR_SRC_PAD(self), gst_event_new_custom(GST_EVENT_CUSTOM_DOWNSTREAM, gst_structure_copy(offsets)));
     gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), offsets));
   }
-  gst_buffer_add_stitch_bundle_meta(outbuf, n, missing);
+  /* the offsets travel with the bundle: stitchcalib saves them with the rig */
+  gst_stitch_bundle_meta_set_time_offsets(gst_buffer_add_stitch_bundle_meta(outbuf, n, missing), applied, n, estimated);
   return GST_FLOW_OK;
 }
 

@@ -166,6 +166,10 @@ gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAg
 GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, bool automatic,
                            std::vector<guint>& no_signal);
 gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads);
+/* The offset each of the `n` views gets now (its pad's own, set by hand, plus load-file's or
+ * time-alignment's), and the views whose value time-alignment estimated (state lock held). */
+void applied_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, guint n, bool automatic,
+                     gint64* offsets_ns, guint64& estimated_mask);
 /* stitchsyncaudio: `frames` interleaved frames of `info` (F32 or S16) of view `view`'s audio, the
  * first at running time `rt`; used with time-alignment=auto only. */
 void stitch_sync_add_audio(GstStitchSync* self, guint view, GstClockTime rt, const GstAudioInfo* info,

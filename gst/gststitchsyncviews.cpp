@@ -390,3 +390,17 @@ gboolean load_time_offsets(GstStitchSync* self, const std::vector<GstVideoAggreg
   return TRUE;
 }
 
+
+void applied_offsets(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads, guint n, bool automatic,
+                     gint64* offsets_ns, guint64& estimated_mask) {
+  estimated_mask = 0;
+  const auto* tracker = self->state->tracker.get();
+  for (guint v = 0; v < n && v < STITCH_MAX_VIEWS; ++v) {
+    offsets_ns[v] = 0;
+    if (v >= pads.size() || !pads[v]) continue;  // a missing view: nothing applied
+    offsets_ns[v] = pad_state(pads[v])->applied_ns + gst_pad_get_offset(GST_PAD(pads[v]));
+    /* the same test align_inputs applies the estimate by */
+    if (automatic && tracker && v < tracker->current().size() && tracker->current()[v].valid)
+      estimated_mask |= guint64(1) << v;
+  }
+}
