@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 #include <stdexcept>
@@ -22,16 +23,19 @@ bool is_flat(const cv::Mat& img) {
 
 void sanitize(cv::Mat& flow, int width, int height) {
   // No NaN/Inf, and no displacement that lands outside the image.
-  for (int y = 0; y < flow.rows; ++y) {
-    cv::Vec2f* p = flow.ptr<cv::Vec2f>(y);
-    for (int x = 0; x < flow.cols; ++x) {
-      float& u = p[x][0];
-      float& v = p[x][1];
-      if (!std::isfinite(u) || !std::isfinite(v)) u = v = 0.f;
-      u = std::clamp(u, float(-x), float(width - 1 - x));
-      v = std::clamp(v, float(-y), float(height - 1 - y));
+  // By rows on OpenCV's threads (serially when the flow itself runs inside a parallel_for_).
+  cv::parallel_for_(cv::Range(0, flow.rows), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) {
+      cv::Vec2f* p = flow.ptr<cv::Vec2f>(y);
+      for (int x = 0; x < flow.cols; ++x) {
+        float& u = p[x][0];
+        float& v = p[x][1];
+        if (!std::isfinite(u) || !std::isfinite(v)) u = v = 0.f;
+        u = std::clamp(u, float(-x), float(width - 1 - x));
+        v = std::clamp(v, float(-y), float(height - 1 - y));
+      }
     }
-  }
+  });
 }
 
 class DisFlowCpu final : public DenseFlow {

@@ -30,19 +30,28 @@ Rect shifted(const Rect& r, int dx, int dy) { return {r.x + dx, r.y + dy, r.widt
 
 cv::Mat as_mat(const ImageView& v) { return cv::Mat(v.height, v.width, CV_8UC4, v.data, v.pitch); }
 
+// f(y) for every row 0..n-1 on OpenCV's threads. Per-pixel work only, so results do not
+// depend on the split. Inside another parallel_for_ OpenCV runs it serially.
+template <class F>
+void for_rows(int n, const F& f) {
+  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
+    for (int y = r.start; y < r.end; ++y) f(y);
+  });
+}
+
 // exp(-(|fwd(p) + bwd(p + fwd(p))| / tau)^2): 1 where the two directions agree.
 cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, float tau) {
   cv::Mat map(fwd.size(), CV_32FC2);
-  for (int y = 0; y < fwd.rows; ++y) {
+  for_rows(fwd.rows, [&](int y) {
     const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
     cv::Vec2f* pm = map.ptr<cv::Vec2f>(y);
     for (int x = 0; x < fwd.cols; ++x) pm[x] = cv::Vec2f(x + pf[x][0], y + pf[x][1]);
-  }
+  });
   cv::Mat back;
   cv::remap(bwd, back, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   cv::Mat conf(fwd.size(), CV_32F);
   const float inv = 1.f / (tau * tau);
-  for (int y = 0; y < fwd.rows; ++y) {
+  for_rows(fwd.rows, [&](int y) {
     const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
     const cv::Vec2f* pb = back.ptr<cv::Vec2f>(y);
     float* pc = conf.ptr<float>(y);
@@ -50,7 +59,7 @@ cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, floa
       const float ex = pf[x][0] + pb[x][0], ey = pf[x][1] + pb[x][1];
       pc[x] = std::exp(-(ex * ex + ey * ey) * inv);
     }
-  }
+  });
   return conf;
 }
 
@@ -70,19 +79,19 @@ float sample(const cv::Mat& img, float x, float y) {
 // improves the match over the homography, blurred, mapped to 0..1.
 cv::Mat cost_gate(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow) {
   cv::Mat improvement(a.size(), CV_32F);
-  for (int y = 0; y < a.rows; ++y) {
+  for_rows(a.rows, [&](int y) {
     const float* pa = a.ptr<float>(y);
     const float* pb = b.ptr<float>(y);
     const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
     float* pi = improvement.ptr<float>(y);
     for (int x = 0; x < a.cols; ++x)
       pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b, x + pf[x][0], y + pf[x][1]));
-  }
+  });
   cv::GaussianBlur(improvement, improvement, cv::Size(0, 0), flow_gate::kGateSigma);
-  for (int y = 0; y < a.rows; ++y) {
+  for_rows(a.rows, [&](int y) {
     float* pi = improvement.ptr<float>(y);
     for (int x = 0; x < a.cols; ++x) pi[x] = flow_gate::gate(pi[x]);
-  }
+  });
   return improvement;
 }
 
@@ -90,11 +99,14 @@ cv::Mat cost_gate(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow) {
 // at p + flow(p) (flow_gate::match_error; gradients by central differences of samples).
 void matching_errors(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow, const cv::Mat& both, double& homography,
                      double& with_flow) {
-  double sh = 0, sf = 0;
-  long n = 0;
-  for (int y = 0; y < a.rows; ++y) {
+  // The per-pixel errors in parallel, then summed in raster order as before: the same sums
+  // bit for bit, whatever the thread count.
+  cv::Mat eh(a.size(), CV_32F), ef(a.size(), CV_32F);
+  for_rows(a.rows, [&](int y) {
     const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
     const uint8_t* pm = both.ptr<uint8_t>(y);
+    float* ph = eh.ptr<float>(y);
+    float* pe = ef.ptr<float>(y);
     for (int x = 0; x < a.cols; ++x) {
       if (!pm[x]) continue;
       const float fx = float(x), fy = float(y);
@@ -107,8 +119,20 @@ void matching_errors(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow, co
       const float wv = sample(b, qx, qy);
       const float wgx = 0.5f * (sample(b, qx + 1, qy) - sample(b, qx - 1, qy));
       const float wgy = 0.5f * (sample(b, qx, qy + 1) - sample(b, qx, qy - 1));
-      sh += flow_gate::match_error(av, bv, agx, agy, bgx, bgy);
-      sf += flow_gate::match_error(av, wv, agx, agy, wgx, wgy);
+      ph[x] = flow_gate::match_error(av, bv, agx, agy, bgx, bgy);
+      pe[x] = flow_gate::match_error(av, wv, agx, agy, wgx, wgy);
+    }
+  });
+  double sh = 0, sf = 0;
+  long n = 0;
+  for (int y = 0; y < a.rows; ++y) {
+    const uint8_t* pm = both.ptr<uint8_t>(y);
+    const float* ph = eh.ptr<float>(y);
+    const float* pe = ef.ptr<float>(y);
+    for (int x = 0; x < a.cols; ++x) {
+      if (!pm[x]) continue;
+      sh += ph[x];
+      sf += pe[x];
       ++n;
     }
   }
@@ -159,13 +183,27 @@ class FlowWarperCpu final : public FlowWarper {
     }
     stats_.clear();
     if (!settings_.flow) return;
+    std::vector<Pair*> active;
     for (auto& p : pairs_) {
       if (frames[p.a].empty() || frames[p.b].empty()) {
         p.history = false;
         continue;
       }
-      estimate(p, frames);
+      active.push_back(&p);
     }
+    for (Pair* p : active) overlap_gray(*p, frames);
+    // The dense flows (DIS is mostly serial inside) of every pair and both directions run
+    // side by side; each has its own estimator, so they share no state.
+    cv::parallel_for_(cv::Range(0, int(active.size()) * 2), [&](const cv::Range& r) {
+      for (int t = r.start; t < r.end; ++t) {
+        Pair& p = *active[std::size_t(t / 2)];
+        if (t % 2 == 0)
+          p.flow[0]->compute(p.gray[0], p.gray[1], p.ab, p.init);
+        else
+          p.flow[1]->compute(p.gray[1], p.gray[0], p.ba, p.init);
+      }
+    }, double(active.size() * 2));
+    for (Pair* p : active) estimate(*p);
     for (std::size_t i = 0; i < views_.size(); ++i)
       if (!frames[i].empty()) displace(int(i), frames[i], warped[i], frames);
   }
@@ -189,6 +227,10 @@ class FlowWarperCpu final : public FlowWarper {
     cv::Mat full_ab, full_ba;  // output resolution, this frame
     bool history = false;
     flow_gate::Decision decision;  // whether the flow helps this overlap, and its gain
+    std::unique_ptr<DenseFlow> flow[2];  // a->b and b->a: one each, so they can run at once
+    // This frame's scratch between the phases of warp().
+    cv::Mat gray[2], ab, ba, prev_ab, prev_ba;
+    bool init = false;
   };
 
   void build() {
@@ -197,7 +239,6 @@ class FlowWarperCpu final : public FlowWarper {
     std::vector<Pair> old = std::move(pairs_);
     pairs_.clear();
     bands_.assign(views_.size(), {});
-    flow_ = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
     std::vector<cv::Mat> weight(views_.size());
     cv::Mat sum(out_h_, out_w_, CV_32F, cv::Scalar(0));
     for (std::size_t i = 0; i < views_.size(); ++i) {
@@ -212,6 +253,7 @@ class FlowWarperCpu final : public FlowWarper {
       p.b = b;
       p.rect = rect;
       p.work = cv::Size(plan.work_width, plan.work_height);
+      for (auto& f : p.flow) f = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
       const cv::Mat s = sum(to_cv(rect));
       for (int k = 0; k < 2; ++k) {
         const int v = k == 0 ? a : b;
@@ -256,9 +298,11 @@ class FlowWarperCpu final : public FlowWarper {
     }
   }
 
-  void estimate(Pair& p, const std::vector<ImageView>& frames) {
-    cv::Mat gray[2];
+  // The two views' overlap at flow resolution in grey, and the flows' starting points.
+  void overlap_gray(Pair& p, const std::vector<ImageView>& frames) {
+    cv::Mat* gray = p.gray;
     for (int k = 0; k < 2; ++k) {
+      gray[k].release();  // last frame's buffer lives on as prev_gray: never write into it
       cv::Mat rgba;
       cv::remap(as_mat(frames[k == 0 ? p.a : p.b]), rgba, p.side[k].map_xy, p.side[k].map_frac,
                 cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
@@ -268,14 +312,20 @@ class FlowWarperCpu final : public FlowWarper {
     // edges from the black outside a camera for the flow to latch onto.
     gray[1].copyTo(gray[0], ~p.side[0].valid);
     gray[0].copyTo(gray[1], ~p.side[1].valid);
+    p.init = p.history;
+    p.prev_ab = p.init ? p.flow_ab.clone() : cv::Mat();
+    p.prev_ba = p.init ? p.flow_ba.clone() : cv::Mat();
+    p.ab = p.init ? p.flow_ab : cv::Mat();
+    p.ba = p.init ? p.flow_ba : cv::Mat();
+  }
 
+  // After the flows: confidence, gating, refinement, stats and the output-resolution flows.
+  void estimate(Pair& p) {
+    cv::Mat* gray = p.gray;
     const double scale = flow_scale(settings_.quality);
-    const bool init = p.history;
-    cv::Mat prev_ab = init ? p.flow_ab.clone() : cv::Mat();
-    cv::Mat prev_ba = init ? p.flow_ba.clone() : cv::Mat();
-    cv::Mat ab = init ? p.flow_ab : cv::Mat(), ba = init ? p.flow_ba : cv::Mat();
-    flow_->compute(gray[0], gray[1], ab, init);
-    flow_->compute(gray[1], gray[0], ba, init);
+    const bool init = p.init;
+    const cv::Mat prev_ab = p.prev_ab, prev_ba = p.prev_ba;
+    const cv::Mat ab = p.ab, ba = p.ba;
 
     const float tau = float(settings_.consistency_px * scale);
     const cv::Mat conf_ab = forward_backward_confidence(ab, ba, std::max(tau, 0.25f));
@@ -300,6 +350,7 @@ class FlowWarperCpu final : public FlowWarper {
     p.prev_gray[0] = gray[0];
     p.prev_gray[1] = gray[1];
     p.history = true;
+    p.gray[0] = p.gray[1] = p.ab = p.ba = p.prev_ab = p.prev_ba = cv::Mat();
 
     cv::Mat mag;
     std::vector<cv::Mat> ch;
@@ -329,16 +380,16 @@ class FlowWarperCpu final : public FlowWarper {
   // the content moved, the new flow is taken at once.
   cv::Mat refine(const cv::Mat& flow, const cv::Mat& conf, const cv::Mat& prev, const cv::Mat& stillness) const {
     cv::Mat out(flow.size(), CV_32FC2);
-    for (int y = 0; y < flow.rows; ++y) {
+    for_rows(flow.rows, [&](int y) {
       const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
       const float* pc = conf.ptr<float>(y);
       cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
       for (int x = 0; x < flow.cols; ++x) po[x] = pf[x] * pc[x];
-    }
+    });
     cv::GaussianBlur(out, out, cv::Size(0, 0), 1.5);
     const float s = float(settings_.temporal_smoothing);
     if (prev.empty() || stillness.empty() || s <= 0.f) return out;
-    for (int y = 0; y < out.rows; ++y) {
+    for_rows(out.rows, [&](int y) {
       const cv::Vec2f* pp = prev.ptr<cv::Vec2f>(y);
       const float* ps = stillness.ptr<float>(y);
       cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
@@ -346,7 +397,7 @@ class FlowWarperCpu final : public FlowWarper {
         const float keep = s * ps[x];
         po[x] = keep * pp[x] + (1.f - keep) * po[x];
       }
-    }
+    });
     return out;
   }
 
@@ -365,14 +416,14 @@ class FlowWarperCpu final : public FlowWarper {
       change = k == 0 ? d : cv::max(change, d);
     }
     cv::Mat still(change.size(), CV_32F);
-    for (int y = 0; y < change.rows; ++y) {
+    for_rows(change.rows, [&](int y) {
       const float* pc = change.ptr<float>(y);
       float* ps = still.ptr<float>(y);
       for (int x = 0; x < change.cols; ++x) {
         const float c = std::max(0.f, pc[x] - 1.f) / 2.f;
         ps[x] = std::exp(-c * c);
       }
-    }
+    });
     return still;
   }
 
@@ -390,12 +441,12 @@ class FlowWarperCpu final : public FlowWarper {
         const cv::Mat& flow = is_a ? p.full_ba : p.full_ab;
         const cv::Mat& theta = p.side[is_a ? 1 : 0].theta;
         cv::Mat part = d(to_cv(shifted(p.rect, -band.x, -band.y)));
-        for (int y = 0; y < part.rows; ++y) {
+        for_rows(part.rows, [&](int y) {
           const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
           const float* pt = theta.ptr<float>(y);
           cv::Vec2f* pd = part.ptr<cv::Vec2f>(y);
           for (int x = 0; x < part.cols; ++x) pd[x] += pt[x] * pf[x];
-        }
+        });
         any = true;
       }
       if (!any) continue;
@@ -411,7 +462,6 @@ class FlowWarperCpu final : public FlowWarper {
   }
 
   std::unique_ptr<Warper> warper_;
-  std::unique_ptr<DenseFlow> flow_;
   FlowWarpSettings settings_;
   std::vector<ViewPlacement> views_;
   int out_w_ = 0, out_h_ = 0;
