@@ -200,6 +200,7 @@ struct CalibState {
   stitch::CalibSession session;
   std::shared_ptr<WorkerChannel> worker;
   gint64 started_us = 0;
+  bool passed_any = false;  /* a bundle has gone downstream since start */
   GstClockTime drop_running = GST_CLOCK_TIME_NONE, drop_stream = GST_CLOCK_TIME_NONE, drop_pts = GST_CLOCK_TIME_NONE,
                drop_duration = GST_CLOCK_TIME_NONE;
   /* shared with the neighbours; calibration itself reads views through host memory */
@@ -563,13 +564,18 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   if (!post_events(self)) return GST_FLOW_ERROR;
   if (flushing) return GST_FLOW_FLUSHING;
   std::shared_ptr<const stitch::Rig> rig = st->session.current();
-  if (!rig) {
+  /* at start-up a live stitchsync may bundle before any camera's first frame is due: every
+   * view missing is nothing to show, so no black panorama goes out first */
+  const bool all_missing = n_views > 0 && n_views < 64 && (frame.missing_mask & ((guint64(1) << n_views) - 1)) ==
+                                                              (guint64(1) << n_views) - 1;
+  if (!rig || (all_missing && !st->passed_any)) {
     note_drop(self, buf);
     st->session.bundle_dropped();
     post_events(self);
     return GST_BASE_TRANSFORM_FLOW_DROPPED;
   }
   gst_buffer_add_stitch_rig_meta(buf, rig, st->session.version());
+  st->passed_any = true;
   st->session.bundle_passed();
   post_events(self);
   save_moved_offsets(self, frame.time_s, false);
@@ -612,6 +618,7 @@ static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
   st->session.reset();
   st->forget_saved();
   st->started_us = g_get_monotonic_time();
+  st->passed_any = false;
   st->unblock = false;
   return TRUE;
 }

@@ -657,7 +657,15 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
                         ("stitchsync needs at least two cameras; only %s is linked", pads.empty() ? "one input" : GST_PAD_NAME(pads[0])),
                         ("link more inputs to stitchsync's sink_%%u pads, or use the camera without stitching"));
       return GST_FLOW_ERROR;
-    case stitch::sync::StartDecision::Go: break;
+    case stitch::sync::StartDecision::Go:
+      /* no camera has delivered a frame yet (a live aggregator's timeout, RTSP still
+       * connecting): nobody started, so nobody can be late; count from the first frame */
+      if (st->first_data_us < 0) {
+        st->first_ready_us = -1;
+        g_usleep(2000);
+        return GST_AGGREGATOR_FLOW_NEED_DATA;
+      }
+      break;
   }
   if (!load_time_offsets(self, pads)) return GST_FLOW_ERROR;
   GST_OBJECT_LOCK(self);
