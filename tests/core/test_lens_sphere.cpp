@@ -70,7 +70,7 @@ cv::Mat equirect_photo(std::string& name) {
 
 }  // namespace
 
-TEST(DualFisheye, DISABLED_CalibratedFromARoughRigSeamsWithinAPixel) {
+TEST(DualFisheye, CalibratedFromARoughRigSeamsWithinAPixel) {
   std::string name;
   const cv::Mat photo = equirect_photo(name);
   ASSERT_FALSE(photo.empty());
