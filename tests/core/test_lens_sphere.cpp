@@ -175,3 +175,51 @@ TEST(DualFisheye, TrueRigCoversTheWholeSphereOfTheRealPhoto) {
     EXPECT_GT(psnr, 24.0);
   }
 }
+
+// Fisheye coefficient estimation on the ray matches: the rough rig gives the fisheye model
+// without coefficients ("estimate them"), the truth has k1 != 0; focal / angles off as above.
+TEST(DualFisheye, EstimatesK1FromARoughRig) {
+  std::string name;
+  const cv::Mat photo = equirect_photo(name);
+  ASSERT_FALSE(photo.empty());
+  struct Case {
+    double fov, k1;
+    unsigned seed;
+  };
+  const Case cases[] = {{200, -0.03, 5}, {210, 0.02, 6}};
+  for (const Case& cs : cases) {
+    const Rig truth = testdata::dual_fisheye_rig(480, cs.fov, 0, cs.k1);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> views;
+    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    for (auto& f : frames) views.push_back(as_view(f));
+    std::mt19937 rng(cs.seed);
+    std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
+    Rig rough = truth;
+    rough.canvas_width = rough.canvas_height = 0;
+    rough.canvas_scale = 0;
+    rough.canvas_wrap = false;
+    for (auto& c : rough.cameras) {
+      c.fx = c.fy = c.fx * (1 + df(rng));
+      c.yaw_deg += da(rng);
+      c.pitch_deg += da(rng);
+      c.roll_deg += da(rng);
+      c.lens.k1 = c.lens.k2 = 0;
+      c.lens.estimate = true;
+    }
+    Rig rough_laid = rough;
+    rig_layout_canvas(rough_laid);
+    const double rough_err = worst_seam_px(rough_laid, truth, 0, 1, nullptr);
+    const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+    int n = 0;
+    const double err = worst_seam_px(r.rig, truth, 0, 1, &n);
+    std::printf("%s: dual fisheye %.0f deg true k1 %+.3f f %.2f, seed %u: seam error rough (k1 0) %.2f px -> %.3f px "
+                "(%d rays), estimated k1 %+.4f / %+.4f, k2 %+.4f / %+.4f, f %.2f / %.2f\n",
+                name.c_str(), cs.fov, cs.k1, truth.cameras[0].fx, cs.seed, rough_err, err, n, r.rig.cameras[0].lens.k1,
+                r.rig.cameras[1].lens.k1, r.rig.cameras[0].lens.k2, r.rig.cameras[1].lens.k2, r.rig.cameras[0].fx,
+                r.rig.cameras[1].fx);
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    EXPECT_GT(n, 100);
+    EXPECT_LE(err, 1.0) << cs.fov;
+  }
+}
