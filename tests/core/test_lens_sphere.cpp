@@ -235,3 +235,47 @@ TEST(DualFisheye, DeclinesToEstimateK1FromTheOverlapRingAlone) {
     }
   }
 }
+
+// A ring of fisheyes (not back-to-back: the ray path's other use) calibrated from a rough rig:
+// worst seam error over the neighbouring pairs.
+TEST(FisheyeRing, CalibratedFromARoughRigSeamsWithinAPixel) {
+  std::string name;
+  const cv::Mat photo = equirect_photo(name);
+  ASSERT_FALSE(photo.empty());
+  for (const auto& [cams, fov] : {std::pair<int, double>{3, 180}, {4, 160}}) {
+    const Rig truth = testdata::fisheye_ring(cams, 320, fov);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> views;
+    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    for (auto& f : frames) views.push_back(as_view(f));
+    std::mt19937 rng(7 + cams);
+    std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
+    Rig rough = truth;
+    rough.canvas_width = rough.canvas_height = 0;
+    rough.canvas_scale = 0;
+    rough.canvas_wrap = false;
+    for (auto& c : rough.cameras) {
+      c.fx = c.fy = c.fx * (1 + df(rng));
+      c.yaw_deg += da(rng);
+      c.pitch_deg += da(rng);
+      c.roll_deg += da(rng);
+    }
+    Rig rough_laid = rough;
+    rig_layout_canvas(rough_laid);
+    const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+    double worst = 0, worst_rough = 0;
+    int n_min = 1 << 30;
+    for (int i = 0; i < cams; ++i) {
+      int n = 0;
+      worst = std::max(worst, worst_seam_px(r.rig, truth, i, (i + 1) % cams, &n));
+      worst_rough = std::max(worst_rough, worst_seam_px(rough_laid, truth, i, (i + 1) % cams, nullptr));
+      n_min = std::min(n_min, n);
+    }
+    std::printf("%s: fisheye ring %d x %.0f deg 320x320: worst neighbour seam error rough %.2f px -> %.3f px "
+                "(>= %d rays a pair), BA rms %.3f px\n",
+                name.c_str(), cams, fov, worst_rough, worst, n_min, r.ba_rms_after_px);
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    EXPECT_GT(n_min, 100);
+    EXPECT_LE(worst, 1.0) << cams;
+  }
+}
