@@ -345,6 +345,9 @@ struct PairData {
   std::vector<double> weight;  // 1 / the keypoints' scale (SIFT localises coarse blobs worse)
   std::vector<char> held;
   std::string note;
+  // Ray path (wide lenses): pa/pb hold the raw pixels too, H is unused; residuals go through
+  // the lenses (raw pixel -> ray -> raw pixel).
+  bool rays = false;
   int held_count() const { return int(std::count(held.begin(), held.end(), 1)); }
 };
 
@@ -427,6 +430,151 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
   return p;
 }
 
+Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& M);
+
+// Half the field of view (radians) a camera sees through its lens: the largest angle off the
+// axis of a frame corner or the image circle's rim (pinhole: the half diagonal).
+double lens_half_fov(const Camera& c) {
+  if (c.lens.pinhole()) return half_diagonal_fov(c);
+  double far = 0;
+  const double xs[2] = {-0.5, c.width - 0.5}, ys[2] = {-0.5, c.height - 0.5};
+  for (double x : xs)
+    for (double y : ys) far = std::max(far, std::hypot((x - c.cx) / c.fx, (y - c.cy) / c.fy));
+  if (c.lens.circle)
+    far = std::min(far, (std::hypot(c.lens.circle->cx - c.cx, c.lens.circle->cy - c.cy) + c.lens.circle->radius) /
+                            std::min(c.fx, c.fy));
+  // Step in from the farthest normalised radius until the lens unprojects it.
+  for (double t = far; t > 0.05 * far; t *= 0.97) {
+    Eigen::Vector3d ray;
+    if (lens_unproject(c, {c.cx + t * c.fx, c.cy}, ray)) return std::acos(std::clamp(ray.z(), -1.0, 1.0));
+  }
+  return half_diagonal_fov(c);
+}
+
+// Fisheyes and lenses of ~150 degrees or more: ideal pinhole pixels are missing (>= 90 degrees
+// off the axis) or stretched past use, so such pairs are matched on rays.
+constexpr double kRayMatchFovDeg = 150.0;
+bool needs_rays(const Camera& c) {
+  if (c.lens.pinhole()) return false;
+  return c.lens.model == Lens::Model::Fisheye || 2 * lens_half_fov(c) * 180 / kPi >= kRayMatchFovDeg;
+}
+
+// Rotation Q minimising sum |Q a_k - b_k|^2 over `idx` (Kabsch).
+Eigen::Matrix3d kabsch(const std::vector<Eigen::Vector3d>& a, const std::vector<Eigen::Vector3d>& b,
+                       const std::vector<int>& idx) {
+  Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+  for (int k : idx) M += b[k] * a[k].transpose();
+  return nearest_rotation(M);
+}
+
+// Matches of a pair of wide-lens cameras on unit rays (issue 15, dual fisheye): raw keypoints
+// -> rays through `rig`'s lenses; the ones the rig's rotations put within `tolerance_rad` are
+// kept, then a RANSAC over 2-ray rotations (Kabsch, angular threshold `thr_rad`) picks the
+// consistent ones. No pinhole pixel is needed, so rays 90 degrees or more off an axis (all of a
+// back-to-back pair's overlap) match as well as central ones.
+PairData match_pair_rays(const FeatureSets& feats, int a, int b, const CalibrationOptions& o, const Rig& rig,
+                         double thr_rad, double tolerance_rad) {
+  PairData p;
+  p.a = a;
+  p.b = b;
+  p.rays = true;
+  const Camera &A = rig.cameras[a], &B = rig.cameras[b];
+  const Eigen::Matrix3d Q0 = B.R().transpose() * A.R();  // camera a frame -> camera b frame
+  std::vector<Eigen::Vector3d> ua, ub;
+  std::vector<Eigen::Vector2d> raw_a, raw_b;
+  std::vector<double> size;
+  const double cos_tol = std::cos(tolerance_rad);
+  int matched = 0;
+  for (const auto& f : feats)
+    for (const auto& mt : match(f[a], f[b], o.features)) {
+      const cv::Point2f qa = f[a].keypoints[mt.queryIdx].pt, qb = f[b].keypoints[mt.trainIdx].pt;
+      Eigen::Vector3d ra, rb;
+      if (!lens_sees(A, qa.x, qa.y) || !lens_sees(B, qb.x, qb.y)) continue;
+      if (!lens_unproject(A, {qa.x, qa.y}, ra) || !lens_unproject(B, {qb.x, qb.y}, rb)) continue;
+      ++matched;
+      if ((Q0 * ra).dot(rb) < cos_tol) continue;  // not where the rough rig puts it
+      ua.push_back(ra);
+      ub.push_back(rb);
+      raw_a.emplace_back(qa.x, qa.y);
+      raw_b.emplace_back(qb.x, qb.y);
+      size.push_back(0.5 * (f[a].keypoints[mt.queryIdx].size + f[b].keypoints[mt.trainIdx].size));
+    }
+  p.matches = matched;
+  const int n = int(ua.size());
+  if (n < 8) {
+    p.note = "too few feature matches that agree with the rough rig (" + std::to_string(n) + " of " +
+             std::to_string(matched) + ", on rays)";
+    return p;
+  }
+  const double cos_thr = std::cos(thr_rad);
+  auto inliers_of = [&](const Eigen::Matrix3d& Q, std::vector<int>& in) {
+    in.clear();
+    for (int k = 0; k < n; ++k)
+      if ((Q * ua[k]).dot(ub[k]) >= cos_thr) in.push_back(k);
+  };
+  std::mt19937 rng(12345);
+  std::uniform_int_distribution<int> pick(0, n - 1);
+  std::vector<int> best, in;
+  Eigen::Matrix3d Q = Q0;
+  inliers_of(Q0, best);
+  for (int it = 0; it < 1000; ++it) {
+    const int i = pick(rng), j = pick(rng);
+    if (ua[i].cross(ua[j]).norm() < 0.05 || ub[i].cross(ub[j]).norm() < 0.05) continue;  // ~3 degrees apart
+    const Eigen::Matrix3d Qs = kabsch(ua, ub, {i, j});
+    inliers_of(Qs, in);
+    if (in.size() > best.size()) best = in, Q = Qs;
+  }
+  for (int round = 0; round < 3 && best.size() >= 3; ++round) {
+    Q = kabsch(ua, ub, best);
+    inliers_of(Q, best);
+  }
+  p.inliers = int(best.size());
+  int kept = 0;
+  for (int k : best) {
+    p.pa.push_back(raw_a[k]);
+    p.pb.push_back(raw_b[k]);
+    p.ra.push_back(raw_a[k]);
+    p.rb.push_back(raw_b[k]);
+    p.weight.push_back(std::min(1.0, kWeightSize / std::max(size[k], 1e-3)));
+    const int every = std::max(o.holdout_every, 0);
+    p.held.push_back(every >= 2 && kept % every == every / 2);
+    ++kept;
+  }
+  if (kept < o.min_inliers && !(kept >= 10 && kept > 8 + 0.3 * n)) {
+    p.note = "too few matches that agree with the rough rig (" + std::to_string(kept) + ", on rays)";
+    return p;
+  }
+  p.ok = true;
+  return p;
+}
+
+// Lens estimation needs matches over this range of angles off the axis (5th to 95th percentile).
+constexpr double kMinLensEstimateSpreadRad = 35.0 * kPi / 180.0;
+
+// The 5th-95th percentile range (radians) of the angles off camera `cam`'s axis of its accepted
+// matches' rays (through `c`'s rough lens).
+double ray_angle_spread(const Camera& c, int cam, const std::vector<PairData>& pairs) {
+  std::vector<double> th;
+  for (const auto& p : pairs) {
+    if (!p.ok || (p.a != cam && p.b != cam) || p.ra.size() != p.pa.size()) continue;
+    for (const auto& q : p.a == cam ? p.ra : p.rb) {
+      Eigen::Vector3d ray;
+      if (lens_unproject(c, q, ray)) th.push_back(std::acos(std::clamp(ray.z(), -1.0, 1.0)));
+    }
+  }
+  if (th.size() < 20) return 0;
+  std::sort(th.begin(), th.end());
+  return th[th.size() * 95 / 100] - th[th.size() * 5 / 100];
+}
+
+// Raw pixel of camera `from` -> raw pixel of camera `to` through both lenses and rotations.
+bool raw_transfer(const Rig& rig, int from, int to, const Eigen::Vector2d& p, Eigen::Vector2d& q) {
+  const Camera &F = rig.cameras[from], &T = rig.cameras[to];
+  Eigen::Vector3d ray;
+  if (!lens_unproject(F, p, ray)) return false;
+  return lens_project(T, T.R().transpose() * (F.R() * ray), q);
+}
+
 // The fitted (not held-out) matches of the accepted pairs, at most `cap` a pair spread over the
 // list: enough for the rotation model's 4 parameters a camera.
 std::vector<PairMatches> training_matches(const std::vector<PairData>& pairs, std::size_t cap = 300) {
@@ -485,11 +633,23 @@ Residuals residuals(const Rig& rig, const std::vector<PairData>& pairs, bool rot
     double ps = 0;
     int pc = 0;
     if (p.ok) {
+      if (p.rays) {
+        // Wide lenses: raw pixel -> ray -> raw pixel, both ways (no pinhole pixels).
+        for (std::size_t k = 0; k < p.ra.size(); ++k) {
+          if (bool(p.held[k]) != heldout) continue;
+          Eigen::Vector2d qb, qa;
+          double e2 = 100.0;
+          if (raw_transfer(rig, p.a, p.b, p.ra[k], qb) && raw_transfer(rig, p.b, p.a, p.rb[k], qa))
+            e2 = 0.5 * ((qb - p.rb[k]).squaredNorm() + (qa - p.ra[k]).squaredNorm());
+          ps += std::isfinite(e2) ? std::min(100.0, e2) : 100.0;
+          ++pc;
+        }
+      }
       const Eigen::Matrix3d H = pair_map(rig, p.a, p.b, rotation), Hi = H.inverse();
       // With lenses: the raw keypoints undistorted through THIS rig's lenses and focal lengths
       // (an adjustment that refined them judges itself by its own ideal pixels).
       const bool lens = p.ra.size() == p.pa.size() && !p.ra.empty();
-      for (std::size_t k = 0; k < p.pa.size(); ++k) {
+      for (std::size_t k = 0; k < p.pa.size() && !p.rays; ++k) {
         if (bool(p.held[k]) != heldout) continue;
         Eigen::Vector2d qa = p.pa[k], qb = p.pb[k];
         if (lens && (!undistort_point(rig.cameras[p.a], p.ra[k], qa) || !undistort_point(rig.cameras[p.b], p.rb[k], qb)))
@@ -1046,11 +1206,30 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // Matches of every pair that the start says may overlap, checked against it.
   const FeatureSets feats = detect_all(sets, n, o);
   // `lens_rig`: whose lenses undistort the keypoints (the start; again with estimated lenses).
-  auto match_all = [&](const Rig& lens_rig, double ransac_scale = 1.0) {
+  // Wide lenses on a rotating rig are matched on rays (see match_pair_rays).
+  auto ray_pair = [&](int a, int b) {
+    return !start.planar() && (needs_rays(start.cameras[a]) || needs_rays(start.cameras[b]));
+  };
+  bool any_rays = false;
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) any_rays |= ray_pair(a, b);
+  // `ray_thr_rad` > 0: the ray pairs' RANSAC threshold; rotations and lenses from `lens_rig`.
+  auto match_all = [&](const Rig& lens_rig, double ransac_scale = 1.0, double ray_thr_rad = 0) {
     std::vector<PairData> out;
     for (int a = 0; a < n; ++a)
       for (int b = a + 1; b < n; ++b) {
         const Camera &A = start.cameras[a], &B = start.cameras[b];
+        if (ray_pair(a, b)) {
+          const Camera &LA = lens_rig.cameras[a], &LB = lens_rig.cameras[b];
+          const double axes = std::acos(std::clamp(LA.R().col(2).dot(LB.R().col(2)), -1.0, 1.0));
+          if (axes > (lens_half_fov(LA) + lens_half_fov(LB)) * (1 + o.overlap_margin)) continue;
+          const double f = std::min(LA.fx, LB.fx);
+          // First pass: a rough focal length bends every ray (3 % is 3 degrees at 100 degrees
+          // off the axis, which no rotation absorbs): match loosely, the adjustment cleans up.
+          const double thr = ray_thr_rad > 0 ? ray_thr_rad : std::max(4 * o.ransac_threshold_px / f, 0.12);
+          out.push_back(match_pair_rays(feats, a, b, o, lens_rig, thr, 0.3));
+          continue;
+        }
         if (start.planar()) {
           if (overlap_box(start, a, b).area() <= 0) continue;
         } else {
@@ -1080,6 +1259,22 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     res.heldout_matches = held;
   };
   count_matched();
+  if (estimating && any_rays)
+    for (int i = 0; i < n; ++i) {
+      if (!rough.cameras[i].lens.estimate || !needs_rays(rough.cameras[i])) continue;
+      // Focal length and fisheye coefficients trade off unless the matches span many angles
+      // off the axis; a back-to-back pair sees only a ring near 90 degrees (measured: k1 -0.03
+      // came out +0.04 / -0.09 with the focal 35 % off, seams still sub-pixel).
+      const double spread = ray_angle_spread(rough.cameras[i], i, pairs);
+      if (spread >= kMinLensEstimateSpreadRad) continue;
+      rough.cameras[i].lens.estimate = false;
+      res.warnings.push_back("camera " + std::to_string(i) + ": its matches lie " +
+                             std::to_string(int(std::lround(spread * 180 / kPi))) +
+                             " degrees apart off its axis (a back-to-back overlap ring): too narrow to estimate the "
+                             "lens; keeping the given coefficients (give them, e.g. from an OpenCV calibration)");
+    }
+  estimating = false;
+  for (const auto& c : rough.cameras) estimating |= c.lens.estimate && !c.lens.pinhole();
 
   // The rotation model from the rough rotations (or, for a rig given by homographies, from
   // those: each camera's rotation relative to the reference's through its K).
@@ -1113,6 +1308,21 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
         rot = std::move(rot2);
         pairs = std::move(pairs2);
         start = lens_rig;  // the homography chain works on the same ideal pixels
+        count_matched();
+      }
+    }
+    if (rot.ok && any_rays) {
+      // Ray pairs were matched loosely around the rough focal lengths: match again through the
+      // adjusted rig with the usual threshold (in radians at the focal length) and adjust again.
+      double f = 1e30;
+      for (const auto& c : rot.rig.cameras) f = std::min(f, c.fx);
+      Rig r1 = rot.rig;
+      for (int i = 0; i < n; ++i) r1.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
+      std::vector<PairData> pairs2 = match_all(rot.rig, 1.0, o.ransac_threshold_px / f);
+      RotationFit rot2 = adjust(r1, pairs2);
+      if (rot2.ok) {
+        rot = std::move(rot2);
+        pairs = std::move(pairs2);
         count_matched();
       }
     }
