@@ -31,47 +31,7 @@ std::vector<double> list_of(const std::string& s) {
   return v;
 }
 
-// As tests/core/test_calib_lens.cpp: the worst image corner of the non-reference cameras, mapped
-// through the calibration (relative to the reference) into the true camera (raw pixels).
-double corner_error(const Rig& est, const Rig& truth) {
-  double worst = 0;
-  const int ref = truth.reference;
-  const Eigen::Matrix3d Re = est.cameras[est.reference].R().transpose(), Rt = truth.cameras[ref].R().transpose();
-  for (std::size_t i = 0; i < truth.cameras.size(); ++i) {
-    if (int(i) == ref) continue;
-    const Camera &E = est.cameras[i], &T = truth.cameras[i];
-    for (const Eigen::Vector2d& p : {Eigen::Vector2d(0, 0), Eigen::Vector2d(T.width - 1, 0),
-                                     Eigen::Vector2d(T.width - 1, T.height - 1), Eigen::Vector2d(0, T.height - 1)}) {
-      Eigen::Vector3d ray;
-      Eigen::Vector2d q;
-      if (!lens_unproject(E, p, ray)) return 1e9;
-      if (!lens_project(T, T.R().transpose() * (Rt.transpose() * (Re * E.R() * ray)), q)) return 1e9;
-      worst = std::max(worst, (q - p).norm());
-    }
-  }
-  return worst;
-}
 
-Rig true_rig(int w, int h, double f, double spacing, double k1, double k2, bool lens) {
-  Rig rig;
-  rig.projection = "spherical";
-  for (int i = 0; i < 3; ++i) {
-    Camera c;
-    c.width = w, c.height = h;
-    c.fx = c.fy = f;
-    c.cx = 0.5 * (w - 1), c.cy = 0.5 * (h - 1);
-    c.yaw_deg = spacing * (i - 1);
-    c.pitch_deg = i == 2 ? 2.0 : 0.0;
-    if (lens) {
-      c.lens.model = Lens::Model::Radtan;
-      c.lens.k1 = k1;
-      c.lens.k2 = k2;
-    }
-    rig.cameras.push_back(c);
-  }
-  rig.reference = 1;
-  return rig;
-}
 
 // Focal +-5 %, yaw +-3 degrees (signs and sizes from the seed), pitch dropped, lens: model only.
 Rig rough_of(const Rig& truth, unsigned seed) {
@@ -132,7 +92,7 @@ int main(int argc, char** argv) {
     for (double spacing : spacings)
       for (int seed = 0; seed < seeds; ++seed) {
         // The pinhole rig of the same geometry: the baseline.
-        const Rig pin_truth = true_rig(w, h, f, spacing, 0, 0, false);
+        const Rig pin_truth = testdata::radtan_trio(w, h, f, spacing, 0, 0, false, "spherical");
         std::vector<cv::Mat> pf;
         std::vector<ImageView> pv;
         for (const auto& c : pin_truth.cameras) pf.push_back(testdata::render_camera_from_equirect(photo, c));
@@ -140,14 +100,14 @@ int main(int argc, char** argv) {
         double pin_corner = -1, pin_median = -1;
         try {
           const CalibrationResult rp = calibrate_from_rig(rough_of(pin_truth, seed), pv, CalibrationOptions{});
-          pin_corner = corner_error(rp.rig, pin_truth);
+          pin_corner = testdata::lens_corner_error(rp.rig, pin_truth);
           pin_median = measure_alignment(rp.rig, pv).median_px;
         } catch (const std::exception& e) {
           std::fprintf(stderr, "pinhole: %s\n", e.what());
         }
         for (double k1 : k1s) {
           const double k2 = k1 < 0 ? k1 * k1 : 0.0;  // barrel: k2 = k1^2 keeps the lens unfolded in the frame
-          const Rig truth = true_rig(w, h, f, spacing, k1, k2, true);
+          const Rig truth = testdata::radtan_trio(w, h, f, spacing, k1, k2, true, "spherical");
           std::vector<cv::Mat> frames;
           std::vector<ImageView> views;
           for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
@@ -156,7 +116,7 @@ int main(int argc, char** argv) {
           std::string warn;
           try {
             const CalibrationResult r = calibrate_from_rig(rough_of(truth, seed), views, CalibrationOptions{});
-            corner = corner_error(r.rig, truth);
+            corner = testdata::lens_corner_error(r.rig, truth);
             median = measure_alignment(r.rig, views).median_px;
             k1_rel = 0;
             for (const auto& c : r.rig.cameras) {

@@ -4,6 +4,7 @@
 #pragma once
 #include <Eigen/Dense>
 #include <cmath>
+#include <string>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/blend/compositor.hpp"
@@ -167,6 +168,53 @@ inline cv::Mat compose_cpu(const stitch::Rig& rig, std::vector<cv::Mat>& frames)
   for (auto& f : frames) views.push_back(stitch::as_view(f));
   comp.compose(views, stitch::as_view(pano));
   return pano;
+}
+
+// Three cameras `spacing` degrees apart (the middle one the reference, the third pitched by
+// `pitch2_deg`), with a radtan lens (k1, k2) unless both are 0 and `lens` is false.
+inline stitch::Rig radtan_trio(int w, int h, double f, double spacing, double k1, double k2, bool lens,
+                               const std::string& projection, double pitch2_deg = 2.0) {
+  stitch::Rig rig;
+  rig.projection = projection;
+  for (int i = 0; i < 3; ++i) {
+    stitch::Camera c;
+    c.width = w, c.height = h;
+    c.fx = c.fy = f;
+    c.cx = 0.5 * (w - 1), c.cy = 0.5 * (h - 1);
+    c.yaw_deg = spacing * (i - 1);
+    c.pitch_deg = i == 2 ? pitch2_deg : 0.0;
+    if (lens) {
+      c.lens.model = stitch::Lens::Model::Radtan;
+      c.lens.k1 = k1;
+      c.lens.k2 = k2;
+    }
+    rig.cameras.push_back(c);
+  }
+  rig.reference = 1;
+  return rig;
+}
+
+// Where a calibration puts each non-reference camera's image corners, in that camera's raw
+// pixels under the truth: corner -> ray (estimated lens, K, R, relative to the reference) ->
+// the true camera. The worst corner over the cameras (1e9 when a corner maps nowhere).
+inline double lens_corner_error(const stitch::Rig& est, const stitch::Rig& truth) {
+  double worst = 0;
+  const int ref = truth.reference;
+  const Eigen::Matrix3d Re = est.cameras[est.reference].R().transpose(), Rt = truth.cameras[ref].R().transpose();
+  for (std::size_t i = 0; i < truth.cameras.size(); ++i) {
+    if (int(i) == ref) continue;
+    const stitch::Camera &E = est.cameras[i], &T = truth.cameras[i];
+    for (const Eigen::Vector2d& p : {Eigen::Vector2d(0, 0), Eigen::Vector2d(T.width - 1, 0),
+                                     Eigen::Vector2d(T.width - 1, T.height - 1), Eigen::Vector2d(0, T.height - 1)}) {
+      Eigen::Vector3d ray;
+      Eigen::Vector2d q;
+      if (!stitch::lens_unproject(E, p, ray)) return 1e9;
+      const Eigen::Vector3d d = Re * E.R() * ray;  // reference-camera frame
+      if (!stitch::lens_project(T, T.R().transpose() * (Rt.transpose() * d), q)) return 1e9;
+      worst = std::max(worst, (q - p).norm());
+    }
+  }
+  return worst;
 }
 
 }  // namespace testdata

@@ -21,22 +21,7 @@ namespace {
 constexpr double kK1 = -0.23, kK2 = 0.055;
 
 Rig true_rig(double k1 = kK1, double k2 = kK2) {
-  Rig rig;
-  rig.projection = "plane";
-  for (int i = 0; i < 3; ++i) {
-    Camera c;
-    c.width = 320, c.height = 240;
-    c.fx = c.fy = 260;
-    c.cx = 159.5, c.cy = 119.5;
-    c.yaw_deg = 35.0 * (i - 1);
-    c.pitch_deg = i == 2 ? 2.0 : 0.0;
-    c.lens.model = Lens::Model::Radtan;
-    c.lens.k1 = k1;
-    c.lens.k2 = k2;
-    rig.cameras.push_back(c);
-  }
-  rig.reference = 1;
-  return rig;
+  return testdata::radtan_trio(320, 240, 260, 35.0, k1, k2, true, "plane");
 }
 
 // Focal 5 % off (alternating), yaw 3 degrees off, pitch dropped.
@@ -53,28 +38,6 @@ Rig rough_of(const Rig& truth) {
   return r;
 }
 
-// Where the calibration puts each non-reference camera's image corners, in that camera's raw
-// pixels under the truth: corner -> ray (estimated lens, K, R, relative to the reference) ->
-// the true camera. The worst corner over the cameras.
-double corner_error(const Rig& est, const Rig& truth) {
-  double worst = 0;
-  const int ref = truth.reference;
-  const Eigen::Matrix3d Re = est.cameras[est.reference].R().transpose(), Rt = truth.cameras[ref].R().transpose();
-  for (std::size_t i = 0; i < truth.cameras.size(); ++i) {
-    if (int(i) == ref) continue;
-    const Camera &E = est.cameras[i], &T = truth.cameras[i];
-    for (const Eigen::Vector2d& p : {Eigen::Vector2d(0, 0), Eigen::Vector2d(T.width - 1, 0),
-                                     Eigen::Vector2d(T.width - 1, T.height - 1), Eigen::Vector2d(0, T.height - 1)}) {
-      Eigen::Vector3d ray;
-      Eigen::Vector2d q;
-      if (!lens_unproject(E, p, ray)) return 1e9;
-      const Eigen::Vector3d d = Re * E.R() * ray;  // reference-camera frame
-      if (!lens_project(T, T.R().transpose() * (Rt.transpose() * d), q)) return 1e9;
-      worst = std::max(worst, (q - p).norm());
-    }
-  }
-  return worst;
-}
 
 struct Scene {
   Rig truth;
@@ -99,21 +62,21 @@ const Scene& scene() {
 TEST(CalibLens, KnownRadtanCoefficients) {
   const Scene& s = scene();
   const Rig rough = rough_of(s.truth);
-  const double rough_err = corner_error(rough, s.truth);
+  const double rough_err = testdata::lens_corner_error(rough, s.truth);
   const CalibrationResult r = calibrate_from_rig(rough, s.views, CalibrationOptions{});
-  const double err = corner_error(r.rig, s.truth);
+  const double err = testdata::lens_corner_error(r.rig, s.truth);
   const AlignmentReport al = measure_alignment(r.rig, s.views);
   // The same calibration with the lens ignored (a pinhole rough rig).
   Rig pin = rough;
   for (auto& c : pin.cameras) c.lens = Lens{};
   const CalibrationResult rp = calibrate_from_rig(pin, s.views, CalibrationOptions{});
-  const double err_pin = corner_error(rp.rig, s.truth);
+  const double err_pin = testdata::lens_corner_error(rp.rig, s.truth);
   const AlignmentReport al_pin = measure_alignment(rp.rig, s.views);
   // What the calibrator did before it knew lenses: the pinhole fit on raw keypoints, the rough
   // rig's lens kept in the result.
   Rig before = rp.rig;
   for (std::size_t i = 0; i < before.cameras.size(); ++i) before.cameras[i].lens = rough.cameras[i].lens;
-  const double err_before = corner_error(before, s.truth);
+  const double err_before = testdata::lens_corner_error(before, s.truth);
   for (std::size_t i = 0; i < rp.rig.cameras.size(); ++i)
     std::printf("  lens ignored: camera %zu f %.1f (true %.0f), yaw %.2f (true %.2f)\n", i, rp.rig.cameras[i].fx,
                 s.truth.cameras[i].fx, rp.rig.cameras[i].yaw_deg - rp.rig.cameras[rp.rig.reference].yaw_deg,
@@ -151,7 +114,7 @@ TEST(CalibLens, EstimatesRadtanCoefficients) {
     c.lens.estimate = true;
   }
   const CalibrationResult r = calibrate_from_rig(rough, s.views, CalibrationOptions{});
-  const double err = corner_error(r.rig, s.truth);
+  const double err = testdata::lens_corner_error(r.rig, s.truth);
   const AlignmentReport al = measure_alignment(r.rig, s.views);
   std::printf("radtan estimated: model %s, corner error %.3f px, overlap matches median %.3f px (p90 %.3f, %d)\n",
               camera_model_name(r.model), err, al.median_px, al.p90_px, al.matches);
@@ -203,7 +166,7 @@ TEST(CalibLens, EstimatesAcrossTheRange) {
       c.lens.estimate = true;
     }
     const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
-    const double err = corner_error(r.rig, truth);
+    const double err = testdata::lens_corner_error(r.rig, truth);
     const AlignmentReport al = measure_alignment(r.rig, views);
     double worst_k1 = 0;
     for (const auto& c : r.rig.cameras) worst_k1 = std::max(worst_k1, std::abs(c.lens.k1 - k1));

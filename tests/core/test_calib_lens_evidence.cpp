@@ -18,23 +18,7 @@ using namespace stitch;
 namespace {
 
 Rig three_cameras(double k1, double k2) {
-  Rig rig;
-  rig.projection = "spherical";
-  for (int i = 0; i < 3; ++i) {
-    Camera c;
-    c.width = 320, c.height = 240;
-    c.fx = c.fy = 260;
-    c.cx = 159.5, c.cy = 119.5;
-    c.yaw_deg = 35.0 * (i - 1);
-    if (k1 != 0 || k2 != 0) {
-      c.lens.model = Lens::Model::Radtan;
-      c.lens.k1 = k1;
-      c.lens.k2 = k2;
-    }
-    rig.cameras.push_back(c);
-  }
-  rig.reference = 1;
-  return rig;
+  return testdata::radtan_trio(320, 240, 260, 35.0, k1, k2, k1 != 0 || k2 != 0, "spherical", 0.0);
 }
 
 CalibrationResult from_images(const Rig& truth, std::vector<cv::Mat>& frames) {
