@@ -660,7 +660,9 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
     case stitch::sync::StartDecision::Go:
       /* no camera has delivered a frame yet (a live aggregator's timeout, RTSP still
        * connecting): nobody started, so nobody can be late; count from the first frame */
-      if (st->first_data_us < 0) {
+      bool any_frame = false;  // (a flush or restart clears first_data_us; queued frames count too)
+      for (const stitch::sync::InputFacts& f : facts) any_frame = any_frame || f.has_frame || f.queued;
+      if (st->first_data_us < 0 && !any_frame) {
         st->first_ready_us = -1;
         g_usleep(2000);
         return GST_AGGREGATOR_FLOW_NEED_DATA;
