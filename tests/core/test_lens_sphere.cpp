@@ -65,6 +65,29 @@ cv::Mat equirect_photo(std::string& name) {
   return p;
 }
 
+// Each camera of `truth` rendered from the equirectangular photo.
+void render_views(const cv::Mat& photo, const Rig& truth, std::vector<cv::Mat>& frames, std::vector<ImageView>& views) {
+  for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+  for (auto& f : frames) views.push_back(as_view(f));
+}
+
+// A rough rig: focal +-3 %, yaw, pitch and roll +-2 degrees off (seeded), no canvas.
+Rig rough_of(const Rig& truth, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
+  Rig rough = truth;
+  rough.canvas_width = rough.canvas_height = 0;
+  rough.canvas_scale = 0;
+  rough.canvas_wrap = false;
+  for (auto& c : rough.cameras) {
+    c.fx = c.fy = c.fx * (1 + df(rng));
+    c.yaw_deg += da(rng);
+    c.pitch_deg += da(rng);
+    c.roll_deg += da(rng);
+  }
+  return rough;
+}
+
 }  // namespace
 
 TEST(DualFisheye, CalibratedFromARoughRigSeamsWithinAPixel) {
@@ -81,20 +104,8 @@ TEST(DualFisheye, CalibratedFromARoughRigSeamsWithinAPixel) {
     const Rig truth = testdata::dual_fisheye_rig(480, cs.fov, 0, cs.k1);
     std::vector<cv::Mat> frames;
     std::vector<ImageView> views;
-    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
-    for (auto& f : frames) views.push_back(as_view(f));
-    std::mt19937 rng(cs.seed);
-    std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
-    Rig rough = truth;
-    rough.canvas_width = rough.canvas_height = 0;
-    rough.canvas_scale = 0;
-    rough.canvas_wrap = false;
-    for (auto& c : rough.cameras) {
-      c.fx = c.fy = c.fx * (1 + df(rng));
-      c.yaw_deg += da(rng);
-      c.pitch_deg += da(rng);
-      c.roll_deg += da(rng);
-    }
+    render_views(photo, truth, frames, views);
+    Rig rough = rough_of(truth, cs.seed);
     Rig rough_laid = rough;
     rig_layout_canvas(rough_laid);
     int n_rough = 0;
@@ -190,19 +201,9 @@ TEST(DualFisheye, DeclinesToEstimateK1FromTheOverlapRingAlone) {
     const Rig truth = testdata::dual_fisheye_rig(480, cs.fov, 0, cs.k1);
     std::vector<cv::Mat> frames;
     std::vector<ImageView> views;
-    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
-    for (auto& f : frames) views.push_back(as_view(f));
-    std::mt19937 rng(cs.seed);
-    std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
-    Rig rough = truth;
-    rough.canvas_width = rough.canvas_height = 0;
-    rough.canvas_scale = 0;
-    rough.canvas_wrap = false;
+    render_views(photo, truth, frames, views);
+    Rig rough = rough_of(truth, cs.seed);
     for (auto& c : rough.cameras) {
-      c.fx = c.fy = c.fx * (1 + df(rng));
-      c.yaw_deg += da(rng);
-      c.pitch_deg += da(rng);
-      c.roll_deg += da(rng);
       c.lens.k1 = c.lens.k2 = 0;
       c.lens.estimate = true;
     }
@@ -246,20 +247,8 @@ TEST(FisheyeRing, CalibratedFromARoughRigSeamsWithinAPixel) {
     const Rig truth = testdata::fisheye_ring(cams, 320, fov);
     std::vector<cv::Mat> frames;
     std::vector<ImageView> views;
-    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
-    for (auto& f : frames) views.push_back(as_view(f));
-    std::mt19937 rng(7 + cams);
-    std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
-    Rig rough = truth;
-    rough.canvas_width = rough.canvas_height = 0;
-    rough.canvas_scale = 0;
-    rough.canvas_wrap = false;
-    for (auto& c : rough.cameras) {
-      c.fx = c.fy = c.fx * (1 + df(rng));
-      c.yaw_deg += da(rng);
-      c.pitch_deg += da(rng);
-      c.roll_deg += da(rng);
-    }
+    render_views(photo, truth, frames, views);
+    Rig rough = rough_of(truth, 7 + cams);
     Rig rough_laid = rough;
     rig_layout_canvas(rough_laid);
     const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});

@@ -436,13 +436,7 @@ Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& M);
 // axis of a frame corner or the image circle's rim (pinhole: the half diagonal).
 double lens_half_fov(const Camera& c) {
   if (c.lens.pinhole()) return half_diagonal_fov(c);
-  double far = 0;
-  const double xs[2] = {-0.5, c.width - 0.5}, ys[2] = {-0.5, c.height - 0.5};
-  for (double x : xs)
-    for (double y : ys) far = std::max(far, std::hypot((x - c.cx) / c.fx, (y - c.cy) / c.fy));
-  if (c.lens.circle)
-    far = std::min(far, (std::hypot(c.lens.circle->cx - c.cx, c.lens.circle->cy - c.cy) + c.lens.circle->radius) /
-                            std::min(c.fx, c.fy));
+  const double far = lens_far_radius(c);
   // Step in from the farthest normalised radius until the lens unprojects it.
   for (double t = far; t > 0.05 * far; t *= 0.97) {
     Eigen::Vector3d ray;

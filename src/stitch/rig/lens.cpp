@@ -204,11 +204,7 @@ std::string lens_problem(const Camera& c) {
   if (l.model == Lens::Model::Pinhole) return {};
   // The raw radius (normalised) of the farthest image corner (or circle rim) must lie before the
   // distortion folds back.
-  double far = 0;
-  const double xs[2] = {-0.5, c.width - 0.5}, ys[2] = {-0.5, c.height - 0.5};
-  for (double x : xs)
-    for (double y : ys) far = std::max(far, std::hypot((x - c.cx) / c.fx, (y - c.cy) / c.fy));
-  if (l.circle) far = std::min(far, (std::hypot(l.circle->cx - c.cx, l.circle->cy - c.cy) + l.circle->radius) / std::min(c.fx, c.fy));
+  const double far = lens_far_radius(c);
   if (l.model == Lens::Model::Radtan) {
     const double lim = radtan_limit(l);
     if (lim >= kNoLimit) return {};
@@ -225,9 +221,7 @@ std::string lens_problem(const Camera& c) {
   return {};
 }
 
-std::string lens_warning(const Camera& c) {
-  if (c.lens.model != Lens::Model::Fisheye || !(c.fx > 0) || !(c.fy > 0)) return {};
-  // theta of the farthest frame corner (or the circle's rim) through the lens.
+double lens_far_radius(const Camera& c) {
   double far = 0;
   const double xs[2] = {-0.5, c.width - 0.5}, ys[2] = {-0.5, c.height - 0.5};
   for (double x : xs)
@@ -235,6 +229,13 @@ std::string lens_warning(const Camera& c) {
   if (c.lens.circle)
     far = std::min(far, (std::hypot(c.lens.circle->cx - c.cx, c.lens.circle->cy - c.cy) + c.lens.circle->radius) /
                             std::min(c.fx, c.fy));
+  return far;
+}
+
+std::string lens_warning(const Camera& c) {
+  if (c.lens.model != Lens::Model::Fisheye || !(c.fx > 0) || !(c.fy > 0)) return {};
+  // theta of the farthest frame corner (or the circle's rim) through the lens.
+  const double far = lens_far_radius(c);
   Eigen::Vector3d ray;
   const double u = c.cx + far * c.fx, v = c.cy;
   double theta = far;  // equidistant: theta = theta_d

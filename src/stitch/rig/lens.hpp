@@ -38,6 +38,10 @@ std::vector<cv::Point2f> undistort_points(const Camera& c, const std::vector<cv:
 // Whether raw pixel (u, v) shows the scene: inside the image and its image circle.
 bool lens_sees(const Camera& c, double u, double v);
 
+// The normalised raw radius ((u - cx) / fx, (v - cy) / fy) of the farthest frame corner, or of
+// the image circle's rim when that is nearer: how far off the axis the frame reaches.
+double lens_far_radius(const Camera& c);
+
 // Empty when the lens is usable; else what is wrong (coefficients that fold the radius inside
 // the image, an image circle outside the frame, a negative radius).
 std::string lens_problem(const Camera& c);
