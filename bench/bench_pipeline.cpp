@@ -8,12 +8,14 @@
 // --handoff event|host|both: the elements hand the bundles on by CUDA event (the default) or
 // synchronise their streams before pushing (STITCH_CUDA_HOST_SYNC=1, as before issue 17); both:
 // each case twice, for the A/B.
-// usage: stitch-bench-pipeline [--photo PPM] [--frames N] [--cases a,b] [--cuda-input] [--system-output]
+// usage: stitch-bench-pipeline [--photo PPM] [--frames N] [--cuda-input] [--input-format RGBA|I420] [--system-output]
 //                              [--chain "stitchcolor ! stitchflowwarp ! stitchblend"] [--handoff MODE]
 //                              [--json FILE]
 #include <gst/app/gstappsrc.h>
 #include <gst/gst.h>
 #include <gst/video/video.h>
+
+#include <opencv2/imgproc.hpp>
 
 #include <chrono>
 #include <cstdio>
@@ -84,6 +86,20 @@ GstBuffer* make_frame(const cv::Mat& rgba, GstCaps* caps, void* cuda_ctx) {
   GstBuffer* buf = gst_buffer_new_allocate(nullptr, GST_VIDEO_INFO_SIZE(&info), nullptr);
   GstVideoFrame f;
   gst_video_frame_map(&f, &info, buf, GST_MAP_WRITE);
+  if (GST_VIDEO_INFO_FORMAT(&info) == GST_VIDEO_FORMAT_I420) {
+    // a decoder's output: Y, U and V planes (cv's I420 packs them one after another)
+    cv::Mat yuv;
+    cv::cvtColor(rgba, yuv, cv::COLOR_RGBA2YUV_I420);
+    const uint8_t* src = yuv.data;
+    for (int p = 0; p < 3; ++p) {
+      const int w = p ? rgba.cols / 2 : rgba.cols, h = p ? rgba.rows / 2 : rgba.rows;
+      for (int y = 0; y < h; ++y, src += w)
+        std::memcpy(static_cast<uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(&f, p)) + size_t(y) * GST_VIDEO_FRAME_PLANE_STRIDE(&f, p),
+                    src, size_t(w));
+    }
+    gst_video_frame_unmap(&f);
+    return buf;
+  }
   for (int y = 0; y < rgba.rows; ++y)
     std::memcpy(static_cast<uint8_t*>(GST_VIDEO_FRAME_PLANE_DATA(&f, 0)) + size_t(y) * GST_VIDEO_FRAME_PLANE_STRIDE(&f, 0),
                 rgba.ptr(y), size_t(rgba.cols) * 4);
@@ -98,6 +114,7 @@ struct Result {
 };
 
 std::string g_sync_props;  // --sync PROPS: stitchsync's properties (e.g. time-alignment=auto)
+std::string g_input_format = "RGBA";  // --input-format I420: a decoder's planar output (system memory)
 
 Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, bool cuda_input, bool system_output,
                 const std::string& chain, void* cuda_ctx) {
@@ -107,9 +124,13 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
   stitch::rig_save(rig, rig_path);
   const std::vector<cv::Mat> views = stitch_bench::ring_views(photo, c);
   const int out_w = int(0.85 * c.cameras * c.width) / 2 * 2;
-  std::string desc = "stitchsync name=s " + g_sync_props + " ! stitchcalib rig-file=\"" + rig_path + "\" refine=none ! " + chain +
-                     " crop=auto output-width=" + std::to_string(out_w) + " output-height=" + std::to_string(c.height) +
-                     (system_output ? " ! video/x-raw" : "") + " ! fakesink name=sink sync=false";
+  const std::string size = " crop=auto output-width=" + std::to_string(out_w) + " output-height=" + std::to_string(c.height);
+  // --chain stitchbin: the bin with its defaults (its own queue after stitchcalib)
+  std::string desc = chain == "stitchbin"
+                         ? "stitchbin name=s " + g_sync_props + " rig-file=\"" + rig_path + "\" refine=none" + size
+                         : "stitchsync name=s " + g_sync_props + " ! stitchcalib rig-file=\"" + rig_path +
+                               "\" refine=none ! " + chain + size;
+  desc += std::string(system_output ? " ! video/x-raw" : "") + " ! fakesink name=sink sync=false";
   for (int i = 0; i < c.cameras; ++i)
     desc += " appsrc name=src" + std::to_string(i) + " format=time max-bytes=0 ! s.sink_" + std::to_string(i);
   GError* err = nullptr;
@@ -127,7 +148,7 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
   }
 #endif
   const std::string caps_str = std::string(cuda_input ? "video/x-raw(memory:CUDAMemory)" : "video/x-raw") +
-                               ",format=RGBA,width=" + std::to_string(c.width) + ",height=" +
+                               ",format=" + g_input_format + ",width=" + std::to_string(c.width) + ",height=" +
                                std::to_string(c.height) + ",framerate=30/1";
   GstCaps* caps = gst_caps_from_string(caps_str.c_str());
   const GstClockTime duration = GST_SECOND / 30;
@@ -199,15 +220,25 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::max(8, std::atoi(argv[++i]));
     else if (!std::strcmp(argv[i], "--chain") && i + 1 < argc) chain = argv[++i];
     else if (!std::strcmp(argv[i], "--sync") && i + 1 < argc) g_sync_props = argv[++i];
+    else if (!std::strcmp(argv[i], "--input-format") && i + 1 < argc) g_input_format = argv[++i];
     else if (!std::strcmp(argv[i], "--cuda-input")) cuda_input = true;
     else if (!std::strcmp(argv[i], "--system-output")) system_output = true;
     else if (!std::strcmp(argv[i], "--small")) cases = {{3, 640, 480}};
+    else if (!std::strcmp(argv[i], "--case") && i + 1 < argc) {  // NxWxH: one size
+      stitch_bench::Case c{};
+      if (std::sscanf(argv[++i], "%dx%dx%d", &c.cameras, &c.width, &c.height) != 3 || c.cameras < 2 || c.width < 64 ||
+          c.height < 64) {
+        std::fprintf(stderr, "--case: cameras x width x height, e.g. 3x1920x1080\n");
+        return 2;
+      }
+      cases = {c};
+    }
     else if (!std::strcmp(argv[i], "--handoff") && i + 1 < argc) {
       const std::string m = argv[++i];
       handoffs = m == "both" ? std::vector<std::string>{"host", "event"} : std::vector<std::string>{m};
     } else {
       std::fprintf(stderr, "usage: %s [--photo PPM] [--frames N] [--cuda-input] [--system-output] [--small] "
-                           "[--chain DESC] [--sync PROPS] [--handoff event|host|both] [--json FILE]\n", argv[0]);
+                           "[--case NxWxH] [--chain DESC] [--sync PROPS] [--input-format RGBA|I420] [--handoff event|host|both] [--json FILE]\n", argv[0]);
       return 2;
     }
   }
@@ -225,10 +256,14 @@ int main(int argc, char** argv) {
     return 77;
 #endif
   }
-  const char* input = cuda_input ? "CUDA memory" : "system memory";
+  if (g_input_format != "RGBA" && (g_input_format != "I420" || cuda_input)) {
+    std::fprintf(stderr, "--input-format: RGBA, or I420 in system memory\n");
+    return 2;
+  }
+  const std::string input = std::string(cuda_input ? "CUDA memory" : "system memory") + " " + g_input_format;
   const char* output = system_output ? "system memory" : "stitchblend's choice";
-  std::printf("input %s, output %s, %d frames; chain: %s\n", input, output, frames, chain.c_str());
-  std::string json = "{\"input\":\"" + std::string(input) + "\",\"output\":\"" + output + "\",\"frames\":" +
+  std::printf("input %s, output %s, %d frames; chain: %s\n", input.c_str(), output, frames, chain.c_str());
+  std::string json = "{\"input\":\"" + input + "\",\"output\":\"" + output + "\",\"frames\":" +
                      std::to_string(frames) + ",\"cases\":[";
   int failures = 0;
   std::size_t row = 0;

@@ -455,6 +455,31 @@ static void pin_memory(GstCudaContext* ctx, GstMemory* mem) {
 }
 #endif
 
+/* qdata on an input memory: 1 once seen, 2 once page-locked (or refused) */
+static GQuark input_pin_quark(void) {
+  static GQuark q = g_quark_from_static_string("stitch-input-pin");
+  return q;
+}
+
+void stitch_cuda_pin_reused_input(StitchCudaContext& cuda, GstBuffer* buffer) {
+#ifdef STITCH_HAVE_GST_CUDA
+  /* STITCH_CUDA_NO_PIN_INPUT=1: staged through the pinned ring as before (for the A/B) */
+  if (!cuda.valid() || !buffer || g_getenv("STITCH_CUDA_NO_PIN_INPUT")) return;
+  const guint n = gst_buffer_n_memory(buffer);
+  for (guint i = 0; i < n; ++i) {
+    GstMemory* mem = gst_buffer_peek_memory(buffer, i);
+    if (stitch_memory_is_cuda(mem)) continue;
+    const gsize seen = GPOINTER_TO_SIZE(gst_mini_object_get_qdata(GST_MINI_OBJECT(mem), input_pin_quark()));
+    if (seen >= 2) continue;
+    if (seen == 1) pin_memory(cuda.get(), mem);  /* refused: stays pageable, staged as before */
+    gst_mini_object_set_qdata(GST_MINI_OBJECT(mem), input_pin_quark(), GSIZE_TO_POINTER(seen + 1), NULL);
+  }
+#else
+  (void)cuda;
+  (void)buffer;
+#endif
+}
+
 static GstMemory* alloc_view(GstStitchBundlePool* self, int width, int height, gint* stride) {
 #ifdef STITCH_HAVE_GST_CUDA
   if (self->cuda_memory) {

@@ -90,6 +90,12 @@ class StitchCudaContext {
 #endif
 };
 
+/* System-memory input frames come back frame after frame (a decoder's or source's pool, the
+ * same buffer pushed again): each memory of `buffer` seen for the second time is page-locked in
+ * `cuda`'s context, once, so that its upload is a DMA straight from it with no staging copy.
+ * Memory seen once (allocated per frame) is left pageable. Does nothing without a context. */
+void stitch_cuda_pin_reused_input(StitchCudaContext& cuda, GstBuffer* buffer);
+
 #ifdef STITCH_HAVE_GST_CUDA
 /* Makes `ctx` current for the calling thread until destroyed (nothing without a context). */
 class StitchCudaPush {

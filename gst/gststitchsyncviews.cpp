@@ -219,7 +219,9 @@ gboolean bundle_in_cuda_memory(GstStitchSync* self, const std::vector<GstVideoAg
           converter.clear(view);
           missing |= guint64(1) << id;
         } else if (frame) {
-          converter.convert(frame_view(frame), view);
+          const stitch::FrameView in = frame_view(frame);
+          if (!in.on_device) stitch_cuda_pin_reused_input(st->cuda, frame->buffer);
+          converter.convert(in, view);
           gst_buffer_replace(&last.frame, frame->buffer);
           last.frame_info = frame->info;
         } else if (last.frame) {

@@ -5,7 +5,8 @@
 # 64 MiB a device call carries, so it holds only binaries that link no OpenCV
 # imgcodecs/videoio (their codec and GDAL trees are large).
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
-#        OUT=... scripts/gpu_check.sh [quick|blend|e2e|handoff] (on the GPU host; quick: tests only;
+#        OUT=... scripts/gpu_check.sh [quick|blend|e2e|handoff|sysmem] (on the GPU host; quick: tests only;
+#                                                   sysmem: tests, system-memory input A/B (RGBA, I420);
 #                                                   handoff: tests, event vs host-sync hand-off A/B;
 #                                                   blend: tests, blend modes, decoded pipelines)
 set -uo pipefail
@@ -57,6 +58,27 @@ if [ "${1:-}" = handoff ]; then
   for t in 1 2 4 8 16; do
     timeout 100 $B/stitch-bench-chain --photo "$STITCH_TEST_PPM" --cpu-only --case 3x1920x1080 --cpu-frames 5 \
       --threads $t 2>&1 | grep -E "threads|^3x" | tee -a "$OUT/bench_handoff.txt"
+  done
+  exit
+fi
+if [ "${1:-}" = sysmem ]; then
+  echo "== system-memory input (RGBA, I420) and CUDA input: the element chain vs stitchbin (its queue after stitchcalib)"
+  run() {  # label, then bench arguments
+    local label=$1; shift
+    echo "-- $label" | tee -a "$OUT/bench_sysmem.txt"
+    timeout 170 $B/stitch-bench-pipeline --photo "$STITCH_TEST_PPM" --frames 400 "$@" 2>&1 \
+      | grep -v "nvrtc\|gldisplay\|nvenc" | tee -a "$OUT/bench_sysmem.txt"
+  }
+  for fmt in RGBA I420; do
+    for o in "" "--system-output"; do
+      run "$fmt chain ${o:-device output}" --input-format $fmt $o
+      run "$fmt stitchbin ${o:-device output}" --input-format $fmt --chain stitchbin $o
+    done
+  done
+  run "CUDA input, chain" --cuda-input
+  run "CUDA input, stitchbin" --cuda-input --chain stitchbin
+  for env in STITCH_CUDA_NO_PIN_INPUT=1 STITCH_CUDA_NO_PINNED=1; do
+    export $env; run "RGBA stitchbin $env" --chain stitchbin; unset ${env%%=*}
   done
   exit
 fi

@@ -81,6 +81,32 @@ TEST(StitchBin, TheIssueLaunchLineRuns) {
   EXPECT_EQ(o.buffers, 5);
 }
 
+// stitchsync's thread uploads the next bundle while the stages work on this one: a queue sits
+// between calib and color (the throughput of system-memory inputs depends on it).
+TEST(StitchBin, AQueueSeparatesStitchsyncsThreadFromTheStages) {
+  gsttest::init();
+  GstElement* bin = gst_element_factory_make("stitchbin", nullptr);
+  ASSERT_NE(bin, nullptr);
+  GstElement* queue = gst_bin_get_by_name(GST_BIN(bin), "queue");
+  ASSERT_NE(queue, nullptr);
+  GstPad* in = gst_element_get_static_pad(queue, "sink");
+  GstPad* out = gst_element_get_static_pad(queue, "src");
+  GstPad* from = gst_pad_get_peer(in);
+  GstPad* to = gst_pad_get_peer(out);
+  ASSERT_TRUE(from && to);
+  GstElement* up = gst_pad_get_parent_element(from);
+  GstElement* down = gst_pad_get_parent_element(to);
+  EXPECT_STREQ(GST_ELEMENT_NAME(up), "calib");
+  EXPECT_STREQ(GST_ELEMENT_NAME(down), "color");
+  guint buffers = 0;
+  g_object_get(queue, "max-size-buffers", &buffers, NULL);
+  EXPECT_EQ(buffers, 2u);
+  for (GstObject* o : {GST_OBJECT(up), GST_OBJECT(down), GST_OBJECT(from), GST_OBJECT(to), GST_OBJECT(in),
+                       GST_OBJECT(out), GST_OBJECT(queue)})
+    gst_object_unref(o);
+  gst_object_unref(bin);
+}
+
 TEST(StitchBin, PropertiesReachTheChildren) {
   gsttest::init();
   GError* err = nullptr;

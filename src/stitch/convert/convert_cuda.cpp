@@ -1,7 +1,10 @@
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <stdexcept>
 #include <vector>
+
+#include <opencv2/core/utility.hpp>
 
 #include "../../../cuda/convert/convert_kernels.hpp"
 #include "stitch/convert/convert_internal.hpp"
@@ -83,7 +86,7 @@ class FrameConverterCuda final : public FrameConverter {
     stream_.enter();
     host_out_ = host_out_ || !out.on_device;
     const std::size_t row = std::size_t(in.width) * 4;
-    if (in.format == FrameFormat::RGBA && !in.on_device && out.on_device && pinned_) {
+    if (in.format == FrameFormat::RGBA && !in.on_device && out.on_device && pinned_ && !page_locked(in)) {
       uint8_t* slot = ring_.take(row * std::size_t(in.height));
       copy_rows(slot, row, in.planes[0], in.pitches[0], row, in.height);
       STITCH_CUDA(cudaMemcpy2DAsync(out.data, out.pitch, slot, row, row, std::size_t(in.height),
@@ -140,13 +143,42 @@ class FrameConverterCuda final : public FrameConverter {
   Backend backend() const override { return Backend::Cuda; }
 
  private:
+  // Staging copy into the pinned ring, in row blocks on several cores: one core's memcpy
+  // (5-10 GB/s) would cap system-memory input at a few hundred bundles per second.
   static void copy_rows(uint8_t* dst, std::size_t dst_pitch, const uint8_t* src, std::size_t src_pitch,
                         std::size_t row, int rows) {
-    if (dst_pitch == src_pitch && row == src_pitch) {
-      std::memcpy(dst, src, row * std::size_t(rows));
+    const auto copy_block = [=](int y0, int y1) {
+      if (dst_pitch == src_pitch && row == src_pitch) {
+        std::memcpy(dst + std::size_t(y0) * dst_pitch, src + std::size_t(y0) * src_pitch, row * std::size_t(y1 - y0));
+        return;
+      }
+      for (int y = y0; y < y1; ++y) std::memcpy(dst + std::size_t(y) * dst_pitch, src + std::size_t(y) * src_pitch, row);
+    };
+    const std::size_t bytes = row * std::size_t(rows);
+    const int blocks = int(std::min<std::size_t>(kCopyBlocks, bytes / kMinBlockBytes));
+    if (blocks <= 1) {
+      copy_block(0, rows);
       return;
     }
-    for (int y = 0; y < rows; ++y) std::memcpy(dst + std::size_t(y) * dst_pitch, src + std::size_t(y) * src_pitch, row);
+    cv::parallel_for_(cv::Range(0, blocks), [&](const cv::Range& r) {
+      for (int b = r.start; b < r.end; ++b) copy_block(rows * b / blocks, rows * (b + 1) / blocks);
+    });
+  }
+  static constexpr std::size_t kCopyBlocks = 8, kMinBlockBytes = std::size_t(1) << 20;
+
+  // True when every plane of a system-memory frame is page-locked (stitchsync pins input memory
+  // that comes back frame after frame): the device then reads it by DMA, no staging copy.
+  static bool page_locked(const FrameView& in) {
+    const int planes = in.format == FrameFormat::I420 ? 3 : in.format == FrameFormat::NV12 ? 2 : 1;
+    for (int p = 0; p < planes; ++p) {
+      cudaPointerAttributes a{};
+      if (cudaPointerGetAttributes(&a, in.planes[p]) != cudaSuccess) {
+        cudaGetLastError();
+        return false;
+      }
+      if (a.type != cudaMemoryTypeHost) return false;
+    }
+    return true;
   }
 
   // The frame's planes copied to the device, packed (through the pinned ring).
@@ -176,7 +208,8 @@ class FrameConverterCuda final : public FrameConverter {
     staging.resize(total);
     FrameView d = in;
     d.on_device = true;
-    uint8_t* slot = pinned_ ? ring_.take(total) : nullptr;
+    // page-locked input: each plane straight from it; else through a pinned slot
+    uint8_t* slot = pinned_ && !page_locked(in) ? ring_.take(total) : nullptr;
     for (int p = 0; p < planes; ++p) {
       uint8_t* dst = staging.data() + offsets[p];
       if (slot) {
