@@ -147,6 +147,22 @@ __device__ __forceinline__ void starting_flow(const FlowLevelTask& t, int x, int
   }
 }
 
+struct SeedParams {
+  FlowLevelTask tasks[kMaxFlowTasks];
+};
+static_assert(sizeof(SeedParams) <= 4096, "kernel parameters must fit the classic 4 KiB");
+
+__global__ void seed_kernel(const __grid_constant__ SeedParams p) {
+  const FlowLevelTask& t = p.tasks[blockIdx.z];
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (t.source != kFlowSeed || x >= t.width || y >= t.height) return;
+  float u, v;
+  flow::seed_flow_at(t.src, size_t(t.src_pitch), t.src_w, t.src_h, t.seed_step, x, y, u, v);
+  float* q = t.dst + 2 * (size_t(y) * size_t(t.dst_pitch) + size_t(x));
+  q[0] = u;
+  q[1] = v;
+}
+
 template <typename Pixel>
 __global__ void __launch_bounds__(kIterThreads) lk_iteration_kernel(const __grid_constant__ IterationParams p) {
   const FlowLevelTask& t = p.tasks[blockIdx.z];
@@ -283,6 +299,16 @@ void launch_flow_pyramid(int n_pairs, const FlowPyramidImage* images, cudaStream
   const PyramidParams p = pyramid_params(n_pairs, images);
   pyramid_kernel<float, false><<<pyramid_grid(n_pairs, images), dim3(kPyrBlockW, kPyrBlockH), 0, stream>>>(p);
   check_launch("flow pyramid kernel");
+}
+
+void launch_flow_seed(int n_pairs, const FlowLevelTask* tasks, int max_w, int max_h, cudaStream_t stream) {
+  if (n_pairs <= 0 || max_w <= 0 || max_h <= 0) return;
+  if (n_pairs > kMaxFlowTasks) throw std::invalid_argument("too many flow tasks");
+  SeedParams p{};
+  for (int i = 0; i < n_pairs; ++i) p.tasks[i] = tasks[i];
+  const dim3 block(32, 8), grid((max_w + 31) / 32, (max_h + 7) / 8, n_pairs);
+  seed_kernel<<<grid, block, 0, stream>>>(p);
+  check_launch("flow seed kernel");
 }
 
 void launch_flow_iteration(int n_pairs, const FlowLevelTask* tasks, const FlowIterationSettings& settings,

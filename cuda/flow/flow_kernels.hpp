@@ -69,6 +69,13 @@ struct FlowIterationSettings {
   const int* flat = nullptr;
 };
 
+// The starting flow of the tasks whose source is kFlowSeed (the caller's full-resolution field
+// averaged down by seed_step, flow::seed_flow_at) written once to their dst at the level's size;
+// other tasks are skipped. The pass that follows reads it as kFlowCurrent: the same values, but
+// computed once per level pixel instead of for every pixel of every iteration block's window
+// and halo (a (step + 1)^2 window each: ~100 us of a 1 ms chain at level 5 on an H100).
+void launch_flow_seed(int n_pairs, const FlowLevelTask* tasks, int max_w, int max_h, cudaStream_t stream);
+
 // One dense Lucas-Kanade pass of n_pairs pairs at one level: every pixel's flow becomes the
 // solution of its Gaussian window's linearised constraints (flow_math.cuh), kept inside the
 // image.

@@ -148,11 +148,12 @@ class CudaDenseFlowImpl final : public CudaDenseFlow {
     // Coarse to fine: each level starts from the coarser result (or zero / the caller's
     // field at a pair's start level), then refines in place by ping-pong passes; the last pass
     // at full resolution writes the caller's flow.
-    std::array<stitch_cuda::FlowLevelTask, stitch_cuda::kMaxFlowTasks> passes{};
+    std::array<stitch_cuda::FlowLevelTask, stitch_cuda::kMaxFlowTasks> passes{}, seeds{};
     for (int level = top; level >= 0; --level) {
       const int iterations = level == 0 ? s_.fine_iterations : s_.coarse_iterations;
       for (int k = 0; k < iterations; ++k) {
         const bool final_pass = level == 0 && k == iterations - 1;
+        int seed_w = 0, seed_h = 0;
         for (int i = 0; i < n; ++i) {
           const PairLayout& L = layouts_[std::size_t(i)];
           const DeviceFlowTask& t = tasks[std::size_t(i)];
@@ -186,6 +187,19 @@ class CudaDenseFlowImpl final : public CudaDenseFlow {
             p.src_pitch = int(t.flow_pitch / (2 * sizeof(float)));
             p.src_w = t.width, p.src_h = t.height;
             p.seed_step = 1 << level;
+            if (!final_pass) {
+              // averaged down once into the buffer this pass does not write (it writes [0])
+              stitch_cuda::FlowLevelTask& seed = seeds[std::size_t(i)];
+              seed = p;
+              seed.width = L.w[level], seed.height = L.h[level];
+              seed.dst = plane_at(L.flow[level][1]);
+              seed.dst_pitch = L.pitch[level];
+              seed_w = std::max(seed_w, seed.width), seed_h = std::max(seed_h, seed.height);
+              p.source = stitch_cuda::kFlowCurrent;
+              p.src = seed.dst;
+              p.src_pitch = L.pitch[level];
+              p.src_w = L.w[level], p.src_h = L.h[level];
+            }
           } else {
             p.source = stitch_cuda::kFlowZero;
           }
@@ -196,6 +210,10 @@ class CudaDenseFlowImpl final : public CudaDenseFlow {
             p.dst = plane_at(L.flow[level][std::size_t(k % 2)]);
             p.dst_pitch = L.pitch[level];
           }
+        }
+        if (seed_w > 0) {
+          stitch_cuda::launch_flow_seed(n, seeds.data(), seed_w, seed_h, stream);
+          seeds = {};  // kFlowSkip for the next seeding
         }
         stitch_cuda::FlowIterationSettings it;
         it.lambda = s_.lambda;
