@@ -26,7 +26,8 @@
  *
  * The output is a bundle of the same caps whose views are the warped rectangles of the canvas
  * (a GstStitchWarpMeta says where each lies); stitchblend detects it and only fuses.
- * `flow=false` keeps the homography alone.
+ * `flow=false` keeps the homography alone: the bundle then passes through unwarped and stitchblend
+ * composes the frames onto the canvas (the same panorama, one full-canvas pass fewer).
  *
  * Bundles in CUDA memory (stitchsync with a GPU) are warped on the GPU and the warped views
  * go out in CUDA memory, from a pool of bundles allocated once per canvas layout.
@@ -223,6 +224,10 @@ static GstFlowReturn gst_stitch_flow_warp_prepare_output_buffer(GstBaseTransform
   FlowWarpElementState* st = self->state;
   GstStitchRigMeta* meta = stitch_bundle_require_rig(GST_ELEMENT(self), input);
   if (!meta || !stitch_bundle_require_camera_views(GST_ELEMENT(self), input)) return GST_FLOW_ERROR;
+  if (gst_base_transform_is_passthrough(trans)) {  /* flow=false: the bundle as it came */
+    *outbuf = input;
+    return GST_FLOW_OK;
+  }
   stitch::Backend backend;
   {
     std::lock_guard<std::mutex> guard(st->lock);
@@ -390,10 +395,23 @@ static gboolean gst_stitch_flow_warp_stop(GstBaseTransform* trans) {
 static void gst_stitch_flow_warp_set_property(GObject* object, guint prop_id, const GValue* value,
                                               GParamSpec* pspec) {
   GstStitchFlowWarp* self = GST_STITCH_FLOW_WARP(object);
+  if (prop_id == PROP_FLOW) {
+    const bool flow = g_value_get_boolean(value);
+    {
+      std::lock_guard<std::mutex> guard(self->state->lock);
+      self->state->settings.flow = flow;
+      /* turned back on: no flow history from before it was off */
+      self->state->reset_requested = true;
+    }
+    /* Flow off: the bundle goes through unwarped and stitchblend composes the frames straight
+     * onto the canvas, the same panorama (same maps and weights) without writing and reading
+     * every view's warped rectangle (BENCHMARKS.md, "flow=false passes through"). */
+    gst_base_transform_set_passthrough(GST_BASE_TRANSFORM(self), !flow);
+    return;
+  }
   std::lock_guard<std::mutex> guard(self->state->lock);
   stitch::FlowWarpSettings& s = self->state->settings;
   switch (prop_id) {
-    case PROP_FLOW: s.flow = g_value_get_boolean(value); break;
     case PROP_QUALITY: s.quality = stitch::FlowQuality(g_value_get_enum(value)); break;
     case PROP_ALGORITHM: s.algorithm = stitch::FlowAlgorithm(g_value_get_enum(value)); break;
     case PROP_MARGIN: s.margin = g_value_get_int(value); break;
@@ -500,4 +518,5 @@ static void gst_stitch_flow_warp_init(GstStitchFlowWarp* self) {
   s.margin = DEFAULT_MARGIN;
   s.temporal_smoothing = DEFAULT_TEMPORAL_SMOOTHING;
   s.fallback = DEFAULT_FALLBACK;
+  gst_base_transform_set_passthrough(GST_BASE_TRANSFORM(self), !DEFAULT_FLOW);
 }
