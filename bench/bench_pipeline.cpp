@@ -8,7 +8,7 @@
 // --handoff event|host|both: the elements hand the bundles on by CUDA event (the default) or
 // synchronise their streams before pushing (STITCH_CUDA_HOST_SYNC=1, as before issue 17); both:
 // each case twice, for the A/B.
-// usage: stitch-bench-pipeline [--photo PPM] [--frames N] [--cuda-input] [--input-format RGBA|I420] [--system-output]
+// usage: stitch-bench-pipeline [--photo PPM] [--frames N] [--rigs N] [--cuda-input] [--input-format RGBA|I420] [--system-output]
 //                              [--chain "stitchcolor ! stitchflowwarp ! stitchblend"] [--handoff MODE]
 //                              [--json FILE]
 #include <gst/app/gstappsrc.h>
@@ -116,11 +116,12 @@ struct Result {
 std::string g_sync_props;  // --sync PROPS: stitchsync's properties (e.g. time-alignment=auto)
 std::string g_input_format = "RGBA";  // --input-format I420: a decoder's planar output (system memory)
 
-Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, bool cuda_input, bool system_output,
-                const std::string& chain, void* cuda_ctx) {
-  Result r;
+// One rig's pipeline, its buffers queued in its appsrcs; nullptr (and `error`) when it cannot be made.
+GstElement* make_rig(const stitch_bench::Case& c, const cv::Mat& photo, int frames, bool cuda_input, bool system_output,
+                     const std::string& chain, void* cuda_ctx, int rig_index, Counter& counter, std::string& error) {
   const stitch::Rig rig = stitch_bench::ring(c);
-  const std::string rig_path = std::string(g_get_tmp_dir()) + "/stitch-bench-pipeline-rig.json";
+  const std::string rig_path =
+      std::string(g_get_tmp_dir()) + "/stitch-bench-pipeline-rig" + std::to_string(rig_index) + ".json";
   stitch::rig_save(rig, rig_path);
   const std::vector<cv::Mat> views = stitch_bench::ring_views(photo, c);
   const int out_w = int(0.85 * c.cameras * c.width) / 2 * 2;
@@ -136,9 +137,9 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
   GError* err = nullptr;
   GstElement* pipe = gst_parse_launch(desc.c_str(), &err);
   if (!pipe) {
-    r.error = err ? err->message : "parse error";
+    error = err ? err->message : "parse error";
     g_clear_error(&err);
-    return r;
+    return nullptr;
   }
 #ifdef STITCH_HAVE_GST_CUDA
   if (cuda_ctx) {
@@ -152,12 +153,12 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
                                std::to_string(c.height) + ",framerate=30/1";
   GstCaps* caps = gst_caps_from_string(caps_str.c_str());
   const GstClockTime duration = GST_SECOND / 30;
-  for (int i = 0; i < c.cameras; ++i) {
+  for (int i = 0; i < c.cameras && error.empty(); ++i) {
     GstElement* src = gst_bin_get_by_name(GST_BIN(pipe), ("src" + std::to_string(i)).c_str());
     gst_app_src_set_caps(GST_APP_SRC(src), caps);
     GstBuffer* frame = make_frame(views[size_t(i)], caps, cuda_input ? cuda_ctx : nullptr);
     if (!frame) {
-      r.error = "cannot allocate the source frames";
+      error = "cannot allocate the source frames";
       gst_object_unref(src);
       break;
     }
@@ -172,36 +173,67 @@ Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, b
     gst_object_unref(src);
   }
   gst_caps_unref(caps);
-  if (!r.error.empty()) {
+  if (!error.empty()) {
     gst_object_unref(pipe);
-    return r;
+    return nullptr;
   }
-  Counter counter;
   counter.warmup = std::min(30, frames / 4);
   GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "sink");
   GstPad* pad = gst_element_get_static_pad(sink, "sink");
   gst_pad_add_probe(pad, GST_PAD_PROBE_TYPE_BUFFER, count_buffers, &counter, nullptr);
   gst_object_unref(pad);
   gst_object_unref(sink);
-  gst_element_set_state(pipe, GST_STATE_PLAYING);
-  GstBus* bus = gst_element_get_bus(pipe);
-  GstMessage* msg = gst_bus_timed_pop_filtered(bus, 300 * GST_SECOND, GstMessageType(GST_MESSAGE_EOS | GST_MESSAGE_ERROR));
-  if (!msg) {
-    r.error = "timed out";
-  } else if (GST_MESSAGE_TYPE(msg) == GST_MESSAGE_ERROR) {
-    GError* e = nullptr;
-    gst_message_parse_error(msg, &e, nullptr);
-    r.error = e ? e->message : "error";
-    g_clear_error(&e);
+  return pipe;
+}
+
+// `rigs` pipelines of the case in one process, run at once. fps: every rig's panoramas after
+// its warm-up over the span from the first rig's warm-up end to the last rig's end.
+Result run_case(const stitch_bench::Case& c, const cv::Mat& photo, int frames, bool cuda_input, bool system_output,
+                const std::string& chain, void* cuda_ctx, int rigs = 1) {
+  Result r;
+  std::vector<Counter> counters(size_t(std::max(1, rigs)));
+  std::vector<GstElement*> pipes;
+  for (size_t k = 0; k < counters.size() && r.error.empty(); ++k) {
+    GstElement* pipe = make_rig(c, photo, frames, cuda_input, system_output, chain, cuda_ctx, int(k), counters[k], r.error);
+    if (pipe) pipes.push_back(pipe);
   }
-  if (msg) gst_message_unref(msg);
-  gst_object_unref(bus);
-  gst_element_set_state(pipe, GST_STATE_NULL);
-  gst_object_unref(pipe);
-  r.frames = counter.seen;
-  const double s = std::chrono::duration<double>(counter.end - counter.start).count();
-  if (counter.seen > counter.warmup && s > 0) r.fps = (counter.seen - counter.warmup) / s;
-  if (r.error.empty() && counter.seen < frames) r.error = "only " + std::to_string(counter.seen) + " panoramas";
+  if (r.error.empty())
+    for (GstElement* pipe : pipes) gst_element_set_state(pipe, GST_STATE_PLAYING);
+  const auto deadline = Clock::now() + std::chrono::seconds(300);
+  for (GstElement* pipe : pipes) {
+    if (!r.error.empty()) break;
+    GstBus* bus = gst_element_get_bus(pipe);
+    const auto left = std::chrono::duration_cast<std::chrono::nanoseconds>(deadline - Clock::now()).count();
+    GstMessage* msg = gst_bus_timed_pop_filtered(bus, GstClockTime(std::max<long long>(left, 0)),
+                                                 GstMessageType(GST_MESSAGE_EOS | GST_MESSAGE_ERROR));
+    if (!msg) {
+      r.error = "timed out";
+    } else if (GST_MESSAGE_TYPE(msg) == GST_MESSAGE_ERROR) {
+      GError* e = nullptr;
+      gst_message_parse_error(msg, &e, nullptr);
+      r.error = e ? e->message : "error";
+      g_clear_error(&e);
+    }
+    if (msg) gst_message_unref(msg);
+    gst_object_unref(bus);
+  }
+  for (GstElement* pipe : pipes) {
+    gst_element_set_state(pipe, GST_STATE_NULL);
+    gst_object_unref(pipe);
+  }
+  int counted = 0;
+  Clock::time_point first = Clock::time_point::max(), last = Clock::time_point::min();
+  r.frames = frames;
+  for (const Counter& counter : counters) {
+    r.frames = std::min(r.frames, counter.seen);
+    if (counter.seen <= counter.warmup) continue;
+    counted += counter.seen - counter.warmup;
+    first = std::min(first, counter.start);
+    last = std::max(last, counter.end);
+  }
+  const double span = counted > 0 ? std::chrono::duration<double>(last - first).count() : 0;
+  if (span > 0) r.fps = counted / span;
+  if (r.error.empty() && r.frames < frames) r.error = "only " + std::to_string(r.frames) + " panoramas";
   return r;
 }
 
@@ -212,6 +244,7 @@ int main(int argc, char** argv) {
   std::string photo_path = "build/tests/boat1_1600.ppm", json_path, chain = "stitchcolor ! stitchflowwarp ! stitchblend";
   int frames = 600;
   bool cuda_input = false, system_output = false;
+  int rigs = 1;  // --rigs N: N pipelines of each case in this process, run at once (aggregate rate)
   std::vector<std::string> handoffs = {"event"};
   std::vector<stitch_bench::Case> cases = {{2, 1920, 1080}, {3, 1920, 1080}, {3, 3840, 2160}, {6, 1920, 1080}};
   for (int i = 1; i < argc; ++i) {
@@ -221,6 +254,7 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--chain") && i + 1 < argc) chain = argv[++i];
     else if (!std::strcmp(argv[i], "--sync") && i + 1 < argc) g_sync_props = argv[++i];
     else if (!std::strcmp(argv[i], "--input-format") && i + 1 < argc) g_input_format = argv[++i];
+    else if (!std::strcmp(argv[i], "--rigs") && i + 1 < argc) rigs = std::max(1, std::atoi(argv[++i]));
     else if (!std::strcmp(argv[i], "--cuda-input")) cuda_input = true;
     else if (!std::strcmp(argv[i], "--system-output")) system_output = true;
     else if (!std::strcmp(argv[i], "--small")) cases = {{3, 640, 480}};
@@ -238,7 +272,7 @@ int main(int argc, char** argv) {
       handoffs = m == "both" ? std::vector<std::string>{"host", "event"} : std::vector<std::string>{m};
     } else {
       std::fprintf(stderr, "usage: %s [--photo PPM] [--frames N] [--cuda-input] [--system-output] [--small] "
-                           "[--case NxWxH] [--chain DESC] [--sync PROPS] [--input-format RGBA|I420] [--handoff event|host|both] [--json FILE]\n", argv[0]);
+                           "[--case NxWxH] [--rigs N] [--chain DESC] [--sync PROPS] [--input-format RGBA|I420] [--handoff event|host|both] [--json FILE]\n", argv[0]);
       return 2;
     }
   }
@@ -262,6 +296,7 @@ int main(int argc, char** argv) {
   }
   const std::string input = std::string(cuda_input ? "CUDA memory" : "system memory") + " " + g_input_format;
   const char* output = system_output ? "system memory" : "stitchblend's choice";
+  if (rigs > 1) std::printf("%d rigs in one process, at once; the rate is theirs in all\n", rigs);
   std::printf("input %s, output %s, %d frames; chain: %s\n", input.c_str(), output, frames, chain.c_str());
   std::string json = "{\"input\":\"" + input + "\",\"output\":\"" + output + "\",\"frames\":" +
                      std::to_string(frames) + ",\"cases\":[";
@@ -272,7 +307,7 @@ int main(int argc, char** argv) {
     const auto& c = cases[i];
     // read by the plugin at every frame (its own copy of the core library)
     setenv("STITCH_CUDA_HOST_SYNC", handoff == "host" ? "1" : "0", 1);
-    const Result r = run_case(c, photo, frames, cuda_input, system_output, chain, cuda_ctx);
+    const Result r = run_case(c, photo, frames, cuda_input, system_output, chain, cuda_ctx, rigs);
     char name[80];
     if (handoffs.size() > 1)
       std::snprintf(name, sizeof name, "%dx%dx%d/%s", c.cameras, c.width, c.height, handoff.c_str());
