@@ -5,7 +5,7 @@
 // rig, or a 360-degree ring for the equirectangular case) with sensor noise and a moving disc,
 // encoded by x264enc / x265enc on the host's cores.
 // usage: stitch-bench-e2e [--photo PPM] [--frames N] [--dir DIR] [--decoder nvh264dec|avdec_h264]
-//                         [--cases all|small] [--only NAME,...] [--bin] [--rigs 1,2,4,8] [--skip-latency] [--json FILE]
+//                         [--cases all|small] [--only NAME,...] [--bin] [--blend PROPS] [--flowwarp PROPS] [--rigs 1,2,4,8] [--skip-latency] [--json FILE]
 //                         [--handoff event|host|both]
 // --handoff: the rigs-per-process runs with the stream-ordered hand-off (event, the default),
 // with every element synchronising as before (host: STITCH_CUDA_HOST_SYNC=1), or both.
@@ -40,11 +40,16 @@ struct E2eCase {
   bool ring360 = false;              // a 6-camera 360-degree ring to an equirectangular panorama
   int out_width = 0, out_height = 0; // 0: 0.85 x the cameras' total width (planar)
   std::string codec = "h264";
-  bool cylindrical = false;  // the planar ring's cameras on a cylindrical canvas (what stitchcalib
-                             // picks for a rig wider than 110 degrees), from the same clips
-  std::string clips_of;      // another case's clips (same cameras), "" = its own
 };
 
+// "<case>_cylindrical": <case>'s cameras and clips on a cylindrical canvas (what stitchcalib
+// picks for a rig wider than 110 degrees) instead of the plane.
+const std::string kCylindrical = "_cylindrical";
+bool cylindrical(const E2eCase& c) {
+  return c.name.size() > kCylindrical.size() && c.name.compare(c.name.size() - kCylindrical.size(), std::string::npos, kCylindrical) == 0;
+}
+
+std::string g_blend_props, g_flow_props;  // --blend PROPS, --flowwarp PROPS: added to stitchblend / stitchflowwarp
 bool g_bin = false;  // --bin: stitchbin with its defaults (its queue after stitchcalib) instead of the chain
 
 // Counts buffers at a pad; the rate is taken after `warmup` buffers. With `live`, also the
@@ -237,13 +242,13 @@ Prepared prepare(const E2eCase& c, const cv::Mat& photo, int frames, const std::
   } else {
     rig = stitch_bench::ring({c.cameras, c.width, c.height});
     views = stitch_bench::ring_views(photo, {c.cameras, c.width, c.height});
-    if (c.cylindrical) {
+    if (cylindrical(c)) {
       rig.projection = stitch::projection_name(stitch::Projection::Cylindrical);
       rig.canvas_scale = 0;  // the median focal length
       stitch::rig_layout_canvas(rig);
     }
   }
-  const std::string clip_name = c.clips_of.empty() ? c.name : c.clips_of;
+  const std::string clip_name = cylindrical(c) ? c.name.substr(0, c.name.size() - kCylindrical.size()) : c.name;
   p.rig_path = dir + "/" + c.name + "_rig.json";
   stitch::rig_save(rig, p.rig_path);
   // Encode the cameras in parallel: each x264/x265 instance also uses several threads.
@@ -280,11 +285,11 @@ std::string stitch_head(const E2eCase& c, const Prepared& p) {
   const int ow = c.out_width ? c.out_width : int(0.85 * c.cameras * c.width) / 2 * 2;
   const int oh = c.out_height ? c.out_height : c.height;
   if (g_bin)
-    return "stitchbin name=s rig-file=\"" + p.rig_path + "\" refine=none" +
+    return "stitchbin name=s rig-file=\"" + p.rig_path + "\" refine=none " + g_blend_props + " " + g_flow_props +
            (c.ring360 ? std::string(" crop=none") : std::string(" crop=auto")) + " output-width=" + std::to_string(ow) +
            " output-height=" + std::to_string(oh);
   return "stitchsync name=s ! stitchcalib rig-file=\"" + p.rig_path +
-         "\" refine=none ! stitchcolor ! stitchflowwarp ! stitchblend" +
+         "\" refine=none ! stitchcolor ! stitchflowwarp " + g_flow_props + " ! stitchblend " + g_blend_props +
          (c.ring360 ? std::string(" crop=none") : std::string(" crop=auto")) +
          " output-width=" + std::to_string(ow) + " output-height=" + std::to_string(oh);
 }
@@ -316,6 +321,8 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--cases") && i + 1 < argc) cases_arg = argv[++i];
     else if (!std::strcmp(argv[i], "--only") && i + 1 < argc) only = std::string(",") + argv[++i] + ",";
     else if (!std::strcmp(argv[i], "--bin")) g_bin = true;
+    else if (!std::strcmp(argv[i], "--blend") && i + 1 < argc) g_blend_props = argv[++i];
+    else if (!std::strcmp(argv[i], "--flowwarp") && i + 1 < argc) g_flow_props = argv[++i];
     else if (!std::strcmp(argv[i], "--rigs") && i + 1 < argc) rigs_arg = argv[++i];
     else if (!std::strcmp(argv[i], "--skip-latency")) latency = false;
     else if (!std::strcmp(argv[i], "--handoff") && i + 1 < argc) {
@@ -324,7 +331,7 @@ int main(int argc, char** argv) {
     }
     else {
       std::fprintf(stderr, "usage: %s [--photo PPM] [--frames N] [--dir DIR] [--decoder nv|avdec] "
-                           "[--cases all|small] [--only NAME,...] [--bin] [--rigs 1,2,4,8] [--skip-latency] [--json FILE]\n", argv[0]);
+                           "[--cases all|small] [--only NAME,...] [--bin] [--blend PROPS] [--flowwarp PROPS] [--rigs 1,2,4,8] [--skip-latency] [--json FILE]\n", argv[0]);
       return 2;
     }
   }
@@ -337,10 +344,7 @@ int main(int argc, char** argv) {
     cases = {{"2x1080p", 2, 1920, 1080}, {"3x1080p", 3, 1920, 1080}, {"6x1080p", 6, 1920, 1080},
              {"3x1080p_h265", 3, 1920, 1080, false, 0, 0, "h265"}, {"3x4k", 3, 3840, 2160},
              {"6x4k_360_equirect", 6, 3840, 2160, true, 7680, 3840}};
-    E2eCase cyl{"6x1080p_cylindrical", 6, 1920, 1080};
-    cyl.cylindrical = true;
-    cyl.clips_of = "6x1080p";
-    cases.insert(cases.begin() + 3, cyl);
+    cases.insert(cases.begin() + 3, E2eCase{"6x1080p" + kCylindrical, 6, 1920, 1080});
   }
   if (!only.empty())  // --only a,b: those cases (the 3 x 1080p clips are still made for rigs/latency)
     cases.erase(std::remove_if(cases.begin(), cases.end(),
