@@ -126,9 +126,11 @@ GstElement* make_rig(const stitch_bench::Case& c, const cv::Mat& photo, int fram
   const std::vector<cv::Mat> views = stitch_bench::ring_views(photo, c);
   const int out_w = int(0.85 * c.cameras * c.width) / 2 * 2;
   const std::string size = " crop=auto output-width=" + std::to_string(out_w) + " output-height=" + std::to_string(c.height);
-  // --chain stitchbin: the bin with its defaults (its own queue after stitchcalib)
-  std::string desc = chain == "stitchbin"
-                         ? "stitchbin name=s " + g_sync_props + " rig-file=\"" + rig_path + "\" refine=none" + size
+  // --chain "stitchbin [PROPS]": the bin (its own queue after stitchcalib) with its defaults or PROPS
+  const bool bin = chain.rfind("stitchbin", 0) == 0;
+  std::string desc = bin
+                         ? "stitchbin name=s " + g_sync_props + " " + chain.substr(9) + " rig-file=\"" + rig_path +
+                               "\" refine=none" + size
                          : "stitchsync name=s " + g_sync_props + " ! stitchcalib rig-file=\"" + rig_path +
                                "\" refine=none ! " + chain + size;
   desc += std::string(system_output ? " ! video/x-raw" : "") + " ! fakesink name=sink sync=false";
