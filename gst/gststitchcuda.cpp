@@ -469,6 +469,9 @@ void stitch_cuda_pin_reused_input(StitchCudaContext& cuda, GstBuffer* buffer) {
   for (guint i = 0; i < n; ++i) {
     GstMemory* mem = gst_buffer_peek_memory(buffer, i);
     if (stitch_memory_is_cuda(mem)) continue;
+    /* a shared region (gst_buffer_copy, a parser's sub-buffer) is a new GstMemory every frame:
+     * the allocation it lies in is what comes back */
+    while (mem->parent) mem = mem->parent;
     const gsize seen = GPOINTER_TO_SIZE(gst_mini_object_get_qdata(GST_MINI_OBJECT(mem), input_pin_quark()));
     if (seen >= 2) continue;
     if (seen == 1) pin_memory(cuda.get(), mem);  /* refused: stays pageable, staged as before */
