@@ -387,6 +387,71 @@ TEST(AudioAlign, TrackerTakesTheAudioOffsetWhereVisionHasNone) {
   EXPECT_FALSE(est[1].valid);
 }
 
+namespace {
+
+// Two cameras' sound over `seconds` of camera 0's clock, fed interleaved in 20 ms blocks as the
+// element gets them, with an estimate once a second; camera 1 started `start` s after camera 0
+// and its clock runs `speed` times as fast.
+const std::vector<AudioEstimate>& feed_drifting(AudioAligner& a, double seconds, double start, double speed,
+                                                unsigned seed) {
+  const testdata::SoundScene scene(seconds + 5, seed);
+  const int rate0 = 48000, rate1 = 44100;
+  const std::vector<float> x0 = scene.record(0.0, std::size_t(seconds * rate0), rate0, 1, 1.0f, 0.03f, 1);
+  const std::vector<float> x1 = scene.record(start, std::size_t(seconds * rate1), rate1, 1, 0.7f, 0.03f, 2, speed);
+  for (int block = 0; block < int(seconds * 50); ++block) {
+    a.add(0, int64_t(block) * 20000000, x0.data() + std::size_t(block) * 960, 960, 1, rate0);
+    a.add(1, int64_t(block) * 20000000, x1.data() + std::size_t(block) * 882, 882, 1, rate1);
+    if (block % 50 == 49) a.estimate();
+  }
+  return a.estimate();
+}
+
+}  // namespace
+
+// Clock drift from the sound (issue 18): camera 1's clock runs 0.5% fast (or slow), and it was
+// started 10 frames late. Over 2 minutes the audio's windowed offsets give the rate, and the
+// offset now (drift included) within half a frame; view 0 seconds per camera-1 second is 1/speed.
+TEST(AudioAlign, HalfPercentRateDifferenceOverTwoMinutes) {
+  for (const double speed : {1.005, 0.995}) {
+    AudioAligner a(2);
+    const auto& e = feed_drifting(a, 120, 10 / 30.0, speed, 31);
+    ASSERT_TRUE(e[1].valid) << speed;
+    ASSERT_TRUE(e[1].rate_valid) << speed;
+    EXPECT_NEAR(e[1].rate, 1.0 / speed, 0.0005) << speed;
+    EXPECT_NEAR(e[1].rate, 1.0 / speed, 0.00005) << speed << ": the line should be far better than the target";
+    // camera 1's time t_b shows scene time start + t_b / speed: offset(t_b) = start + (1/speed - 1) t_b
+    const double t_b_end = 120.0 - 0.02;
+    EXPECT_NEAR(e[1].offset_ns / 1e9, 10 / 30.0 + (1.0 / speed - 1.0) * t_b_end, 0.5 / 30) << speed;
+    EXPECT_NEAR(e[1].offset_ns / 1e9, 10 / 30.0 + (1.0 / speed - 1.0) * t_b_end, 0.002) << speed;
+    EXPECT_NEAR(e[1].base_offset_ns / 1e9, 10 / 30.0, 0.002) << speed;
+    EXPECT_GE(e[1].confidence, AlignSettings{}.audio_min_confidence) << speed;
+    // the tracker applies the audio's line: offset(t) = base + (rate - 1) t at any time
+    OffsetTracker tr(2);
+    std::vector<uint8_t> img(64 * 36, 100);
+    std::vector<Estimate> est;
+    std::vector<int> quiet;
+    for (int f = 0; f < 40; ++f) {
+      for (int v = 0; v < 2; ++v) tr.add_frame(v, int64_t(f) * 33333333, img.data(), 64, 36, 64, 1, 0);
+      tr.update(est, quiet, &e);
+    }
+    ASSERT_TRUE(est[1].valid);
+    EXPECT_EQ(est[1].source, OffsetSource::Audio);
+    EXPECT_NEAR(est[1].rate, 1.0 / speed, 0.00005);
+    for (double t : {0.0, 60.0, 120.0})
+      EXPECT_NEAR(tr.offset_at(1, int64_t(t * 1e9)) / 1e9, 10 / 30.0 + (1.0 / speed - 1.0) * t, 0.002) << t;
+  }
+}
+
+// A synchronised rig's sound: rate 1 (no drift applied) and the offset stays at 0.
+TEST(AudioAlign, SynchronisedClocksShowNoDrift) {
+  AudioAligner a(2);
+  const auto& e = feed_drifting(a, 60, 0.0, 1.0, 32);
+  ASSERT_TRUE(e[1].valid);
+  EXPECT_TRUE(e[1].rate_valid);
+  EXPECT_DOUBLE_EQ(e[1].rate, 1.0);
+  EXPECT_NEAR(e[1].offset_ns / 1e9, 0.0, 0.001);
+}
+
 // A real clip (../shared: the hallway stereo pair, a person walking) as three cameras: left,
 // right, and left again; cameras 1 and 2 trimmed by 4 and 9 frames at the start as if started
 // later. Each camera also records a synthetic sound track (speech-like noise over a tone, its own

@@ -408,9 +408,16 @@ bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& n
       const AudioEstimate& a = (*audio)[v];
       if (!a.valid || a.confidence < settings_.audio_min_confidence) continue;
       Estimate& e = current_[v];
-      if (!e.valid) e.rate = 1.0;
-      e.offset_ns = a.offset_ns;
-      e.base_offset_ns = a.offset_ns - int64_t(std::llround((e.rate - 1.0) * aligner_.newest_s(int(v)) * 1e9));
+      if (a.rate_valid) {
+        // the audio's own drift line (windows of its envelope over minutes): sharper than vision's
+        e.rate = a.rate;
+        e.offset_ns = a.offset_ns;
+        e.base_offset_ns = a.base_offset_ns;
+      } else {
+        if (!e.valid) e.rate = 1.0;
+        e.offset_ns = a.offset_ns;
+        e.base_offset_ns = a.offset_ns - int64_t(std::llround((e.rate - 1.0) * aligner_.newest_s(int(v)) * 1e9));
+      }
       e.confidence = a.confidence;
       e.valid = true;
       e.source = OffsetSource::Audio;

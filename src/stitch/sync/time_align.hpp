@@ -134,7 +134,8 @@ class OffsetTracker {
   // when a view still has nothing to align on after a whole window.
   // `audio` (optional): the audio estimates (AudioAligner); a view whose audio estimate is at
   // least `audio_min_confidence` sure takes its offset from the audio (sharper), otherwise the
-  // vision estimate stands. The vision rate is kept either way.
+  // vision estimate stands. The rate is the audio's drift line once it has one (AudioEstimate::rate_valid),
+  // else vision's.
   bool update(std::vector<Estimate>& estimates, std::vector<int>& no_signal,
               const std::vector<AudioEstimate>* audio = nullptr);
   // The offset (ns) to add to `view`'s running time at its uncorrected time t_ns (drift
