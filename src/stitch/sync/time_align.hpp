@@ -42,6 +42,10 @@ struct AlignSettings {
   double drift_window_s = 20.0; // span of one offset measurement for the drift fit
   double min_drift_span_s = 40.0;  // rates are fitted once the measurements span this long
   double audio_min_confidence = 0.5;  // an audio estimate at least this sure replaces vision's
+  // each view's first samples are left out: a camera's own start (exposure settling, a burst of
+  // blocks as the encoder starts) is no scene event, and two streams that start at the same
+  // running time would line up on it whatever their true offset
+  double skip_start_s = 1.0;
 };
 
 enum class OffsetSource { None, Vision, Audio };
@@ -108,6 +112,7 @@ class TimeAligner {
   };
   AlignSettings settings_;
   std::vector<std::deque<Sample>> signals_;
+  std::vector<double> start_t_;  // per view: the time its samples started (NaN: not yet)
   std::vector<std::vector<Measurement>> drift_;  // per view: one per completed drift window
   double drift_origin_ = 0;                       // view-0 time the drift windows start at
   bool have_origin_ = false;
