@@ -11,7 +11,8 @@
 //
 // With --sweep N, the cameras after the first are trimmed N times, by 1..N frames each and
 // differently from one another (camera v by 1 + (k * (6v - 5) + 11 (v - 1)) mod N at run k), and
-// every run is scored against the untrimmed one: right (within a frame), no signal (said so), or
+// every run is scored against the untrimmed one (or --truth F0,F1,..: the untrimmed clip's
+// offsets in frames, where known otherwise): right (within a frame), no signal (said so), or
 // wrong (a valid estimate more than a frame off); the worst case is printed last.
 //
 //   stitch-bench-sync DIR CAM0.mp4 CAM1.mp4 [CAM2.mp4 ...] [--trim N1,N2,...] [--audio] [--sweep N]
@@ -89,10 +90,15 @@ int main(int argc, char** argv) {
   std::vector<int> trim;
   bool audio = false;
   int sweep = 0;
+  std::vector<double> truth;  // --truth: the untrimmed clip's offsets (frames), known otherwise
   for (int i = 2; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--audio") {
       audio = true;
+    } else if (a == "--truth" && i + 1 < argc) {
+      std::stringstream ss(argv[++i]);
+      std::string item;
+      while (std::getline(ss, item, ',')) truth.push_back(std::atof(item.c_str()));
     } else if (a == "--sweep" && i + 1 < argc) {
       sweep = std::atoi(argv[++i]);
     } else if (a == "--trim" && i + 1 < argc) {
@@ -161,6 +167,11 @@ int main(int argc, char** argv) {
           ++quiet;
           std::printf("  v%zu none (%.2f)", v, r[v].confidence);
           continue;
+        }
+        if (v < truth.size()) {
+          // scored against the known offsets of the untrimmed clip
+          base[v].valid = true;
+          base[v].offset_ns = int64_t(std::llround(truth[v] / fps * 1e9));
         }
         if (!base[v].valid) {
           // the untrimmed run had nothing: a trimmed run that claims an offset is not verifiable

@@ -26,6 +26,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <vector>
 
 #include "stitch/sync/audio_align.hpp"
@@ -97,7 +98,9 @@ class TimeAligner {
 
   // Lower level, exposed for the tests: offset of `b` relative to `a` (b's time + offset =
   // a's time) over [from, to) of a's time, with a confidence; false when there is too little.
-  bool correlate(int a, int b, double from_s, double to_s, double& offset_s, double& confidence) const;
+  // phat_from_s: where the whole-frame correlation starts (earlier than from_s: a longer span).
+  bool correlate(int a, int b, double from_s, double to_s, double& offset_s, double& confidence,
+                 double phat_from_s = std::numeric_limits<double>::quiet_NaN()) const;
 
  private:
   struct Sample {
@@ -107,6 +110,9 @@ class TimeAligner {
   double step_s() const;
   void measure_windows(int view);
   std::vector<double> resample(int view, int channel, double from_s, double to_s, double step) const;
+  // The whole-frame GCC-PHAT of b against a over [from, to) of a's time, in units of its own
+  // spread away from the peak (a z-score per lag, -lag_max..lag_max); empty without signal.
+  std::vector<double> whole_curve(int a, int b, double from_s, double to_s) const;
   struct Measurement {
     double t_b, offset, confidence;  // view-b time at the window's middle, offset there
   };
