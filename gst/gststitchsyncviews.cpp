@@ -287,6 +287,7 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
   while (n < pads.size() && pads[n]) ++n;
   if (!automatic) {
     st->tracker.reset();
+    for (guint v = 0; v < n; ++v) pad_state(pads[v])->clear_thumbnail();  // nothing reads them now
     for (guint v = 0; v < n; ++v) apply_time_offset(GST_AGGREGATOR_PAD(pads[v]), *pad_state(pads[v]), pad_state(pads[v])->file_offset_ns);
     return NULL;
   }
@@ -330,6 +331,8 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
     GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
     if (frame && GST_BUFFER_PTS(frame->buffer) != ps.signal_pts) {
       ps.signal_pts = GST_BUFFER_PTS(frame->buffer);
+      /* the previous frame's device thumbnail first: a view's samples go in in time order */
+      if (!take_thumbnail(v, /*wait=*/true)) continue;
       GST_OBJECT_LOCK(pad);
       const GstClockTime rt =
           gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(frame->buffer));
@@ -342,8 +345,7 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
       const std::size_t pitch = std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
       if (STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA)) {
         /* CUDA memory: reduced where it lies; the 9 KB come back to page-locked memory while the
-         * bundle goes on, and are read a bundle later (the same values as the CPU's) */
-        if (!take_thumbnail(v, /*wait=*/true)) continue;
+         * bundle goes on, and are read with the view's next frame (the same values as the CPU's) */
         try {
           if (!st->thumbnailer.made_with(st->cuda)) {
             for (guint w = 0; w < n; ++w) pad_state(pads[w])->clear_thumbnail();  // slots of the old one
