@@ -353,6 +353,33 @@ TEST(TimeAlign, RealClipsTrimmedWithinAFrameOrNoSignal) {
   }
 }
 
+// A strictly periodic scene (a bump every 15 frames: a walker's steps, a blinking light) matches
+// at every multiple of the period: whatever lag wins, it must not be trusted. With three cameras
+// the chain must not make it surer either.
+TEST(TimeAlign, PeriodicSceneIsNotTrusted) {
+  for (unsigned seed : {1u, 2u, 3u}) {
+    TimeAligner a(3);
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> n(0, 0.3);
+    const int start[3] = {0, 7, -4};
+    auto at = [](int f) {
+      const double d = double(((f % 15) + 15) % 15) - 7.0;  // a bump in the middle of every period
+      return 1.0 + 6.0 * std::exp(-0.5 * d * d / 4.0);
+    };
+    for (int f = 0; f < 25 * 30; ++f)
+      for (int v = 0; v < 3; ++v) a.add_sample(v, int64_t(f) * 1000000000 / 30, at(f + start[v]) + n(rng));
+    const auto e = a.estimate();
+    for (int v = 1; v < 3; ++v) {
+      const double got = e[std::size_t(v)].offset_ns / 1e9 * 30;
+      if (e[std::size_t(v)].valid)
+        EXPECT_NEAR(got, start[v], 1.0) << "seed " << seed << " view " << v << ": a confident alias, confidence "
+                                        << e[std::size_t(v)].confidence;
+      else
+        EXPECT_EQ(e[std::size_t(v)].offset_ns, 0);
+    }
+  }
+}
+
 // "A synchronised rig stays at 0 +- 0.5 frame with auto": three cameras in step, through the
 // tracker the element runs (estimates once a second, offsets applied by offset_at), at every
 // second from the 10th to the 35th, not only at the end, and for every seed.
