@@ -9,8 +9,15 @@
 // audio estimate (AudioAligner), the combined one (audio where sure, else vision) and the audio
 // cost are reported too.
 //
-//   stitch-bench-sync DIR CAM0.mp4 CAM1.mp4 [CAM2.mp4 ...] [--trim N1,N2,...] [--audio]
+// With --sweep N, the cameras after the first are trimmed N times, by 1..N frames each and
+// differently from one another (camera v by 1 + (k * (6v - 5) + 11 (v - 1)) mod N at run k), and
+// every run is scored against the untrimmed one (or --truth F0,F1,..: the untrimmed clip's
+// offsets in frames, where known otherwise): right (within a frame), no signal (said so), or
+// wrong (a valid estimate more than a frame off); the worst case is printed last.
+//
+//   stitch-bench-sync DIR CAM0.mp4 CAM1.mp4 [CAM2.mp4 ...] [--trim N1,N2,...] [--audio] [--sweep N]
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <opencv2/imgproc.hpp>
@@ -82,10 +89,18 @@ int main(int argc, char** argv) {
   std::vector<std::string> cams;
   std::vector<int> trim;
   bool audio = false;
+  int sweep = 0;
+  std::vector<double> truth;  // --truth: the untrimmed clip's offsets (frames), known otherwise
   for (int i = 2; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--audio") {
       audio = true;
+    } else if (a == "--truth" && i + 1 < argc) {
+      std::stringstream ss(argv[++i]);
+      std::string item;
+      while (std::getline(ss, item, ',')) truth.push_back(std::atof(item.c_str()));
+    } else if (a == "--sweep" && i + 1 < argc) {
+      sweep = std::atoi(argv[++i]);
     } else if (a == "--trim" && i + 1 < argc) {
       std::stringstream ss(argv[++i]);
       std::string item;
@@ -133,6 +148,56 @@ int main(int argc, char** argv) {
   print("synchronised (no trim):", e, zero, fps);
   std::vector<Estimate> base = e;
   e = align(sig, trim, fps, same, est_ms, n_est);
+  if (sweep > 0) {
+    // every run against the untrimmed one: within a frame, said "no signal", or wrong
+    int right = 0, quiet = 0, wrong = 0;
+    double worst = 0, worst_conf = 0;
+    std::string worst_what = "none";
+    for (int k = 0; k < sweep; ++k) {
+      std::vector<int> tr(cams.size(), 0);
+      for (std::size_t v = 1; v < cams.size(); ++v) tr[v] = 1 + int((k * (6 * int(v) - 5) + 11 * (int(v) - 1)) % sweep);
+      double ms = 0;
+      int ne = 0;
+      const auto r = align(sig, tr, fps, same, ms, ne);
+      std::printf("sweep trims");
+      for (int t : tr) std::printf(" %2d", t);
+      std::printf(":");
+      for (std::size_t v = 1; v < r.size(); ++v) {
+        if (!r[v].valid) {
+          ++quiet;
+          std::printf("  v%zu none (%.2f)", v, r[v].confidence);
+          continue;
+        }
+        if (v < truth.size()) {
+          // scored against the known offsets of the untrimmed clip
+          base[v].valid = true;
+          base[v].offset_ns = int64_t(std::llround(truth[v] / fps * 1e9));
+        }
+        if (!base[v].valid) {
+          // the untrimmed run had nothing: a trimmed run that claims an offset is not verifiable
+          ++wrong;
+          std::printf("  v%zu %+6.2f UNVERIFIED (%.2f)", v, r[v].offset_ns / 1e9 * fps, r[v].confidence);
+          if (worst < 1e9) worst = 1e9, worst_what = "a valid offset where the untrimmed run had none";
+          continue;
+        }
+        const double err = (r[v].offset_ns - base[v].offset_ns) / 1e9 * fps - tr[v];
+        (std::fabs(err) <= 1.0 ? right : wrong) += 1;
+        std::printf("  v%zu %+6.2f (%.2f)%s", v, err, r[v].confidence, std::fabs(err) <= 1.0 ? "" : " WRONG");
+        if (std::fabs(err) > worst) {
+          worst = std::fabs(err);
+          worst_conf = r[v].confidence;
+          char b[128];
+          std::snprintf(b, sizeof b, "view %zu at trims %d/%d: %+.2f frames, confidence %.2f", v, tr[1],
+                        cams.size() > 2 ? tr[2] : 0, err, r[v].confidence);
+          worst_what = b;
+        }
+      }
+      std::printf("\n");
+    }
+    std::printf("sweep: %d right (within 1 frame), %d no signal, %d wrong; worst: %s\n", right, quiet, wrong,
+                worst_what.c_str());
+    (void)worst_conf;
+  }
   std::printf("trimmed:");
   for (int t : trim) std::printf(" %d", t);
   std::printf(" frames (errors are relative to the untrimmed run's offsets)\n");

@@ -51,6 +51,11 @@ struct SyncPadState {
   gint64 applied_ns = 0;
   gint64 file_offset_ns = 0;
   GstClockTime signal_pts = GST_CLOCK_TIME_NONE;
+  /* CUDA-memory input: the frame whose thumbnail is in flight on the device (thumbnailer slot
+   * thumb_slot, taken a bundle later), held until then, and its uncorrected running time */
+  GstBuffer* thumb_frame = nullptr;
+  gint64 thumb_t = 0;
+  int thumb_slot = -1;
   /* a real frame came in (gaps do not count); the gaps sent in its stead while it had not */
   bool delivered = false;
   stitch::sync::StandIn standin;
@@ -60,6 +65,11 @@ struct SyncPadState {
     gst_clear_buffer(&buffer);
     gst_clear_buffer(&frame);
     signal_pts = GST_CLOCK_TIME_NONE;
+    clear_thumbnail();
+  }
+  void clear_thumbnail() {
+    gst_clear_buffer(&thumb_frame);
+    thumb_slot = -1;
   }
 };
 

@@ -289,16 +289,52 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
   while (n < pads.size() && pads[n]) ++n;
   if (!automatic) {
     st->tracker.reset();
+    for (guint v = 0; v < n; ++v) pad_state(pads[v])->clear_thumbnail();  // nothing reads them now
     for (guint v = 0; v < n; ++v) apply_time_offset(GST_AGGREGATOR_PAD(pads[v]), *pad_state(pads[v]), pad_state(pads[v])->file_offset_ns);
     return NULL;
   }
-  if (!st->tracker || st->tracker->views() != int(n)) st->tracker = std::make_unique<stitch::sync::OffsetTracker>(int(n));
+  if (!st->tracker || st->tracker->views() != int(n)) {
+    st->tracker = std::make_unique<stitch::sync::OffsetTracker>(int(n));
+    for (guint v = 0; v < n; ++v) pad_state(pads[v])->clear_thumbnail();  // for the old views
+  }
+  /* CUDA memory: the thumbnail submitted with the pad's previous frame, normally done by now
+   * (`wait`: take it even if not, its slot is needed); false after a CUDA error (warned) */
+  auto take_thumbnail = [&](guint v, bool wait) -> bool {
+    SyncPadState& ps = *pad_state(pads[v]);
+    if (!ps.thumb_frame) return true;
+    if (!st->thumbnailer.made_with(st->cuda)) {  // remade (new caps): its slots went with it
+      ps.clear_thumbnail();
+      return true;
+    }
+    try {
+      bool fed = false;
+      st->thumbnailer.run([&](stitch::sync::FrameThumbnailerCuda& t) {
+        if (ps.thumb_slot != int(v)) {
+          fed = true;  // the views were renumbered: dropped
+          return;
+        }
+        if (!wait && !t.ready(ps.thumb_slot)) return;
+        float thumb[stitch::sync::kThumbnailW * stitch::sync::kThumbnailH];
+        if (t.take(ps.thumb_slot, thumb)) st->tracker->add_thumbnail(int(v), ps.thumb_t, thumb);
+        fed = true;
+      });
+      if (fed) ps.clear_thumbnail();
+      return true;
+    } catch (const std::exception& e) {
+      ps.clear_thumbnail();
+      GST_ELEMENT_WARNING(self, STREAM, FAILED,
+                          ("time-alignment: cannot read %s's frame on the device", GST_PAD_NAME(pads[v])), ("%s", e.what()));
+      return false;
+    }
+  };
   for (guint v = 0; v < n; ++v) {
     GstVideoAggregatorPad* pad = pads[v];
     SyncPadState& ps = *pad_state(pad);
     GstVideoFrame* frame = gst_video_aggregator_pad_get_prepared_frame(pad);
     if (frame && GST_BUFFER_PTS(frame->buffer) != ps.signal_pts) {
       ps.signal_pts = GST_BUFFER_PTS(frame->buffer);
+      /* the previous frame's device thumbnail first: a view's samples go in in time order */
+      if (!take_thumbnail(v, /*wait=*/true)) continue;
       GST_OBJECT_LOCK(pad);
       const GstClockTime rt =
           gst_segment_to_running_time(&GST_AGGREGATOR_PAD(pad)->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(frame->buffer));
@@ -310,15 +346,19 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
       const int width = GST_VIDEO_FRAME_WIDTH(frame), height = GST_VIDEO_FRAME_HEIGHT(frame);
       const std::size_t pitch = std::size_t(GST_VIDEO_FRAME_PLANE_STRIDE(frame, 0));
       if (STITCH_MAP_CUDA != 0 && (frame->map[0].flags & STITCH_MAP_CUDA)) {
-        /* CUDA memory: reduced where it lies, 9 KB back to the host */
+        /* CUDA memory: reduced where it lies; the 9 KB come back to page-locked memory while the
+         * bundle goes on, and are read with the view's next frame (the same values as the CPU's) */
         try {
-          if (!st->thumbnailer.made_with(st->cuda))
+          if (!st->thumbnailer.made_with(st->cuda)) {
+            for (guint w = 0; w < n; ++w) pad_state(pads[w])->clear_thumbnail();  // slots of the old one
             st->thumbnailer.make(st->cuda, []() { return std::make_unique<stitch::sync::FrameThumbnailerCuda>(); });
-          float thumb[stitch::sync::kThumbnailW * stitch::sync::kThumbnailH];
+          }
           st->thumbnailer.run([&](stitch::sync::FrameThumbnailerCuda& t) {
-            t.thumbnail(plane, width, height, pitch, luma ? 1 : 4, luma ? 0 : 1, thumb);
+            t.submit(int(v), plane, width, height, pitch, luma ? 1 : 4, luma ? 0 : 1);
           });
-          st->tracker->add_thumbnail(int(v), gint64(rt) - ps.applied_ns, thumb);
+          ps.thumb_frame = gst_buffer_ref(frame->buffer);  // read by the kernel until taken
+          ps.thumb_t = gint64(rt) - ps.applied_ns;
+          ps.thumb_slot = int(v);
         } catch (const std::exception& e) {
           GST_ELEMENT_WARNING(self, STREAM, FAILED, ("time-alignment: cannot read %s's frame on the device", GST_PAD_NAME(pad)),
                               ("%s", e.what()));
@@ -327,6 +367,8 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
         st->tracker->add_frame(int(v), gint64(rt) - ps.applied_ns, plane, width, height, pitch, luma ? 1 : 4,
                                luma ? 0 : 1);
       }
+    } else {
+      take_thumbnail(v, /*wait=*/false);  // a repeated frame: the last one's result, if it is in
     }
   }
   /* the audio estimate is made on the audio's streaming thread (tens of ms once a second);

@@ -45,14 +45,16 @@ class SoundScene {
     return s_[i] * (1 - a) + s_[i + 1] * a;
   }
   // What a camera records: `frames` samples at `rate`, `channels` interleaved, its sample k at
-  // scene time start + k / rate, times `gain`, plus its own noise (rms `noise`).
+  // scene time start + k / (rate * speed), times `gain`, plus its own noise (rms `noise`).
+  // `speed`: how fast the camera's clock runs (1.005: 0.5% fast, its `rate` samples take 1/1.005
+  // of a scene second).
   std::vector<float> record(double start, std::size_t frames, int rate, int channels, float gain, float noise,
-                            unsigned seed) const {
+                            unsigned seed, double speed = 1.0) const {
     std::mt19937 rng(seed);
     std::normal_distribution<float> g(0.f, noise);
     std::vector<float> out(frames * std::size_t(channels));
     for (std::size_t k = 0; k < frames; ++k) {
-      const float v = gain * at(start + double(k) / rate);
+      const float v = gain * at(start + double(k) / (rate * speed));
       for (int c = 0; c < channels; ++c) out[k * std::size_t(channels) + std::size_t(c)] = v + g(rng);
     }
     return out;

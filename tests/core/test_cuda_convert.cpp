@@ -355,3 +355,46 @@ TEST(CudaConvert, TimeAlignThumbnailEqualsCpu) {
   }
 #endif
 }
+
+// The element's asynchronous path (submit now, take a bundle later; issue 18): the readback
+// goes to page-locked memory behind an event. Several views in flight at once, each slot reused
+// for the next frame, must give the CPU's thumbnails bit for bit, in the slot they were queued in.
+TEST(CudaConvert, TimeAlignAsyncThumbnailEqualsCpu) {
+  REQUIRE_CUDA_FOR("the asynchronous time-alignment thumbnail");
+#ifdef STITCH_HAVE_CUDA
+  const std::size_t cells = std::size_t(stitch::sync::kThumbnailW) * stitch::sync::kThumbnailH;
+  stitch::sync::FrameThumbnailerCuda thumbnailer;
+  std::vector<cv::Mat> frames;
+  std::vector<std::unique_ptr<testdata::DeviceMat>> dev;
+  for (int k = 0; k < 6; ++k) {  // 3 views x 2 frames
+    cv::Mat rgba(cv::Size(640 + 17 * k, 360 + 5 * k), CV_8UC4);
+    cv::randu(rgba, cv::Scalar::all(0), cv::Scalar::all(256));
+    frames.push_back(rgba);
+    dev.push_back(std::make_unique<testdata::DeviceMat>(rgba));
+  }
+  EXPECT_FALSE(thumbnailer.pending(0));
+  std::vector<float> got(cells, -1.f), want(cells);
+  EXPECT_FALSE(thumbnailer.take(0, got.data()));
+  for (int round = 0; round < 2; ++round) {
+    for (int v = 0; v < 3; ++v) {
+      const testdata::DeviceMat& d = *dev[std::size_t(round * 3 + v)];
+      thumbnailer.submit(v, d.ptr, frames[std::size_t(round * 3 + v)].cols, frames[std::size_t(round * 3 + v)].rows,
+                         d.pitch, 4, 1);
+      EXPECT_TRUE(thumbnailer.pending(v));
+    }
+    for (int v = 2; v >= 0; --v) {  // taken in another order than queued
+      const cv::Mat& f = frames[std::size_t(round * 3 + v)];
+      stitch::sync::frame_thumbnail_cpu(f.data, f.cols, f.rows, f.step, 4, 1, want.data());
+      ASSERT_TRUE(thumbnailer.take(v, got.data())) << v;
+      EXPECT_FALSE(thumbnailer.pending(v));
+      for (std::size_t i = 0; i < cells; ++i) ASSERT_EQ(want[i], got[i]) << "round " << round << " view " << v << " cell " << i;
+    }
+  }
+  // a slot resubmitted before it was taken holds the newer frame
+  thumbnailer.submit(1, dev[0]->ptr, frames[0].cols, frames[0].rows, dev[0]->pitch, 4, 1);
+  thumbnailer.submit(1, dev[4]->ptr, frames[4].cols, frames[4].rows, dev[4]->pitch, 4, 1);
+  stitch::sync::frame_thumbnail_cpu(frames[4].data, frames[4].cols, frames[4].rows, frames[4].step, 4, 1, want.data());
+  ASSERT_TRUE(thumbnailer.take(1, got.data()));
+  EXPECT_EQ(want, got);
+#endif
+}

@@ -17,6 +17,7 @@
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <random>
 #include <opencv2/imgproc.hpp>
 #include <unistd.h>
 
@@ -609,4 +610,61 @@ TEST(CudaMemoryChain, Nvh264decToCudadownloadInOneContext) {
     if (ctx) gst_object_unref(ctx);
   }
 #endif
+}
+
+// time-alignment=auto on CUDA-memory inputs (issue 18): each frame's thumbnail is made on the
+// device and read back asynchronously (a page-locked slot per view, taken with the view's next
+// frame). Camera 1 started 7 frames after camera 0 (uniform frames whose brightness follows a
+// scene of random flashes): the CUDA-memory run must find +7 frames like the system-memory run
+// of the same frames, to a fraction of a frame. The system-memory reference runs everywhere;
+// the CUDA part needs a device.
+namespace {
+
+std::vector<cv::Mat> flash_views(int f, int start1) {
+  static const std::vector<unsigned> scene = []() {
+    std::mt19937 rng(42);
+    std::vector<unsigned> v(4000);
+    for (auto& x : v) x = rng();
+    return v;
+  }();
+  std::vector<cv::Mat> views;
+  for (int start : {0, start1}) {
+    const unsigned h = scene[std::size_t(f + start) % scene.size()];
+    const int v = h % 9 == 0 ? 200 : 60 + int((h >> 8) % 8);
+    views.emplace_back(120, 160, CV_8UC4, cv::Scalar(v, v, v, 255));
+  }
+  return views;
+}
+
+// The last stitchsync-time-offsets message's offset-1 (frames) and confidence-1; -1000 without.
+std::pair<double, double> late_start_offset(const std::string& inputs) {
+  gsttest::RunResult r;
+  gsttest::run_pipeline_frames("stitchsync name=s time-alignment=auto ! fakesink sync=false " + inputs,
+                               [](int f) { return flash_views(f, 7); }, 360, r);
+  EXPECT_TRUE(r.errors.empty()) << (r.errors.empty() ? "" : r.errors[0]);
+  std::pair<double, double> got{-1000, 0};
+  for (const GstStructure* s : r.element_messages) {
+    if (!gst_structure_has_name(s, "stitchsync-time-offsets")) continue;
+    gint64 off = 0;
+    gdouble conf = 0;
+    if (gst_structure_get_int64(s, "offset-1", &off) && gst_structure_get_double(s, "confidence-1", &conf))
+      got = {double(off) / 1e9 * 30, conf};
+  }
+  return got;
+}
+
+}  // namespace
+
+TEST(CudaMemorySync, TimeAlignmentOnDeviceThumbnailsMatchesSystemMemory) {
+  const auto sys = late_start_offset(gsttest::appsrc_inputs(2));
+  EXPECT_NEAR(sys.first, 7.0, 0.5) << "system memory";
+  EXPECT_GT(sys.second, 0.5) << "system memory";
+  REQUIRE_CUDA_MEMORY();
+  std::string missing;
+  if (!elements_exist({"cudaupload"}, missing)) GTEST_SKIP() << "missing elements: " << missing;
+  const auto dev = late_start_offset(appsrc_cuda_inputs(2));
+  EXPECT_NEAR(dev.first, 7.0, 0.5) << "CUDA memory";
+  EXPECT_GT(dev.second, 0.5) << "CUDA memory";
+  // the same thumbnails (bit for bit), one frame later: the same estimate within a quarter frame
+  EXPECT_NEAR(dev.first, sys.first, 0.25);
 }

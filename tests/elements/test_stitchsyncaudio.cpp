@@ -40,8 +40,9 @@ GstPadProbeReturn count_buffer(GstPad*, GstPadProbeInfo*, gpointer data) {
 // `starts[i]`: scene time (s) at which camera i started; `seconds` of still video at 30 fps and of
 // audio (48 kHz stereo F32 on even cameras, 44.1 kHz mono S16 on odd ones) per camera.
 // `bin`: through stitchbin (its audio_%u pads) instead of stitchsync + stitchsyncaudio.
+// `speeds[i]`: how fast camera i's clock runs (1.005: 0.5 % fast; default 1).
 void run(const std::string& extra, const std::vector<double>& starts, double seconds, bool with_audio, Result& r,
-         bool bin = false) {
+         bool bin = false, const std::vector<double>& speeds = {}) {
   const testdata::SoundScene scene(seconds + 1);
   std::string desc = (bin ? "stitchbin rig-file=" + testdata::repo_path("examples/testsrc_rig.json") + " refine=none"
                           : std::string("stitchsync")) +
@@ -78,7 +79,8 @@ void run(const std::string& extra, const std::vector<double>& starts, double sec
       gst_caps_unref(caps);
       const std::size_t n = std::size_t(seconds * rate);
       // camera i's own microphone: gain and noise of its own
-      std::vector<float> x = scene.record(starts[i], n, rate, channels, 0.7f + 0.2f * float(i), 0.03f, unsigned(i + 1));
+      std::vector<float> x = scene.record(starts[i], n, rate, channels, 0.7f + 0.2f * float(i), 0.03f, unsigned(i + 1),
+                                          i < speeds.size() ? speeds[i] : 1.0);
       // 20 ms buffers, timestamped from 0 on the camera's own clock
       const std::size_t block = std::size_t(rate / 50);
       for (std::size_t f = 0; f < n; f += block) {
@@ -152,6 +154,25 @@ TEST(StitchSyncAudio, OffsetsFromTheCamerasAudio) {
   gdouble conf = 0;
   gst_structure_get_double(last, "confidence-1", &conf);
   EXPECT_GT(conf, 0.5);
+}
+
+// Camera 1's clock runs 0.5 % fast and it started 10 frames late: its sound drifts 5 ms a second
+// against camera 0's. Over 40 s the audio's drift line gives the clock rate, which stitchsync
+// posts as rate-1 (seconds of view 0 per second of view 1) and applies.
+TEST(StitchSyncAudio, ClockRateFromTheAudio) {
+  Result r;
+  run("", {0.0, 10 / 30.0}, 40, true, r, false, {1.0, 1.005});
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_FALSE(r.offsets.empty()) << "no stitchsync-time-offsets message";
+  const GstStructure* last = r.offsets.back();
+  gdouble rate = 0;
+  ASSERT_TRUE(gst_structure_get_double(last, "rate-1", &rate));
+  EXPECT_NEAR(rate, 1.0 / 1.005, 0.0005);
+  EXPECT_STREQ(gst_structure_get_string(last, "source-1"), "audio");
+  // drift included: after t s of camera 1's clock the offset is 1/3 s + (rate - 1) t, well below
+  // the start offset of 10 frames by the end (about 4 frames at 40 s)
+  EXPECT_LT(frames_of(last, 1), 9.0);
+  EXPECT_GT(frames_of(last, 1), 3.0);
 }
 
 // The same through stitchbin's audio_%u pads.

@@ -31,12 +31,20 @@ struct AudioAlignSettings {
   double keep_s = 60.0;         // audio kept per view
   double min_psr = 8.0;         // peak-to-sidelobe ratio giving confidence 0 ...
   double full_psr = 20.0;       // ... and 1
+  // clock drift: offsets measured in consecutive windows of view 0's time from the sound's
+  // envelope (tolerant of the smear a drift causes inside a window), a line through them
+  double drift_window_s = 4.0;
+  double min_drift_span_s = 30.0;  // rates are fitted once the measured windows span this long
+  double drift_min_confidence = 0.3;  // windows less sure than this are left out of the fit
 };
 
 struct AudioEstimate {
-  int64_t offset_ns = 0;
+  int64_t offset_ns = 0;  // at the view's newest audio time (drift included)
   double confidence = 0;  // 0..1 (0: no audio, silence, no common sound)
   bool valid = false;     // has audio on both views and a peak
+  double rate = 1.0;      // view 0 seconds per view N second (time_align.hpp's convention)
+  bool rate_valid = false;     // a drift line was fitted (rate may still be 1: no drift)
+  int64_t base_offset_ns = 0;  // the line's value at view-N time 0 (offset_ns without drift)
 };
 
 class AudioAligner {
@@ -56,8 +64,12 @@ class AudioAligner {
   void reset();
   void reset_view(int view);  // a flush on that camera's audio
 
-  // Lower level, for the tests: offset of b against a over a's newest common window.
-  bool correlate(int a, int b, double& offset_s, double& confidence) const;
+  // Lower level, for the tests: offset of b against a over a's newest common window (b read
+  // along the line base + rate * t_b, when its drift is known: the offset returned is then the
+  // line's correction at t_b = 0).
+  bool correlate(int a, int b, double& offset_s, double& confidence, double rate = 1.0, double base_s = 0) const;
+  // Offset of b against a over [from, to) of a's time from the sound envelopes (1 ms steps).
+  bool envelope_offset(int a, int b, double from_s, double to_s, double& offset_s, double& confidence) const;
 
  private:
   struct View {
@@ -77,6 +89,14 @@ class AudioAligner {
   std::vector<View> views_;
   std::vector<AudioEstimate> current_;
   std::vector<double> ends_at_estimate_;  // each view's end (s) at the last estimate; NaN: none
+  struct Measurement {
+    double t_b, offset, confidence;  // view-b time at the window's middle, the offset there
+  };
+  void measure_windows(int view);
+  bool fit_drift(int view, double& rate, double& base_s) const;
+  std::vector<std::vector<Measurement>> drift_;  // per view: one per drift window passed
+  double origin_ = 0;                            // view 0's time the drift windows start at
+  bool have_origin_ = false;
 };
 
 }  // namespace stitch::sync

@@ -18,6 +18,12 @@ FrameThumbnailerCuda::~FrameThumbnailerCuda() = default;
 void FrameThumbnailerCuda::thumbnail(const uint8_t*, int, int, std::size_t, int, int, float*) {
   throw std::runtime_error("built without CUDA");
 }
+void FrameThumbnailerCuda::submit(int, const uint8_t*, int, int, std::size_t, int, int) {
+  throw std::runtime_error("built without CUDA");
+}
+bool FrameThumbnailerCuda::pending(int) const { return false; }
+bool FrameThumbnailerCuda::ready(int) const { return false; }
+bool FrameThumbnailerCuda::take(int, float*) { return false; }
 #endif
 
 }  // namespace stitch::sync

@@ -26,6 +26,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <vector>
 
 #include "stitch/sync/audio_align.hpp"
@@ -42,6 +43,10 @@ struct AlignSettings {
   double drift_window_s = 20.0; // span of one offset measurement for the drift fit
   double min_drift_span_s = 40.0;  // rates are fitted once the measurements span this long
   double audio_min_confidence = 0.5;  // an audio estimate at least this sure replaces vision's
+  // each view's first samples are left out: a camera's own start (exposure settling, a burst of
+  // blocks as the encoder starts) is no scene event, and two streams that start at the same
+  // running time would line up on it whatever their true offset
+  double skip_start_s = 1.0;
 };
 
 enum class OffsetSource { None, Vision, Audio };
@@ -93,7 +98,9 @@ class TimeAligner {
 
   // Lower level, exposed for the tests: offset of `b` relative to `a` (b's time + offset =
   // a's time) over [from, to) of a's time, with a confidence; false when there is too little.
-  bool correlate(int a, int b, double from_s, double to_s, double& offset_s, double& confidence) const;
+  // phat_from_s: where the whole-frame correlation starts (earlier than from_s: a longer span).
+  bool correlate(int a, int b, double from_s, double to_s, double& offset_s, double& confidence,
+                 double phat_from_s = std::numeric_limits<double>::quiet_NaN()) const;
 
  private:
   struct Sample {
@@ -103,11 +110,15 @@ class TimeAligner {
   double step_s() const;
   void measure_windows(int view);
   std::vector<double> resample(int view, int channel, double from_s, double to_s, double step) const;
+  // The whole-frame GCC-PHAT of b against a over [from, to) of a's time, in units of its own
+  // spread away from the peak (a z-score per lag, -lag_max..lag_max); empty without signal.
+  std::vector<double> whole_curve(int a, int b, double from_s, double to_s) const;
   struct Measurement {
     double t_b, offset, confidence;  // view-b time at the window's middle, offset there
   };
   AlignSettings settings_;
   std::vector<std::deque<Sample>> signals_;
+  std::vector<double> start_t_;  // per view: the time its samples started (NaN: not yet)
   std::vector<std::vector<Measurement>> drift_;  // per view: one per completed drift window
   double drift_origin_ = 0;                       // view-0 time the drift windows start at
   bool have_origin_ = false;
@@ -134,7 +145,8 @@ class OffsetTracker {
   // when a view still has nothing to align on after a whole window.
   // `audio` (optional): the audio estimates (AudioAligner); a view whose audio estimate is at
   // least `audio_min_confidence` sure takes its offset from the audio (sharper), otherwise the
-  // vision estimate stands. The vision rate is kept either way.
+  // vision estimate stands. The rate is the audio's drift line once it has one (AudioEstimate::rate_valid),
+  // else vision's.
   bool update(std::vector<Estimate>& estimates, std::vector<int>& no_signal,
               const std::vector<AudioEstimate>* audio = nullptr);
   // The offset (ns) to add to `view`'s running time at its uncorrected time t_ns (drift
