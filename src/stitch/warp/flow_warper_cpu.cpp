@@ -215,6 +215,17 @@ void matching_errors(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow, co
   with_flow = n ? sf / double(n) : 0.0;
 }
 
+// Bands of rows one flow is split into (deterministic: from the size alone, never from the
+// thread count, so the output does not depend on the machine).
+int flow_bands(const cv::Size& work) {
+  if (const char* e = std::getenv("STITCH_FLOW_BANDS")) return std::max(1, std::atoi(e));
+  return std::max(1, work.height / 160);
+}
+int flow_band_margin() {
+  if (const char* e = std::getenv("STITCH_FLOW_BAND_MARGIN")) return std::max(0, std::atoi(e));
+  return 32;
+}
+
 class FlowWarperCpu final : public FlowWarper {
  public:
   FlowWarperCpu() : warper_(std::make_unique<WarperCpu>()) {}
@@ -278,20 +289,33 @@ class FlowWarperCpu final : public FlowWarper {
     }
     for (Pair* p : active) overlap_gray(*p, frames);
     const auto T2 = now();
-    std::vector<double> tflow(active.size() * 2);
-    // The dense flows (DIS is mostly serial inside) of every pair and both directions run
-    // side by side; each has its own estimator, so they share no state.
-    cv::parallel_for_(cv::Range(0, int(active.size()) * 2), [&](const cv::Range& r) {
+    // The dense flows (DIS runs serially inside) of every pair, both directions and every band
+    // of rows run side by side; each has its own estimator, so they share no state.
+    struct Task {
+      Pair* p;
+      int dir, band;
+    };
+    std::vector<Task> tasks;
+    for (Pair* p : active)
+      for (int dir = 0; dir < 2; ++dir)
+        for (int k = 0; k < int(p->flow[dir].size()); ++k) tasks.push_back({p, dir, k});
+    for (Pair* p : active)
+      if (p->flow[0].size() > 1)
+        for (int dir = 0; dir < 2; ++dir) p->next[dir].create(p->work, CV_32FC2);
+    std::vector<double> tflow(tasks.size());
+    cv::parallel_for_(cv::Range(0, int(tasks.size())), [&](const cv::Range& r) {
       for (int t = r.start; t < r.end; ++t) {
-        Pair& p = *active[std::size_t(t / 2)];
         const auto a0 = std::chrono::steady_clock::now();
-        if (t % 2 == 0)
-          p.flow[0]->compute(p.gray[0], p.gray[1], p.ab, p.init);
-        else
-          p.flow[1]->compute(p.gray[1], p.gray[0], p.ba, p.init);
+        flow_band(*tasks[std::size_t(t)].p, tasks[std::size_t(t)].dir, tasks[std::size_t(t)].band);
         tflow[std::size_t(t)] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a0).count();
       }
-    }, double(active.size() * 2));
+    }, double(tasks.size()));
+    for (Pair* p : active)
+      if (p->flow[0].size() > 1) {
+        p->ab = p->next[0];
+        p->ba = p->next[1];
+        p->next[0] = p->next[1] = cv::Mat();
+      }
     const auto T3 = now();
     for (Pair* p : active) estimate(*p);
     const auto T4 = now();
@@ -325,9 +349,11 @@ class FlowWarperCpu final : public FlowWarper {
     cv::Mat full_ab, full_ba;  // output resolution, this frame
     bool history = false;
     flow_gate::Decision decision;  // whether the flow helps this overlap, and its gain
-    std::unique_ptr<DenseFlow> flow[2];  // a->b and b->a: one each, so they can run at once
+    // a->b and b->a, one estimator per band of rows (flow_bands()): all run at once.
+    std::vector<std::shared_ptr<DenseFlow>> flow[2];  // (vector<unique_ptr> would make Pair look copyable)
     // This frame's scratch between the phases of warp().
     cv::Mat gray[2], ab, ba, prev_ab, prev_ba;
+    cv::Mat next[2];  // the banded flows' output
     bool init = false;
   };
 
@@ -351,7 +377,10 @@ class FlowWarperCpu final : public FlowWarper {
       p.b = b;
       p.rect = rect;
       p.work = cv::Size(plan.work_width, plan.work_height);
-      for (auto& f : p.flow) f = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
+      for (auto& f : p.flow) {
+        f.resize(std::size_t(flow_bands(p.work)));
+        for (auto& e : f) e = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
+      }
       const cv::Mat s = sum(to_cv(rect));
       for (int k = 0; k < 2; ++k) {
         const int v = k == 0 ? a : b;
@@ -415,6 +444,58 @@ class FlowWarperCpu final : public FlowWarper {
     p.prev_ba = p.init ? p.flow_ba.clone() : cv::Mat();
     p.ab = p.init ? p.flow_ab : cv::Mat();
     p.ba = p.init ? p.flow_ba : cv::Mat();
+  }
+
+  // Band k of the flow in direction dir (0: a->b into p.ab, 1: b->a into p.ba). One band: the
+  // whole overlap, in place, as before. Several: rows [y0, y1) are estimated on rows
+  // [y0 - margin, y1 + margin) and written into p.next[dir]; each band starts from the rows of
+  // the previous flow it covers (read only: the bands run at once).
+  void flow_band(Pair& p, int dir, int k) {
+    const cv::Mat& from = p.gray[dir];
+    const cv::Mat& to = p.gray[1 - dir];
+    cv::Mat& whole = dir == 0 ? p.ab : p.ba;
+    DenseFlow& estimator = *p.flow[dir][std::size_t(k)];
+    const int n = int(p.flow[dir].size());
+    if (n == 1) {
+      estimator.compute(from, to, whole, p.init);
+      return;
+    }
+    const int rows = from.rows;
+    const int y0 = int(int64_t(rows) * k / n), y1 = int(int64_t(rows) * (k + 1) / n);
+    const int m = flow_band_margin();
+    const int s0 = std::max(0, y0 - m), s1 = std::min(rows, y1 + m);
+    cv::Mat f = p.init ? whole.rowRange(s0, s1).clone() : cv::Mat();
+    estimator.compute(from.rowRange(s0, s1), to.rowRange(s0, s1), f, p.init);
+    f.rowRange(y0 - s0, y1 - s0).copyTo(p.next[dir].rowRange(y0, y1));
+    if (std::getenv("STITCH_FLOW_EPE") && k == 0) {
+      cv::Mat ref = p.init ? whole.clone() : cv::Mat();
+      DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality)->compute(from, to, ref, p.init);
+      cv::Mat bands(ref.size(), CV_32FC2);
+      for (int j = 0; j < n; ++j) {
+        const int a0 = int(int64_t(rows) * j / n), a1 = int(int64_t(rows) * (j + 1) / n);
+        const int b0 = std::max(0, a0 - m), b1 = std::min(rows, a1 + m);
+        cv::Mat g = p.init ? whole.rowRange(b0, b1).clone() : cv::Mat();
+        DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality)->compute(from.rowRange(b0, b1), to.rowRange(b0, b1), g, p.init);
+        g.rowRange(a0 - b0, a1 - b0).copyTo(bands.rowRange(a0, a1));
+      }
+      cv::Mat both = p.side[0].valid & p.side[1].valid;
+      std::vector<float> e;
+      double mag = 0;
+      for (int y = 0; y < rows; ++y)
+        for (int x = 0; x < ref.cols; ++x)
+          if (both.at<uint8_t>(y, x)) {
+            const cv::Vec2f d = bands.at<cv::Vec2f>(y, x) - ref.at<cv::Vec2f>(y, x);
+            e.push_back(std::hypot(d[0], d[1]));
+            mag += std::hypot(ref.at<cv::Vec2f>(y, x)[0], ref.at<cv::Vec2f>(y, x)[1]);
+          }
+      if (!e.empty()) {
+        std::sort(e.begin(), e.end());
+        double mean = 0;
+        for (float v : e) mean += v;
+        std::fprintf(stderr, "flowepe pair %d-%d dir %d init %d bands %d margin %d |flow| %.3f epe median %.4f p95 %.4f mean %.4f\n",
+                     p.a, p.b, dir, int(p.init), n, m, mag / e.size(), e[e.size() / 2], e[e.size() * 95 / 100], mean / e.size());
+      }
+    }
   }
 
   // After the flows: confidence, gating, refinement, stats and the output-resolution flows.
@@ -566,6 +647,7 @@ class FlowWarperCpu final : public FlowWarper {
       if (std::getenv("STITCH_FLOW_PROFILE")) std::fprintf(stderr, "moved view %d band %dx%d\n", v, band.width, band.height);
       fields.push_back(d);
     }
+    if (std::getenv("STITCH_FLOW_PROFILE")) { long a = 0; for (const Rect& r : complement(view.roi.width, view.roi.height, moved)) a += long(r.width) * r.height; std::fprintf(stderr, "view %d roi %dx%d prewarp area %ld\n", v, view.roi.width, view.roi.height, a); }
     for (const Rect& part : complement(view.roi.width, view.roi.height, moved))
       warper_->warp_part(v, frame, dst, part);
     for (std::size_t k = 0; k < moved.size(); ++k) {
