@@ -221,10 +221,9 @@ int flow_bands(const cv::Size& work) {
   if (const char* e = std::getenv("STITCH_FLOW_BANDS")) return std::max(1, std::atoi(e));
   return std::max(1, work.height / 160);
 }
-int flow_band_margin() {
-  if (const char* e = std::getenv("STITCH_FLOW_BAND_MARGIN")) return std::max(0, std::atoi(e));
-  return 32;
-}
+// Rows (flow resolution) each band is widened by on both sides: the vertical room a band's
+// flow has, and context for DIS's patches and its coarsest level.
+constexpr int kBandMargin = 32;
 
 class FlowWarperCpu final : public FlowWarper {
  public:
@@ -254,10 +253,6 @@ class FlowWarperCpu final : public FlowWarper {
   void warp(const std::vector<ImageView>& frames, const std::vector<ImageView>& warped) override {
     if (frames.size() != views_.size() || warped.size() != views_.size())
       throw std::invalid_argument("flow warp: view count differs from prepare()");
-    static const bool prof = std::getenv("STITCH_FLOW_PROFILE") != nullptr;
-    auto now = [] { return std::chrono::steady_clock::now(); };
-    auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
-    const auto T0 = now();
     for (std::size_t i = 0; i < frames.size(); ++i) {
       if (frames[i].empty() || views_[i].roi.empty()) continue;
       if (frames[i].on_device || warped[i].on_device)
@@ -272,7 +267,6 @@ class FlowWarperCpu final : public FlowWarper {
     }
     // The homography warp of each view is written after the flows, and only where the flow
     // does not re-warp the view (displace()): the same pixels with less work.
-    const auto T1 = now();
     stats_.clear();
     if (!settings_.flow) {
       for (std::size_t i = 0; i < frames.size(); ++i)
@@ -287,8 +281,16 @@ class FlowWarperCpu final : public FlowWarper {
       }
       active.push_back(&p);
     }
+    // STITCH_FLOW_PROFILE=1: each phase's wall time (and each flow task's) on stderr, to see
+    // what bounds the stage on a many-core host.
+    static const bool profile = std::getenv("STITCH_FLOW_PROFILE") != nullptr;
+    using Clock = std::chrono::steady_clock;
+    const auto ms = [](Clock::time_point a, Clock::time_point b) {
+      return std::chrono::duration<double, std::milli>(b - a).count();
+    };
+    const Clock::time_point t0 = Clock::now();
     for (Pair* p : active) overlap_gray(*p, frames);
-    const auto T2 = now();
+    const Clock::time_point t1 = Clock::now();
     // The dense flows (DIS runs serially inside) of every pair, both directions and every band
     // of rows run side by side; each has its own estimator, so they share no state.
     struct Task {
@@ -302,12 +304,13 @@ class FlowWarperCpu final : public FlowWarper {
     for (Pair* p : active)
       if (p->flow[0].size() > 1)
         for (int dir = 0; dir < 2; ++dir) p->next[dir].create(p->work, CV_32FC2);
-    std::vector<double> tflow(tasks.size());
+    std::vector<double> task_ms(tasks.size());
     cv::parallel_for_(cv::Range(0, int(tasks.size())), [&](const cv::Range& r) {
       for (int t = r.start; t < r.end; ++t) {
-        const auto a0 = std::chrono::steady_clock::now();
-        flow_band(*tasks[std::size_t(t)].p, tasks[std::size_t(t)].dir, tasks[std::size_t(t)].band);
-        tflow[std::size_t(t)] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - a0).count();
+        const Clock::time_point a = Clock::now();
+        const Task& task = tasks[std::size_t(t)];
+        flow_band(*task.p, task.dir, task.band);
+        task_ms[std::size_t(t)] = ms(a, Clock::now());
       }
     }, double(tasks.size()));
     for (Pair* p : active)
@@ -316,17 +319,16 @@ class FlowWarperCpu final : public FlowWarper {
         p->ba = p->next[1];
         p->next[0] = p->next[1] = cv::Mat();
       }
-    const auto T3 = now();
+    const Clock::time_point t2 = Clock::now();
     for (Pair* p : active) estimate(*p);
-    const auto T4 = now();
+    const Clock::time_point t3 = Clock::now();
     for (std::size_t i = 0; i < views_.size(); ++i)
       if (!frames[i].empty() && !views_[i].roi.empty()) displace(int(i), frames[i], warped[i], frames);
-    const auto T5 = now();
-    if (prof) {
-      std::fprintf(stderr, "flowprof prewarp %.1f gray %.1f flows %.1f [", ms(T0, T1), ms(T1, T2), ms(T2, T3));
-      for (double v : tflow) std::fprintf(stderr, " %.1f", v);
-      std::fprintf(stderr, " ] estimate %.1f displace %.1f work %dx%d\n", ms(T3, T4), ms(T4, T5),
-                   active.empty() ? 0 : active[0]->work.width, active.empty() ? 0 : active[0]->work.height);
+    if (profile) {
+      std::fprintf(stderr, "flow warp ms: overlaps %.1f, flows %.1f (%zu tasks, slowest %.1f), estimate %.1f, warp %.1f\n",
+                   ms(t0, t1), ms(t1, t2), tasks.size(),
+                   task_ms.empty() ? 0.0 : *std::max_element(task_ms.begin(), task_ms.end()), ms(t2, t3),
+                   ms(t3, Clock::now()));
     }
   }
 
@@ -462,40 +464,11 @@ class FlowWarperCpu final : public FlowWarper {
     }
     const int rows = from.rows;
     const int y0 = int(int64_t(rows) * k / n), y1 = int(int64_t(rows) * (k + 1) / n);
-    const int m = flow_band_margin();
+    const int m = kBandMargin;
     const int s0 = std::max(0, y0 - m), s1 = std::min(rows, y1 + m);
     cv::Mat f = p.init ? whole.rowRange(s0, s1).clone() : cv::Mat();
     estimator.compute(from.rowRange(s0, s1), to.rowRange(s0, s1), f, p.init);
     f.rowRange(y0 - s0, y1 - s0).copyTo(p.next[dir].rowRange(y0, y1));
-    if (std::getenv("STITCH_FLOW_EPE") && k == 0) {
-      cv::Mat ref = p.init ? whole.clone() : cv::Mat();
-      DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality)->compute(from, to, ref, p.init);
-      cv::Mat bands(ref.size(), CV_32FC2);
-      for (int j = 0; j < n; ++j) {
-        const int a0 = int(int64_t(rows) * j / n), a1 = int(int64_t(rows) * (j + 1) / n);
-        const int b0 = std::max(0, a0 - m), b1 = std::min(rows, a1 + m);
-        cv::Mat g = p.init ? whole.rowRange(b0, b1).clone() : cv::Mat();
-        DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality)->compute(from.rowRange(b0, b1), to.rowRange(b0, b1), g, p.init);
-        g.rowRange(a0 - b0, a1 - b0).copyTo(bands.rowRange(a0, a1));
-      }
-      cv::Mat both = p.side[0].valid & p.side[1].valid;
-      std::vector<float> e;
-      double mag = 0;
-      for (int y = 0; y < rows; ++y)
-        for (int x = 0; x < ref.cols; ++x)
-          if (both.at<uint8_t>(y, x)) {
-            const cv::Vec2f d = bands.at<cv::Vec2f>(y, x) - ref.at<cv::Vec2f>(y, x);
-            e.push_back(std::hypot(d[0], d[1]));
-            mag += std::hypot(ref.at<cv::Vec2f>(y, x)[0], ref.at<cv::Vec2f>(y, x)[1]);
-          }
-      if (!e.empty()) {
-        std::sort(e.begin(), e.end());
-        double mean = 0;
-        for (float v : e) mean += v;
-        std::fprintf(stderr, "flowepe pair %d-%d dir %d init %d bands %d margin %d |flow| %.3f epe median %.4f p95 %.4f mean %.4f\n",
-                     p.a, p.b, dir, int(p.init), n, m, mag / e.size(), e[e.size() / 2], e[e.size() * 95 / 100], mean / e.size());
-      }
-    }
   }
 
   // After the flows: confidence, gating, refinement, stats and the output-resolution flows.
@@ -644,10 +617,8 @@ class FlowWarperCpu final : public FlowWarper {
       });
       if (*std::max_element(row_max.begin(), row_max.end()) < kNegligiblePx) continue;
       moved.push_back(shifted(band, -view.roi.x, -view.roi.y));
-      if (std::getenv("STITCH_FLOW_PROFILE")) std::fprintf(stderr, "moved view %d band %dx%d\n", v, band.width, band.height);
       fields.push_back(d);
     }
-    if (std::getenv("STITCH_FLOW_PROFILE")) { long a = 0; for (const Rect& r : complement(view.roi.width, view.roi.height, moved)) a += long(r.width) * r.height; std::fprintf(stderr, "view %d roi %dx%d prewarp area %ld\n", v, view.roi.width, view.roi.height, a); }
     for (const Rect& part : complement(view.roi.width, view.roi.height, moved))
       warper_->warp_part(v, frame, dst, part);
     for (std::size_t k = 0; k < moved.size(); ++k) {
