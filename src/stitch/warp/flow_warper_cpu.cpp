@@ -185,11 +185,17 @@ void matching_errors(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow, co
     for (int x = 0; x < a.cols; ++x) {
       if (!pm[x]) continue;
       const float fx = float(x), fy = float(y);
-      const float av = sample(a, fx, fy), bv = sample(b, fx, fy);
-      const float agx = 0.5f * (sample(a, fx + 1, fy) - sample(a, fx - 1, fy));
-      const float agy = 0.5f * (sample(a, fx, fy + 1) - sample(a, fx, fy - 1));
-      const float bgx = 0.5f * (sample(b, fx + 1, fy) - sample(b, fx - 1, fy));
-      const float bgy = 0.5f * (sample(b, fx, fy + 1) - sample(b, fx, fy - 1));
+      // At whole pixels a sample is the pixel itself (clamped into the image): read directly.
+      const int xl = std::max(x - 1, 0), xr = std::min(x + 1, a.cols - 1);
+      const float* a0 = a.ptr<float>(y);
+      const float* b0 = b.ptr<float>(y);
+      const float *au = a.ptr<float>(std::max(y - 1, 0)), *ad = a.ptr<float>(std::min(y + 1, a.rows - 1));
+      const float *bu = b.ptr<float>(std::max(y - 1, 0)), *bd = b.ptr<float>(std::min(y + 1, b.rows - 1));
+      const float av = a0[x], bv = b0[x];
+      const float agx = 0.5f * (a0[xr] - a0[xl]);
+      const float agy = 0.5f * (ad[x] - au[x]);
+      const float bgx = 0.5f * (b0[xr] - b0[xl]);
+      const float bgy = 0.5f * (bd[x] - bu[x]);
       const float qx = fx + pf[x][0], qy = fy + pf[x][1];
       const float wv = sample(b, qx, qy);
       const float wgx = 0.5f * (sample(b, qx + 1, qy) - sample(b, qx - 1, qy));
