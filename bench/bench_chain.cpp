@@ -4,6 +4,8 @@
 //   -> blend (stitchblend: fuse on the canvas, crop and scale into the panorama).
 // usage: stitch-bench-chain [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--threads N] [--cpu-only]
 // --threads N: the CPU chain on N threads (cv::setNumThreads; default: OpenCV's, every core).
+// --hash: the cameras move (a shift of one pixel per frame) and each CPU frame's panorama is
+// hashed (FNV-1a), to check that a change keeps the output bit for bit.
 // GPU: frames already in device memory. Each stage ends with its stream synchronised (as in
 // the elements), so stage and chain times are wall-clock medians over --frames frames.
 #include <algorithm>
@@ -106,7 +108,7 @@ int main(int argc, char** argv) {
   int frames = 200, cpu_frames = 10;
   std::string only_case;
   int threads = 0;
-  bool cpu_only = false;
+  bool cpu_only = false, hash = false;
   FlowQuality quality = FlowQuality::Medium;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--json") && i + 1 < argc) json_path = argv[++i];
@@ -116,12 +118,13 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--case") && i + 1 < argc) only_case = argv[++i];
     else if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) threads = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--cpu-only")) cpu_only = true;
+    else if (!std::strcmp(argv[i], "--hash")) hash = true;
     else if (!std::strcmp(argv[i], "--quality") && i + 1 < argc) {
       const std::string q = argv[++i];
       quality = q == "fast" ? FlowQuality::Fast : q == "fine" ? FlowQuality::Fine : FlowQuality::Medium;
     } else {
       std::fprintf(stderr, "usage: %s [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--case CxWxH] "
-                           "[--quality fast|medium|fine] [--threads N] [--cpu-only]\n", argv[0]);
+                           "[--quality fast|medium|fine] [--threads N] [--cpu-only] [--hash]\n", argv[0]);
       return 2;
     }
   }
@@ -166,12 +169,31 @@ int main(int argc, char** argv) {
           rois.emplace_back(std::max(1, p.roi.height), std::max(1, p.roi.width), CV_8UC4, cv::Scalar::all(0));
         for (auto& r : rois) host_rois.push_back(as_view(r));
         cv::Mat out(g.height, g.width, CV_8UC4);
+        int shift = 0;
         auto copy = [&] {
-          for (std::size_t i = 0; i < pristine.size(); ++i) pristine[i].copyTo(bundle[i]);
+          for (std::size_t i = 0; i < pristine.size(); ++i) {
+            if (!hash) {
+              pristine[i].copyTo(bundle[i]);
+              continue;
+            }
+            const cv::Matx23d m(1, 0, double(shift), 0, 1, 0.5 * shift);
+            cv::warpAffine(pristine[i], bundle[i], m, bundle[i].size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+          }
+        };
+        auto print_hash = [&] {
+          uint64_t h = 1469598103934665603ull;
+          for (int y = 0; y < out.rows; ++y)
+            for (int x = 0; x < out.cols * 4; ++x) h = (h ^ out.ptr<uint8_t>(y)[x]) * 1099511628211ull;
+          std::printf("frame %d hash %016llx\n", shift, (unsigned long long)h);
+          ++shift;
         };
         StageTimes t, warm;
         cpu.run(copy, host_bundle, host_rois, as_view(out), warm);
-        for (int k = 0; k < cpu_frames; ++k) cpu.run(copy, host_bundle, host_rois, as_view(out), t);
+        if (hash) print_hash();
+        for (int k = 0; k < cpu_frames; ++k) {
+          cpu.run(copy, host_bundle, host_rois, as_view(out), t);
+          if (hash) print_hash();
+        }
         if (cpu_frames > 0) {
           print_row(name, pano, "CPU", t);
           json += ",\"panorama\":\"" + std::string(pano) + "\",\"cpu\":" + json_row(t);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
 
@@ -389,4 +390,21 @@ TEST(ColorStability, SlowDriftIsFollowedByKeyframesAtBoundedRate) {
   }
   EXPECT_GT(moves, 3);  // it did follow
   EXPECT_NEAR(seen.back()(0, 0), 1.0 / gain(49), 0.04);
+}
+
+TEST(ColorStability, SameCorrectionsOnAnyThreadCount) {
+  // The CPU reductions run in fixed chunks on OpenCV's threads (issue 17): the integer sums,
+  // and so every correction, must not depend on the thread count.
+  const int threads = cv::getNumThreads();
+  ColorOptions paper;
+  paper.static_mask = false;
+  for (const ColorOptions& o : {ColorOptions{}, paper}) {
+    cv::setNumThreads(1);
+    const auto one = run_walker(o, 8, nullptr);
+    cv::setNumThreads(4);
+    const auto four = run_walker(o, 8, nullptr);
+    ASSERT_EQ(one.size(), four.size());
+    for (std::size_t f = 0; f < one.size(); ++f) EXPECT_EQ((one[f] - four[f]).norm(), 0.0) << "frame " << f;
+  }
+  cv::setNumThreads(threads);
 }

@@ -37,6 +37,17 @@ void add_moments(Moments3& m, const uint8_t* x, const uint8_t* y) {
     for (int c = 0; c < 3; ++c) m[3 * r + c] += uint64_t(x[r]) * y[c];
 }
 
+// Samples are reduced in chunks of this many (a fixed split: the thread count does not matter).
+constexpr int kChunk = 4096;
+int chunk_count(int n) { return std::max(1, (n + kChunk - 1) / kChunk); }
+// f(chunk, first, end) for every chunk of n samples, on OpenCV's threads.
+template <class F>
+void in_chunks(int n, const F& f) {
+  cv::parallel_for_(cv::Range(0, chunk_count(n)), [&](const cv::Range& r) {
+    for (int c = r.start; c < r.end; ++c) f(c, c * kChunk, std::min(n, (c + 1) * kChunk));
+  });
+}
+
 class ColorOpsCpu final : public ColorOps {
  public:
   void set_sampling(const ColorSampling& sampling) override {
@@ -47,7 +58,8 @@ class ColorOpsCpu final : public ColorOps {
   }
   void reset_motion() override { fresh_ = true; }
 
-  // Plain loops over the samples; the CUDA kernels compute exactly these integers.
+  // Loops over the samples in fixed chunks on OpenCV's threads, partial integer sums added in
+  // chunk order: the same integers as one plain loop (and as the CUDA kernels) at any thread count.
   void reduce(const std::vector<ImageView>& views, const ColorReductionRequest& request,
               ColorStats& out) override {
     if (views.size() != sampling_.balance_xy.size()) throw std::invalid_argument("color: views do not match the sampling");
@@ -59,57 +71,91 @@ class ColorOpsCpu final : public ColorOps {
       s = PairStats{};
       const ColorSampling::Pair& g = sampling_.pairs[k];
       if (!request.pairs || views[g.a].empty() || views[g.b].empty()) continue;
-      usable_.clear();
       std::vector<SampleState>& state = motion_[k];
+      const int chunks = chunk_count(g.count());
       // Pass 1 (the mask): which samples changed since the last frame, and how many.
-      uint64_t moved_now = 0;
-      if (request.pairs) {
-        for (int i = 0; i < g.count(); ++i) {
+      std::vector<PairStats> part(static_cast<std::size_t>(chunks));
+      std::vector<uint64_t> moved(std::size_t(chunks), 0);
+      in_chunks(g.count(), [&](int c, int i0, int i1) {
+        PairStats& ps = part[std::size_t(c)];
+        for (int i = i0; i < i1; ++i) {
           const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
           const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
           SampleState& st = state[std::size_t(i)];
           st.moved = 0;
           if (!a || !b) continue;
-          ++s.inview;
+          ++ps.inview;
           if (!fresh_ && (mask_moved(a, st.a, request.motion_threshold) || mask_moved(b, st.b, request.motion_threshold))) {
             st.moved = 1;
-            ++moved_now;
+            ++moved[std::size_t(c)];
           }
-          for (int c = 0; c < 3; ++c) {
-            st.a[c] = a[c];
-            st.b[c] = b[c];
-            s.sum_a[c] += a[c];
-            s.sum_b[c] += b[c];
+          for (int ch = 0; ch < 3; ++ch) {
+            st.a[ch] = a[ch];
+            st.b[ch] = b[ch];
+            ps.sum_a[ch] += a[ch];
+            ps.sum_b[ch] += b[ch];
           }
+        }
+      });
+      uint64_t moved_now = 0;
+      for (int c = 0; c < chunks; ++c) {
+        const PairStats& ps = part[std::size_t(c)];
+        s.inview += ps.inview;
+        moved_now += moved[std::size_t(c)];
+        for (int ch = 0; ch < 3; ++ch) {
+          s.sum_a[ch] += ps.sum_a[ch];
+          s.sum_b[ch] += ps.sum_b[ch];
         }
       }
       // Most of the overlap changed at once: an exposure step or a cut, not people walking.
       // Motion cannot be told there, so the state restarts (every sample static).
       const bool restart = fresh_ || moved_now * 2 > s.inview;
       s.global_change = !fresh_ && restart && s.inview > 0;
-      for (int i = 0; i < g.count(); ++i) {
-        const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
-        const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
-        if (!a || !b) continue;
-        SampleState& st = state[std::size_t(i)];
-        st.age = uint8_t(restart ? request.static_frames : st.moved ? 0 : std::min(255, st.age + 1));
-        const bool still = st.age >= request.static_frames;
-        const bool aligned = mask_aligned(luma_gradient(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]),
-                                          luma_gradient(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]),
-                                          request.align_tolerance);
-        s.moving += !still;
-        s.misaligned += !aligned;
-        if (!usable(a, request) || !usable(b, request)) continue;
-        if (request.static_mask && (!still || !aligned)) continue;
-        usable_.push_back(i);
-        ++s.count;
-        for (int ch = 0; ch < 3; ++ch) {
-          s.hist_a[ch][a[ch]]++;
-          s.hist_b[ch][b[ch]]++;
+      std::fill(part.begin(), part.end(), PairStats{});
+      std::vector<std::vector<int>> kept(static_cast<std::size_t>(chunks));
+      in_chunks(g.count(), [&](int c, int i0, int i1) {
+        PairStats& ps = part[std::size_t(c)];
+        std::vector<int>& use = kept[std::size_t(c)];
+        for (int i = i0; i < i1; ++i) {
+          const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
+          const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
+          if (!a || !b) continue;
+          SampleState& st = state[std::size_t(i)];
+          st.age = uint8_t(restart ? request.static_frames : st.moved ? 0 : std::min(255, st.age + 1));
+          const bool still = st.age >= request.static_frames;
+          const bool aligned = mask_aligned(luma_gradient(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]),
+                                            luma_gradient(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]),
+                                            request.align_tolerance);
+          ps.moving += !still;
+          ps.misaligned += !aligned;
+          if (!usable(a, request) || !usable(b, request)) continue;
+          if (request.static_mask && (!still || !aligned)) continue;
+          use.push_back(i);
+          ++ps.count;
+          for (int ch = 0; ch < 3; ++ch) {
+            ps.hist_a[ch][a[ch]]++;
+            ps.hist_b[ch][b[ch]]++;
+          }
+          add_moments(ps.aa, a, a);
+          add_moments(ps.bb, b, b);
+          add_moments(ps.ab, a, b);
         }
-        add_moments(s.aa, a, a);
-        add_moments(s.bb, b, b);
-        add_moments(s.ab, a, b);
+      });
+      for (int c = 0; c < chunks; ++c) {
+        const PairStats& ps = part[std::size_t(c)];
+        s.moving += ps.moving;
+        s.misaligned += ps.misaligned;
+        s.count += ps.count;
+        for (int ch = 0; ch < 3; ++ch)
+          for (int v = 0; v < 256; ++v) {
+            s.hist_a[ch][v] += ps.hist_a[ch][v];
+            s.hist_b[ch][v] += ps.hist_b[ch][v];
+          }
+        for (int m = 0; m < 9; ++m) {
+          s.aa[m] += ps.aa[m];
+          s.bb[m] += ps.bb[m];
+          s.ab[m] += ps.ab[m];
+        }
       }
       const HistogramMatch match = k < request.match.size() ? request.match[k] : HistogramMatch::None;
       if (match == HistogramMatch::None) continue;
@@ -120,11 +166,17 @@ class ColorOpsCpu final : public ColorOps {
                            : histogram_specification(s.hist_b[ch], s.hist_a[ch]);
       const ImageView& side = a_onto_b ? views[g.a] : views[g.b];
       const std::vector<int32_t>& xy = a_onto_b ? g.xy_a : g.xy_b;
-      for (int i : usable_) {
-        const uint8_t* x = pixel(side, xy[2 * i], xy[2 * i + 1]);
-        const uint8_t y[3] = {lut[0][x[0]], lut[1][x[1]], lut[2][x[2]]};
-        add_moments(s.matched, x, y);
-      }
+      std::vector<Moments3> matched(static_cast<std::size_t>(chunks), Moments3{});
+      cv::parallel_for_(cv::Range(0, chunks), [&](const cv::Range& r) {
+        for (int c = r.start; c < r.end; ++c)
+          for (int i : kept[std::size_t(c)]) {
+            const uint8_t* x = pixel(side, xy[2 * i], xy[2 * i + 1]);
+            const uint8_t y[3] = {lut[0][x[0]], lut[1][x[1]], lut[2][x[2]]};
+            add_moments(matched[std::size_t(c)], x, y);
+          }
+      });
+      for (const Moments3& m : matched)
+        for (int j = 0; j < 9; ++j) s.matched[j] += m[j];
     }
     if (request.pairs) fresh_ = false;
     out.balance.resize(views.size());
@@ -134,11 +186,20 @@ class ColorOpsCpu final : public ColorOps {
       if (!request.balance || views[i].empty()) continue;
       const Eigen::Matrix3d& M = request.balance_matrices[i];
       const std::vector<int32_t>& xy = sampling_.balance_xy[i];
-      for (std::size_t k = 0; k + 1 < xy.size(); k += 2) {
-        const uint8_t* p = pixel(views[i], xy[k], xy[k + 1]);
-        if (!p) continue;
-        for (int ch = 0; ch < 3; ++ch) h[ch][corrected_level(p, M, ch)]++;
-      }
+      const int n = int(xy.size() / 2);
+      std::vector<ChannelHistograms> part(static_cast<std::size_t>(chunk_count(n)));
+      in_chunks(n, [&](int c, int i0, int i1) {
+        ChannelHistograms& ph = part[std::size_t(c)];
+        for (auto& channel : ph) channel.fill(0);
+        for (int j = i0; j < i1; ++j) {
+          const uint8_t* p = pixel(views[i], xy[2 * j], xy[2 * j + 1]);
+          if (!p) continue;
+          for (int ch = 0; ch < 3; ++ch) ph[ch][corrected_level(p, M, ch)]++;
+        }
+      });
+      for (const ChannelHistograms& ph : part)
+        for (int ch = 0; ch < 3; ++ch)
+          for (int v = 0; v < 256; ++v) h[ch][v] += ph[ch][v];
     }
   }
 
@@ -209,7 +270,6 @@ class ColorOpsCpu final : public ColorOps {
   ColorSampling sampling_;
   std::vector<std::vector<SampleState>> motion_;
   bool fresh_ = true;
-  std::vector<int> usable_;  // this pair's usable sample indices (reused)
 };
 
 }  // namespace

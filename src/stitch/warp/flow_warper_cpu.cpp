@@ -2,6 +2,9 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
 
 #include "stitch/blend/blender_cpu.hpp"
 #include "stitch/warp/flow_gate_math.hpp"
@@ -37,6 +40,78 @@ void for_rows(int n, const F& f) {
   cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) f(y);
   });
+}
+
+// Row strips [y0, y1) of n rows on OpenCV's threads, for whole-image OpenCV calls split by
+// rows: pointwise operations, and float filters on row ROIs, which read the rows around a
+// strip from the parent matrix, so the values equal the whole-image call's at any split.
+// (OpenCV's GaussianBlur, convertTo, multiply and setTo run on one thread.)
+template <class F>
+void in_strips(int n, const F& f) {
+  const int strips = std::max(1, std::min(n / 8, 4 * cv::getNumThreads()));
+  cv::parallel_for_(cv::Range(0, strips), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i)
+      f(int(int64_t(n) * i / strips), int(int64_t(n) * (i + 1) / strips));
+  });
+}
+
+cv::Mat to_float(const cv::Mat& gray) {
+  cv::Mat out(gray.size(), CV_32FC(gray.channels()));
+  in_strips(gray.rows, [&](int y0, int y1) {
+    cv::Mat o = out.rowRange(y0, y1);
+    gray.rowRange(y0, y1).convertTo(o, o.type());
+  });
+  return out;
+}
+
+// GaussianBlur (float images) into a new matrix, by row strips.
+cv::Mat blurred(const cv::Mat& src, double sigma) {
+  CV_Assert(src.depth() == CV_32F);
+  cv::Mat dst(src.size(), src.type());
+  in_strips(src.rows, [&](int y0, int y1) {
+    cv::Mat d = dst.rowRange(y0, y1);
+    cv::GaussianBlur(src.rowRange(y0, y1), d, cv::Size(0, 0), sigma);
+  });
+  return dst;
+}
+
+cv::Mat product(const cv::Mat& a, const cv::Mat& b) {
+  cv::Mat out(a.size(), a.type());
+  in_strips(a.rows, [&](int y0, int y1) {
+    cv::Mat o = out.rowRange(y0, y1);
+    cv::multiply(a.rowRange(y0, y1), b.rowRange(y0, y1), o);
+  });
+  return out;
+}
+
+// The parts of `full` outside every rectangle of `holes` (which do not overlap each other),
+// as rectangles: horizontal slabs between the holes' top and bottom edges, cut by the holes
+// that span each slab.
+std::vector<Rect> complement(int width, int height, const std::vector<Rect>& holes) {
+  std::vector<int> ys = {0, height};
+  for (const Rect& h : holes) {
+    ys.push_back(std::clamp(h.y, 0, height));
+    ys.push_back(std::clamp(h.y + h.height, 0, height));
+  }
+  std::sort(ys.begin(), ys.end());
+  ys.erase(std::unique(ys.begin(), ys.end()), ys.end());
+  std::vector<Rect> out;
+  for (std::size_t k = 0; k + 1 < ys.size(); ++k) {
+    const int y0 = ys[k], y1 = ys[k + 1];
+    std::vector<std::pair<int, int>> cut;
+    for (const Rect& h : holes)
+      if (h.y <= y0 && h.y + h.height >= y1) cut.emplace_back(h.x, h.x + h.width);
+    std::sort(cut.begin(), cut.end());
+    int x = 0;
+    for (const auto& c : cut) {
+      if (c.first > x) out.push_back({x, y0, std::min(c.first, width) - x, y1 - y0});
+      x = std::max(x, c.second);
+    }
+    if (x < width) out.push_back({x, y0, width - x, y1 - y0});
+  }
+  out.erase(std::remove_if(out.begin(), out.end(), [](const Rect& r) { return r.width <= 0 || r.height <= 0; }),
+            out.end());
+  return out;
 }
 
 // exp(-(|fwd(p) + bwd(p + fwd(p))| / tau)^2): 1 where the two directions agree.
@@ -87,7 +162,7 @@ cv::Mat cost_gate(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow) {
     for (int x = 0; x < a.cols; ++x)
       pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b, x + pf[x][0], y + pf[x][1]));
   });
-  cv::GaussianBlur(improvement, improvement, cv::Size(0, 0), flow_gate::kGateSigma);
+  improvement = blurred(improvement, flow_gate::kGateSigma);
   for_rows(a.rows, [&](int y) {
     float* pi = improvement.ptr<float>(y);
     for (int x = 0; x < a.cols; ++x) pi[x] = flow_gate::gate(pi[x]);
@@ -110,11 +185,17 @@ void matching_errors(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow, co
     for (int x = 0; x < a.cols; ++x) {
       if (!pm[x]) continue;
       const float fx = float(x), fy = float(y);
-      const float av = sample(a, fx, fy), bv = sample(b, fx, fy);
-      const float agx = 0.5f * (sample(a, fx + 1, fy) - sample(a, fx - 1, fy));
-      const float agy = 0.5f * (sample(a, fx, fy + 1) - sample(a, fx, fy - 1));
-      const float bgx = 0.5f * (sample(b, fx + 1, fy) - sample(b, fx - 1, fy));
-      const float bgy = 0.5f * (sample(b, fx, fy + 1) - sample(b, fx, fy - 1));
+      // At whole pixels a sample is the pixel itself (clamped into the image): read directly.
+      const int xl = std::max(x - 1, 0), xr = std::min(x + 1, a.cols - 1);
+      const float* a0 = a.ptr<float>(y);
+      const float* b0 = b.ptr<float>(y);
+      const float *au = a.ptr<float>(std::max(y - 1, 0)), *ad = a.ptr<float>(std::min(y + 1, a.rows - 1));
+      const float *bu = b.ptr<float>(std::max(y - 1, 0)), *bd = b.ptr<float>(std::min(y + 1, b.rows - 1));
+      const float av = a0[x], bv = b0[x];
+      const float agx = 0.5f * (a0[xr] - a0[xl]);
+      const float agy = 0.5f * (ad[x] - au[x]);
+      const float bgx = 0.5f * (b0[xr] - b0[xl]);
+      const float bgy = 0.5f * (bd[x] - bu[x]);
       const float qx = fx + pf[x][0], qy = fy + pf[x][1];
       const float wv = sample(b, qx, qy);
       const float wgx = 0.5f * (sample(b, qx + 1, qy) - sample(b, qx - 1, qy));
@@ -140,9 +221,19 @@ void matching_errors(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow, co
   with_flow = n ? sf / double(n) : 0.0;
 }
 
+// Bands of rows one flow is split into (deterministic: from the size alone, never from the
+// thread count, so the output does not depend on the machine).
+int flow_bands(const cv::Size& work) {
+  if (const char* e = std::getenv("STITCH_FLOW_BANDS")) return std::max(1, std::atoi(e));
+  return std::max(1, work.height / 160);
+}
+// Rows (flow resolution) each band is widened by on both sides: the vertical room a band's
+// flow has, and context for DIS's patches and its coarsest level.
+constexpr int kBandMargin = 32;
+
 class FlowWarperCpu final : public FlowWarper {
  public:
-  FlowWarperCpu() : warper_(Warper::create(Backend::Cpu)) {}
+  FlowWarperCpu() : warper_(std::make_unique<WarperCpu>()) {}
 
   void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) override {
     views_ = views;
@@ -179,10 +270,15 @@ class FlowWarperCpu final : public FlowWarper {
                                     std::to_string(views_[i].camera_height));
       if (warped[i].width != views_[i].roi.width || warped[i].height != views_[i].roi.height)
         throw std::invalid_argument("flow warp: destination " + std::to_string(i) + " is not roi-sized");
-      warper_->warp(int(i), frames[i], warped[i]);
     }
+    // The homography warp of each view is written after the flows, and only where the flow
+    // does not re-warp the view (displace()): the same pixels with less work.
     stats_.clear();
-    if (!settings_.flow) return;
+    if (!settings_.flow) {
+      for (std::size_t i = 0; i < frames.size(); ++i)
+        if (!frames[i].empty() && !views_[i].roi.empty()) warper_->warp(int(i), frames[i], warped[i]);
+      return;
+    }
     std::vector<Pair*> active;
     for (auto& p : pairs_) {
       if (frames[p.a].empty() || frames[p.b].empty()) {
@@ -191,21 +287,55 @@ class FlowWarperCpu final : public FlowWarper {
       }
       active.push_back(&p);
     }
+    // STITCH_FLOW_PROFILE=1: each phase's wall time (and each flow task's) on stderr, to see
+    // what bounds the stage on a many-core host.
+    static const bool profile = std::getenv("STITCH_FLOW_PROFILE") != nullptr;
+    using Clock = std::chrono::steady_clock;
+    const auto ms = [](Clock::time_point a, Clock::time_point b) {
+      return std::chrono::duration<double, std::milli>(b - a).count();
+    };
+    const Clock::time_point t0 = Clock::now();
     for (Pair* p : active) overlap_gray(*p, frames);
-    // The dense flows (DIS is mostly serial inside) of every pair and both directions run
-    // side by side; each has its own estimator, so they share no state.
-    cv::parallel_for_(cv::Range(0, int(active.size()) * 2), [&](const cv::Range& r) {
+    const Clock::time_point t1 = Clock::now();
+    // The dense flows (DIS runs serially inside) of every pair, both directions and every band
+    // of rows run side by side; each has its own estimator, so they share no state.
+    struct Task {
+      Pair* p;
+      int dir, band;
+    };
+    std::vector<Task> tasks;
+    for (Pair* p : active)
+      for (int dir = 0; dir < 2; ++dir)
+        for (int k = 0; k < int(p->flow[dir].size()); ++k) tasks.push_back({p, dir, k});
+    for (Pair* p : active)
+      if (p->flow[0].size() > 1)
+        for (int dir = 0; dir < 2; ++dir) p->next[dir].create(p->work, CV_32FC2);
+    std::vector<double> task_ms(tasks.size());
+    cv::parallel_for_(cv::Range(0, int(tasks.size())), [&](const cv::Range& r) {
       for (int t = r.start; t < r.end; ++t) {
-        Pair& p = *active[std::size_t(t / 2)];
-        if (t % 2 == 0)
-          p.flow[0]->compute(p.gray[0], p.gray[1], p.ab, p.init);
-        else
-          p.flow[1]->compute(p.gray[1], p.gray[0], p.ba, p.init);
+        const Clock::time_point a = Clock::now();
+        const Task& task = tasks[std::size_t(t)];
+        flow_band(*task.p, task.dir, task.band);
+        task_ms[std::size_t(t)] = ms(a, Clock::now());
       }
-    }, double(active.size() * 2));
+    }, double(tasks.size()));
+    for (Pair* p : active)
+      if (p->flow[0].size() > 1) {
+        p->ab = p->next[0];
+        p->ba = p->next[1];
+        p->next[0] = p->next[1] = cv::Mat();
+      }
+    const Clock::time_point t2 = Clock::now();
     for (Pair* p : active) estimate(*p);
+    const Clock::time_point t3 = Clock::now();
     for (std::size_t i = 0; i < views_.size(); ++i)
-      if (!frames[i].empty()) displace(int(i), frames[i], warped[i], frames);
+      if (!frames[i].empty() && !views_[i].roi.empty()) displace(int(i), frames[i], warped[i], frames);
+    if (profile) {
+      std::fprintf(stderr, "flow warp ms: overlaps %.1f, flows %.1f (%zu tasks, slowest %.1f), estimate %.1f, warp %.1f\n",
+                   ms(t0, t1), ms(t1, t2), tasks.size(),
+                   task_ms.empty() ? 0.0 : *std::max_element(task_ms.begin(), task_ms.end()), ms(t2, t3),
+                   ms(t3, Clock::now()));
+    }
   }
 
   const std::vector<FlowPairStats>& stats() const override { return stats_; }
@@ -227,9 +357,11 @@ class FlowWarperCpu final : public FlowWarper {
     cv::Mat full_ab, full_ba;  // output resolution, this frame
     bool history = false;
     flow_gate::Decision decision;  // whether the flow helps this overlap, and its gain
-    std::unique_ptr<DenseFlow> flow[2];  // a->b and b->a: one each, so they can run at once
+    // a->b and b->a, one estimator per band of rows (flow_bands()): all run at once.
+    std::vector<std::shared_ptr<DenseFlow>> flow[2];  // (vector<unique_ptr> would make Pair look copyable)
     // This frame's scratch between the phases of warp().
     cv::Mat gray[2], ab, ba, prev_ab, prev_ba;
+    cv::Mat next[2];  // the banded flows' output
     bool init = false;
   };
 
@@ -253,7 +385,10 @@ class FlowWarperCpu final : public FlowWarper {
       p.b = b;
       p.rect = rect;
       p.work = cv::Size(plan.work_width, plan.work_height);
-      for (auto& f : p.flow) f = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
+      for (auto& f : p.flow) {
+        f.resize(std::size_t(flow_bands(p.work)));
+        for (auto& e : f) e = DenseFlow::create(Backend::Cpu, settings_.algorithm, settings_.quality);
+      }
       const cv::Mat s = sum(to_cv(rect));
       for (int k = 0; k < 2; ++k) {
         const int v = k == 0 ? a : b;
@@ -319,6 +454,29 @@ class FlowWarperCpu final : public FlowWarper {
     p.ba = p.init ? p.flow_ba : cv::Mat();
   }
 
+  // Band k of the flow in direction dir (0: a->b into p.ab, 1: b->a into p.ba). One band: the
+  // whole overlap, in place, as before. Several: rows [y0, y1) are estimated on rows
+  // [y0 - margin, y1 + margin) and written into p.next[dir]; each band starts from the rows of
+  // the previous flow it covers (read only: the bands run at once).
+  void flow_band(Pair& p, int dir, int k) {
+    const cv::Mat& from = p.gray[dir];
+    const cv::Mat& to = p.gray[1 - dir];
+    cv::Mat& whole = dir == 0 ? p.ab : p.ba;
+    DenseFlow& estimator = *p.flow[dir][std::size_t(k)];
+    const int n = int(p.flow[dir].size());
+    if (n == 1) {
+      estimator.compute(from, to, whole, p.init);
+      return;
+    }
+    const int rows = from.rows;
+    const int y0 = int(int64_t(rows) * k / n), y1 = int(int64_t(rows) * (k + 1) / n);
+    const int m = kBandMargin;
+    const int s0 = std::max(0, y0 - m), s1 = std::min(rows, y1 + m);
+    cv::Mat f = p.init ? whole.rowRange(s0, s1).clone() : cv::Mat();
+    estimator.compute(from.rowRange(s0, s1), to.rowRange(s0, s1), f, p.init);
+    f.rowRange(y0 - s0, y1 - s0).copyTo(p.next[dir].rowRange(y0, y1));
+  }
+
   // After the flows: confidence, gating, refinement, stats and the output-resolution flows.
   void estimate(Pair& p) {
     cv::Mat* gray = p.gray;
@@ -331,11 +489,9 @@ class FlowWarperCpu final : public FlowWarper {
     const cv::Mat conf_ab = forward_backward_confidence(ab, ba, std::max(tau, 0.25f));
     const cv::Mat conf_ba = forward_backward_confidence(ba, ab, std::max(tau, 0.25f));
     // The flow counts only where it improves the match over the homography.
-    cv::Mat fa, fb;
-    gray[0].convertTo(fa, CV_32F);
-    gray[1].convertTo(fb, CV_32F);
-    const cv::Mat trust_ab = settings_.fallback ? conf_ab.mul(cost_gate(fa, fb, ab)) : conf_ab;
-    const cv::Mat trust_ba = settings_.fallback ? conf_ba.mul(cost_gate(fb, fa, ba)) : conf_ba;
+    const cv::Mat fa = to_float(gray[0]), fb = to_float(gray[1]);
+    const cv::Mat trust_ab = settings_.fallback ? product(conf_ab, cost_gate(fa, fb, ab)) : conf_ab;
+    const cv::Mat trust_ba = settings_.fallback ? product(conf_ba, cost_gate(fb, fa, ba)) : conf_ba;
     cv::Mat both = p.side[0].valid & p.side[1].valid;
     FlowPairStats st;
     st.view_a = p.a;
@@ -352,10 +508,13 @@ class FlowWarperCpu final : public FlowWarper {
     p.history = true;
     p.gray[0] = p.gray[1] = p.ab = p.ba = p.prev_ab = p.prev_ba = cv::Mat();
 
-    cv::Mat mag;
-    std::vector<cv::Mat> ch;
-    cv::split(p.flow_ab, ch);
-    cv::magnitude(ch[0], ch[1], mag);
+    cv::Mat mag(p.flow_ab.size(), CV_32F);
+    in_strips(mag.rows, [&](int y0, int y1) {
+      std::vector<cv::Mat> ch;
+      cv::split(p.flow_ab.rowRange(y0, y1), ch);
+      cv::Mat m = mag.rowRange(y0, y1);
+      cv::magnitude(ch[0], ch[1], m);
+    });
     st.mean_magnitude = n_valid ? cv::mean(mag, both)[0] / scale : 0.0;
 
     // This frame is warped with the gain decided last frame; what the flow did now decides
@@ -370,8 +529,12 @@ class FlowWarperCpu final : public FlowWarper {
     const cv::Size full(p.rect.width, p.rect.height);
     cv::resize(p.flow_ab, p.full_ab, full, 0, 0, cv::INTER_LINEAR);
     cv::resize(p.flow_ba, p.full_ba, full, 0, 0, cv::INTER_LINEAR);
-    p.full_ab *= gain / scale;
-    p.full_ba *= gain / scale;
+    in_strips(full.height, [&](int y0, int y1) {
+      for (cv::Mat* f : {&p.full_ab, &p.full_ba}) {
+        cv::Mat part = f->rowRange(y0, y1);
+        part.convertTo(part, -1, gain / scale);
+      }
+    });
   }
 
   // Confidence-weighted flow (unreliable pixels fall back toward the homography), lightly
@@ -386,7 +549,7 @@ class FlowWarperCpu final : public FlowWarper {
       cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
       for (int x = 0; x < flow.cols; ++x) po[x] = pf[x] * pc[x];
     });
-    cv::GaussianBlur(out, out, cv::Size(0, 0), 1.5);
+    out = blurred(out, 1.5);
     const float s = float(settings_.temporal_smoothing);
     if (prev.empty() || stillness.empty() || s <= 0.f) return out;
     for_rows(out.rows, [&](int y) {
@@ -405,33 +568,34 @@ class FlowWarperCpu final : public FlowWarper {
   // changed by a few grey levels. Local means are compared, so sensor noise is not motion.
   static cv::Mat stillness(const cv::Mat gray[2], const cv::Mat prev[2]) {
     if (prev[0].empty() || prev[0].size() != gray[0].size()) return cv::Mat();
-    cv::Mat change;
+    cv::Mat a[2], b[2];
     for (int k = 0; k < 2; ++k) {
-      cv::Mat a, b, d;
-      gray[k].convertTo(a, CV_32F);
-      prev[k].convertTo(b, CV_32F);
-      cv::GaussianBlur(a, a, cv::Size(0, 0), 2.0);
-      cv::GaussianBlur(b, b, cv::Size(0, 0), 2.0);
-      cv::absdiff(a, b, d);
-      change = k == 0 ? d : cv::max(change, d);
+      a[k] = blurred(to_float(gray[k]), 2.0);
+      b[k] = blurred(to_float(prev[k]), 2.0);
     }
-    cv::Mat still(change.size(), CV_32F);
-    for_rows(change.rows, [&](int y) {
-      const float* pc = change.ptr<float>(y);
+    cv::Mat still(gray[0].size(), CV_32F);
+    for_rows(still.rows, [&](int y) {
+      const float *a0 = a[0].ptr<float>(y), *b0 = b[0].ptr<float>(y);
+      const float *a1 = a[1].ptr<float>(y), *b1 = b[1].ptr<float>(y);
       float* ps = still.ptr<float>(y);
-      for (int x = 0; x < change.cols; ++x) {
-        const float c = std::max(0.f, pc[x] - 1.f) / 2.f;
+      for (int x = 0; x < still.cols; ++x) {
+        const float change = std::max(std::fabs(a0[x] - b0[x]), std::fabs(a1[x] - b1[x]));
+        const float c = std::max(0.f, change - 1.f) / 2.f;
         ps[x] = std::exp(-c * c);
       }
     });
     return still;
   }
 
-  // Moves view v by the weighted flow toward each neighbour it overlaps, band by band.
+  // Warps view v: moved by the weighted flow toward each neighbour it overlaps, band by band,
+  // and by the homography alone elsewhere.
   void displace(int v, const ImageView& frame, const ImageView& dst, const std::vector<ImageView>& frames) {
     const ViewPlacement& view = views_[v];
+    std::vector<Rect> moved;  // roi coordinates
+    std::vector<cv::Mat> fields;
     for (const Rect& band : bands_[v]) {
-      cv::Mat d(band.height, band.width, CV_32FC2, cv::Scalar::all(0));
+      cv::Mat d(band.height, band.width, CV_32FC2);
+      in_strips(d.rows, [&](int y0, int y1) { d.rowRange(y0, y1).setTo(cv::Scalar::all(0)); });
       bool any = false;
       for (const Pair& p : pairs_) {
         if ((p.a != v && p.b != v) || !p.history || frames[p.a].empty() || frames[p.b].empty()) continue;
@@ -450,18 +614,28 @@ class FlowWarperCpu final : public FlowWarper {
         any = true;
       }
       if (!any) continue;
-      double lo = 0, hi = 0;
-      cv::minMaxLoc(d.reshape(1), &lo, &hi);
-      if (std::max(-lo, hi) < kNegligiblePx) continue;
-      const Rect part = shifted(band, -view.roi.x, -view.roi.y);
+      std::vector<float> row_max(std::size_t(d.rows), 0.f);
+      for_rows(d.rows, [&](int y) {
+        const float* pd = d.ptr<float>(y);
+        float m = 0.f;
+        for (int x = 0; x < 2 * d.cols; ++x) m = std::max(m, std::fabs(pd[x]));
+        row_max[std::size_t(y)] = m;
+      });
+      if (*std::max_element(row_max.begin(), row_max.end()) < kNegligiblePx) continue;
+      moved.push_back(shifted(band, -view.roi.x, -view.roi.y));
+      fields.push_back(d);
+    }
+    for (const Rect& part : complement(view.roi.width, view.roi.height, moved))
+      warper_->warp_part(v, frame, dst, part);
+    for (std::size_t k = 0; k < moved.size(); ++k) {
       cv::Mat mx, my;
-      camera_maps(view, part, d, mx, my);
-      cv::Mat out = as_mat(dst)(to_cv(part));
+      camera_maps(view, moved[k], fields[k], mx, my);
+      cv::Mat out = as_mat(dst)(to_cv(moved[k]));
       cv::remap(as_mat(frame), out, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
     }
   }
 
-  std::unique_ptr<Warper> warper_;
+  std::unique_ptr<WarperCpu> warper_;
   FlowWarpSettings settings_;
   std::vector<ViewPlacement> views_;
   int out_w_ = 0, out_h_ = 0;

@@ -59,6 +59,19 @@ void WarperCpu::warp(int index, const ImageView& src, const ImageView& dst) {
   cv::remap(s, d, m.xy, m.frac, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
 }
 
+void WarperCpu::warp_part(int index, const ImageView& src, const ImageView& dst, const Rect& part) {
+  if (src.on_device || dst.on_device) throw std::invalid_argument("CPU warper got device memory");
+  const Maps& m = maps_.at(static_cast<std::size_t>(index));
+  if (m.xy.empty() || part.empty()) return;
+  if (dst.width != m.xy.cols || dst.height != m.xy.rows)
+    throw std::invalid_argument("warp destination does not match the view's rectangle");
+  const cv::Rect r(part.x, part.y, part.width, part.height);
+  if ((r & cv::Rect(0, 0, dst.width, dst.height)) != r) throw std::invalid_argument("warp part outside the view");
+  cv::Mat s(src.height, src.width, CV_8UC4, src.data, src.pitch);
+  cv::Mat d = cv::Mat(dst.height, dst.width, CV_8UC4, dst.data, dst.pitch)(r);
+  cv::remap(s, d, m.xy(r), m.frac(r), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+}
+
 std::unique_ptr<Warper> Warper::create(Backend backend) {
   switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {
 #ifdef STITCH_HAVE_CUDA

@@ -15,6 +15,9 @@ class WarperCpu final : public Warper {
  public:
   void prepare(const std::vector<ViewPlacement>& views) override;
   void warp(int index, const ImageView& src, const ImageView& dst) override;
+  // Only the pixels of `part` (roi coordinates) of the full roi-sized `dst`: the same values
+  // warp() gives there.
+  void warp_part(int index, const ImageView& src, const ImageView& dst, const Rect& part);
   Backend backend() const override { return Backend::Cpu; }
 
  private:
