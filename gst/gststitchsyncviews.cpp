@@ -295,6 +295,9 @@ GstStructure* align_inputs(GstStitchSync* self, const std::vector<GstVideoAggreg
   }
   if (!st->tracker || st->tracker->views() != int(n)) {
     st->tracker = std::make_unique<stitch::sync::OffsetTracker>(int(n));
+    /* live: the estimate (tens of ms once a second) off the aggregate thread, so no camera
+     * waits for it; files: in place, so the offsets apply at the same stream time on any machine */
+    st->tracker->set_asynchronous(GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(GST_AGGREGATOR(self))));
     for (guint v = 0; v < n; ++v) pad_state(pads[v])->clear_thumbnail();  // for the old views
   }
   /* CUDA memory: the thumbnail submitted with the pad's previous frame, normally done by now

@@ -413,6 +413,37 @@ TEST(TimeAlign, SynchronisedRigStaysAtZeroThroughTheTracker) {
   }
 }
 
+// The element's live mode: each estimate on a copy in a worker thread. It is taken when done or
+// at the latest when the next is due, so it gives the synchronous tracker's estimates at most one
+// second of stream time later, whatever the worker's speed.
+TEST(TimeAlign, AsynchronousTrackerGivesTheSameEstimatesAtMostASecondLate) {
+  const Scene scene(30, 7);
+  OffsetTracker sync_tr(2), async_tr(2);
+  async_tr.set_asynchronous(true);
+  std::vector<Estimate> es, ea;
+  std::vector<int> quiet;
+  std::vector<uint8_t> img(64 * 36);
+  for (int f = 0; f < 30 * 30; ++f) {
+    const int64_t t = int64_t(f) * 1000000000 / 30;
+    for (int v = 0; v < 2; ++v) {
+      // camera 1 started 5 frames late: its frame f shows the scene at f + 5
+      const uint8_t g = uint8_t(std::clamp(60.0 + 10.0 * scene.at((f + 5 * v) / 30.0), 0.0, 255.0));
+      std::fill(img.begin(), img.end(), g);
+      sync_tr.add_frame(v, t, img.data(), 64, 36, 64, 1, 0);
+      async_tr.add_frame(v, t, img.data(), 64, 36, 64, 1, 0);
+    }
+    sync_tr.update(es, quiet);
+    async_tr.update(ea, quiet);
+    if (f % 30 == 29 && f > 12 * 30) {
+      // by now both have settled: the same offset (the asynchronous one from a second earlier)
+      ASSERT_TRUE(sync_tr.current()[1].valid);
+      ASSERT_TRUE(async_tr.current()[1].valid) << "at " << f / 30 << " s";
+      EXPECT_NEAR(async_tr.current()[1].offset_ns / 1e9 * 30, sync_tr.current()[1].offset_ns / 1e9 * 30, 0.5);
+      EXPECT_NEAR(std::fabs(async_tr.current()[1].offset_ns / 1e9 * 30), 5.0, 0.5);
+    }
+  }
+}
+
 // ---- audio (AudioAligner, GCC-PHAT) ----
 
 namespace {

@@ -3,6 +3,7 @@
 #include "stitch/sync/thumbnail.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -686,6 +687,8 @@ OffsetTracker::OffsetTracker(int n_views, AlignSettings settings)
       current_(signals_.size()), announced_(signals_.size()), warned_(signals_.size(), false) {}
 
 void OffsetTracker::reset() {
+  if (pending_.valid()) pending_.wait();  // its result belongs to the signals being forgotten
+  pending_ = {};
   aligner_.reset();
   for (auto& s : signals_) s.reset();
   last_estimate_ = first_t_ = newest_t_ = -1;
@@ -713,9 +716,31 @@ void OffsetTracker::add_strips(int view, int64_t t_ns, const std::vector<double>
 bool OffsetTracker::update(std::vector<Estimate>& estimates, std::vector<int>& no_signal,
                            const std::vector<AudioEstimate>* audio) {
   no_signal.clear();
-  if (newest_t_ < 0 || (last_estimate_ >= 0 && newest_t_ - last_estimate_ < 1000000000)) return false;
-  last_estimate_ = newest_t_;
-  current_ = aligner_.estimate();
+  const bool due = newest_t_ >= 0 && (last_estimate_ < 0 || newest_t_ - last_estimate_ >= 1000000000);
+  std::vector<Estimate> vision;
+  bool have = false;
+  if (asynchronous_) {
+    // taken when done, and at the latest when the next one is due (a stream pushed faster than
+    // real time waits here: its estimates stay at most a second of stream time behind)
+    if (pending_.valid() && (due || pending_.wait_for(std::chrono::seconds(0)) == std::future_status::ready)) {
+      try {
+        vision = pending_.get();
+        have = true;
+      } catch (const std::exception&) {
+        pending_ = {};  // (out of memory): no estimate this time
+      }
+    }
+    if (due && !pending_.valid()) {
+      last_estimate_ = newest_t_;
+      pending_ = std::async(std::launch::async, [snapshot = aligner_]() mutable { return snapshot.estimate(); });
+    }
+  } else if (due) {
+    last_estimate_ = newest_t_;
+    vision = aligner_.estimate();
+    have = true;
+  }
+  if (!have) return false;
+  current_ = std::move(vision);
   // audio, where it is sure, is the sharper measurement (a sample is 0.125 ms, a frame 33 ms);
   // vision's rate (clock drift over minutes) is kept, the audio offset being the newest one
   if (audio) {

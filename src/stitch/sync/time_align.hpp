@@ -26,6 +26,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <deque>
+#include <future>
 #include <limits>
 #include <vector>
 
@@ -154,6 +155,11 @@ class OffsetTracker {
   int64_t offset_at(int view, int64_t t_ns) const;
   const std::vector<Estimate>& current() const { return current_; }
   void reset();
+  // true: each estimate runs on a copy of the signals in a worker thread (tens of ms once a
+  // second: a live stream's thread must not stall) and update() takes it when it is done, a
+  // frame or a few later, or waits for it when the next one is due; false (the default,
+  // deterministic): update() estimates in place.
+  void set_asynchronous(bool on) { asynchronous_ = on; }
 
  private:
   void add_strips(int view, int64_t t_ns, const std::vector<double>& strips);
@@ -163,6 +169,8 @@ class OffsetTracker {
   std::vector<Estimate> current_, announced_;
   std::vector<bool> warned_;
   int64_t last_estimate_ = -1, first_t_ = -1, newest_t_ = -1;
+  bool asynchronous_ = false;
+  std::future<std::vector<Estimate>> pending_;  // the estimate running in a worker (asynchronous_)
 };
 
 }  // namespace stitch::sync
