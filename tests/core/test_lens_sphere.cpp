@@ -236,8 +236,8 @@ TEST(DualFisheye, EstimatesASharedK1FromTheOverlapRingOrDeclines) {
       EXPECT_LE(err, 3.0) << cs.fov;
       for (int i = 0; i < 2; ++i) EXPECT_EQ(r.rig.cameras[i].lens.k1, 0.0) << i;
     } else {
-      // Estimated: one k1 for both, close to the truth (within 0.004, the check's floor, and
-      // 30 %), seams within a pixel.
+      // Estimated (pinned, or loose with a warning): one k1 for both, close to the truth (within
+      // 0.004, the check's floor, or 30 %), seams within a pixel.
       ++estimated;
       // (The shared unknown is the bend at the half diagonal, so k1 differs by the focal ratio.)
       EXPECT_NEAR(r.rig.cameras[0].lens.k1, r.rig.cameras[1].lens.k1, 0.03 * std::abs(r.rig.cameras[0].lens.k1) + 1e-4);
@@ -250,9 +250,9 @@ TEST(DualFisheye, EstimatesASharedK1FromTheOverlapRingOrDeclines) {
   }
   std::printf("shared k1 estimated in %d of %zu cases: worst seam %.3f px, worst k1 error %.0f %%\n", estimated,
               std::size(cases), worst_est_seam, 100 * worst_k1);
-  // The cases where the ring pins k1 down (measured: 200 deg k1 -0.03 and 210 deg +0.02) must not
-  // regress to declining.
-  EXPECT_GE(estimated, 2);
+  // The cases where the ring pins k1 down (measured: 4 of 5; 190 deg with k1 0 declines, at no
+  // cost) must not regress to declining.
+  EXPECT_GE(estimated, 3);
 }
 
 // Two back-to-back fisheyes of different frames (no identical lens to share one k1 with): the

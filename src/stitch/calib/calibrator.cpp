@@ -1286,9 +1286,11 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
               rough.cameras[j].width == rough.cameras[i].width && rough.cameras[j].height == rough.cameras[i].height;
     if (!twin) decline_narrow(i, "no identical lens to share it with");
   }
-  // After a fit: the shared k1 of narrow-ring cameras is kept only when the matches determine it
-  // (2 sigma within 10 % of it, or within 0.004 for a lens near equidistant); the others are
-  // declined. True when any was (the caller adjusts again without them).
+  // After the fit: the shared k1 of narrow-ring cameras is kept when the matches determine it (2
+  // sigma within 10 % of it, or within 0.004 for a lens near equidistant), kept with a warning
+  // when it is loose but clearly not 0 (more than 3 sigma: far closer than the k = 0 it replaces;
+  // measured k1 -0.0177 +- 0.003 for -0.02), and declined otherwise. True when any was declined
+  // (the caller adjusts again without them).
   auto decline_unpinned = [&](const RotationFit& fit) {
     bool declined = false;
     for (int i : narrow) {
@@ -1297,6 +1299,13 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       const double sigma = i < int(fit.ba.lens_k1_sigma.size()) ? fit.ba.lens_k1_sigma[i] : 1e9;
       if (2 * sigma <= std::max(0.1 * std::abs(k1), 0.004)) continue;
       char why[96];
+      if (std::abs(k1) > 3 * sigma) {
+        std::snprintf(why, sizeof why, "k1 %+.4f +- %.4f", k1, sigma);
+        res.warnings.push_back("camera " + std::to_string(i) + ": " + why +
+                               " estimated loosely from a narrow overlap ring (a back-to-back pair); give the lens "
+                               "coefficients (e.g. from an OpenCV calibration) for a better panorama");
+        continue;
+      }
       std::snprintf(why, sizeof why, "k1 %+.4f +- %.4f", k1, sigma);
       decline_narrow(i, why);
       declined = true;
@@ -1323,10 +1332,13 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
         r0.cameras[i].set_R(ref.R() * nearest_rotation(ref.K().inverse() * Hi * r0.cameras[i].K()));
       }
     }
-    rot = adjust(r0, pairs, ba_options);
-    if (rot.ok && decline_unpinned(rot)) {
-      for (int i = 0; i < n; ++i) r0.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
-      rot = adjust(r0, pairs, ba_options);
+    {
+      // Narrow-ring lenses are held in this first, loosely matched pass (from k = 0 the loose
+      // matches ran focal and k1 off along their trade-off: f 96 px for 146, k1 +0.18); the
+      // rig adjusted with them pins the ring's radius, and the passes below estimate from there.
+      Rig r0h = r0;
+      for (int i : narrow) r0h.cameras[i].lens.estimate = false;
+      rot = adjust(r0h, pairs, ba_options);
     }
     if (rot.ok && estimating) {
       // The first pass matched with lenses still unknown: the homography RANSAC (3 px) dropped
