@@ -8,12 +8,15 @@
 // Was disabled (branch lens-out): the calibrator fitted homographies on ideal pinhole pixels,
 // which rays >= 90 degrees off the axis do not have (all of a back-to-back pair's overlap).
 // Branch fisheye-match matches such pairs on rays (calibrator.cpp, match_pair_rays). The
-// coverage is checked from the geometry (the photo's nadir is black itself).
+// coverage is checked from the geometry (the photo's nadir is black itself). Branch lens-fisheye:
+// a shared k1 from the back-to-back ring (estimated or declined), and the ground truth's edges
+// kept on a rendered radtan rig (tests/common/lens_quality.hpp).
 #include <gtest/gtest.h>
 
 #include <cstdio>
 #include <random>
 
+#include "lens_quality.hpp"
 #include "lens_rig.hpp"
 #include "stitch/calib/calibrator.hpp"
 #include "stitch/cv_interop.hpp"
@@ -309,4 +312,47 @@ TEST(FisheyeRing, CalibratedFromARoughRigSeamsWithinAPixel) {
     EXPECT_GT(n_min, 100);
     EXPECT_LE(worst, 1.0) << cams;
   }
+}
+
+// Straight lines straight on a rendered radtan rig (issue 15): the ground truth's long edges
+// (rectilinear views at the seams and centres) found again in the panorama composed through the
+// true lenses, and in the one composed with the lenses ignored. The measure must tell them
+// apart: with the lenses the edges stay where the truth has them and bend no more than it;
+// ignoring them (an undistortion that broke) shifts and bends them.
+TEST(LensLines, RadtanRigKeepsTheGroundTruthsEdges) {
+  std::string name;
+  const cv::Mat photo = equirect_photo(name);
+  ASSERT_FALSE(photo.empty());
+  Rig truth = testdata::radtan_trio(320, 240, 260, 35, -0.35, 0.1225, true, "spherical");
+  rig_layout_canvas(truth);
+  Rig ignored = truth;
+  for (auto& c : ignored.cameras) c.lens = Lens{};
+  std::vector<cv::Mat> frames;
+  std::vector<ImageView> views;
+  render_views(photo, truth, frames, views);
+  const cv::Mat gt = testdata::equirect_ground_truth(photo, truth);
+  auto lines_of = [&](const Rig& rig, double& shift, double& bend, int& lines) {
+    const cv::Mat pano = testdata::compose_cpu(rig, frames);
+    shift = bend = 0, lines = 0;
+    const int w = int(std::lround(2 * rig.canvas_scale * std::tan(30.0 * CV_PI / 180)));
+    for (double yaw : {-35.0, -17.5, 0.0, 17.5, 35.0}) {
+      const testdata::LineComparison c = testdata::compare_lines(testdata::rectilinear_view(gt, rig, yaw, 0, 60, w, w * 3 / 4),
+                                                                 testdata::rectilinear_view(pano, rig, yaw, 0, 60, w, w * 3 / 4), 40);
+      if (c.lines == 0) continue;
+      lines += c.lines;
+      shift = std::max(shift, c.median_shift_px), bend = std::max(bend, c.median_bend_px);
+    }
+  };
+  double s_on, b_on, s_off, b_off;
+  int n_on, n_off;
+  lines_of(truth, s_on, b_on, n_on);
+  lines_of(ignored, s_off, b_off, n_off);
+  std::printf("%s: radtan k1 -0.35 trio, ground-truth edges (worst view's median): with the lenses shift %.2f px, extra "
+              "bend %.2f px (%d lines); lenses ignored shift %.2f px, bend %.2f px (%d lines)\n",
+              name.c_str(), s_on, b_on, n_on, s_off, b_off, n_off);
+  ASSERT_GE(n_on, 10);
+  EXPECT_LT(s_on, 0.5);
+  EXPECT_LT(b_on, 0.5);
+  EXPECT_GT(s_off, 3 * s_on);
+  EXPECT_GT(b_off, 2 * b_on);
 }
