@@ -17,7 +17,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <opencv2/imgcodecs.hpp>
-#include <random>
 #include <string>
 #include <vector>
 
@@ -31,48 +30,6 @@
 using namespace stitch;
 
 namespace {
-
-// Radtan trios as stitch-bench-calib-lens: focal +-5 %, yaw +-3 degrees, pitch dropped.
-Rig rough_trio(const Rig& truth, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(0.6, 1.0);
-  Rig r = truth;
-  r.canvas_width = r.canvas_height = 0, r.canvas_scale = 0, r.canvas_wrap = false;
-  for (std::size_t i = 0; i < r.cameras.size(); ++i) {
-    Camera& c = r.cameras[i];
-    const double s = 1 + (i % 2 ? 1 : -1) * 0.05 * u(rng) * (seed % 2 ? -1 : 1);
-    c.fx *= s, c.fy *= s;
-    c.yaw_deg += (i % 2 ? -3.0 : 3.0) * u(rng);
-    c.pitch_deg = 0;
-  }
-  return r;
-}
-
-// Fisheye rigs as test_lens_sphere: focal +-3 %, yaw / pitch / roll +-2 degrees.
-Rig rough_sphere(const Rig& truth, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
-  Rig r = truth;
-  r.canvas_width = r.canvas_height = 0, r.canvas_scale = 0, r.canvas_wrap = false;
-  for (auto& c : r.cameras) {
-    c.fx = c.fy = c.fx * (1 + df(rng));
-    c.yaw_deg += da(rng), c.pitch_deg += da(rng), c.roll_deg += da(rng);
-  }
-  return r;
-}
-
-// The lens model without coefficients (the image circle kept: it is measured, not estimated).
-Rig without_coefficients(Rig r) {
-  for (auto& c : r.cameras)
-    if (!c.lens.pinhole()) {
-      Lens l;
-      l.model = c.lens.model;
-      l.circle = c.lens.circle;
-      l.estimate = true;
-      c.lens = l;
-    }
-  return r;
-}
 
 Rig lenses_dropped(Rig r) {
   for (auto& c : r.cameras) c.lens = Lens{};
@@ -197,7 +154,7 @@ int main(int argc, char** argv) {
         mask = gray > 0;
         cv::erode(mask, mask, cv::Mat::ones(9, 9, CV_8U));
         const Quality qt = quality_of(truth, frames, gt, mask, cs.views);
-        const Rig rough = without_coefficients(cs.fisheye ? rough_sphere(truth, 11 + seed) : rough_trio(truth, seed));
+        const Rig rough = testdata::without_coefficients(cs.fisheye ? testdata::rough_sphere(truth, 11 + seed) : testdata::rough_trio(truth, seed));
         std::string warn;
         Quality qc;
         double k1_est = 0, f_est = 0, secs = 0;

@@ -74,23 +74,6 @@ void render_views(const cv::Mat& photo, const Rig& truth, std::vector<cv::Mat>& 
   for (auto& f : frames) views.push_back(as_view(f));
 }
 
-// A rough rig: focal +-3 %, yaw, pitch and roll +-2 degrees off (seeded), no canvas.
-Rig rough_of(const Rig& truth, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
-  Rig rough = truth;
-  rough.canvas_width = rough.canvas_height = 0;
-  rough.canvas_scale = 0;
-  rough.canvas_wrap = false;
-  for (auto& c : rough.cameras) {
-    c.fx = c.fy = c.fx * (1 + df(rng));
-    c.yaw_deg += da(rng);
-    c.pitch_deg += da(rng);
-    c.roll_deg += da(rng);
-  }
-  return rough;
-}
-
 }  // namespace
 
 TEST(DualFisheye, CalibratedFromARoughRigSeamsWithinAPixel) {
@@ -108,7 +91,7 @@ TEST(DualFisheye, CalibratedFromARoughRigSeamsWithinAPixel) {
     std::vector<cv::Mat> frames;
     std::vector<ImageView> views;
     render_views(photo, truth, frames, views);
-    Rig rough = rough_of(truth, cs.seed);
+    Rig rough = testdata::rough_sphere(truth, cs.seed);
     Rig rough_laid = rough;
     rig_layout_canvas(rough_laid);
     int n_rough = 0;
@@ -210,7 +193,7 @@ TEST(DualFisheye, EstimatesASharedK1FromTheOverlapRingOrDeclines) {
     std::vector<cv::Mat> frames;
     std::vector<ImageView> views;
     render_views(photo, truth, frames, views);
-    Rig rough = rough_of(truth, cs.seed);
+    Rig rough = testdata::rough_sphere(truth, cs.seed);
     for (auto& c : rough.cameras) {
       c.lens.k1 = c.lens.k2 = 0;
       c.lens.estimate = true;
@@ -272,7 +255,7 @@ TEST(DualFisheye, DeclinesWithoutAnIdenticalLens) {
   std::vector<cv::Mat> frames;
   std::vector<ImageView> views;
   render_views(photo, truth, frames, views);
-  Rig rough = rough_of(truth, 5);
+  Rig rough = testdata::rough_sphere(truth, 5);
   for (auto& c : rough.cameras) c.lens.k1 = c.lens.k2 = 0, c.lens.estimate = true;
   const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
   bool told = false;
@@ -293,7 +276,7 @@ TEST(FisheyeRing, CalibratedFromARoughRigSeamsWithinAPixel) {
     std::vector<cv::Mat> frames;
     std::vector<ImageView> views;
     render_views(photo, truth, frames, views);
-    Rig rough = rough_of(truth, 7 + cams);
+    Rig rough = testdata::rough_sphere(truth, 7 + cams);
     Rig rough_laid = rough;
     rig_layout_canvas(rough_laid);
     const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
