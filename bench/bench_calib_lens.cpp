@@ -9,7 +9,6 @@
 #include <cmath>
 #include <cstdio>
 #include <opencv2/imgcodecs.hpp>
-#include <random>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -32,28 +31,6 @@ std::vector<double> list_of(const std::string& s) {
 }
 
 
-
-// Focal +-5 %, yaw +-3 degrees (signs and sizes from the seed), pitch dropped, lens: model only.
-Rig rough_of(const Rig& truth, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(0.6, 1.0);
-  Rig r = truth;
-  for (std::size_t i = 0; i < r.cameras.size(); ++i) {
-    Camera& c = r.cameras[i];
-    const double s = 1 + (i % 2 ? 1 : -1) * 0.05 * u(rng) * (seed % 2 ? -1 : 1);
-    c.fx *= s;
-    c.fy *= s;
-    c.yaw_deg += (i % 2 ? -3.0 : 3.0) * u(rng);
-    c.pitch_deg = 0;
-    if (!c.lens.pinhole()) {
-      const auto model = c.lens.model;
-      c.lens = Lens{};
-      c.lens.model = model;
-      c.lens.estimate = true;
-    }
-  }
-  return r;
-}
 
 }  // namespace
 
@@ -99,7 +76,7 @@ int main(int argc, char** argv) {
         for (auto& m : pf) pv.push_back(as_view(m));
         double pin_corner = -1, pin_median = -1;
         try {
-          const CalibrationResult rp = calibrate_from_rig(rough_of(pin_truth, seed), pv, CalibrationOptions{});
+          const CalibrationResult rp = calibrate_from_rig(testdata::rough_trio(pin_truth, seed), pv, CalibrationOptions{});
           pin_corner = testdata::lens_corner_error(rp.rig, pin_truth);
           pin_median = measure_alignment(rp.rig, pv).median_px;
         } catch (const std::exception& e) {
@@ -115,7 +92,7 @@ int main(int argc, char** argv) {
           double corner = 1e9, median = 1e9, k1_est = 0, f_est = 0, k1_rel = 1e9;
           std::string warn;
           try {
-            const CalibrationResult r = calibrate_from_rig(rough_of(truth, seed), views, CalibrationOptions{});
+            const CalibrationResult r = calibrate_from_rig(testdata::without_coefficients(testdata::rough_trio(truth, seed)), views, CalibrationOptions{});
             corner = testdata::lens_corner_error(r.rig, truth);
             median = measure_alignment(r.rig, views).median_px;
             k1_rel = 0;

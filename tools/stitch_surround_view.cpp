@@ -40,16 +40,16 @@ int main(int argc, char** argv) {
         throw stitch::RigError(std::string(surround::kNames[i]) + ".png is not the yaml's resolution");
       cv::cvtColor(bgr, rgba, cv::COLOR_BGR2RGBA);
       frames.push_back(rgba);
-      // Undistorted to a pinhole of the lens's focal length: straight lines stay straight.
-      const double f = 0.5 * (rig.cameras[i].fx + rig.cameras[i].fy);
+      // Undistorted to a wide pinhole (surround::kUndistortFocalScale): straight lines stay straight.
+      const double f = surround::kUndistortFocalScale * 0.5 * (rig.cameras[i].fx + rig.cameras[i].fy);
       const cv::Mat und = surround::undistort(rig.cameras[i], bgr, f);
       cv::imwrite(out + "/undistorted_" + surround::kNames[i] + ".png", und);
       const surround::Straightness fixed = surround::measure_straightness(und);
       const surround::Straightness raw = surround::raw_straightness(rig.cameras[i], f, fixed);
-      std::printf("%s: long edges, worst deviation from a straight line (median over lines): the same edges "
-                  "raw (lens ignored) %d lines %.2f px (%.2f); undistorted %d lines %.2f px (%.2f)\n",
-                  surround::kNames[i], raw.lines, raw.worst_px, raw.median_px, fixed.lines, fixed.worst_px,
-                  fixed.median_px);
+      std::printf("%s: %d long edges, bend (sagitta over chord, median / worst): undistorted %.3f %% / %.3f %%; the "
+                  "same edges raw (lens ignored) %.3f %% / %.3f %%\n",
+                  surround::kNames[i], fixed.lines, fixed.median_bend_pct, fixed.worst_bend_pct, raw.median_bend_pct,
+                  raw.worst_bend_pct);
     }
     const std::vector<cv::Mat> warped = surround::warp_views(rig, frames);
     for (std::size_t i = 0; i < warped.size(); ++i) {
@@ -62,8 +62,8 @@ int main(int argc, char** argv) {
     cv::cvtColor(pano, bgra, cv::COLOR_RGBA2BGRA);
     cv::imwrite(out + "/birdseye.png", bgra);
     const surround::Straightness bird = surround::measure_straightness(bgra);
-    std::printf("bird's eye %dx%d: %d lines, worst deviation %.2f px (median %.2f); wrote %s/birdseye.png\n", pano.cols,
-                pano.rows, bird.lines, bird.worst_px, bird.median_px, out.c_str());
+    std::printf("bird's eye %dx%d: %d long edges, bend median %.3f %% (worst %.3f %%); wrote %s/birdseye.png\n",
+                pano.cols, pano.rows, bird.lines, bird.median_bend_pct, bird.worst_bend_pct, out.c_str());
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch-surround-view: %s\n", e.what());
     return 1;

@@ -154,6 +154,10 @@ inline cv::Mat compose_birdseye(const std::vector<cv::Mat>& warped) {
   return out;
 }
 
+// Undistorted views for measuring straightness use a pinhole of this times the lens's focal length:
+// wide enough to keep the calibration mat's outer edges, where the fisheyes bend lines most.
+constexpr double kUndistortFocalScale = 0.7;
+
 // The camera's image undistorted to a pinhole of focal `f` (same size, same centre) with our lens
 // model (stitch::lens_project), for measuring straightness.
 inline cv::Mat undistort(const stitch::Camera& c, const cv::Mat& raw, double f) {
@@ -175,8 +179,53 @@ struct Straightness {
   int lines = 0;            // long edge segments measured
   double median_px = 0;     // median over the lines of the worst deviation from the fitted line
   double worst_px = 0;      // the worst
+  // Bend: the sagitta of the parabola through each line's points over its chord, in percent of
+  // the chord (scale-free, so raw and undistorted compare; the fit averages the edge noise that
+  // the 90th-percentile deviation above keeps). Median and worst over the lines.
+  double median_bend_pct = 0, worst_bend_pct = 0;
+  std::vector<double> bends_pct;                 // per line
   std::vector<std::vector<cv::Point2f>> points;  // each line's edge points
 };
+
+// How much `pts` (edge points along one line) bend: a line fitted, each point's offset across
+// it against its position along it, a parabola through those (least squares, points off by more
+// than 3 robust sigmas dropped once); its sagitta over the chord, in percent of the chord.
+inline double line_bend_pct(const std::vector<cv::Point2f>& pts) {
+  cv::Vec4f l;
+  cv::fitLine(pts, l, cv::DIST_L2, 0, 0.01, 0.01);
+  const double dx = l[0], dy = l[1];
+  std::vector<double> t, o;
+  for (const auto& p : pts) {
+    t.push_back((p.x - l[2]) * dx + (p.y - l[3]) * dy);
+    o.push_back(-(p.x - l[2]) * dy + (p.y - l[3]) * dx);
+  }
+  const auto [lo, hi] = std::minmax_element(t.begin(), t.end());
+  const double t0 = *lo, len = std::max(1e-6, *hi - *lo);
+  std::vector<char> use(pts.size(), 1);
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (int pass = 0; pass < 2; ++pass) {
+    Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d b = Eigen::Vector3d::Zero();
+    for (std::size_t k = 0; k < t.size(); ++k) {
+      if (!use[k]) continue;
+      const double s = (t[k] - t0) / len - 0.5;
+      const Eigen::Vector3d row(1, s, s * s);
+      A += row * row.transpose();
+      b += row * o[k];
+    }
+    c = A.ldlt().solve(b);
+    std::vector<double> res;
+    for (std::size_t k = 0; k < t.size(); ++k) {
+      const double s = (t[k] - t0) / len - 0.5;
+      res.push_back(std::abs(o[k] - (c(0) + c(1) * s + c(2) * s * s)));
+    }
+    std::vector<double> sorted = res;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double cut = std::max(0.3, 3 * 1.4826 * sorted[sorted.size() / 2]);
+    for (std::size_t k = 0; k < t.size(); ++k) use[k] = res[k] <= cut;
+  }
+  return 100.0 * std::abs(c(2)) / 4 / len;  // s in [-1/2, 1/2]: the rise at the ends over the middle
+}
 
 // How far `pts` stray from their line (a robust fit): the 90th percentile of the distances, so
 // that a stray gradient peak (a checker corner, texture) does not count as a bend.
@@ -195,6 +244,12 @@ inline void summarise(Straightness& r, std::vector<double> worst) {
   std::sort(worst.begin(), worst.end());
   r.median_px = worst[worst.size() / 2];
   r.worst_px = worst.back();
+  r.bends_pct.clear();
+  for (const auto& pts : r.points) r.bends_pct.push_back(line_bend_pct(pts));
+  std::vector<double> b = r.bends_pct;
+  std::sort(b.begin(), b.end());
+  r.median_bend_pct = b[b.size() / 2];
+  r.worst_bend_pct = b.back();
 }
 
 // The same edge points with the lens ignored: the undistorted image's lines (pinhole of focal f)
@@ -263,10 +318,17 @@ inline Straightness measure_straightness(const cv::Mat& img, double min_len = 10
       int bk = 0;
       std::vector<double> g(2 * band + 1, 0);
       for (int k = -band; k <= band; ++k) {
+        // Sampled exactly on the normal (bilinear): rounding to the pixel grid would add a
+        // staircase of up to half a pixel to the points of a slanted line.
         const Eigen::Vector2d q = p0 + t * d + double(k) * n;
-        const int x = int(std::lround(q.x())), y = int(std::lround(q.y()));
-        if (x < 1 || y < 1 || x >= gray.cols - 1 || y >= gray.rows - 1) continue;
-        const double v = std::abs(gx.at<float>(y, x) * n.x() + gy.at<float>(y, x) * n.y());
+        const int x = int(std::floor(q.x())), y = int(std::floor(q.y()));
+        if (x < 1 || y < 1 || x >= gray.cols - 2 || y >= gray.rows - 2) continue;
+        const double fx = q.x() - x, fy = q.y() - y;
+        auto at = [&](const cv::Mat& m) {
+          return (1 - fy) * ((1 - fx) * m.at<float>(y, x) + fx * m.at<float>(y, x + 1)) +
+                 fy * ((1 - fx) * m.at<float>(y + 1, x) + fx * m.at<float>(y + 1, x + 1));
+        };
+        const double v = std::abs(at(gx) * n.x() + at(gy) * n.y());
         g[k + band] = v;
         if (v > best) best = v, bk = k;
       }

@@ -4,6 +4,7 @@
 #pragma once
 #include <Eigen/Dense>
 #include <cmath>
+#include <random>
 #include <string>
 #include <opencv2/imgproc.hpp>
 
@@ -192,6 +193,51 @@ inline stitch::Rig radtan_trio(int w, int h, double f, double spacing, double k1
   }
   rig.reference = 1;
   return rig;
+}
+
+// A rough rig of a radtan trio (radtan_trio): focal +-5 %, yaw +-3 degrees (signs and sizes from
+// the seed), pitch dropped, no canvas; lenses unchanged (see without_coefficients).
+inline stitch::Rig rough_trio(const stitch::Rig& truth, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.6, 1.0);
+  stitch::Rig r = truth;
+  r.canvas_width = r.canvas_height = 0, r.canvas_scale = 0, r.canvas_wrap = false;
+  for (std::size_t i = 0; i < r.cameras.size(); ++i) {
+    stitch::Camera& c = r.cameras[i];
+    const double s = 1 + (i % 2 ? 1 : -1) * 0.05 * u(rng) * (seed % 2 ? -1 : 1);
+    c.fx *= s, c.fy *= s;
+    c.yaw_deg += (i % 2 ? -3.0 : 3.0) * u(rng);
+    c.pitch_deg = 0;
+  }
+  return r;
+}
+
+// A rough rig of a fisheye rig (dual_fisheye_rig, fisheye_ring): focal +-3 %, yaw / pitch / roll
+// +-2 degrees off (seeded), no canvas; lenses unchanged.
+inline stitch::Rig rough_sphere(const stitch::Rig& truth, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> df(-0.03, 0.03), da(-2.0, 2.0);
+  stitch::Rig r = truth;
+  r.canvas_width = r.canvas_height = 0, r.canvas_scale = 0, r.canvas_wrap = false;
+  for (auto& c : r.cameras) {
+    c.fx = c.fy = c.fx * (1 + df(rng));
+    c.yaw_deg += da(rng), c.pitch_deg += da(rng), c.roll_deg += da(rng);
+  }
+  return r;
+}
+
+// The lens models without coefficients ("estimate them"); the image circle kept (it is measured,
+// not estimated).
+inline stitch::Rig without_coefficients(stitch::Rig r) {
+  for (auto& c : r.cameras)
+    if (!c.lens.pinhole()) {
+      stitch::Lens l;
+      l.model = c.lens.model;
+      l.circle = c.lens.circle;
+      l.estimate = true;
+      c.lens = l;
+    }
+  return r;
 }
 
 // Where a calibration puts each non-reference camera's image corners, in that camera's raw

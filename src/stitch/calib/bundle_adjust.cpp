@@ -391,6 +391,21 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
         return r2;
       }
   }
+  if (rep.ok && !rep.lens_estimated.empty()) {
+    // How well the matches determine each k1: sigma^2 (J^T J)^-1 at the solution.
+    Functor fn{&p};
+    Eigen::NumericalDiff<Functor> numdiff(fn);
+    Eigen::MatrixXd J(fn.values(), fn.inputs());
+    numdiff.df(x, J);
+    const Eigen::MatrixXd JtJ = J.transpose() * J;
+    const double dof = std::max(1.0, double(f.size()) - double(x.size()));
+    const Eigen::MatrixXd cov = JtJ.completeOrthogonalDecomposition().pseudoInverse() * (f.squaredNorm() / dof);
+    const Model m = p.model(x);
+    rep.lens_k1_sigma.assign(n, 0.0);
+    for (int i : rep.lens_estimated)
+      if (const int l = p.layout.lens_index(i); l >= 0)
+        rep.lens_k1_sigma[i] = std::sqrt(std::max(0.0, cov(l, l))) / bend_scale(m.cam[i]);
+  }
   if (rep.ok) apply(rig, p, x);
   return rep;
 }

@@ -48,6 +48,9 @@ struct BundleAdjustReport {
   std::vector<int> lens_estimated;   // cameras whose k1 (k2) the adjustment estimated
   double lens_sweep_d = 0;            // the sweep's pick: k1 (r/f)^2 at the half diagonal (0: no sweep)
   std::string lens_warning;          // an estimate that folded the image and was dropped
+  // Per camera: the standard error of its estimated k1 (from the fit's Jacobian and residual
+  // scale: how well the matches pin it down); 0 where k1 was not estimated.
+  std::vector<double> lens_k1_sigma;
 };
 
 // Refines R and f (fx, fy together; principal points stay) of every camera (and k1, k2 of
