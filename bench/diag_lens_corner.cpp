@@ -311,14 +311,14 @@ int main(int argc, char** argv) {
   for (const auto& f : frames) {
     cv::Mat g;
     cv::cvtColor(f, g, cv::COLOR_RGBA2GRAY);
-    DenseMatchOptions dop; if (getenv("BLUR")) dop.blur_sigma = atof(getenv("BLUR")); if (getenv("MAXP")) dop.max_points = atoi(getenv("MAXP")); if (getenv("MIND")) dop.min_distance = atoi(getenv("MIND")); dimg.push_back(prepare_dense_image(g, dop));
+    DenseMatchOptions dop; if (getenv("BLUR")) dop.blur_sigma = atof(getenv("BLUR")); if (getenv("MAXP")) dop.max_points = atoi(getenv("MAXP")); if (getenv("MIND")) dop.min_distance = atoi(getenv("MIND")); if (getenv("QL")) dop.quality = atof(getenv("QL")); dimg.push_back(prepare_dense_image(g, dop));
   }
   for (int variant = 0; variant < 2; ++variant) {
     const Rig& guide = variant == 0 ? truth : sift_opt;
     std::vector<PairMatches> dm;
     for (int a = 0; a < 3; ++a)
       for (int b = a + 1; b < 3; ++b) {
-        DenseMatchOptions dop; if (getenv("RAD")) dop.radius = atoi(getenv("RAD")); if (getenv("BLUR")) dop.blur_sigma = atof(getenv("BLUR")); if (getenv("MAXP")) dop.max_points = atoi(getenv("MAXP")); if (getenv("MIND")) dop.min_distance = atoi(getenv("MIND")); PairMatches m = dense_pair_matches(guide, a, b, dimg[a], dimg[b], dop);
+        DenseMatchOptions dop; if (getenv("RAD")) dop.radius = atoi(getenv("RAD")); if (getenv("BLUR")) dop.blur_sigma = atof(getenv("BLUR")); if (getenv("MAXP")) dop.max_points = atoi(getenv("MAXP")); if (getenv("MIND")) dop.min_distance = atoi(getenv("MIND")); if (getenv("QL")) dop.quality = atof(getenv("QL")); PairMatches m = dense_pair_matches(guide, a, b, dimg[a], dimg[b], dop);
         // drop gross errors vs truth (>2 px) and report how many
         PairMatches k = m;
         k.ra.clear(); k.rb.clear(); k.pa.clear(); k.pb.clear(); k.weight.clear();

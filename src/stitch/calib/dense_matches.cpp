@@ -22,14 +22,28 @@ struct Transfer {
   }
 };
 
-// Bilinear sample of a CV_32F image; false outside [0, w-1] x [0, h-1].
+// Sample of a CV_32F image by cubic convolution (Keys, a = -0.5): bilinear interpolation
+// smooths by a sub-pixel-phase dependent amount and pulls the alignment towards whole-pixel shifts
+// (a bias that varies smoothly over the overlap with the map's phase). False outside.
+inline void keys(float t, float w[4]) {
+  const float t2 = t * t, t3 = t2 * t;
+  w[0] = -0.5f * t3 + t2 - 0.5f * t;
+  w[1] = 1.5f * t3 - 2.5f * t2 + 1;
+  w[2] = -1.5f * t3 + 2 * t2 + 0.5f * t;
+  w[3] = 0.5f * t3 - 0.5f * t2;
+}
 inline bool sample(const cv::Mat& m, double x, double y, float& v) {
-  if (!(x >= 0 && y >= 0 && x <= m.cols - 1.001 && y <= m.rows - 1.001)) return false;
+  if (!(x >= 1 && y >= 1 && x < m.cols - 2 && y < m.rows - 2)) return false;
   const int x0 = int(x), y0 = int(y);
-  const float fx = float(x - x0), fy = float(y - y0);
-  const float* r0 = m.ptr<float>(y0) + x0;
-  const float* r1 = m.ptr<float>(y0 + 1) + x0;
-  v = (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
+  float wx[4], wy[4];
+  keys(float(x - x0), wx);
+  keys(float(y - y0), wy);
+  float acc = 0;
+  for (int j = 0; j < 4; ++j) {
+    const float* r = m.ptr<float>(y0 - 1 + j) + x0 - 1;
+    acc += wy[j] * (wx[0] * r[0] + wx[1] * r[1] + wx[2] * r[2] + wx[3] * r[3]);
+  }
+  v = acc;
   return true;
 }
 
@@ -95,7 +109,7 @@ void track(const Camera& cs, const Camera& ct, const DenseImage& S, const DenseI
     }
   if (cv::countNonZero(mask) == 0) return;
   std::vector<cv::Point2f> corners;
-  cv::goodFeaturesToTrack(S.gray, corners, o.max_points, 0.01, o.min_distance, mask, 5);
+  cv::goodFeaturesToTrack(S.gray, corners, o.max_points, o.quality, o.min_distance, mask, 5);
   const int side = 2 * R + 1, np = side * side;
   std::vector<float> tmpl(np), smp(np);
   std::vector<Eigen::Vector2d> warp(np);

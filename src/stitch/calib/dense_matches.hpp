@@ -20,6 +20,7 @@ struct DenseMatchOptions {
   int max_points = 500;        // per pair and direction (points picked in a, in b)
   int radius = 5;              // patch half side, pixels
   int min_distance = 4;        // between picked points, pixels
+  double quality = 0.01;       // corner strength, relative to the strongest (goodFeaturesToTrack)
   double blur_sigma = 0.7;     // smoothing of the sharper side (interpolation bias); the other is
                                // smoothed to the same resolution through the rig's local scale
   double max_shift_px = 3.0;   // how far off the rig's prediction may be
