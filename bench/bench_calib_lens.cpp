@@ -5,7 +5,9 @@
 // cameras (calibrated from the same kind of rough rig) is the baseline.
 //
 //   stitch-bench-calib-lens --photo a.jpg [--photo b.jpg] [--k1 -0.35,-0.2,0.1] [--spacing 35,30]
-//                           [--seeds 2] [--size 320]
+//                           [--seeds 2] [--size 320] [--dense 0]
+// --dense 0: the lenses fitted on SIFT keypoints alone (before branch lens-radtan).
+// --supersample N: render each camera N x N supersampled (default 2; 4 aliases less).
 #include <cmath>
 #include <cstdio>
 #include <opencv2/imgcodecs.hpp>
@@ -38,6 +40,8 @@ int main(int argc, char** argv) {
   std::vector<std::string> photos;
   std::vector<double> k1s = {-0.35, -0.2, 0.1}, spacings = {35};
   int seeds = 1, size = 320;
+  CalibrationOptions opts;
+  int supersample = 2;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--photo") photos.push_back(v);
@@ -45,6 +49,8 @@ int main(int argc, char** argv) {
     else if (k == "--spacing") spacings = list_of(v);
     else if (k == "--seeds") seeds = std::stoi(v);
     else if (k == "--size") size = std::stoi(v);
+    else if (k == "--dense") opts.dense_lens_matches = std::stoi(v) != 0;
+    else if (k == "--supersample") supersample = std::stoi(v);
     else {
       std::fprintf(stderr, "unknown option %s\n", k.c_str());
       return 2;
@@ -72,11 +78,11 @@ int main(int argc, char** argv) {
         const Rig pin_truth = testdata::radtan_trio(w, h, f, spacing, 0, 0, false, "spherical");
         std::vector<cv::Mat> pf;
         std::vector<ImageView> pv;
-        for (const auto& c : pin_truth.cameras) pf.push_back(testdata::render_camera_from_equirect(photo, c));
+        for (const auto& c : pin_truth.cameras) pf.push_back(testdata::render_camera_from_equirect(photo, c, supersample));
         for (auto& m : pf) pv.push_back(as_view(m));
         double pin_corner = -1, pin_median = -1;
         try {
-          const CalibrationResult rp = calibrate_from_rig(testdata::rough_trio(pin_truth, seed), pv, CalibrationOptions{});
+          const CalibrationResult rp = calibrate_from_rig(testdata::rough_trio(pin_truth, seed), pv, opts);
           pin_corner = testdata::lens_corner_error(rp.rig, pin_truth);
           pin_median = measure_alignment(rp.rig, pv).median_px;
         } catch (const std::exception& e) {
@@ -87,12 +93,13 @@ int main(int argc, char** argv) {
           const Rig truth = testdata::radtan_trio(w, h, f, spacing, k1, k2, true, "spherical");
           std::vector<cv::Mat> frames;
           std::vector<ImageView> views;
-          for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+          for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c, supersample));
           for (auto& m : frames) views.push_back(as_view(m));
           double corner = 1e9, median = 1e9, k1_est = 0, f_est = 0, k1_rel = 1e9;
           std::string warn;
           try {
-            const CalibrationResult r = calibrate_from_rig(testdata::without_coefficients(testdata::rough_trio(truth, seed)), views, CalibrationOptions{});
+            const CalibrationResult r =
+                calibrate_from_rig(testdata::without_coefficients(testdata::rough_trio(truth, seed)), views, opts);
             corner = testdata::lens_corner_error(r.rig, truth);
             median = measure_alignment(r.rig, views).median_px;
             k1_rel = 0;

@@ -5,11 +5,13 @@
 // bundle adjustment estimates k1 (and k2).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
 #include "lens_rig.hpp"
 #include "stitch/calib/calibrator.hpp"
+#include "stitch/calib/dense_matches.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/lens.hpp"
 #include "test_data.hpp"
@@ -142,9 +144,9 @@ TEST(CalibLens, EstimatesRadtanCoefficients) {
 
 // The issue's range of radtan lenses (k1 -0.35 ... +0.1), estimated from rough rigs without
 // coefficients. The bundle adjustment starts from a sweep of the distortion (from k = 0 the
-// k1 -0.35 lens ran the focal lengths off x60). k1 comes within 1-4 %, the overlaps align to
-// 0.1 px, but the corner error (extrapolated to corners no match reaches) is 0.6-0.8 px, not the
-// issue's 0.5: asserted at 1 px here (BENCHMARKS.md, "Lens estimation across the range").
+// k1 -0.35 lens ran the focal lengths off x60), then refits on dense photometric matches
+// (dense_matches.hpp): the corner error (extrapolated to corners no match reaches) was 0.7-0.8 px
+// on SIFT keypoints alone, the issue's 0.5 px is asserted (BENCHMARKS.md, "Radtan corner error").
 TEST(CalibLens, EstimatesAcrossTheRange) {
   const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
   for (double k1 : {-0.35, 0.1}) {
@@ -177,9 +179,51 @@ TEST(CalibLens, EstimatesAcrossTheRange) {
     for (std::size_t i = 0; i < r.rig.cameras.size(); ++i)
       std::printf("  camera %zu: k1 %+.4f k2 %+.4f f %.2f (true 260)\n", i, r.rig.cameras[i].lens.k1,
                   r.rig.cameras[i].lens.k2, r.rig.cameras[i].fx);
-    EXPECT_LE(err, 1.0) << k1;
+    EXPECT_LE(err, 0.5) << k1;
     EXPECT_LE(al.median_px, 0.3) << k1;
     EXPECT_LE(worst_k1, 0.1 * std::abs(k1)) << k1;
     for (const auto& c : r.rig.cameras) EXPECT_TRUE(lens_problem(c).empty()) << k1;
+  }
+}
+
+// The dense matches themselves (issue 15): through a rig a little off the truth (yaw 0.3 degrees,
+// focal 0.5 %), the photometric alignment places hundreds of correspondences a pair to a few
+// hundredths of a pixel of where the true rig puts them (SIFT keypoints: ~0.25 px), over the
+// whole overlap, corners included.
+TEST(CalibLens, DenseMatchesAreHundredthsOfAPixel) {
+  const Scene& s = scene();
+  Rig guide = s.truth;
+  guide.cameras[0].yaw_deg += 0.3;
+  guide.cameras[2].fx *= 1.005;
+  guide.cameras[2].fy *= 1.005;
+  std::vector<DenseImage> imgs;
+  for (const auto& f : s.frames) {
+    cv::Mat g;
+    cv::cvtColor(f, g, cv::COLOR_RGBA2GRAY);
+    imgs.push_back(prepare_dense_image(g));
+  }
+  for (int a : {0, 1}) {
+    const PairMatches m = dense_pair_matches(guide, a, a + 1, imgs[a], imgs[a + 1]);
+    std::vector<double> e;
+    double reach = 0;
+    const Camera& A = s.truth.cameras[a];
+    for (std::size_t k = 0; k < m.ra.size(); ++k) {
+      Eigen::Vector3d ray;
+      Eigen::Vector2d q;
+      ASSERT_TRUE(lens_unproject(A, m.ra[k], ray));
+      const Camera& B = s.truth.cameras[a + 1];
+      ASSERT_TRUE(lens_project(B, B.R().transpose() * (A.R() * ray), q));
+      e.push_back((q - m.rb[k]).norm());
+      reach = std::max(reach, std::hypot(m.ra[k].x() - A.cx, m.ra[k].y() - A.cy) / std::hypot(A.cx, A.cy));
+    }
+    ASSERT_GE(e.size(), 300u) << a;
+    std::sort(e.begin(), e.end());
+    const double med = e[e.size() / 2], p90 = e[e.size() * 9 / 10];
+    std::printf("dense %d-%d: %zu matches, error vs the true rig median %.3f px, p90 %.3f px, max %.3f px; reach %.0f %% "
+                "of the half diagonal\n",
+                a, a + 1, e.size(), med, p90, e.back(), 100 * reach);
+    EXPECT_LE(med, 0.05) << a;
+    EXPECT_LE(p90, 0.12) << a;
+    EXPECT_GE(reach, 0.85) << a;
   }
 }

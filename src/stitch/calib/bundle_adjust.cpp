@@ -373,6 +373,29 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
     if (kept.pa.size() < 8) break;
     p = std::move(kept);
   }
+  if (o.robust_scale > 0 && p.pa.size() >= 8) {
+    // Cauchy's loss by reweighting (each match's weight times 1 / sqrt(1 + (e / c)^2)).
+    for (int it = 0; it < 3; ++it) {
+      f.resize(4 * p.pa.size());
+      p.residuals(x, f);
+      std::vector<double> e(p.pa.size());
+      for (std::size_t k = 0; k < e.size(); ++k) e[k] = f.segment<4>(4 * k).norm() / (std::sqrt(2.0) * p.w[k]);
+      std::vector<double> sorted = e;
+      std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+      const double c = o.robust_scale * std::max(1.4826 * sorted[sorted.size() / 2], 1e-3);
+      Problem q = p;
+      for (std::size_t k = 0; k < e.size(); ++k) q.w[k] = p.w[k] / std::sqrt(1 + (e[k] / c) * (e[k] / c));
+      Functor fn{&q};
+      Eigen::NumericalDiff<Functor> numdiff(fn);
+      Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
+      lm.parameters.maxfev = o.max_iterations * (q.layout.size() + 1);
+      if (q.lens()) lm.parameters.xtol = lm.parameters.ftol = 1e-12;
+      Eigen::VectorXd xr = x;
+      lm.minimize(xr);
+      if (!xr.allFinite()) break;
+      x = xr;
+    }
+  }
   f.resize(4 * p.pa.size());
   p.residuals(x, f);
   rep.rms_after_px = rms(f);

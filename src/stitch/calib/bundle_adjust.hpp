@@ -38,6 +38,10 @@ struct BundleAdjustOptions {
   // Lenses estimated from zero coefficients start from a 1-D sweep of the distortion (the focal
   // and rotations fitted for each candidate) instead of k = 0.
   bool sweep_lens = true;
+  // > 0: after the rounds above, a few reweighted rounds with Cauchy's loss of scale
+  // robust_scale x the matches' robust sigma (1.4826 x their median error): precise, dense matches
+  // (dense_matches.hpp) whose few poorly placed ones would otherwise lean on the focal length.
+  double robust_scale = 0;
 };
 
 struct BundleAdjustReport {

@@ -14,6 +14,7 @@
 #include <set>
 
 #include "stitch/calib/bundle_adjust.hpp"
+#include "stitch/calib/dense_matches.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/lens.hpp"
@@ -1099,8 +1100,6 @@ CameraModel effective_model(const CalibrationOptions& o) {
   return o.model;
 }
 
-std::string pair_name(int a, int b) { return std::to_string(a) + "-" + std::to_string(b); }
-
 }  // namespace
 
 const char* camera_model_name(CameraModel m) {
@@ -1134,6 +1133,62 @@ CalibrationResult calibrate_from_rig(const Rig& rough, const std::vector<ImageVi
                                      const CalibrationOptions& o) {
   return calibrate_from_rig(rough, std::vector<std::vector<ImageView>>{frames}, o);
 }
+
+namespace {
+
+// Lenses being estimated (issue 15): the adjustment fitted on SIFT keypoints (~0.25 px noise,
+// ~150 a pair on small frames) pins k1, k2 and the focal length only well enough for 1-2 px at
+// the frame corners. Fit again on photometric correspondences all over the overlaps
+// (dense_matches.hpp, ~0.06 px), located through the current fit, twice (the second pass through
+// the first refit). A pair with too few of them keeps its keypoints. The refit is kept only when
+// the held-out keypoint matches agree about as well as before (a wrong start tracks nothing sane).
+constexpr double kDenseRobustScale = 2.0;
+RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, const std::vector<PairData>& pairs,
+                                    const std::vector<std::vector<ImageView>>& sets) {
+  std::vector<std::pair<int, int>> links;
+  for (const auto& p : pairs)
+    if (p.ok && !p.rays) links.emplace_back(p.a, p.b);
+  if (links.empty() || sets.empty()) return start;
+  std::vector<std::vector<DenseImage>> images;
+  const std::size_t take = std::min<std::size_t>(sets.size(), 3);
+  for (std::size_t k = 0; k < take; ++k) {
+    std::vector<DenseImage> set;
+    for (const auto& v : sets[k * sets.size() / take]) set.push_back(prepare_dense_image(to_gray(v)));
+    images.push_back(std::move(set));
+  }
+  const std::vector<PairMatches> keypoints = training_matches(pairs);
+  RotationFit rot = start;
+  for (int pass = 0; pass < 2; ++pass) {
+    std::vector<PairMatches> dense = dense_matches(rot.rig, links, images);
+    int dense_pairs = 0;
+    for (const auto& k : keypoints) {
+      auto it = std::find_if(dense.begin(), dense.end(), [&](const PairMatches& d) { return d.a == k.a && d.b == k.b; });
+      if (it != dense.end() && it->pa.size() >= 40) {
+        ++dense_pairs;
+        continue;
+      }
+      if (it != dense.end()) *it = k;
+      else dense.push_back(k);
+    }
+    if (dense_pairs == 0) break;
+    RotationFit f;
+    f.rig = rot.rig;
+    for (std::size_t i = 0; i < f.rig.cameras.size(); ++i) f.rig.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
+    BundleAdjustOptions bo;
+    bo.robust_scale = kDenseRobustScale;
+    f.ba = bundle_adjust(f.rig, dense, bo);
+    if (!f.ba.ok || !f.ba.lens_warning.empty()) break;
+    f.ok = true;
+    f.warnings = start.warnings;
+    rot = std::move(f);
+  }
+  const double before = residuals(start.rig, pairs, true, true).rms_px;
+  const double after = residuals(rot.rig, pairs, true, true).rms_px;
+  if (before > 0 && !(after <= 1.2 * before + 0.05)) return start;
+  return rot;
+}
+
+}  // namespace
 
 CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std::vector<ImageView>>& sets,
                                      const CalibrationOptions& o) {
@@ -1400,6 +1455,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       RotationFit rot2 = adjust(r1, pairs, ba_options);
       if (rot2.ok) rot = std::move(rot2);
     }
+    if (rot.ok && estimating && !any_rays && o.dense_lens_matches) rot = refine_on_dense_matches(rot, rough, pairs, sets);
     res.warnings.insert(res.warnings.end(), rot.warnings.begin(), rot.warnings.end());
     if (rot.ok && estimating)
       for (int i = 0; i < n; ++i) {

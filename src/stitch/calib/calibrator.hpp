@@ -39,6 +39,11 @@ struct CalibrationOptions {
   // keep it only when the held-out error clearly drops (issue 15: "when evidence shows
   // distortion"); undistorted cameras stay pinhole.
   bool lens_from_evidence = true;
+  // Lenses being estimated (issue 15): once the adjustment is close, fit again on
+  // correspondences located photometrically all over each overlap (dense_matches.hpp) rather
+  // than on the SIFT keypoints alone, whose ~0.25 px noise extrapolated to 1-2 px at the frame
+  // corners. Wide-lens (ray-matched) pairs keep their keypoints.
+  bool dense_lens_matches = true;
   int max_features = 4000;         // per image and overlap
   double feature_megapixels = 1.0; // larger frames are downscaled for detection
   // Planar canvases: which camera model (see CameraModel). Non-planar rigs: always rotation.

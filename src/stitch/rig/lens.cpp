@@ -28,7 +28,46 @@ double first_fold(F slope, double hi, double step, double none) {
   return none;
 }
 
+// The fold limits scan the radius (up to ~2000 polynomial evaluations) and every projection asks
+// for them: the calibration's adjustment projects millions of points through a handful of lenses.
+// A small per-thread cache keyed by the exact coefficients returns the same values.
+template <int N>
+struct LimitCache {
+  struct Entry {
+    double k[N];
+    double limit;
+  };
+  Entry e[8];
+  int used = 0, next = 0;
+  template <typename F>
+  double get(const double (&k)[N], F compute) {
+    for (int i = 0; i < used; ++i)
+      if (std::equal(k, k + N, e[i].k)) return e[i].limit;
+    Entry& slot = e[next];
+    std::copy(k, k + N, slot.k);
+    slot.limit = compute();
+    next = (next + 1) % 8;
+    used = std::min(used + 1, 8);
+    return slot.limit;
+  }
+};
+
+double radtan_limit_uncached(const Lens& l);
+double fisheye_limit_uncached(const Lens& l);
+
 double radtan_limit(const Lens& l) {
+  thread_local LimitCache<3> cache;
+  const double k[3] = {l.k1, l.k2, l.k3};
+  return cache.get(k, [&] { return radtan_limit_uncached(l); });
+}
+
+double fisheye_limit(const Lens& l) {
+  thread_local LimitCache<4> cache;
+  const double k[4] = {l.k1, l.k2, l.k3, l.k4};
+  return cache.get(k, [&] { return fisheye_limit_uncached(l); });
+}
+
+double radtan_limit_uncached(const Lens& l) {
   // The radius r (1 + k1 r^2 + k2 r^4 + k3 r^6) grows while 1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6 > 0.
   const double r = first_fold(
       [&](double x) {
@@ -39,7 +78,7 @@ double radtan_limit(const Lens& l) {
   return r < 0 ? kNoLimit : r * r;
 }
 
-double fisheye_limit(const Lens& l) {
+double fisheye_limit_uncached(const Lens& l) {
   return first_fold(
       [&](double t) {
         const double t2 = t * t;
