@@ -579,10 +579,6 @@ static void gst_stitch_blend_set_property(GObject* object, guint prop_id, const 
       return; /* checked at the next rebuild */
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
-  if ((prop_id == PROP_SEAM || prop_id == PROP_MODE) && s.seam != stitch::SeamMode::None &&
-      s.blend != stitch::BlendMode::Multiband)
-    GST_WARNING_OBJECT(self, "seam=%s has no effect with mode=weighted: set mode=multiband",
-                       s.seam == stitch::SeamMode::DynamicProgramming ? "dp" : "?");
   self->state->settings_changed = true;
   GST_OBJECT_UNLOCK(self);
 }

@@ -49,10 +49,11 @@ ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 
 # (name, elements between stitchcalib and stitchblend, stitchblend properties)
 CHAINS = [
-    ("homography", "", ""),
-    ("flowwarp", "stitchflowwarp", ""),
+    ("homography", "", "seam=none"),  # the paper's weighted mean (explicit: seam=dp is the default now)
+    ("flowwarp", "stitchflowwarp", "seam=none"),
     ("multiband-dp", "", "mode=multiband seam=dp"),
     ("flowwarp-multiband-dp", "stitchflowwarp", "mode=multiband seam=dp"),
+    ("consensus", "", "seam=dp"),  # the weighted mean where the views agree, the seam's view where not
 ]
 
 # Rigs: the (3 x 640x480, 1.5 m, ~33 px) and harder/easier ones.
@@ -61,6 +62,9 @@ RIGS = {
     "near": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.35, baseline=0.05, distance=0.7),
     "wide": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.35, baseline=0.2, distance=3.0),
     "2cam-far": dict(cameras=2, width=640, height=480, hfov=55, overlap=0.4, baseline=0.1, distance=2.5),
+    # the extremes: 0.5 m objects (5 cm, ~69 px) and a 20 cm baseline at 1 m (~137 px)
+    "close": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.35, baseline=0.05, distance=0.5),
+    "wide-near": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.4, baseline=0.2, distance=1.0),
 }
 
 
