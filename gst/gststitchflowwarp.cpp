@@ -26,7 +26,8 @@
  *
  * The output is a bundle of the same caps whose views are the warped rectangles of the canvas
  * (a GstStitchWarpMeta says where each lies); stitchblend detects it and only fuses.
- * `flow=false` keeps the homography alone.
+ * `flow=false` (the default) keeps the homography alone: the views are pre-warped and
+ * stitchblend's consensus blend (seam=dp) handles the parallax; flow=true turns the local warp on.
  *
  * Bundles in CUDA memory (stitchsync with a GPU) are warped on the GPU and the warped views
  * go out in CUDA memory, from a pool of bundles allocated once per canvas layout.
@@ -79,7 +80,10 @@ enum {
   PROP_FALLBACK
 };
 
-#define DEFAULT_FLOW TRUE
+/* Off by default (issue 16, BENCHMARKS.md "Parallax: the consensus blend"): on the rendered
+ * parallax rigs the flow spreads a near object's displacement into the background around it
+ * (2-3 dB below the homography there) and ghosts more than stitchblend's consensus blend. */
+#define DEFAULT_FLOW FALSE
 #define DEFAULT_QUALITY stitch::FlowQuality::Medium
 #define DEFAULT_ALGORITHM stitch::FlowAlgorithm::Dis
 #define DEFAULT_MARGIN 16

@@ -50,9 +50,9 @@ ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 # (name, elements between stitchcalib and stitchblend, stitchblend properties)
 CHAINS = [
     ("homography", "", "seam=none"),  # the paper's weighted mean (explicit: seam=dp is the default now)
-    ("flowwarp", "stitchflowwarp", "seam=none"),
+    ("flowwarp", "stitchflowwarp flow=true", "seam=none"),  # the old default chain
     ("multiband-dp", "", "mode=multiband seam=dp"),
-    ("flowwarp-multiband-dp", "stitchflowwarp", "mode=multiband seam=dp"),
+    ("flowwarp-multiband-dp", "stitchflowwarp flow=true", "mode=multiband seam=dp"),
     ("consensus", "", "seam=dp"),  # the weighted mean where the views agree, the seam's view where not
 ]
 
@@ -569,6 +569,7 @@ def main():
     ap.add_argument("--texture", default=os.path.join(ROOT, "data/photos/aero1.jpg"))
     ap.add_argument("--render-only", action="store_true")
     ap.add_argument("--reuse", action="store_true", help="keep rendered rigs that exist")
+    ap.add_argument("--results", default="results.json", help="file name under --out (runs side by side)")
     args = ap.parse_args()
     chains = list(CHAINS)
     for v in args.variant:
@@ -621,8 +622,8 @@ def main():
                         r["distortion_p95"], " ".join("%s:%.1f" % kv for kv in r["psnr_by_distance"].items())),
                           flush=True)
     if results:
-        json.dump(results, open(os.path.join(args.out, "results.json"), "w"), indent=1)
-        print("%.0f s; %s" % (time.time() - t0, os.path.join(args.out, "results.json")))
+        json.dump(results, open(os.path.join(args.out, args.results), "w"), indent=1)
+        print("%.0f s; %s" % (time.time() - t0, os.path.join(args.out, args.results)))
     return 0
 
 

@@ -51,7 +51,7 @@ SETS = {
 
 CHAINS = [
     ("homography", "stitchcolor", "seam=none"),
-    ("flowwarp", "stitchcolor ! stitchflowwarp", "seam=none"),  # the old default chain
+    ("flowwarp", "stitchcolor ! stitchflowwarp flow=true", "seam=none"),  # the old default chain
     ("consensus", "stitchcolor", "seam=dp"),  # the new default chain
 ]
 
@@ -83,12 +83,15 @@ def prepare_frames(name, out, frames):
     return len(files), n_frames
 
 
-def calibrate(build, d, n):
+def calibrate(build, name, d, n):
+    """The rig every chain loads: from the clips (several instants) or the images."""
     rig = os.path.join(d, "rig.json")
     if os.path.exists(rig):
         return rig
-    cmd = [os.path.join(build, "tools", "stitch-calibrate"), "--projection", "plane", "--out", rig] + \
-          [os.path.join(d, "cam%d_0000.png" % i) for i in range(n)]
+    kind, files, _ = SETS[name]
+    inputs = [os.path.join(DATA, f) for f in files] if kind == "video" else \
+        [os.path.join(d, "cam%d_0000.png" % i) for i in range(n)]
+    cmd = [os.path.join(build, "tools", "stitch-calibrate"), "--projection", "plane", "--out", rig] + inputs
     with open(os.path.join(d, "calibrate.log"), "w") as log:
         if subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode != 0:
             raise SystemExit("calibration failed, see " + os.path.join(d, "calibrate.log"))
@@ -140,6 +143,8 @@ def evaluate(run_dir, rig, d, n, frames):
             break
         pano = pano[:, :, :3]
         views, (W, H) = warped_views(rig, d, n, t)
+        if 0 <= pano.shape[0] - H <= 1 and 0 <= pano.shape[1] - W <= 1:  # odd canvases are padded to even
+            pano = pano[:H, :W]
         if pano.shape[:2] != (H, W):
             raise SystemExit("%s: panorama is not %dx%d" % (run_dir, W, H))
         cover = np.sum([m for _, m in views], axis=0)
@@ -189,7 +194,7 @@ def main():
     for name in args.sets.split(","):
         d = os.path.join(args.out, name, "frames")
         n, frames = prepare_frames(name, d, args.frames)
-        rig = calibrate(args.build, d, n)
+        rig = calibrate(args.build, name, d, n)
         res = {}
         for cname, chain, blend in chains:
             od = os.path.join(args.out, name, cname)
