@@ -179,6 +179,7 @@ def main():
     ap.add_argument("--chains", default="")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=CHAIN[|BLEND]")
     ap.add_argument("--backend", default="cpu")
+    ap.add_argument("--results", default="results.json", help="file name under --out")
     args = ap.parse_args()
     chains = list(CHAINS)
     for v in args.variant:
@@ -212,8 +213,8 @@ def main():
             print("%-10s %-12s detail MAD %.3f (cut %+.1f%%)  SSIM %.4f  flicker %.3f" % (
                 name, cname, r["detail_mad"], cut, r["ssim"], r["flicker"]), flush=True)
         results[name] = res
-    json.dump(results, open(os.path.join(args.out, "results.json"), "w"), indent=1)
-    print("%.0f s; %s" % (time.time() - t0, os.path.join(args.out, "results.json")))
+    json.dump(results, open(os.path.join(args.out, args.results), "w"), indent=1)
+    print("%.0f s; %s" % (time.time() - t0, os.path.join(args.out, args.results)))
 
 
 if __name__ == "__main__":
