@@ -618,6 +618,22 @@ static void gst_stitch_blend_finalize(GObject* object) {
   G_OBJECT_CLASS(gst_stitch_blend_parent_class)->finalize(object);
 }
 
+static gboolean gst_stitch_blend_sink_event(GstBaseTransform* trans, GstEvent* event) {
+  switch (GST_EVENT_TYPE(event)) {
+    case GST_EVENT_FLUSH_STOP:
+    case GST_EVENT_SEGMENT: { /* a seek or a new stream: the seams' history (last path, last
+                               * frame's luma) no longer applies; the compositor is rebuilt */
+      GstStitchBlend* self = GST_STITCH_BLEND(trans);
+      GST_OBJECT_LOCK(self);
+      self->state->settings_changed = true;
+      GST_OBJECT_UNLOCK(self);
+      break;
+    }
+    default: break;
+  }
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->sink_event(trans, event);
+}
+
 static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   GObjectClass* gobject_class = G_OBJECT_CLASS(klass);
   GstElementClass* element_class = GST_ELEMENT_CLASS(klass);
@@ -695,6 +711,7 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_caps);
   trans_class->prepare_output_buffer = GST_DEBUG_FUNCPTR(gst_stitch_blend_prepare_output_buffer);
   trans_class->transform = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform);
+  trans_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_blend_sink_event);
   trans_class->transform_meta = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_meta);
   trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_blend_stop);
   element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_context);
