@@ -1,7 +1,7 @@
 // What each blend mode costs per panorama, on the CPU and on the GPU: stitchblend's work on
 // views stitchflowwarp pre-warped onto the canvas (fuse, then crop and scale into the output),
-// for the weighted mean (the baseline, measured in the same run), multiband, and multiband with
-// DP seams. GPU: views and panorama in device memory; wall-clock medians, stream synchronised.
+// for the weighted mean (the baseline, measured in the same run), multiband, multiband with
+// DP seams, and the consensus blend (the weighted mean with DP seams and the mix map). GPU: views and panorama in device memory; wall-clock medians, stream synchronised.
 // usage: stitch-bench-blend [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--bands N]
 #include <algorithm>
 #include <chrono>
@@ -34,7 +34,10 @@ struct Mode {
 };
 const Mode kModes[] = {{"weighted", BlendMode::Weighted, SeamMode::None},
                        {"multiband", BlendMode::Multiband, SeamMode::None},
-                       {"multiband+dp", BlendMode::Multiband, SeamMode::DynamicProgramming}};
+                       {"multiband+dp", BlendMode::Multiband, SeamMode::DynamicProgramming},
+                       // the consensus blend (stitchblend's default since issue 16)
+                       {"consensus", BlendMode::Weighted, SeamMode::DynamicProgramming}};
+constexpr int kNumModes = int(sizeof kModes / sizeof kModes[0]);
 
 // Median ms of `frames` compose() calls after one warm-up.
 double time_compose(Compositor& c, const std::vector<ImageView>& views, const ImageView& out, int frames) {
@@ -71,8 +74,8 @@ int main(int argc, char** argv) {
   try {
     const std::vector<stitch_bench::Case> cases = {{3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {6, 1920, 1080}};
     std::printf("blend stage, ms per panorama (median); %d bands\n", bands);
-    std::printf("%-12s %-11s %-5s %10s %10s %13s %10s %13s\n", "cameras", "panorama", "path", "weighted", "multiband",
-                "multiband+dp", "+multiband", "+multiband+dp");
+    std::printf("%-12s %-11s %-5s %10s %10s %13s %10s %10s %13s %11s\n", "cameras", "panorama", "path", "weighted",
+                "multiband", "multiband+dp", "consensus", "+multiband", "+multiband+dp", "+consensus");
     std::string json = "{\"bands\":" + std::to_string(bands) + ",\"cases\":[";
     for (const stitch_bench::Case& c : cases) {
       const Rig rig = stitch_bench::ring(c);
@@ -102,18 +105,19 @@ int main(int argc, char** argv) {
       std::snprintf(pano, sizeof pano, "%dx%d", g.width, g.height);
       json += std::string(json.back() == '[' ? "" : ",") + "{\"case\":\"" + name + "\",\"panorama\":\"" + pano + "\"";
       auto report = [&](const char* path, const double ms[3]) {
-        std::printf("%-12s %-11s %-5s %10.3f %10.3f %13.3f %10.3f %13.3f\n", name, pano, path, ms[0], ms[1], ms[2],
-                    ms[1] - ms[0], ms[2] - ms[0]);
-        char buf[256];
-        std::snprintf(buf, sizeof buf, ",\"%s\":{\"weighted_ms\":%.4f,\"multiband_ms\":%.4f,\"multiband_dp_ms\":%.4f}",
-                      path, ms[0], ms[1], ms[2]);
+        std::printf("%-12s %-11s %-5s %10.3f %10.3f %13.3f %10.3f %10.3f %13.3f %11.3f\n", name, pano, path, ms[0],
+                    ms[1], ms[2], ms[3], ms[1] - ms[0], ms[2] - ms[0], ms[3] - ms[0]);
+        char buf[320];
+        std::snprintf(buf, sizeof buf,
+                      ",\"%s\":{\"weighted_ms\":%.4f,\"multiband_ms\":%.4f,\"multiband_dp_ms\":%.4f,\"consensus_ms\":%.4f}",
+                      path, ms[0], ms[1], ms[2], ms[3]);
         json += buf;
       };
       // Every mode on one backend, from the same views into the same output.
       auto time_modes = [&](Backend backend, const std::vector<ImageView>& views, const ImageView& out, int n,
                             const char* path) {
-        double ms[3];
-        for (int m = 0; m < 3; ++m) {
+        double ms[kNumModes];
+        for (int m = 0; m < kNumModes; ++m) {
           CompositorSettings s = settings;
           s.blend = kModes[m].blend;
           s.seam = kModes[m].seam;

@@ -19,9 +19,14 @@
  * levels): each output pixel belongs to one view, and each view's mask is blurred per level, so
  * exposure differences fade over a wide band while detail is cut sharply (no ghosted double
  * edges where the views disagree). By default the masks meet in the middle of every overlap;
- * `seam=dp` moves the cut, frame by frame, along the path of least color difference, edges and
- * motion through each overlap (dynamic programming), pulled towards the previous frame's path so
- * that it does not jump. Both run on the GPU where the blend does.
+ * `seam=dp` (the default) moves the cut, frame by frame, along the path of least color
+ * difference, edges and motion through each overlap (dynamic programming), held until something
+ * crosses it. With the weighted mean, `seam=dp` is the consensus blend: where the two views
+ * agree (the background of a calibrated rig) the output is their weighted mean, where they
+ * disagree (a near object in one view, its parallax copy or the background in the other) it is
+ * the view on the seam's side, so a near object comes whole from one view instead of as two
+ * half-transparent ghosts; `seam=none` gives the paper's weighted mean everywhere. Both run on
+ * the GPU where the blend does.
  * `debug` draws each view's outline, the overlaps, the seams and what stitchflowwarp's flow did
  * onto the panorama.
  *
@@ -95,6 +100,9 @@ enum {
 };
 
 #define DEFAULT_CROP stitch::CropMode::None
+/* The consensus blend (issue 16, BENCHMARKS.md "Parallax: the consensus blend"): with the
+ * weighted mean, seams give each near object to one view; with multiband, they cut its masks. */
+#define DEFAULT_SEAM stitch::SeamMode::DynamicProgramming
 
 struct BlendState {
   /* settings (object lock) */
@@ -579,10 +587,6 @@ static void gst_stitch_blend_set_property(GObject* object, guint prop_id, const 
       return; /* checked at the next rebuild */
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
-  if ((prop_id == PROP_SEAM || prop_id == PROP_MODE) && s.seam != stitch::SeamMode::None &&
-      s.blend != stitch::BlendMode::Multiband)
-    GST_WARNING_OBJECT(self, "seam=%s has no effect with mode=weighted: set mode=multiband",
-                       s.seam == stitch::SeamMode::DynamicProgramming ? "dp" : "?");
   self->state->settings_changed = true;
   GST_OBJECT_UNLOCK(self);
 }
@@ -612,6 +616,22 @@ static void gst_stitch_blend_finalize(GObject* object) {
   self->state->clear();
   delete self->state;
   G_OBJECT_CLASS(gst_stitch_blend_parent_class)->finalize(object);
+}
+
+static gboolean gst_stitch_blend_sink_event(GstBaseTransform* trans, GstEvent* event) {
+  switch (GST_EVENT_TYPE(event)) {
+    case GST_EVENT_FLUSH_STOP:
+    case GST_EVENT_SEGMENT: { /* a seek or a new stream: the seams' history (last path, last
+                               * frame's luma) no longer applies; the compositor is rebuilt */
+      GstStitchBlend* self = GST_STITCH_BLEND(trans);
+      GST_OBJECT_LOCK(self);
+      self->state->settings_changed = true;
+      GST_OBJECT_UNLOCK(self);
+      break;
+    }
+    default: break;
+  }
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->sink_event(trans, event);
 }
 
 static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
@@ -659,10 +679,13 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
                        1, 10, stitch::MultibandBlender::kDefaultBands, playing));
   g_object_class_install_property(gobject_class, PROP_SEAM,
       g_param_spec_enum("seam", "Seam",
-                        "Where mode=multiband cuts each overlap between two views: its middle, or the path "
-                        "that crosses the least color difference, edges and motion, kept near the last "
-                        "frame's path so that it does not jump",
-                        seam_get_type(), int(stitch::SeamMode::None), playing));
+                        "Where each overlap is cut between two views: none: its middle (multiband), or no cut "
+                        "(the weighted mean everywhere); dp: the path that crosses the least color difference, "
+                        "edges and motion, held until something crosses it. With mode=weighted, dp is the "
+                        "consensus blend: the weighted mean where the views agree, the view on the seam's "
+                        "side where they disagree (a near object comes whole from one view instead of as two "
+                        "ghosts); it expects color-matched views (stitchcolor)",
+                        seam_get_type(), int(DEFAULT_SEAM), playing));
   g_object_class_install_property(gobject_class, PROP_DEBUG,
       g_param_spec_flags("debug", "Debug view",
                          "Draws onto the panorama why it looks the way it does: each view's outline, the "
@@ -688,6 +711,7 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_caps);
   trans_class->prepare_output_buffer = GST_DEBUG_FUNCPTR(gst_stitch_blend_prepare_output_buffer);
   trans_class->transform = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform);
+  trans_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_blend_sink_event);
   trans_class->transform_meta = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_meta);
   trans_class->stop = GST_DEBUG_FUNCPTR(gst_stitch_blend_stop);
   element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_context);
@@ -703,5 +727,6 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
 
 static void gst_stitch_blend_init(GstStitchBlend* self) {
   self->state = new BlendState();
+  self->state->settings.seam = DEFAULT_SEAM;
   gst_video_info_init(&self->state->out_info);
 }

@@ -26,8 +26,9 @@
  *
  * The output is a bundle of the same caps whose views are the warped rectangles of the canvas
  * (a GstStitchWarpMeta says where each lies); stitchblend detects it and only fuses.
- * `flow=false` keeps the homography alone: the bundle then passes through unwarped and stitchblend
- * composes the frames onto the canvas (the same panorama, one full-canvas pass fewer).
+ * `flow=false` (the default) keeps the homography alone: the bundle passes through unwarped,
+ * stitchblend composes the frames onto the canvas (one full-canvas pass fewer than pre-warping)
+ * and its consensus blend (seam=dp) handles the parallax; flow=true turns the local warp on.
  *
  * Bundles in CUDA memory (stitchsync with a GPU) are warped on the GPU and the warped views
  * go out in CUDA memory, from a pool of bundles allocated once per canvas layout.
@@ -80,7 +81,10 @@ enum {
   PROP_FALLBACK
 };
 
-#define DEFAULT_FLOW TRUE
+/* Off by default (issue 16, BENCHMARKS.md "Parallax: the consensus blend"): on the rendered
+ * parallax rigs the flow spreads a near object's displacement into the background around it
+ * (2-3 dB below the homography there) and ghosts more than stitchblend's consensus blend. */
+#define DEFAULT_FLOW FALSE
 #define DEFAULT_QUALITY stitch::FlowQuality::Medium
 #define DEFAULT_ALGORITHM stitch::FlowAlgorithm::Dis
 #define DEFAULT_MARGIN 16

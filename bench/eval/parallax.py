@@ -49,10 +49,11 @@ ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 
 # (name, elements between stitchcalib and stitchblend, stitchblend properties)
 CHAINS = [
-    ("homography", "", ""),
-    ("flowwarp", "stitchflowwarp", ""),
+    ("homography", "", "seam=none"),  # the paper's weighted mean (explicit: seam=dp is the default now)
+    ("flowwarp", "stitchflowwarp flow=true", "seam=none"),  # the old default chain
     ("multiband-dp", "", "mode=multiband seam=dp"),
-    ("flowwarp-multiband-dp", "stitchflowwarp", "mode=multiband seam=dp"),
+    ("flowwarp-multiband-dp", "stitchflowwarp flow=true", "mode=multiband seam=dp"),
+    ("consensus", "", "seam=dp"),  # the weighted mean where the views agree, the seam's view where not
 ]
 
 # Rigs: the (3 x 640x480, 1.5 m, ~33 px) and harder/easier ones.
@@ -61,6 +62,9 @@ RIGS = {
     "near": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.35, baseline=0.05, distance=0.7),
     "wide": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.35, baseline=0.2, distance=3.0),
     "2cam-far": dict(cameras=2, width=640, height=480, hfov=55, overlap=0.4, baseline=0.1, distance=2.5),
+    # the extremes: 0.5 m objects (5 cm, ~69 px) and a 20 cm baseline at 1 m (~137 px)
+    "close": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.35, baseline=0.05, distance=0.5),
+    "wide-near": dict(cameras=3, width=640, height=480, hfov=50, overlap=0.4, baseline=0.2, distance=1.0),
 }
 
 
@@ -565,6 +569,7 @@ def main():
     ap.add_argument("--texture", default=os.path.join(ROOT, "data/photos/aero1.jpg"))
     ap.add_argument("--render-only", action="store_true")
     ap.add_argument("--reuse", action="store_true", help="keep rendered rigs that exist")
+    ap.add_argument("--results", default="results.json", help="file name under --out (runs side by side)")
     args = ap.parse_args()
     chains = list(CHAINS)
     for v in args.variant:
@@ -617,8 +622,8 @@ def main():
                         r["distortion_p95"], " ".join("%s:%.1f" % kv for kv in r["psnr_by_distance"].items())),
                           flush=True)
     if results:
-        json.dump(results, open(os.path.join(args.out, "results.json"), "w"), indent=1)
-        print("%.0f s; %s" % (time.time() - t0, os.path.join(args.out, "results.json")))
+        json.dump(results, open(os.path.join(args.out, args.results), "w"), indent=1)
+        print("%.0f s; %s" % (time.time() - t0, os.path.join(args.out, args.results)))
     return 0
 
 

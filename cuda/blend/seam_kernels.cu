@@ -70,6 +70,32 @@ __global__ void clearance_along_kernel(const int* across, int rows, int cols, sm
   v = sm::add(v, sm::clearance_cost(w, sum));
 }
 
+__global__ void mix_along_kernel(SeamPairGeometry p, const int* across, const float* centre, sm::Weights w,
+                                 uint8_t* mix, int label_width) {
+  const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
+  if (bx >= p.box_w || by >= p.box_h || centre[size_t(by) * p.box_w + bx] < 0.f) return;
+  const int row = p.vertical ? by : bx, col = p.vertical ? bx : by;
+  const int rows = p.vertical ? p.box_h : p.box_w, cols = p.vertical ? p.box_w : p.box_h;
+  int sum = 0;
+  for (int k = max(0, row - w.mix_radius); k <= min(rows - 1, row + w.mix_radius); ++k)
+    sum += across[size_t(k) * cols + col];
+  uint8_t& m = mix[size_t(p.box_y + by) * label_width + p.box_x + bx];
+  m = uint8_t(max(int(m), sm::mix_level(w, sum)));  // pairs run one after another: no race
+}
+
+__global__ void mix_apply_kernel(DeviceImage out, MixViews v, const uint8_t* labels, const uint8_t* mix) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= out.width || y >= out.height) return;
+  const size_t at = size_t(y) * out.width + x;
+  const int m = mix[at], l = labels[at];
+  if (!m || l >= v.n || !v.view[l].data) return;
+  const int* r = v.roi[l];
+  if (x < r[0] || y < r[1] || x >= r[0] + r[2] || y >= r[1] + r[3]) return;
+  const uint8_t* src = v.view[l].data + size_t(y - r[1]) * v.view[l].pitch + size_t(x - r[0]) * 4;
+  uint8_t* o = out.data + size_t(y) * out.pitch + size_t(x) * 4;
+  for (int k = 0; k < 3; ++k) o[k] = sm::mix_value(o[k], src[k], m);
+}
+
 // One block per pair: the rows one after the other (each depends on the one before), the columns
 // of a row across the threads; two rows of energy in shared memory. Then one thread walks back.
 __global__ void dp_kernel(const SeamDpJob* jobs, float stability, float hold) {
@@ -129,9 +155,10 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
                       const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
                       float* cost, int* diff, int* across, cudaStream_t stream) {
   const bool clearance = weights.clearance_radius > 0 && weights.clearance > 0.f && diff && across;
+  const bool mixing = weights.mix_radius > 0 && diff;
   cost_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, view_a, view_b, luma_a, luma_b, previous_a,
                                                                       previous_b, centre, weights, cost,
-                                                                      clearance ? diff : nullptr);
+                                                                      clearance || mixing ? diff : nullptr);
   check_launch("seam cost_kernel");
   if (!clearance) return;
   const int rows = pair.vertical ? pair.box_h : pair.box_w, cols = pair.vertical ? pair.box_w : pair.box_h;
@@ -139,6 +166,24 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
   check_launch("seam clearance_across_kernel");
   clearance_along_kernel<<<grid_for(cols, rows), kBlock, 0, stream>>>(across, rows, cols, weights, cost);
   check_launch("seam clearance_along_kernel");
+}
+
+void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
+                     const stitch::seam::Weights& weights, uint8_t* mix, int label_width, cudaStream_t stream) {
+  if (weights.mix_radius <= 0) return;
+  const int rows = pair.vertical ? pair.box_h : pair.box_w, cols = pair.vertical ? pair.box_w : pair.box_h;
+  clearance_across_kernel<<<grid_for(cols, rows), kBlock, 0, stream>>>(diff, rows, cols, weights.mix_radius, across);
+  check_launch("seam mix across kernel");
+  mix_along_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, across, centre, weights, mix,
+                                                                            label_width);
+  check_launch("seam mix_along_kernel");
+}
+
+void launch_seam_mix_apply(const DeviceImage& out, const MixViews& views, const uint8_t* labels, const uint8_t* mix,
+                           cudaStream_t stream) {
+  if (out.width <= 0 || out.height <= 0) return;
+  mix_apply_kernel<<<grid_for(out.width, out.height), kBlock, 0, stream>>>(out, views, labels, mix);
+  check_launch("seam mix_apply_kernel");
 }
 
 void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream) {

@@ -25,6 +25,20 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
                       const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
                       const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
                       float* cost, int* diff, int* across, cudaStream_t stream);
+// The consensus blend's mix levels of one pair (stitch::seam::mix_level over the (2 mix_radius
+// + 1)^2 window of diff, the sums launch_seam_cost left when weights.mix_radius > 0; across:
+// scratch), written as the max with what `mix` (label_width wide, zeroed per frame) holds.
+void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
+                     const stitch::seam::Weights& weights, uint8_t* mix, int label_width, cudaStream_t stream);
+// out (the weighted mean of the views) <- mix_value(out, view[label], mix) where mix > 0.
+// views[i].data == nullptr: view i missing; rois[i] = {x, y, w, h} on out.
+struct MixViews {
+  int n;
+  DeviceImage view[16];
+  int roi[16][4];
+};
+void launch_seam_mix_apply(const DeviceImage& out, const MixViews& views, const uint8_t* labels, const uint8_t* mix,
+                           cudaStream_t stream);
 // One pair's dynamic programming: the least-energy path through cost (rows x cols);
 // previous == nullptr: no pull; steps: rows x cols scratch; path: rows.
 struct SeamDpJob {

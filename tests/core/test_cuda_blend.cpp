@@ -114,7 +114,9 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
   // With the default costs and with the clearance term on (its integer window sums).
   SeamSettings clear;
   clear.clearance_weight = 4.f;
-  for (const SeamSettings& settings : {SeamSettings{}, clear}) {
+  SeamSettings no_mix;  // multiband's: no consensus-blend mix map
+  no_mix.mix_radius = 0;
+  for (const SeamSettings& settings : {SeamSettings{}, clear, no_mix}) {
   SeamFinder cpu(settings);
   SeamFinderCuda gpu(settings);
   cpu.prepare(views, g.width, g.height);
@@ -149,6 +151,16 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
                 100.0 * same_rows / rows, 100.0 * same_labels / got.size());
     EXPECT_GE(double(same_rows) / rows, 0.99);
     EXPECT_GE(double(same_labels) / got.size(), 0.999);
+    // The consensus blend's mix levels: integer window sums, so equal on every pixel.
+    const std::vector<uint8_t> mix = gpu.mix();
+    ASSERT_EQ(mix.size(), cpu.mix().size());
+    if (!mix.empty()) {
+      std::size_t same_mix = 0, mixed = 0;
+      for (std::size_t k = 0; k < mix.size(); ++k) same_mix += mix[k] == cpu.mix()[k], mixed += cpu.mix()[k] > 0;
+      std::printf("MULTIBAND consensus mix frame %d: %.5f%% of levels equal (%zu pixels mixed)\n", frame,
+                  100.0 * same_mix / mix.size(), mixed);
+      EXPECT_EQ(same_mix, mix.size());
+    }
   }
   }
 #endif
@@ -158,9 +170,11 @@ TEST(CudaMultiband, ComposeMatchesCpuFromSystemAndDeviceMemory) {
   REQUIRE_CUDA();
 #ifdef STITCH_HAVE_CUDA
   testdata::RotatingRig s = rig_scene();
-  for (SeamMode seam : {SeamMode::None, SeamMode::DynamicProgramming}) {
+  // Multiband without and with seams, and the consensus blend (the weighted mean with seams).
+  for (int variant = 0; variant < 3; ++variant) {
+    const SeamMode seam = variant == 0 ? SeamMode::None : SeamMode::DynamicProgramming;
     CompositorSettings settings;
-    settings.blend = BlendMode::Multiband;
+    settings.blend = variant == 2 ? BlendMode::Weighted : BlendMode::Multiband;
     settings.seam = seam;
     Compositor cpu(Backend::Cpu), gpu(Backend::Cuda);
     cpu.prepare(s.rig, settings);
@@ -172,7 +186,9 @@ TEST(CudaMultiband, ComposeMatchesCpuFromSystemAndDeviceMemory) {
     cv::Mat expected(g.height, g.width, CV_8UC4), from_host(g.height, g.width, CV_8UC4, cv::Scalar::all(77));
     cpu.compose(host, as_view(expected));
     gpu.compose(host, as_view(from_host));
-    const char* name = seam == SeamMode::None ? "compose (system memory)" : "compose + dp seams (system memory)";
+    const char* name = variant == 0   ? "compose (system memory)"
+                       : variant == 1 ? "compose + dp seams (system memory)"
+                                      : "consensus compose: weighted + dp seams (system memory)";
     expect_close(from_host, expected, name);
     std::vector<std::unique_ptr<testdata::DeviceMat>> dev;
     std::vector<ImageView> dv;
@@ -182,7 +198,10 @@ TEST(CudaMultiband, ComposeMatchesCpuFromSystemAndDeviceMemory) {
     }
     testdata::DeviceMat out(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(77)));
     gpu.compose(dv, out.view());
-    expect_close(out.download(), expected, seam == SeamMode::None ? "compose (device memory)" : "compose + dp seams (device memory)");
+    expect_close(out.download(), expected,
+                 variant == 0   ? "compose (device memory)"
+                 : variant == 1 ? "compose + dp seams (device memory)"
+                                : "consensus compose: weighted + dp seams (device memory)");
     // A missing camera is left out on both.
     host[0] = ImageView();
     cpu.compose(host, as_view(expected));
@@ -196,11 +215,17 @@ TEST(CudaMultiband, PrewarpedFuseAndResampleMatchCpu) {
   REQUIRE_CUDA();
 #ifdef STITCH_HAVE_CUDA
   testdata::RotatingRig s = rig_scene();
+  // Multiband + dp seams, and the consensus blend (the default chain: stitchflowwarp's
+  // pre-warped views into stitchblend's weighted mean with dp seams), cropped and scaled, and
+  // the consensus blend fused 1:1 on the canvas (CudaComposer::fuse).
+  for (int variant = 0; variant < 3; ++variant) {
   CompositorSettings settings;
-  settings.blend = BlendMode::Multiband;
+  settings.blend = variant == 0 ? BlendMode::Multiband : BlendMode::Weighted;
   settings.seam = SeamMode::DynamicProgramming;
-  settings.crop = CropMode::Auto;
-  settings.output_width = 1000;  // above 0.75x: both backends resample bilinearly (test_cuda's case)
+  if (variant < 2) {
+    settings.crop = CropMode::Auto;
+    settings.output_width = 1000;  // above 0.75x: both backends resample bilinearly (test_cuda's case)
+  }
   Compositor cpu(Backend::Cpu), gpu(Backend::Cuda);
   cpu.prepare(s.rig, settings, CompositorInput::Prewarped);
   gpu.prepare(s.rig, settings, CompositorInput::Prewarped);
@@ -214,9 +239,12 @@ TEST(CudaMultiband, PrewarpedFuseAndResampleMatchCpu) {
   // The crop/scale differs between the backends (OpenCV's warpAffine vs our kernel) as it does
   // for the weighted mean, so the bound is the one test_cuda uses for that path.
   const double psnr = testdata::psnr_rgb(got, expected);
-  std::printf("MULTIBAND pre-warped + dp seams, cropped and scaled to %dx%d: CUDA vs CPU PSNR %.2f dB\n", g.width,
-              g.height, psnr);
-  EXPECT_GE(psnr, 40.0);
+  const char* what = variant == 0   ? "MULTIBAND pre-warped + dp seams, cropped and scaled"
+                     : variant == 1 ? "consensus (weighted + dp) pre-warped, cropped and scaled"
+                                    : "consensus (weighted + dp) pre-warped, canvas 1:1";
+  std::printf("%s to %dx%d: CUDA vs CPU PSNR %.2f dB\n", what, g.width, g.height, psnr);
+  EXPECT_GE(psnr, variant == 2 ? 42.0 : 40.0) << what;  // 1:1: no resampling (a few labels may differ)
+  }
 #endif
 }
 

@@ -346,3 +346,49 @@ TEST(Seam, KeepsClearOfANearObjectsParallaxCopies) {
   EXPECT_GE(with, 12);
   EXPECT_GE(with, without);
 }
+
+// The consensus blend (mode=weighted with seam=dp): a near object, a textured 40 x 80 patch at
+// canvas x 270..309 in view 0 and its parallax copy 24 px on (294..333) in view 1, both views
+// noisy. The weighted mean shows both copies half-transparent (ghosts: it matches neither view
+// there); the consensus blend shows one whole copy (it matches one view) and, away from the
+// object, is the weighted mean itself (both views' noise averaged).
+TEST(Seam, ConsensusBlendTakesOneViewWhereTheViewsDisagreeAndTheMeanWhereTheyAgree) {
+  SeamScene s(294);
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  cv::Mat cam0 = s.cam0.clone(), cam1 = s.cam1.clone();
+  const cv::Mat patch = photo(cv::Rect(500, 300, 40, 80));  // another part of the photo: the object
+  patch.copyTo(cam0(cv::Rect(270, 100, 40, 80)));
+  patch.copyTo(cam1(cv::Rect(294 - 200, 100, 40, 80)));
+  cv::RNG rng(11);
+  cv::Mat f0 = with_noise(cam0, rng), f1 = with_noise(cam1, rng);
+  auto compose = [&](SeamMode seam) {
+    CompositorSettings settings;
+    settings.seam = seam;
+    Compositor c(Backend::Cpu);
+    c.prepare(s.rig, settings);
+    cv::Mat out(c.geometry().height, c.geometry().width, CV_8UC4);
+    c.compose({as_view(f0), as_view(f1)}, as_view(out));
+    return out;
+  };
+  const cv::Mat mean = compose(SeamMode::None), consensus = compose(SeamMode::DynamicProgramming);
+  ASSERT_EQ(mean.size(), consensus.size());
+  // Around the object (canvas x 250..349, rows 90..189): how close to view 0 or to view 1 alone.
+  const cv::Rect around(250, 90, 100, 100);
+  auto closest = [&](const cv::Mat& out) {
+    const cv::Mat o = out(around).clone(), a = f0(around).clone(), b = f1(around - cv::Point(200, 0)).clone();
+    return std::max(testdata::psnr_rgb(o, a), testdata::psnr_rgb(o, b));
+  };
+  const double psnr_mean = closest(mean), psnr_consensus = closest(consensus);
+  std::printf("around the object, PSNR against the closer single view: weighted mean %.2f dB, consensus %.2f dB\n",
+              psnr_mean, psnr_consensus);
+  EXPECT_LT(psnr_mean, 25.0);       // ghosts: neither view
+  EXPECT_GT(psnr_consensus, 33.0);  // one view: one whole copy
+  // Away from the object (rows outside 80..200): the weighted mean, pixel for pixel.
+  std::size_t same = 0, n = 0;
+  for (int y = 0; y < mean.rows; ++y) {
+    if (y >= 80 && y < 200) continue;
+    for (int x = 200; x < 400; ++x, ++n) same += mean.at<cv::Vec4b>(y, x) == consensus.at<cv::Vec4b>(y, x);
+  }
+  std::printf("overlap away from the object: %.3f%% of pixels = the weighted mean\n", 100.0 * same / n);
+  EXPECT_GE(double(same) / n, 0.995);
+}

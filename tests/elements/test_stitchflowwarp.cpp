@@ -70,7 +70,7 @@ TEST(StitchFlowWarp, IdenticalViewsGiveTheHomographyOnlyPanorama) {
   Scene s = scene(0);
   gsttest::RunResult plain, flow;
   gsttest::run_pipeline(chain(s, ""), s.views, 3, plain);
-  gsttest::run_pipeline(chain(s, "stitchflowwarp ! "), s.views, 3, flow);
+  gsttest::run_pipeline(chain(s, "stitchflowwarp flow=true ! "), s.views, 3, flow);
   ASSERT_TRUE(flow.errors.empty()) << flow.errors[0];
   ASSERT_EQ(flow.frames.size(), 3u);
   for (int k = 0; k < 3; ++k) EXPECT_EQ(cv::norm(plain.frames[k], flow.frames[k], cv::NORM_INF), 0.0);
@@ -80,7 +80,7 @@ TEST(StitchFlowWarp, ParallaxMovesTheOverlapOnly) {
   Scene s = scene(8.0);
   gsttest::RunResult plain, flow;
   gsttest::run_pipeline(chain(s, "stitchflowwarp flow=false ! "), s.views, 2, plain);
-  gsttest::run_pipeline(chain(s, "stitchflowwarp quality=medium ! "), s.views, 2, flow);
+  gsttest::run_pipeline(chain(s, "stitchflowwarp flow=true quality=medium ! "), s.views, 2, flow);
   ASSERT_TRUE(flow.errors.empty()) << flow.errors[0];
   ASSERT_EQ(flow.frames.size(), 2u);
   // The overlap is x in [400, 640) of the panorama: the flow changes it (the core tests
@@ -106,7 +106,7 @@ TEST(StitchFlowWarp, PostsThePerOverlapDecision) {
   for (double parallax : {0.0, 8.0}) {
     Scene s = scene(parallax);
     gsttest::RunResult run;
-    gsttest::run_pipeline(chain(s, "stitchflowwarp ! "), s.views, 3, run);
+    gsttest::run_pipeline(chain(s, "stitchflowwarp flow=true ! "), s.views, 3, run);
     ASSERT_TRUE(run.errors.empty()) << run.errors[0];
     std::vector<bool> decisions;
     for (GstStructure* m : run.element_messages) {
@@ -146,16 +146,16 @@ TEST(StitchFlowWarp, PropertiesRoundTrip) {
   gint margin = 0;
   gdouble smoothing = 0;
   g_object_get(e, "flow", &flow, "margin", &margin, "temporal-smoothing", &smoothing, NULL);
-  EXPECT_TRUE(flow);
+  EXPECT_FALSE(flow);  // off by default (issue 16): stitchblend's consensus blend handles parallax
   EXPECT_EQ(margin, 16);
   EXPECT_DOUBLE_EQ(smoothing, 0.95);
   gst_util_set_object_arg(G_OBJECT(e), "quality", "fine");
   gst_util_set_object_arg(G_OBJECT(e), "algorithm", "farneback");
-  g_object_set(e, "flow", FALSE, "margin", 40, "temporal-smoothing", 0.3, NULL);
+  g_object_set(e, "flow", TRUE, "margin", 40, "temporal-smoothing", 0.3, NULL);
   gint quality = 0, algorithm = 0;
   g_object_get(e, "flow", &flow, "margin", &margin, "temporal-smoothing", &smoothing, "quality", &quality,
                "algorithm", &algorithm, NULL);
-  EXPECT_FALSE(flow);
+  EXPECT_TRUE(flow);
   EXPECT_EQ(margin, 40);
   EXPECT_DOUBLE_EQ(smoothing, 0.3);
   EXPECT_EQ(quality, 2);

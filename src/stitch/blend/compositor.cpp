@@ -39,15 +39,20 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
       throw RigError("camera " + std::to_string(i) + ": degenerate homography: " + problem);
   }
   geometry_ = plan_output(rig, settings.output_width, settings.output_height, settings.crop);
-  const bool find_seams = settings.blend == BlendMode::Multiband && settings.seam != SeamMode::None;
+  // Seams cut multiband's masks; with the weighted mean they give the consensus blend (the
+  // mean where the views agree, the seam's view where they disagree). Multiband needs no mix map.
+  const bool find_seams = settings.seam != SeamMode::None;
+  SeamSettings seam_settings = settings.seam_settings;
+  if (settings.blend == BlendMode::Multiband) seam_settings.mix_radius = 0;
   seam_.reset();
 #ifdef STITCH_HAVE_CUDA
-  if (cuda_) cuda_->set_blend_mode(settings.blend, settings.bands, find_seams ? &settings.seam_settings : nullptr);
+  if (cuda_) cuda_->set_blend_mode(settings.blend, settings.bands, find_seams ? &seam_settings : nullptr);
 #endif
   if (!cuda_) {
     blender_ = make_blender(Backend::Cpu, settings.blend, settings.bands);
-    if (find_seams) seam_ = std::make_unique<SeamFinder>(settings.seam_settings);
+    if (find_seams) seam_ = std::make_unique<SeamFinder>(seam_settings);
   }
+  blend_mode_ = settings.blend;
   views_ = place_views(rig, geometry_);
   input_ = input;
   scratch_.assign(views_.size(), {});
@@ -78,8 +83,16 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
 }
 
 void Compositor::fuse_cpu(const std::vector<ImageView>& views, const ImageView& out) {
-  if (seam_) static_cast<MultibandBlender&>(*blender_).set_labels(seam_->find(views).data());
+  if (seam_ && blend_mode_ == BlendMode::Multiband) {
+    static_cast<MultibandBlender&>(*blender_).set_labels(seam_->find(views).data());
+    blender_->fuse(views, out);
+    return;
+  }
   blender_->fuse(views, out);
+  if (seam_) {  // the consensus blend
+    const std::vector<uint8_t>& labels = seam_->find(views);
+    apply_seam_mix(blend_views_, views, labels, seam_->mix(), out);
+  }
 }
 
 void Compositor::compose_prewarped(const std::vector<ImageView>& views, const ImageView& out) {

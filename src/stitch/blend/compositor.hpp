@@ -27,7 +27,8 @@ struct CompositorSettings {
   Backend backend = Backend::Auto;
   BlendMode blend = BlendMode::Weighted;
   int bands = MultibandBlender::kDefaultBands;  // multiband only
-  SeamMode seam = SeamMode::None;                // multiband only: where each view's mask ends
+  SeamMode seam = SeamMode::None;                // multiband: where each view's mask ends; weighted:
+                                                 // the consensus blend (SeamSettings mix_*)
   SeamSettings seam_settings;
 };
 
@@ -65,7 +66,8 @@ class Compositor {
   Backend backend_ = Backend::Cpu;
   std::unique_ptr<Warper> warper_;    // CPU path
   std::unique_ptr<Blender> blender_;  // CPU path: the weighted mean or multiband
-  std::unique_ptr<SeamFinder> seam_;  // CPU path, multiband with seam finding
+  std::unique_ptr<SeamFinder> seam_;  // CPU path: seam finding (multiband masks, or the consensus blend)
+  BlendMode blend_mode_ = BlendMode::Weighted;
   // CUDA path; the deleter is set where it is created, so CPU-only builds need no CUDA code.
   std::unique_ptr<CudaComposer, void (*)(CudaComposer*)> cuda_{nullptr, nullptr};
   OutputGeometry geometry_;

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "../../../cuda/blend/seam_kernels.hpp"
 #include "stitch/blend/seam_cuda.hpp"
 #include "stitch/cuda/cuda_util.hpp"
 #include "stitch/cuda/view_geometry.hpp"
@@ -33,6 +34,33 @@ struct CudaComposer::State {
     stream.sync();  // uploads and warps done: the seam finder and the blender have their own streams
     if (seam) multiband->set_labels(seam->find(views), /*on_device=*/true);
     multiband->fuse(views, out);
+  }
+  // Views warped into their device rectangles first: multiband, or the consensus blend.
+  bool needs_rects() const { return multiband || seam; }
+  // The consensus blend (weighted mean + seams): the weighted mean of the views, then where
+  // they disagree the seam's view (SeamFinder::mix, stitch::seam::mix_value).
+  void consensus_fuse(const std::vector<ImageView>& views, const ImageView& out) {
+    stream.sync();  // uploads and warps done: the seam finder has its own stream (and syncs it)
+    const uint8_t* labels = seam->find(views);
+    std::vector<stitch_cuda::DeviceImage> images(views.size());
+    stitch_cuda::MixViews mv{};
+    mv.n = int(views.size());
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      if (views[i].empty()) continue;
+      images[i] = to_device_image(views[i]);
+      mv.view[i] = images[i];
+      const stitch_cuda::ViewGeometry& g = this->views[i];
+      mv.roi[i][0] = g.roi_x, mv.roi[i][1] = g.roi_y, mv.roi[i][2] = g.roi_w, mv.roi[i][3] = g.roi_h;
+    }
+    const stitch_cuda::DeviceImage d = to_device_image(out);
+    stitch_cuda::launch_fuse(int(images.size()), this->views.data(), images.data(), d, stream.get());
+    if (const uint8_t* mix = seam->mix_map()) stitch_cuda::launch_seam_mix_apply(d, mv, labels, mix, stream.get());
+  }
+  void rect_fuse(const std::vector<ImageView>& views, const ImageView& out) {
+    if (multiband)
+      multiband_fuse(views, out);
+    else
+      consensus_fuse(views, out);
   }
 
   ~State() {
@@ -112,7 +140,8 @@ void CudaComposer::prepare(const std::vector<ViewPlacement>& views, int out_widt
     s_->warped.resize(views.size());
   }
   s_->seam.reset();
-  if (s_->multiband && s_->find_seams) {
+  if (s_->find_seams) {  // multiband's masks, or the consensus blend
+    s_->warped.resize(views.size());
     s_->seam = std::make_unique<SeamFinderCuda>(s_->seam_settings);
     s_->seam->prepare(views, out_width, out_height);
   }
@@ -130,8 +159,8 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
   for (std::size_t i = 0; i < frames.size(); ++i)
     if (!frames[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(frames[i], i);
   const stitch_cuda::DeviceImage d = s_->target(out);
-  if (s_->multiband) {
-    if (color) throw std::invalid_argument("multiband compose takes no color matrices");
+  if (s_->needs_rects()) {
+    if (color) throw std::invalid_argument("multiband or seam compose takes no color matrices");
     std::vector<ImageView> warped(frames.size());
     for (std::size_t i = 0; i < frames.size(); ++i) {
       const stitch_cuda::ViewGeometry& g = s_->views[i];
@@ -145,7 +174,7 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
       stitch_cuda::launch_warp(images[i], g, w, s_->stream.get());
       warped[i] = s_->device_view(w);
     }
-    s_->multiband_fuse(warped, s_->device_view(d));
+    s_->rect_fuse(warped, s_->device_view(d));
     s_->finish(out, d);
     return;
   }
@@ -170,8 +199,8 @@ void CudaComposer::fuse_resampled(const std::vector<ImageView>& views, const Ima
   canvas.pitch = std::size_t(canvas.width) * 4;
   s_->canvas.resize(canvas.pitch * canvas.height);
   canvas.data = s_->canvas.data();
-  if (s_->multiband) {
-    s_->multiband_fuse(s_->device_views(images), s_->device_view(canvas));
+  if (s_->needs_rects()) {
+    s_->rect_fuse(s_->device_views(images), s_->device_view(canvas));
   } else {
     stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), canvas, s_->stream.get());
   }
@@ -209,8 +238,8 @@ void CudaComposer::fuse(const std::vector<ImageView>& views, const ImageView& ou
   for (std::size_t i = 0; i < views.size(); ++i)
     if (!views[i].empty() && s_->views[i].roi_w > 0) images[i] = s_->on_device(views[i], i);
   const stitch_cuda::DeviceImage d = s_->target(out);
-  if (s_->multiband) {
-    s_->multiband_fuse(s_->device_views(images), s_->device_view(d));
+  if (s_->needs_rects()) {
+    s_->rect_fuse(s_->device_views(images), s_->device_view(d));
   } else {
     stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), d, s_->stream.get());
   }

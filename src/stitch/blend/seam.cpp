@@ -5,6 +5,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include <opencv2/core/utility.hpp>
+
 #include "stitch/blend/blender_cpu.hpp"
 #include "stitch/blend/multiband.hpp"
 #include "stitch/blend/seam_math.hpp"
@@ -86,6 +88,10 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
     nearest_mask_ = mask;
   }
   labels_ = nearest_;
+  if (settings_.mix_radius > 0)
+    mix_.assign(std::size_t(width_) * height_, 0);
+  else
+    mix_.clear();
   for (Pair& p : pairs_) {
     if (!(mask >> p.a & 1) || !(mask >> p.b & 1)) {
       p.path.clear();
@@ -127,8 +133,11 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
   std::vector<float> costs(std::size_t(rows) * cols);
   for (int r = 0; r < rows; ++r)
     for (int c = 0; c < cols; ++c) costs[std::size_t(r) * cols + c] = cost(r, c);
-  if (w.clearance_radius > 0 && w.clearance > 0.f) {
-    std::vector<int> diff(costs.size(), 0), across(costs.size());
+  const bool clearance = w.clearance_radius > 0 && w.clearance > 0.f, mixing = w.mix_radius > 0;
+  std::vector<int> diff, across;
+  if (clearance || mixing) {
+    diff.assign(costs.size(), 0);
+    across.resize(costs.size());
     for (int r = 0; r < rows; ++r)
       for (int c = 0; c < cols; ++c) {
         if (costs[std::size_t(r) * cols + c] == seam::kOutside) continue;
@@ -136,13 +145,18 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
         diff[std::size_t(r) * cols + c] = seam::color_difference_sum(warped[p.a].row(y - ra.y) + 4 * (x - ra.x),
                                                                      warped[p.b].row(y - rb.y) + 4 * (x - rb.x));
       }
-    const int R = w.clearance_radius;
-    for (int r = 0; r < rows; ++r)  // window sums across the seam, then along it (integers: exact)
+  }
+  auto across_sums = [&](int R) {  // window sums across the seam (then along it: integers, exact)
+    for (int r = 0; r < rows; ++r)
       for (int c = 0; c < cols; ++c) {
         int sum = 0;
         for (int k = std::max(0, c - R); k <= std::min(cols - 1, c + R); ++k) sum += diff[std::size_t(r) * cols + k];
         across[std::size_t(r) * cols + c] = sum;
       }
+  };
+  if (clearance) {
+    const int R = w.clearance_radius;
+    across_sums(R);
     for (int r = 0; r < rows; ++r)
       for (int c = 0; c < cols; ++c) {
         float& v = costs[std::size_t(r) * cols + c];
@@ -150,6 +164,19 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
         int sum = 0;
         for (int k = std::max(0, r - R); k <= std::min(rows - 1, r + R); ++k) sum += across[std::size_t(k) * cols + c];
         v = seam::add(v, seam::clearance_cost(w, sum));
+      }
+  }
+  if (mixing) {  // the consensus blend's mix level of every overlap pixel (max over pairs)
+    const int R = w.mix_radius;
+    across_sums(R);
+    for (int r = 0; r < rows; ++r)
+      for (int c = 0; c < cols; ++c) {
+        if (costs[std::size_t(r) * cols + c] == seam::kOutside) continue;
+        int sum = 0;
+        for (int k = std::max(0, r - R); k <= std::min(rows - 1, r + R); ++k) sum += across[std::size_t(k) * cols + c];
+        const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
+        uint8_t& m = mix_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
+        m = uint8_t(std::max(int(m), seam::mix_level(w, sum)));
       }
   }
   std::vector<float> energy(cols), next(cols);
@@ -185,6 +212,27 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
       uint8_t& l = labels_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
       if (l == p.a || l == p.b) l = uint8_t(cc < path[r] ? p.a : p.b);
     }
+}
+
+void apply_seam_mix(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& warped,
+                    const std::vector<uint8_t>& labels, const std::vector<uint8_t>& mix, const ImageView& out) {
+  if (mix.empty()) return;
+  if (mix.size() != std::size_t(out.width) * out.height || labels.size() != mix.size())
+    throw std::invalid_argument("mix map size differs from the output");
+  cv::parallel_for_(cv::Range(0, out.height), [&](const cv::Range& range) {
+    for (int y = range.start; y < range.end; ++y) {
+      const uint8_t* m = mix.data() + std::size_t(y) * out.width;
+      const uint8_t* l = labels.data() + std::size_t(y) * out.width;
+      uint8_t* o = out.row(y);
+      for (int x = 0; x < out.width; ++x) {
+        if (!m[x] || l[x] >= warped.size() || warped[l[x]].empty()) continue;
+        const Rect& r = views[l[x]].roi;
+        if (x < r.x || y < r.y || x >= r.x + r.width || y >= r.y + r.height) continue;
+        const uint8_t* v = warped[l[x]].row(y - r.y) + 4 * (x - r.x);
+        for (int k = 0; k < 3; ++k) o[4 * x + k] = seam::mix_value(o[4 * x + k], v[k], m[x]);
+      }
+    }
+  });
 }
 
 }  // namespace stitch

@@ -29,6 +29,13 @@ struct SeamSettings {
                                   // 4 measured in BENCHMARKS.md "Parallax seams": not a clear win)
   int clearance_radius = 16;      // px: about the reach of multiband's coarse bands (seam_math.hpp
                                   // clearance_cost); 0 turns the term off
+  // The consensus blend (mode=weighted with a seam; seam_math.hpp mix_level): per pixel of an
+  // overlap, how much the seam's view replaces the weighted mean, from the views' mean
+  // |dr|+|dg|+|db| over the (2 mix_radius + 1)^2 window: none at or below agree_level, all at or
+  // above disagree_level. mix_radius 0: no mix map (multiband ignores it).
+  int mix_radius = 4;
+  int agree_level = 12;
+  int disagree_level = 30;
 };
 
 class SeamFinder {
@@ -51,12 +58,16 @@ class SeamFinder {
   const std::vector<Pair>& pairs() const { return pairs_; }
   const SeamSettings& settings() const { return settings_; }
   const std::vector<uint8_t>& labels() const { return labels_; }  // the last find()'s
+  // The last find()'s mix map (width*height, 0..255; empty when mix_radius is 0): how much of
+  // each pixel is its label's view rather than the weighted mean (apply_seam_mix).
+  const std::vector<uint8_t>& mix() const { return mix_; }
 
  private:
   void cut(Pair& p, const std::vector<ImageView>& warped);
   seam::Weights weights() const {
     return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
-            settings_.hold, settings_.clearance_weight, settings_.clearance_radius};
+            settings_.hold, settings_.clearance_weight, settings_.clearance_radius,
+            settings_.mix_radius, settings_.agree_level, settings_.disagree_level};
   }
 
   SeamSettings settings_;
@@ -64,9 +75,14 @@ class SeamFinder {
   int width_ = 0, height_ = 0;
   std::vector<Pair> pairs_;
   std::vector<std::vector<uint8_t>> luma_, previous_luma_;  // per view, roi-sized
-  std::vector<uint8_t> labels_;
+  std::vector<uint8_t> labels_, mix_;
   uint64_t nearest_mask_ = ~uint64_t(0);
   std::vector<uint8_t> nearest_;
 };
+
+// The consensus blend on the CPU: `out` holds the weighted mean of `warped` (placed at views'
+// rois); every pixel whose mix level m > 0 becomes mix_value(mean, view[label], m).
+void apply_seam_mix(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& warped,
+                    const std::vector<uint8_t>& labels, const std::vector<uint8_t>& mix, const ImageView& out);
 
 }  // namespace stitch

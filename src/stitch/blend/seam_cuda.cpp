@@ -22,7 +22,7 @@ struct SeamFinderCuda::State {
   std::vector<PairState> pairs;
   std::vector<DeviceBuffer> luma, previous_luma;
   std::vector<bool> has_luma;
-  DeviceBuffer labels, nearest, jobs;  // jobs: the DP jobs of the cut pairs
+  DeviceBuffer labels, nearest, jobs, mix;  // mix: the consensus blend's levels (mix_radius > 0)  // jobs: the DP jobs of the cut pairs
   std::vector<stitch_cuda::SeamDpJob> host_jobs;
   uint64_t nearest_mask = ~uint64_t(0);
   CudaStream stream;
@@ -73,6 +73,7 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
   }
   s_->has_luma.assign(views.size(), false);
   s_->labels.resize(std::size_t(width) * height);
+  if (s_->planner.settings().mix_radius > 0) s_->mix.resize(std::size_t(width) * height);
   s_->nearest.resize(std::size_t(width) * height);
   s_->nearest_mask = ~uint64_t(0);
 }
@@ -106,7 +107,9 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
                               cudaMemcpyDeviceToDevice, st));
   const SeamSettings& settings = s.planner.settings();
   const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability,
-                        settings.hold, settings.clearance_weight, settings.clearance_radius};
+                        settings.hold, settings.clearance_weight, settings.clearance_radius,
+                        settings.mix_radius, settings.agree_level, settings.disagree_level};
+  if (w.mix_radius > 0) STITCH_CUDA(cudaMemsetAsync(s.mix.data(), 0, std::size_t(s.width) * s.height, st));
   // Costs of every cut pair, then all their DP sweeps in one launch, then the labels pair by pair
   // (in the CPU's order: boxes of different pairs may overlap).
   s.host_jobs.clear();
@@ -139,6 +142,9 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
     if (!p.cut) continue;
     stitch_cuda::launch_seam_labels(s.labels.data(), s.width, p.geometry, reinterpret_cast<const float*>(p.centre.data()),
                                     reinterpret_cast<const int*>(p.path.data()), st);
+    stitch_cuda::launch_seam_mix(p.geometry, reinterpret_cast<const int*>(p.diff.data()),
+                                 reinterpret_cast<int*>(p.across.data()), reinterpret_cast<const float*>(p.centre.data()),
+                                 w, s.mix.data(), s.width, st);
     STITCH_CUDA(cudaMemcpyAsync(p.previous.data(), p.path.data(), p.rows * sizeof(int), cudaMemcpyDeviceToDevice, st));
     p.has_previous = true;
   }
@@ -149,6 +155,15 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
 std::vector<uint8_t> SeamFinderCuda::labels() const {
   std::vector<uint8_t> out(std::size_t(s_->width) * s_->height);
   STITCH_CUDA(cudaMemcpy(out.data(), s_->labels.data(), out.size(), cudaMemcpyDeviceToHost));
+  return out;
+}
+
+const uint8_t* SeamFinderCuda::mix_map() const { return s_->mix.size() ? s_->mix.data() : nullptr; }
+
+std::vector<uint8_t> SeamFinderCuda::mix() const {
+  if (!s_->mix.size()) return {};
+  std::vector<uint8_t> out(std::size_t(s_->width) * s_->height);
+  STITCH_CUDA(cudaMemcpy(out.data(), s_->mix.data(), out.size(), cudaMemcpyDeviceToHost));
   return out;
 }
 

@@ -20,6 +20,10 @@ class SeamFinderCuda {
   // The last paths, downloaded (for tests): one per pair of pairs(), empty when not cut.
   std::vector<std::vector<int>> paths() const;
   std::vector<uint8_t> labels() const;  // the last find()'s, downloaded
+  // The last find()'s consensus-blend mix levels (SeamFinder::mix): device (nullptr when
+  // mix_radius is 0; valid until the next find()), and downloaded.
+  const uint8_t* mix_map() const;
+  std::vector<uint8_t> mix() const;
   const std::vector<SeamFinder::Pair>& pairs() const;
 
  private:

@@ -14,6 +14,8 @@ struct Weights {  // SeamSettings, for the kernels
   float hold;  // per row: how much cheaper the new path must be to replace last frame's
   float clearance;     // per level of the views' mean difference within clearance_radius
   int clearance_radius;  // px; 0: no clearance term
+  int mix_radius;        // px: the consensus blend's window; 0: no mix map
+  int agree, disagree;   // window means of |dr|+|dg|+|db|: mix 0 at or below agree, 255 at or above disagree
 };
 
 
@@ -75,6 +77,26 @@ STITCH_HD int color_difference_sum(const uint8_t* a, const uint8_t* b) {
 STITCH_HD float clearance_cost(const Weights& w, int sum) {
   const int side = 2 * w.clearance_radius + 1;
   return mul(w.clearance, div(float(sum), float(3 * side * side)));
+}
+
+// The consensus blend (seam=dp with mode=weighted): where the two views agree, the weighted
+// mean of both (sensor noise averages out, as the homography-only chain does); where they
+// disagree (a near object in one, its parallax copy or the background in the other), the view
+// the seam gives the pixel, so a near object comes whole from one view. `sum` is the window sum
+// of color_difference_sum over (2 mix_radius + 1)^2 pixels (outside the overlap: 0). Integers
+// only: the CPU and the device give the same level.
+STITCH_HD int mix_level(const Weights& w, int sum) {
+  const int side = 2 * w.mix_radius + 1, count = side * side;
+  const int lo = w.agree * count, hi = w.disagree * count;
+  if (sum <= lo) return 0;
+  if (sum >= hi || hi <= lo) return 255;
+  return int((long long)(sum - lo) * 255 / (hi - lo));
+}
+
+// One channel of the consensus blend: the weighted mean and the labelled view's value, mixed by
+// level m (0..255), rounded.
+STITCH_HD uint8_t mix_value(int weighted, int labelled, int m) {
+  return uint8_t((weighted * (255 - m) + labelled * m + 127) / 255);
 }
 
 // One DP cell: the cheapest of the three cells above (ties: straight, then left), plus this
