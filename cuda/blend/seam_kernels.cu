@@ -1,3 +1,4 @@
+#include <algorithm>
 #include "../launch_check.hpp"
 #include "seam_kernels.hpp"
 
@@ -97,38 +98,55 @@ __global__ void mix_apply_kernel(DeviceImage out, MixViews v, const uint8_t* lab
 }
 
 // One block per pair: the rows one after the other (each depends on the one before), the columns
-// of a row across the threads; two rows of energy in shared memory. Then one thread walks back.
-__global__ void dp_kernel(const SeamDpJob* jobs, float stability, float hold) {
-  extern __shared__ float energy[];  // 2 x max_cols
+// of a row across the threads; two rows of energy in shared memory. Thread 0 sums the previous
+// seam's cost on the way (row order, as the CPU). The walk back is serial, so the steps come to
+// shared memory a band of `walk_rows` rows at a time (every thread loading) and thread 0 follows
+// them there: a global load per row made it latency-bound (~1 us a row on tall overlaps).
+__global__ void dp_kernel(const SeamDpJob* jobs, float stability, float hold, int walk_rows) {
+  extern __shared__ float energy[];  // 2 x max_cols, then walk_rows x max_cols steps
+  __shared__ int best_col, keep;
   const SeamDpJob job = jobs[blockIdx.x];
   const int rows = job.rows, cols = job.cols;
   float* above = energy;
   float* here = energy + cols;
+  int8_t* band = reinterpret_cast<int8_t*>(energy + 2 * cols);
+  float previous_cost = 0.f;
   for (int r = 0; r < rows; ++r) {
     const int prev = job.previous ? job.previous[r] : -1;
     for (int c = threadIdx.x; c < cols; c += blockDim.x)
       job.steps[size_t(r) * cols + c] =
           int8_t(sm::dp_cell(above, c, cols, r == 0, job.cost[size_t(r) * cols + c], stability, prev, here[c]));
+    if (threadIdx.x == 0 && job.previous) previous_cost = sm::add(previous_cost, job.cost[size_t(r) * cols + prev]);
     __syncthreads();
     float* t = above;
     above = here;
     here = t;
   }
-  if (threadIdx.x != 0) return;
-  int c = 0;  // the first minimum, as std::min_element
-  for (int k = 1; k < cols; ++k)
-    if (above[k] < above[c]) c = k;
-  if (job.previous) {  // the seam holds still until something crosses it
-    float previous_cost = 0.f;
-    for (int r = 0; r < rows; ++r) previous_cost = sm::add(previous_cost, job.cost[size_t(r) * cols + job.previous[r]]);
-    if (sm::keep_previous(previous_cost, above[c], rows, hold)) {
-      for (int r = 0; r < rows; ++r) job.path[r] = job.previous[r];
-      return;
-    }
+  if (threadIdx.x == 0) {
+    int c = 0;  // the first minimum, as std::min_element
+    for (int k = 1; k < cols; ++k)
+      if (above[k] < above[c]) c = k;
+    best_col = c;
+    // the seam holds still until something crosses it
+    keep = job.previous && sm::keep_previous(previous_cost, above[c], rows, hold) ? 1 : 0;
   }
-  for (int r = rows - 1; r >= 0; --r) {
-    job.path[r] = c;
-    c += job.steps[size_t(r) * cols + c];
+  __syncthreads();
+  if (keep) {
+    for (int r = threadIdx.x; r < rows; r += blockDim.x) job.path[r] = job.previous[r];
+    return;
+  }
+  int c = best_col;
+  for (int top = rows; top > 0; top -= walk_rows) {
+    const int r0 = top > walk_rows ? top - walk_rows : 0;
+    const int n = (top - r0) * cols;
+    for (int i = threadIdx.x; i < n; i += blockDim.x) band[i] = job.steps[size_t(r0) * cols + i];
+    __syncthreads();
+    if (threadIdx.x == 0)
+      for (int r = top - 1; r >= r0; --r) {
+        job.path[r] = c;
+        c += band[(r - r0) * cols + c];
+      }
+    __syncthreads();  // the band is read before the next one overwrites it
   }
 }
 
@@ -188,12 +206,13 @@ void launch_seam_mix_apply(const DeviceImage& out, const MixViews& views, const 
 
 void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream) {
   if (n_jobs <= 0) return;
-  const size_t shared = size_t(2) * max_cols * sizeof(float);
+  const int walk_rows = std::max(1, std::min(64, 16384 / std::max(1, max_cols)));  // <= 16 KB of steps
+  const size_t shared = size_t(2) * max_cols * sizeof(float) + size_t(walk_rows) * max_cols + sizeof(float);
   if (shared > 48 * 1024) {
     const cudaError_t e = cudaFuncSetAttribute(dp_kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(shared));
     if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp_kernel: overlap too wide: ") + cudaGetErrorString(e));
   }
-  dp_kernel<<<n_jobs, 1024, shared, stream>>>(jobs, stability, hold);
+  dp_kernel<<<n_jobs, 1024, shared, stream>>>(jobs, stability, hold, walk_rows);
   check_launch("seam dp_kernel");
 }
 
