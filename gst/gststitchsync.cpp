@@ -474,7 +474,16 @@ static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* cap
       best_d = fd;
     }
   }
-  if (n == 0) return gst_caps_fixate(caps);
+  if (n == 0) {
+    /* no input has caps yet: never 0/1 (GstVideoAggregator derives its latency from the rate,
+     * and a zero rate is a CRITICAL there) */
+    GST_OBJECT_LOCK(self);
+    const gint want_n = self->fps_n > 0 ? self->fps_n : 30, want_d = self->fps_n > 0 ? self->fps_d : 1;
+    GST_OBJECT_UNLOCK(self);
+    caps = gst_caps_truncate(gst_caps_make_writable(caps));
+    gst_structure_fixate_field_nearest_fraction(gst_caps_get_structure(caps, 0), "framerate", want_n, want_d);
+    return gst_caps_fixate(caps);
+  }
   GST_OBJECT_LOCK(self);
   if (self->fps_n > 0) {
     best_n = self->fps_n;
