@@ -257,6 +257,52 @@ Peak ncc_peak(const std::vector<double>& A, const std::vector<double>& B, int la
 // at 0.8); the synthetic scenes' smooth bumps still give PSR 8-20 at 1.
 constexpr double kPhatBeta = 1.0;
 
+// The peak of a correlation curve c (lags -lag_max..lag_max) to a sub-step, and how it stands out:
+// the sidelobes' mean and spread away from the peak's lobe (peak-to-sidelobe ratio) and how far
+// the highest other local maximum is below it (distinctness). ok = false without a positive
+// peak or with too few sidelobe samples.
+struct CurvePeak {
+  bool ok = false;
+  double lag = 0, mean = 0, sd = 1, psr = 0, distinct = 0;
+};
+CurvePeak curve_peak(const std::vector<double>& c, int lag_max) {
+  CurvePeak p;
+  const int nk = int(c.size());
+  if (nk == 0) return p;
+  const int best = int(std::max_element(c.begin(), c.end()) - c.begin());
+  const double peak = c[std::size_t(best)];
+  if (!(peak > 0)) return p;
+  double sub = 0;
+  if (best > 0 && best + 1 < nk) {
+    const double ym = c[std::size_t(best - 1)], yp = c[std::size_t(best + 1)];
+    const double den = ym - 2 * peak + yp;
+    if (den < 0) sub = std::clamp(0.5 * (ym - yp) / den, -0.5, 0.5);
+  }
+  int lo = best, hi = best;
+  while (lo > 0 && c[std::size_t(lo - 1)] > 0.5 * peak && best - lo < 4) --lo;
+  while (hi + 1 < nk && c[std::size_t(hi + 1)] > 0.5 * peak && hi - best < 4) ++hi;
+  lo = std::min(lo, best - 2);
+  hi = std::max(hi, best + 2);
+  double s = 0, ss = 0, second = 0;
+  int m = 0;
+  for (int i = 0; i < nk; ++i) {
+    if (i >= lo && i <= hi) continue;
+    const double y = c[std::size_t(i)];
+    s += y, ss += y * y, ++m;
+    const bool l = i == 0 || y >= c[std::size_t(i - 1)];
+    const bool r = i + 1 == nk || y >= c[std::size_t(i + 1)];
+    if (l && r) second = std::max(second, y);
+  }
+  if (m < 8) return p;
+  p.mean = s / m;
+  p.sd = std::sqrt(std::max(ss / m - p.mean * p.mean, 1e-300));
+  p.psr = (peak - p.mean) / p.sd;
+  p.distinct = 1.0 - second / peak;
+  p.lag = best - lag_max + sub;
+  p.ok = true;
+  return p;
+}
+
 struct PhatPeak {
   double lag = 0, psr = 0, distinct = 0;
   std::vector<double> r;  // the correlation at L + lag_max
@@ -328,37 +374,13 @@ PhatPeak phat_peak(std::vector<double> A, std::vector<double> B, int lag_max, do
   const int nk = 2 * lag_max + 1;
   p.r.assign(std::size_t(nk), 0.0);
   for (int L = -lag_max; L <= lag_max; ++L) p.r[std::size_t(L + lag_max)] = pr[lag_max - L][0];
-  const auto& c = p.r;
-  const int best = int(std::max_element(c.begin(), c.end()) - c.begin());
-  const double peak = c[std::size_t(best)];
-  if (!(peak > 0)) return p;
-  double sub = 0;
-  if (best > 0 && best + 1 < nk) {
-    const double ym = c[std::size_t(best - 1)], yp = c[std::size_t(best + 1)];
-    const double den = ym - 2 * peak + yp;
-    if (den < 0) sub = std::clamp(0.5 * (ym - yp) / den, -0.5, 0.5);
-  }
-  int lo = best, hi = best;
-  while (lo > 0 && c[std::size_t(lo - 1)] > 0.5 * peak && best - lo < 4) --lo;
-  while (hi + 1 < nk && c[std::size_t(hi + 1)] > 0.5 * peak && hi - best < 4) ++hi;
-  lo = std::min(lo, best - 2);
-  hi = std::max(hi, best + 2);
-  double s = 0, ss = 0, second = 0;
-  int m = 0;
-  for (int i = 0; i < nk; ++i) {
-    if (i >= lo && i <= hi) continue;
-    const double y = c[std::size_t(i)];
-    s += y, ss += y * y, ++m;
-    const bool l = i == 0 || y >= c[std::size_t(i - 1)];
-    const bool rr = i + 1 == nk || y >= c[std::size_t(i + 1)];
-    if (l && rr) second = std::max(second, y);
-  }
-  if (m < 8) return p;
-  p.mean = s / m;
-  p.sd = std::sqrt(std::max(ss / m - p.mean * p.mean, 1e-300));
-  p.psr = (peak - p.mean) / p.sd;
-  p.distinct = 1.0 - second / peak;
-  p.lag = best - lag_max + sub;
+  const CurvePeak cp = curve_peak(p.r, lag_max);
+  if (!cp.ok) return p;
+  p.mean = cp.mean;
+  p.sd = cp.sd;
+  p.psr = cp.psr;
+  p.distinct = cp.distinct;
+  p.lag = cp.lag;
   p.ok = true;
   return p;
 }
@@ -380,39 +402,12 @@ namespace {
 // Peak of a z-curve (sub-step), and how sure it is: the same PSR and distinctness terms as the
 // direct whole-frame estimate.
 bool z_peak(const std::vector<double>& c, int lag_max, double& lag, double& confidence) {
-  if (c.empty()) return false;
-  const int nk = int(c.size());
-  const int best = int(std::max_element(c.begin(), c.end()) - c.begin());
-  const double peak = c[std::size_t(best)];
-  if (!(peak > 0)) return false;
-  double sub = 0;
-  if (best > 0 && best + 1 < nk) {
-    const double ym = c[std::size_t(best - 1)], yp = c[std::size_t(best + 1)];
-    const double den = ym - 2 * peak + yp;
-    if (den < 0) sub = std::clamp(0.5 * (ym - yp) / den, -0.5, 0.5);
-  }
-  int lo = best, hi = best;
-  while (lo > 0 && c[std::size_t(lo - 1)] > 0.5 * peak && best - lo < 4) --lo;
-  while (hi + 1 < nk && c[std::size_t(hi + 1)] > 0.5 * peak && hi - best < 4) ++hi;
-  lo = std::min(lo, best - 2);
-  hi = std::max(hi, best + 2);
   // the sum's own peak-to-sidelobe ratio: two curves that are one (a camera that sees what view
   // 0 sees, its noise included) add nothing; independent ones average their chance peaks down
-  double second = 0, s = 0, ss = 0;
-  int m = 0;
-  for (int i = 0; i < nk; ++i) {
-    if (i >= lo && i <= hi) continue;
-    const double y = c[std::size_t(i)];
-    s += y, ss += y * y, ++m;
-    const bool l = i == 0 || y >= c[std::size_t(i - 1)];
-    const bool r = i + 1 == nk || y >= c[std::size_t(i + 1)];
-    if (l && r) second = std::max(second, y);
-  }
-  if (m < 8) return false;
-  const double mean = s / m, sd = std::sqrt(std::max(ss / m - mean * mean, 1e-300));
-  const double psr = (peak - mean) / sd;
-  lag = best - lag_max + sub;
-  confidence = std::clamp((psr - 6.0) / 6.0, 0.0, 1.0) * std::clamp((1.0 - second / peak) / 0.5, 0.0, 1.0);
+  const CurvePeak p = curve_peak(c, lag_max);
+  if (!p.ok) return false;
+  lag = p.lag;
+  confidence = std::clamp((p.psr - 6.0) / 6.0, 0.0, 1.0) * std::clamp(p.distinct / 0.5, 0.0, 1.0);
   return true;
 }
 
