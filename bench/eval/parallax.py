@@ -545,6 +545,20 @@ def truth_self_check(render_dir, scene, frames):
 
 # ---------------------------------------------------------------------------------------------
 
+def select_chains(chains, variants, wanted):
+    """`chains` plus each --variant NAME=CHAIN[|BLEND], kept to the names in `wanted`
+    (a comma-separated --chains; all when empty)."""
+    chains = list(chains)
+    for v in variants:
+        name, _, spec = v.partition("=")
+        chain, _, blend = spec.partition("|")
+        chains.append((name.strip(), chain.strip(), blend.strip()))
+    if wanted:
+        names = wanted.split(",")
+        chains = [c for c in chains if c[0] in names]
+    return chains
+
+
 def run_chain(build, render_dir, out_dir, frames, n, chain, blend, backend):
     clips = ",".join(os.path.join(render_dir, "cam%d_%%04d.png" % i) for i in range(n))
     cmd = [os.path.join(build, "bench", "stitch-eval-chain"), "--out", out_dir, "--clips", clips, "--frames",
@@ -571,14 +585,7 @@ def main():
     ap.add_argument("--reuse", action="store_true", help="keep rendered rigs that exist")
     ap.add_argument("--results", default="results.json", help="file name under --out (runs side by side)")
     args = ap.parse_args()
-    chains = list(CHAINS)
-    for v in args.variant:
-        name, _, spec = v.partition("=")
-        chain, _, blend = spec.partition("|")
-        chains.append((name.strip(), chain.strip(), blend.strip()))
-    if args.chains:
-        wanted = args.chains.split(",")
-        chains = [c for c in chains if c[0] in wanted]
+    chains = select_chains(CHAINS, args.variant, args.chains)
     rig_names = list(RIGS) if args.rigs == "all" else args.rigs.split(",")
     os.environ["GST_PLUGIN_PATH"] = os.path.join(args.build, "gst")
     os.environ.setdefault("GST_REGISTRY", os.path.join(args.build, "parallax-registry.bin"))

@@ -32,6 +32,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import metrics  # noqa: E402
+import parallax  # noqa: E402
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 DATA = os.path.abspath(os.path.join(ROOT, "..", "shared", "data"))
@@ -181,13 +182,7 @@ def main():
     ap.add_argument("--backend", default="cpu")
     ap.add_argument("--results", default="results.json", help="file name under --out")
     args = ap.parse_args()
-    chains = list(CHAINS)
-    for v in args.variant:
-        name, _, spec = v.partition("=")
-        chain, _, blend = spec.partition("|")
-        chains.append((name.strip(), chain.strip(), blend.strip()))
-    if args.chains:
-        chains = [c for c in chains if c[0] in args.chains.split(",")]
+    chains = parallax.select_chains(CHAINS, args.variant, args.chains)
     os.environ["GST_PLUGIN_PATH"] = os.path.join(args.build, "gst")
     os.environ.setdefault("GST_REGISTRY", os.path.join(args.build, "parallax-registry.bin"))
     results = {}

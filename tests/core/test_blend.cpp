@@ -28,6 +28,17 @@ CropRig make_crop_rig(int shift = 200) {
   return c;
 }
 
+// The same with view 1 tilted a little, so that the canvas has uncovered corners.
+CropRig make_tilted_crop_rig() {
+  CropRig c = make_crop_rig();
+  Eigen::Matrix3d R;
+  const double a = 0.05;
+  R << std::cos(a), -std::sin(a), 0, std::sin(a), std::cos(a), 0, 0, 0, 1;
+  c.rig.cameras[1].homography = R * *c.rig.cameras[1].homography;
+  rig_layout_canvas(c.rig);
+  return c;
+}
+
 }  // namespace
 
 TEST(Blend, ConsistentViewsReproduceThePhoto) {
@@ -101,13 +112,7 @@ TEST(Blend, MissingViewIsLeftOutNotBlendedAsBlack) {
 }
 
 TEST(Blend, OutputScalingAndAutoCrop) {
-  CropRig c = make_crop_rig();
-  // Tilt view 1 a little so the canvas has uncovered corners.
-  Eigen::Matrix3d R;
-  const double a = 0.05;
-  R << std::cos(a), -std::sin(a), 0, std::sin(a), std::cos(a), 0, 0, 0, 1;
-  c.rig.cameras[1].homography = R * *c.rig.cameras[1].homography;
-  rig_layout_canvas(c.rig);
+  CropRig c = make_tilted_crop_rig();
   CompositorSettings s;
   s.crop = CropMode::Auto;
   Compositor comp(Backend::Cpu);
@@ -140,12 +145,7 @@ TEST(Blend, DegenerateRigIsRefused) {
 // Pre-warped views with crop=auto at the canvas' scale: the crop/scale pass is a plain row copy
 // of the fused canvas (issue 17), pixel for pixel what the canvas-sized fuse gives there.
 TEST(Blend, PrewarpedAutoCropIsTheCanvasSubRectangle) {
-  CropRig c = make_crop_rig();
-  Eigen::Matrix3d R;
-  const double a = 0.05;
-  R << std::cos(a), -std::sin(a), 0, std::sin(a), std::cos(a), 0, 0, 0, 1;
-  c.rig.cameras[1].homography = R * *c.rig.cameras[1].homography;
-  rig_layout_canvas(c.rig);
+  CropRig c = make_tilted_crop_rig();
   Compositor full(Backend::Cpu), cropped(Backend::Cpu);
   full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
   CompositorSettings s;

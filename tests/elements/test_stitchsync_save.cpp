@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <functional>
 #include <mutex>
 #include <opencv2/core.hpp>
 #include <sstream>
@@ -87,6 +88,18 @@ GstPadProbeReturn on_bundle(GstPad*, GstPadProbeInfo* info, gpointer data) {
 
 std::string inputs() { return gsttest::appsrc_inputs(3); }
 
+// run_pipeline_frames' per-frame hook: on the first frame, records stitchsync's (named s) bundles in `seen`.
+std::function<void(GstElement*, int)> record_bundles(Seen& seen) {
+  return [&seen](GstElement* pipe, int f) {
+    if (f != 0) return;
+    GstElement* s = gst_bin_get_by_name(GST_BIN(pipe), "s");
+    GstPad* src = gst_element_get_static_pad(s, "src");
+    gst_pad_add_probe(src, GST_PAD_PROBE_TYPE_BUFFER, on_bundle, &seen, nullptr);
+    gst_object_unref(src);
+    gst_object_unref(s);
+  };
+}
+
 }  // namespace
 
 // A load-file's time_offset_ns (camera 1) and a pad offset set by hand (camera 2) reach the
@@ -143,14 +156,7 @@ TEST_F(SyncSave, LoadFileAndPadOffsetsAreSavedAndLoadedBack) {
   gsttest::run_pipeline_frames(
       "stitchsync name=s load-file=" + saved + " ! stitchcalib load-file=" + saved + " save-file=" + again +
           " ! fakesink sync=false" + inputs(),
-      coded_crops, 12, r2, nullptr, [&seen](GstElement* pipe, int f) {
-        if (f != 0) return;
-        GstElement* s = gst_bin_get_by_name(GST_BIN(pipe), "s");
-        GstPad* src = gst_element_get_static_pad(s, "src");
-        gst_pad_add_probe(src, GST_PAD_PROBE_TYPE_BUFFER, on_bundle, &seen, nullptr);
-        gst_object_unref(src);
-        gst_object_unref(s);
-      });
+      coded_crops, 12, r2, nullptr, record_bundles(seen));
   ASSERT_TRUE(r2.errors.empty()) << r2.errors[0];
   ASSERT_TRUE(r2.eos);
   std::lock_guard<std::mutex> g(seen.lock);
@@ -183,14 +189,7 @@ TEST_F(SyncSave, WithoutOffsetsTheFileIsUnchanged) {
   gsttest::run_pipeline_frames(
       "stitchsync name=s ! stitchcalib load-file=" + exact_ + " save-file=" + saved + " ! fakesink sync=false" +
           inputs(),
-      coded_crops, 6, r, nullptr, [&seen](GstElement* pipe, int f) {
-        if (f != 0) return;
-        GstElement* s = gst_bin_get_by_name(GST_BIN(pipe), "s");
-        GstPad* src = gst_element_get_static_pad(s, "src");
-        gst_pad_add_probe(src, GST_PAD_PROBE_TYPE_BUFFER, on_bundle, &seen, nullptr);
-        gst_object_unref(src);
-        gst_object_unref(s);
-      });
+      coded_crops, 6, r, nullptr, record_bundles(seen));
   ASSERT_TRUE(r.errors.empty()) << r.errors[0];
   ASSERT_TRUE(r.eos);
   {
