@@ -15,6 +15,7 @@
 #include <atomic>
 #include <cstdlib>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <random>
@@ -31,6 +32,7 @@
 #include "synthetic_rig.hpp"
 
 #ifdef STITCH_HAVE_GST_CUDA
+#include <cuda_runtime_api.h>
 #include <gst/cuda/gstcudacontext.h>
 #include <gst/cuda/gstcudaloader.h>
 #endif
@@ -428,7 +430,12 @@ struct Bundle {
 
 // stitchsync (with `props`) ! appsink, fed by appsrc a0, a1 with frames at 30 fps: input i gets
 // frame numbers frames[i] (timestamped by number, so gaps and late starts are real), then EOS.
-std::vector<Bundle> run_sync(const std::string& props, const std::vector<std::vector<int>>& frames, int w, int h) {
+// `shared` (optional): each input pushes copies of one buffer (the same memory every frame, as a
+// pool's buffers come back), coloured as its frame 0; those buffers are returned there, and
+// `before_stop` sees the pipeline once the bundles are in.
+std::vector<Bundle> run_sync(const std::string& props, const std::vector<std::vector<int>>& frames, int w, int h,
+                             std::vector<GstBuffer*>* shared = nullptr,
+                             const std::function<void(GstElement*)>& before_stop = {}) {
   gsttest::init();
   std::string desc = "stitchsync name=s " + props + " ! appsink name=out sync=false";
   for (std::size_t i = 0; i < frames.size(); ++i)
@@ -449,10 +456,15 @@ std::vector<Bundle> run_sync(const std::string& props, const std::vector<std::ve
   }
   gst_element_set_state(pipe, GST_STATE_PLAYING);
   for (std::size_t i = 0; i < frames.size(); ++i) {
+    if (shared) {
+      cv::Mat m(h, w, CV_8UC4, code_colour(int(i), 0));
+      shared->push_back(gst_buffer_new_allocate(nullptr, m.total() * 4, nullptr));
+      gst_buffer_fill(shared->back(), 0, m.data, m.total() * 4);
+    }
     for (int f : frames[i]) {
       cv::Mat m(h, w, CV_8UC4, code_colour(int(i), f));
-      GstBuffer* b = gst_buffer_new_allocate(nullptr, m.total() * 4, nullptr);
-      gst_buffer_fill(b, 0, m.data, m.total() * 4);
+      GstBuffer* b = shared ? gst_buffer_copy((*shared)[i]) : gst_buffer_new_allocate(nullptr, m.total() * 4, nullptr);
+      if (!shared) gst_buffer_fill(b, 0, m.data, m.total() * 4);
       GST_BUFFER_PTS(b) = gst_util_uint64_scale(guint64(f), GST_SECOND, 30);
       GST_BUFFER_DURATION(b) = gst_util_uint64_scale(guint64(f + 1), GST_SECOND, 30) - GST_BUFFER_PTS(b);
       gst_app_src_push_buffer(GST_APP_SRC(srcs[i]), b);
@@ -486,6 +498,7 @@ std::vector<Bundle> run_sync(const std::string& props, const std::vector<std::ve
     out.push_back(std::move(bundle));
     gst_sample_unref(smp);
   }
+  if (before_stop) before_stop(pipe);
   gst_element_set_state(pipe, GST_STATE_NULL);
   for (GstElement* a : srcs) gst_object_unref(a);
   gst_object_unref(sink);
@@ -548,6 +561,41 @@ GstCudaContext* context_of(GstElement* pipe, const char* name) {
 }
 
 }  // namespace
+#endif
+
+#ifdef STITCH_HAVE_GST_CUDA
+// GPU: system-memory input whose memory comes back frame after frame (here: the same buffer
+// again) is page-locked in stitchsync's context and uploaded straight from it (issue 17): the
+// memory is registered with the driver by the end, and the bundles hold the right pixels.
+TEST(CudaMemorySync, ReusedInputMemoryIsPageLockedAndUploadedRight) {
+  REQUIRE_CUDA_MEMORY();
+  const std::vector<std::vector<int>> frames = {{0, 1, 2, 3, 4, 5}, {0, 1, 2, 3, 4, 5}};
+  std::vector<GstBuffer*> shared;
+  std::vector<int> registered;
+  const std::vector<Bundle> gpu = run_sync("", frames, 64, 48, &shared, [&](GstElement* pipe) {
+    GstCudaContext* ctx = context_of(pipe, "s");
+    ASSERT_NE(ctx, nullptr);
+    gst_cuda_context_push(ctx);
+    for (GstBuffer* b : shared) {
+      GstMapInfo map;
+      ASSERT_TRUE(gst_buffer_map(b, &map, GST_MAP_READ));
+      cudaPointerAttributes a{};
+      const bool ok = cudaPointerGetAttributes(&a, map.data) == cudaSuccess;
+      cudaGetLastError();
+      registered.push_back(ok && a.type == cudaMemoryTypeHost ? 1 : 0);
+      gst_buffer_unmap(b, &map);
+    }
+    gst_cuda_context_pop(nullptr);
+    gst_object_unref(ctx);
+  });
+  ASSERT_EQ(gpu.size(), 6u);
+  for (std::size_t k = 0; k < gpu.size(); ++k) {
+    EXPECT_TRUE(gpu[k].cuda);
+    for (int v = 0; v < 2; ++v) EXPECT_TRUE(uniform(gpu[k].views[std::size_t(v)], code_colour(v, 0))) << k << " " << v;
+  }
+  EXPECT_EQ(registered, std::vector<int>({1, 1})) << "the reused input memory was not page-locked";
+  for (GstBuffer* b : shared) gst_buffer_unref(b);
+}
 #endif
 
 // GPU: nvh264dec ! stitchsync ... stitchblend ! cudadownload on the repository's clips: NV12
