@@ -106,22 +106,31 @@ __global__ void mix_apply_kernel(DeviceImage out, MixViews v, const uint8_t* lab
 // ~1 us (latency, not bytes). Thread 0 sums last frame's path's cost in its sweep's row order.
 // Each block leaves its last energy row and that sum in job.edge (up: edge + cols, sums at 2 cols).
 __global__ void dp_sweep_kernel(const SeamDpJob* jobs, float stability, int band_rows) {
-  extern __shared__ float shared[];  // 2 x cols energy, 2 x band_rows x cols costs, 2 x band_rows path
+  extern __shared__ float shared[];  // 2 x (cols + 2) energy, 2 x band_rows x cols costs, 2 x band_rows path
   const SeamDpJob job = jobs[blockIdx.x >> 1];
   const bool up = blockIdx.x & 1;
   const int rows = job.rows, cols = job.cols, m = sm::dp_meeting_row(rows);
   const int n = up ? rows - m : m;  // rows this sweep takes; the k-th is row(k)
   auto row = [&](int k) { return up ? rows - 1 - k : k; };
-  float* above = shared;
-  float* here = shared + cols;
-  float* bands = shared + 2 * cols;
+  // Energy rows with a +inf cell on either side, and all 0 before the first row: then every cell
+  // is dp_cell without its border and first-row tests (a neighbour of +inf is never taken, and
+  // three equal zeros go straight): the same energies and steps with fewer instructions a row,
+  // which is what a row costs here (issue-bound: a block's warps share one SM's schedulers).
+  float* above = shared + 1;
+  float* here = shared + cols + 3;
+  for (int c = threadIdx.x - 1; c <= cols; c += blockDim.x) {
+    const bool border = c < 0 || c == cols;
+    above[c] = border ? INFINITY : 0.f;
+    here[c] = border ? INFINITY : 0.f;
+  }
+  float* bands = shared + 2 * (cols + 2);
   int* path_bands = reinterpret_cast<int*>(bands + size_t(2) * band_rows * cols);
   const int n_bands = (n + band_rows - 1) / band_rows;
   // Band b holds sweep rows [b B, b B + count); in memory they are rows [lowest, lowest + count).
   auto lowest = [&](int b) { return up ? row(min(n, (b + 1) * band_rows) - 1) : b * band_rows; };
   auto load = [&](int b) {
     const int count = min(band_rows, n - b * band_rows), r0 = lowest(b);
-    float* dst = bands + size_t(b & 1) * band_rows * cols;
+    float* dst = bands + (b & 1) * band_rows * cols;
     const float* src = job.cost + size_t(r0) * cols;
     for (int i = threadIdx.x; i < count * cols; i += blockDim.x)
       __pipeline_memcpy_async(dst + i, src + i, sizeof(float));
@@ -133,6 +142,9 @@ __global__ void dp_sweep_kernel(const SeamDpJob* jobs, float stability, int band
     __pipeline_commit();
   };
   if (n_bands > 0) load(0);
+  const bool pulled = job.previous != nullptr;
+  int8_t* steps = job.steps + size_t(row(0)) * cols;  // this row's steps; the next is `stride` on
+  const int stride = up ? -cols : cols;
   float previous_cost = 0.f;
   for (int b = 0; b < n_bands; ++b) {
     if (b + 1 < n_bands)
@@ -142,15 +154,25 @@ __global__ void dp_sweep_kernel(const SeamDpJob* jobs, float stability, int band
     __pipeline_wait_prior(1);
     __syncthreads();
     const int count = min(band_rows, n - b * band_rows), r0 = lowest(b);
-    const float* cost = bands + size_t(b & 1) * band_rows * cols;
+    const float* cost = bands + (b & 1) * band_rows * cols;
     const int* previous = path_bands + (b & 1) * band_rows;
     for (int k = b * band_rows; k < b * band_rows + count; ++k) {
-      const int r = row(k), at = r - r0;
-      const int prev = job.previous ? previous[at] : -1;
-      for (int c = threadIdx.x; c < cols; c += blockDim.x)
-        job.steps[size_t(r) * cols + c] =
-            int8_t(sm::dp_cell(above, c, cols, k == 0, cost[size_t(at) * cols + c], stability, prev, here[c]));
-      if (threadIdx.x == 0 && job.previous) previous_cost = sm::add(previous_cost, cost[size_t(at) * cols + prev]);
+      const int at = row(k) - r0;
+      const float* cost_row = cost + at * cols;
+      const int prev = pulled ? previous[at] : -1;
+      for (int c = threadIdx.x; c < cols; c += blockDim.x) {  // sm::dp_cell, borders as +inf cells
+        float best = above[c];
+        int step = 0;
+        const float left = above[c - 1], right = above[c + 1];
+        if (left < best) best = left, step = -1;
+        if (right < best) best = right, step = 1;
+        float energy = sm::add(best, cost_row[c]);
+        if (prev >= 0) energy = sm::add(energy, sm::mul(stability, float(sm::absi(c - prev))));
+        here[c] = energy;
+        steps[c] = int8_t(step);
+      }
+      if (threadIdx.x == 0 && pulled) previous_cost = sm::add(previous_cost, cost_row[prev]);
+      steps += stride;
       __syncthreads();
       float* t = above;
       above = here;
@@ -159,7 +181,7 @@ __global__ void dp_sweep_kernel(const SeamDpJob* jobs, float stability, int band
   }
   __pipeline_wait_prior(0);
   float* edge = job.edge + (up ? cols : 0);
-  for (int c = threadIdx.x; c < cols; c += blockDim.x) edge[c] = n > 0 ? above[c] : 0.f;
+  for (int c = threadIdx.x; c < cols; c += blockDim.x) edge[c] = above[c];  // all 0 when n == 0
   if (threadIdx.x == 0) job.edge[2 * cols + (up ? 1 : 0)] = previous_cost;
 }
 
@@ -283,7 +305,7 @@ void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stabi
   if (n_jobs <= 0) return;
   // Sweeps: cost bands of up to 32 rows, double-buffered, within ~96 KB of shared memory.
   const size_t row_bytes = size_t(max_cols) * sizeof(float);
-  const size_t budget = 96 * 1024, energy = 2 * row_bytes;
+  const size_t budget = 96 * 1024, energy = 2 * (row_bytes + 2 * sizeof(float));
   const int band_rows =
       int(std::max<size_t>(1, std::min<size_t>(32, budget > energy ? (budget - energy) / (2 * row_bytes + 8) : 1)));
   const size_t shared = energy + size_t(band_rows) * (2 * row_bytes + 2 * sizeof(int));
