@@ -479,7 +479,7 @@ int main(int argc, char** argv) {
                      std::to_string(three_case.width) + ",height=" + std::to_string(three_case.height) +
                      ",framerate=30/1" + (decoder == "avdec" ? "" : " ! cudaupload") + " ! s.sink_" + std::to_string(i);
       std::vector<Run> live = run_pipelines(std::vector<std::string>(size_t(n), live_desc), 10, true, 60);
-      double worst_median = 0, worst_p99 = 0;
+      double worst_median = -1, worst_p99 = -1;  // -1: not measured (a max from 0 hid negative medians before)
       for (const Run& r : live) {
         worst_median = std::max(worst_median, r.latency_median_ms);
         worst_p99 = std::max(worst_p99, r.latency_p99_ms);
