@@ -18,6 +18,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <memory>
 #include <mutex>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -26,6 +27,7 @@
 #include <vector>
 
 #include "bench_common.hpp"
+#include "live_latency.hpp"
 #include "ppm.hpp"
 #include "ring_rig.hpp"
 #include "stitch/rig/rig.hpp"
@@ -52,30 +54,34 @@ bool cylindrical(const E2eCase& c) {
 std::string g_blend_props, g_flow_props;  // --blend PROPS, --flowwarp PROPS: added to stitchblend / stitchflowwarp
 bool g_bin = false;  // --bin: stitchbin with its defaults (its queue after stitchcalib) instead of the chain
 
-// Counts buffers at a pad; the rate is taken after `warmup` buffers. With `live`, also the
-// latency of every buffer: the clock now minus the buffer's capture time (its running time).
+// Counts buffers at a pad; the rate is taken after `warmup` buffers. With `live`, the latency
+// of every panorama is measured by livelat::Meter (tests/common/live_latency.hpp): from the
+// capture time of the newest camera frame it holds to the sink. (The panorama's own running time
+// is stitchsync's output grid, not a capture time: "now - running time" was off by up to a frame
+// either way, and gave a negative median on the H100.)
+// Without a stitchsync (the sources straight to a sink) the buffers are the cameras' own frames
+// and their running time is their capture time: `direct` keeps "now - running time".
 struct Probe {
   int seen = 0, warmup = 0;
   Clock::time_point start, end;
-  bool live = false;
-  GstElement* pipeline = nullptr;
-  std::vector<double> latency_ms;
+  GstElement* direct = nullptr;  // the pipeline, when there is no stitchsync
+  std::vector<double> direct_ms;
 };
 
 GstPadProbeReturn on_buffer(GstPad* pad, GstPadProbeInfo* info, gpointer data) {
   Probe* p = static_cast<Probe*>(data);
   if (++p->seen == p->warmup) p->start = Clock::now();
   p->end = Clock::now();
-  if (p->live && p->seen > p->warmup) {
+  if (p->direct && p->seen > p->warmup) {
     GstBuffer* buf = GST_PAD_PROBE_INFO_BUFFER(info);
     GstEvent* seg_event = gst_pad_get_sticky_event(pad, GST_EVENT_SEGMENT, 0);
-    GstClock* clock = gst_element_get_clock(p->pipeline);
+    GstClock* clock = gst_element_get_clock(p->direct);
     if (seg_event && clock && GST_BUFFER_PTS_IS_VALID(buf)) {
       const GstSegment* seg = nullptr;
       gst_event_parse_segment(seg_event, &seg);
       const guint64 running = gst_segment_to_running_time(seg, GST_FORMAT_TIME, GST_BUFFER_PTS(buf));
-      const GstClockTime now = gst_clock_get_time(clock) - gst_element_get_base_time(p->pipeline);
-      if (running != GST_CLOCK_TIME_NONE) p->latency_ms.push_back((double(now) - double(running)) / 1e6);
+      const GstClockTime now = gst_clock_get_time(clock) - gst_element_get_base_time(p->direct);
+      if (running != GST_CLOCK_TIME_NONE) p->direct_ms.push_back((double(now) - double(running)) / 1e6);
     }
     if (clock) gst_object_unref(clock);
     if (seg_event) gst_event_unref(seg_event);
@@ -87,7 +93,8 @@ struct Run {
   double fps = 0;
   int frames = 0, counted = 0;      // counted: after the warm-up
   Clock::time_point start, end;     // of the counted frames
-  double latency_median_ms = -1, latency_p99_ms = -1;
+  double latency_median_ms = -1, latency_p99_ms = -1;  // newest capture -> sink
+  livelat::Summary latency;
   std::string error;
 };
 
@@ -103,6 +110,7 @@ std::vector<Run> run_pipelines(const std::vector<std::string>& descs, int warmup
   std::vector<Run> runs(descs.size());
   std::vector<GstElement*> pipes(descs.size(), nullptr);
   std::vector<Probe> probes(descs.size());
+  std::vector<std::unique_ptr<livelat::Meter>> meters(descs.size());
   for (size_t i = 0; i < descs.size(); ++i) {
     GError* err = nullptr;
     pipes[i] = gst_parse_launch(descs[i].c_str(), &err);
@@ -114,16 +122,42 @@ std::vector<Run> run_pipelines(const std::vector<std::string>& descs, int warmup
       continue;
     }
     probes[i].warmup = warmup;
-    probes[i].live = live;
-    probes[i].pipeline = pipes[i];
     GstElement* sink = gst_bin_get_by_name(GST_BIN(pipes[i]), "sink");
     GstPad* pad = gst_element_get_static_pad(sink, "sink");
     gst_pad_add_probe(pad, GST_PAD_PROBE_TYPE_BUFFER, on_buffer, &probes[i], nullptr);
+    if (live) {
+      if (GstElement* sync = livelat::find_stitchsync(pipes[i])) {
+        meters[i].reset(new livelat::Meter);
+        if (!meters[i]->attach(pipes[i], sync, pad)) meters[i].reset();
+        gst_object_unref(sync);
+      } else {
+        probes[i].direct = pipes[i];
+      }
+    }
     gst_object_unref(pad);
     gst_object_unref(sink);
   }
   for (GstElement* p : pipes)
     if (p) gst_element_set_state(p, GST_STATE_PLAYING);
+  std::thread configure;  // reads each meter's configured latency once its first panorama is out
+  if (live)
+    configure = std::thread([&] {
+      std::vector<bool> done(meters.size(), false);
+      for (int k = 0; k < 400; ++k) {
+        bool all = true;
+        for (size_t i = 0; i < meters.size(); ++i) {
+          if (!meters[i] || done[i]) continue;
+          if (!meters[i]->samples().empty()) {
+            meters[i]->read_configuration();
+            done[i] = true;
+          } else {
+            all = false;
+          }
+        }
+        if (all) break;
+        g_usleep(50000);
+      }
+    });
   std::vector<std::thread> waiters;
   for (size_t i = 0; i < pipes.size(); ++i) {
     if (!pipes[i]) continue;
@@ -144,6 +178,7 @@ std::vector<Run> run_pipelines(const std::vector<std::string>& descs, int warmup
     });
   }
   for (auto& t : waiters) t.join();
+  if (configure.joinable()) configure.join();
   for (size_t i = 0; i < pipes.size(); ++i) {
     if (!pipes[i]) continue;
     gst_element_set_state(pipes[i], GST_STATE_NULL);
@@ -155,8 +190,15 @@ std::vector<Run> run_pipelines(const std::vector<std::string>& descs, int warmup
     runs[i].end = p.end;
     const double s = std::chrono::duration<double>(p.end - p.start).count();
     if (p.seen > p.warmup && s > 0) runs[i].fps = (p.seen - p.warmup) / s;
-    runs[i].latency_median_ms = percentile(p.latency_ms, 0.5);
-    runs[i].latency_p99_ms = percentile(p.latency_ms, 0.99);
+    if (meters[i]) {
+      runs[i].latency = meters[i]->summarize(size_t(warmup));
+      runs[i].latency_median_ms = runs[i].latency.newest_median_ms;
+      runs[i].latency_p99_ms = runs[i].latency.newest_p99_ms;
+      meters[i].reset();
+    } else if (p.direct) {
+      runs[i].latency_median_ms = percentile(p.direct_ms, 0.5);
+      runs[i].latency_p99_ms = percentile(p.direct_ms, 0.99);
+    }
   }
   return runs;
 }
@@ -295,11 +337,16 @@ std::string stitch_head(const E2eCase& c, const Prepared& p) {
 }
 
 std::string json_run(const std::string& what, const Run& r) {
-  char buf[512];
+  char buf[1024];
+  const livelat::Summary& m = r.latency;
   std::snprintf(buf, sizeof buf,
                 "{\"what\":\"%s\",\"fps\":%.1f,\"frames\":%d,\"latency_median_ms\":%.2f,\"latency_p99_ms\":%.2f,"
+                "\"oldest_median_ms\":%.2f,\"sync_median_ms\":%.2f,\"stages_median_ms\":%.2f,\"configured_ms\":%.2f,"
+                "\"query_min_ms\":%.2f,\"added_median_frames\":%.3f,\"added_p99_frames\":%.3f,\"old_probe_median_ms\":%.2f,"
                 "\"error\":\"%s\"}",
-                what.c_str(), r.fps, r.frames, r.latency_median_ms, r.latency_p99_ms, r.error.c_str());
+                what.c_str(), r.fps, r.frames, r.latency_median_ms, r.latency_p99_ms, m.oldest_median_ms, m.sync_median_ms,
+                m.stages_median_ms, m.configured_ms, m.query_min_ms, m.added_median_frames, m.added_p99_frames,
+                m.grid_median_ms, r.error.c_str());
   return buf;
 }
 
@@ -432,7 +479,7 @@ int main(int argc, char** argv) {
                      std::to_string(three_case.width) + ",height=" + std::to_string(three_case.height) +
                      ",framerate=30/1" + (decoder == "avdec" ? "" : " ! cudaupload") + " ! s.sink_" + std::to_string(i);
       std::vector<Run> live = run_pipelines(std::vector<std::string>(size_t(n), live_desc), 10, true, 60);
-      double worst_median = 0, worst_p99 = 0;
+      double worst_median = -1, worst_p99 = -1;  // -1: not measured (a max from 0 hid negative medians before)
       for (const Run& r : live) {
         worst_median = std::max(worst_median, r.latency_median_ms);
         worst_p99 = std::max(worst_p99, r.latency_p99_ms);
@@ -486,9 +533,16 @@ int main(int argc, char** argv) {
                                         live_sources("s.sink_", true)});
     for (const LiveCase& l : live) {
       const Run r = run_pipelines({l.desc}, 10, true, 60)[0];
-      std::printf("latency, live %s %dx%dx%d at 30 fps: median %.1f ms, p99 %.1f ms (%d frames)%s\n", l.name.c_str(),
-                  c.cameras, c.width, c.height, r.latency_median_ms, r.latency_p99_ms, r.frames,
+      const livelat::Summary& m = r.latency;
+      std::printf("latency, live %s %dx%dx%d at 30 fps: newest capture -> sink median %.1f ms, p99 %.1f ms (%d frames)%s\n",
+                  l.name.c_str(), c.cameras, c.width, c.height, r.latency_median_ms, r.latency_p99_ms, r.frames,
                   r.error.empty() ? "" : (" " + r.error).c_str());
+      if (m.samples > 0)
+        std::printf("  oldest capture -> sink median %.1f ms; stitchsync %.1f ms, stages %.1f ms (medians); stitchsync "
+                    "latency property %.1f ms, LATENCY query min %.1f ms; added latency %.2f frames (median), %.2f (p99); "
+                    "old probe (sink - panorama running time) median %.1f ms, min %.1f ms\n",
+                    m.oldest_median_ms, m.sync_median_ms, m.stages_median_ms, m.configured_ms, m.query_min_ms,
+                    m.added_median_frames, m.added_p99_frames, m.grid_median_ms, m.grid_min_ms);
       std::fflush(stdout);
       json += std::string(json.back() == '[' ? "" : ",") + json_run("live " + l.name, r);
     }

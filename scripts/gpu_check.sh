@@ -5,7 +5,8 @@
 # 64 MiB a device call carries, so it holds only binaries that link no OpenCV
 # imgcodecs/videoio (their codec and GDAL trees are large).
 # usage: scripts/gpu_check.sh pack [BUILD_DIR]   (here)
-#        OUT=... scripts/gpu_check.sh [quick|blend|e2e|handoff|sysmem] (on the GPU host; quick: tests only;
+#        OUT=... scripts/gpu_check.sh [quick|blend|e2e|handoff|sysmem|latency] (on the GPU host; quick: tests only;
+#                                                   latency: live-camera latency only (stitch-bench-latency);
 #                                                   sysmem: tests, system-memory input A/B (RGBA, I420);
 #                                                   handoff: tests, event vs host-sync hand-off A/B;
 #                                                   blend: tests, blend modes, decoded pipelines)
@@ -17,7 +18,7 @@ if [ "${1:-}" = pack ]; then
   cp "$BUILD/tests/boat1_1600.ppm" .gpubundle/
   bins=""
   for t in $GPU_TESTS; do [ -x "$BUILD/tests/$t" ] && bins="$bins $BUILD/tests/$t"; done
-  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection stitch-bench-blend stitch-bench-e2e stitch-bench-lens-timing; do
+  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection stitch-bench-blend stitch-bench-e2e stitch-bench-lens-timing stitch-bench-latency; do
     [ -x "$BUILD/bench/$b" ] && bins="$bins $BUILD/bench/$b"
   done
   GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile videotestsrc x264 x265" \
@@ -32,6 +33,15 @@ B=gpubundle/build  # the bundle keeps the binaries flat
 export STITCH_SOURCE_DIR=$PWD GST_PLUGIN_PATH=$PWD/$B GST_REGISTRY=$PWD/$OUT/registry.bin GST_DEBUG='*:1'
 export STITCH_TEST_PPM=$PWD/.gpubundle/boat1_1600.ppm XDG_RUNTIME_DIR=/tmp
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$OUT/gpu.txt"
+if [ "${1:-}" = latency ]; then
+  echo "== live 30 fps cameras: newest/oldest capture -> sink, stitchsync's configured latency, added latency in frames"
+  for size in "640 480" "1920 1080"; do
+    set -- $size
+    timeout 250 $B/stitch-bench-latency --width $1 --height $2 --frames 300 --chains cpu,bin,cuda,bin-cuda \
+      --json "$OUT/latency_${1}x${2}.json" --dump "$OUT/latency_${1}x${2}" 2>&1 | grep -v "nvrtc\|gldisplay" | tee -a "$OUT/bench_latency.txt"
+  done
+  exit
+fi
 for t in $GPU_TESTS; do
   [ -x "$B/$t" ] || continue
   echo "== $t"
