@@ -19,6 +19,7 @@
 #include "lens_quality.hpp"
 #include "lens_rig.hpp"
 #include "stitch/calib/calibrator.hpp"
+#include "stitch/calib/fisheye_guess.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/lens.hpp"
@@ -338,4 +339,57 @@ TEST(LensLines, RadtanRigKeepsTheGroundTruthsEdges) {
   EXPECT_LT(b_on, 0.5);
   EXPECT_GT(s_off, 3 * s_on);
   EXPECT_GT(b_off, 2 * b_on);
+}
+
+// No rig file at all (issue 15: 360 without a hand-written rig): frames that show an image circle
+// on black are taken as circular fisheyes, two back to back or N in a ring, and calibrated from
+// that guess over a few fields of view. The circle is found within 2 % of the lens's, the seams
+// within a pixel, on a 2:1 sphere; a rectilinear frame or a dark one shows no circle.
+TEST(CircularFisheyes, FoundAndCalibratedFromTheImagesAlone) {
+  std::string name;
+  const cv::Mat photo = equirect_photo(name);
+  ASSERT_FALSE(photo.empty());
+  struct Case {
+    int cams;
+    double fov;
+  };
+  double worst = 0;
+  for (const Case cs : {Case{2, 190}, Case{2, 220}, Case{4, 190}}) {
+    const Rig truth = cs.cams == 2 ? testdata::dual_fisheye_rig(480, cs.fov) : testdata::fisheye_ring(cs.cams, 320, cs.fov);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> views;
+    render_views(photo, truth, frames, views);
+    for (int i = 0; i < cs.cams; ++i) {
+      const std::optional<LensCircle> circle = find_image_circle(views[i]);
+      ASSERT_TRUE(circle) << "camera " << i;
+      const Camera& c = truth.cameras[i];
+      const double radius = c.lens.circle ? c.lens.circle->radius : 0.5 * std::min(c.width, c.height);
+      EXPECT_NEAR(circle->radius, radius, 0.03 * radius);
+      EXPECT_NEAR(circle->cx, c.cx, 0.01 * radius);
+      EXPECT_NEAR(circle->cy, c.cy, 0.01 * radius);
+    }
+    const CalibrationResult r = calibrate_from_images(views, 0, CalibrationOptions{});
+    ASSERT_EQ(r.rig.cameras.size(), std::size_t(cs.cams));
+    EXPECT_EQ(r.rig.projection, "spherical");
+    EXPECT_EQ(r.rig.canvas_width, 2 * r.rig.canvas_height);
+    bool said = false;
+    for (const auto& w : r.warnings) said |= w.find("image circle") != std::string::npos;
+    EXPECT_TRUE(said);
+    double err = 0;
+    for (int i = 0; i < cs.cams; ++i) {
+      EXPECT_EQ(r.rig.cameras[i].lens.model, Lens::Model::Fisheye);
+      err = std::max(err, worst_seam_px(r.rig, truth, i, (i + 1) % cs.cams, nullptr));
+    }
+    std::printf("%s: %d circular fisheyes of %.0f deg, no rig file: worst seam error %.3f px\n", name.c_str(), cs.cams,
+                cs.fov, err);
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    EXPECT_LE(err, 1.0) << cs.cams << " x " << cs.fov;
+    worst = std::max(worst, err);
+  }
+  RecordProperty("worst_seam_px", std::to_string(worst));
+  // A rectilinear frame (the photo itself) and a black one show no image circle.
+  cv::Mat flat = photo(cv::Rect(0, photo.rows / 4, photo.rows / 2, photo.rows / 2)).clone();
+  EXPECT_FALSE(find_image_circle(as_view(flat)));
+  cv::Mat black(480, 480, CV_8UC4, cv::Scalar(0, 0, 0, 255));
+  EXPECT_FALSE(find_image_circle(as_view(black)));
 }

@@ -15,6 +15,7 @@
 
 #include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/calib/dense_matches.hpp"
+#include "stitch/calib/fisheye_guess.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/lens.hpp"
@@ -1577,8 +1578,49 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
 // least kLensEvidenceMinPx) before images alone are taken as evidence of distortion.
 constexpr double kLensEvidenceRatio = 0.7, kLensEvidenceMinPx = 0.2;
 
+// Frames that all show an image circle are circular fisheyes (a 360 camera): calibrated from the
+// rough rig circular_fisheye_rig guesses, over a few fields of view (the circle gives the focal
+// length only with one), keeping the fit the held-out matches like best. nullopt: not such frames.
+static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::vector<std::vector<ImageView>>& sets,
+                                                                    int reference, const CalibrationOptions& o) {
+  std::optional<CalibrationResult> best;
+  double best_error = std::numeric_limits<double>::infinity(), best_fov = 0;
+  std::string last_error;
+  for (const double fov : {195.0, 185.0, 210.0, 225.0}) {
+    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov);
+    if (!rough) return std::nullopt;
+    rough->reference = reference >= 0 && reference < int(rough->cameras.size()) ? reference : 0;
+    try {
+      CalibrationResult r = calibrate_from_rig(*rough, sets, o);
+      const double error = r.rotation_heldout_px > 0 ? r.rotation_heldout_px : r.ba_rms_after_px;
+      if (!(error > 0) || !(error < best_error)) continue;
+      best_error = error;
+      best_fov = fov;
+      best = std::move(r);
+    } catch (const std::exception& e) {
+      last_error = e.what();
+      continue;
+    }
+    if (best_error < 0.7) break;  // a good fit: the guess was close enough
+  }
+  if (!best)
+    throw RigError("the cameras show image circles (circular fisheye lenses) but no 360 rig of them fits the images" +
+                   (last_error.empty() ? std::string() : " (" + last_error + ")") +
+                   ": give a rig-file with their \"lens\"");
+  const int n = int(sets[0].size());
+  best->warnings.push_back("every camera shows an image circle: calibrated as " +
+                           (n == 2 ? std::string("two circular fisheyes back to back") :
+                                     "a ring of " + std::to_string(n) + " circular fisheyes") +
+                           " (field of view first guessed " + std::to_string(int(best_fov)) +
+                           " degrees; focal lengths and lenses estimated; held-out error " + std::to_string(best_error) +
+                           " px); give a rig-file to set them");
+  return best;
+}
+
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
+  if (o.circular_fisheyes && !sets.empty())
+    if (std::optional<CalibrationResult> fisheyes = calibrate_circular_fisheyes(sets, reference, o)) return *fisheyes;
   CalibrationResult pin = calibrate_from_images_pinhole(sets, reference, o);
   if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
   // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.

@@ -39,6 +39,10 @@ struct CalibrationOptions {
   // keep it only when the held-out error clearly drops (issue 15: "when evidence shows
   // distortion"); undistorted cameras stay pinhole.
   bool lens_from_evidence = true;
+  // calibrate_from_images: frames that all show a lit image circle on black (circular fisheyes:
+  // a 360 camera) are calibrated as fisheyes on a spherical canvas, two back to back or N in a
+  // ring (fisheye_guess.hpp), instead of as pinhole cameras that cannot see them.
+  bool circular_fisheyes = true;
   // Lenses being estimated (issue 15): once the adjustment is close, fit again on
   // correspondences located photometrically all over each overlap (dense_matches.hpp) rather
   // than on the SIFT keypoints alone, whose ~0.25 px noise extrapolated to 1-2 px at the frame
