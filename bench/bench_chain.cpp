@@ -19,6 +19,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <fstream>
 #include <functional>
 #include <string>
@@ -51,7 +52,16 @@ double median(std::vector<double> v) {
 
 struct StageTimes {
   std::vector<double> copy, color, flow, blend, total;
+  double cpu[5] = {0, 0, 0, 0, 0};  // process CPU time (all threads), summed over the frames
 };
+
+// CPU time of the whole process (every thread), ms: the work a stage did, whatever the load of
+// the machine and the thread count (wall clock on a loaded machine measures the load).
+double process_cpu_ms() {
+  timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
 
 // The chain's state for one backend: what the elements hold between frames.
 struct Chain {
@@ -78,15 +88,26 @@ struct Chain {
   // One frame: bundle <- pristine (copy), color in place, flow warp into rois (flow chain), blend.
   void run(const std::function<void()>& copy, const std::vector<ImageView>& bundle, const std::vector<ImageView>& rois,
            const ImageView& out, StageTimes& t) {
+    const bool host = backend == Backend::Cpu;
+    double c[5] = {0, 0, 0, 0, 0};
     const auto t0 = Clock::now();
+    if (host) c[0] = process_cpu_ms();
     copy();
     const auto t1 = Clock::now();
+    if (host) c[1] = process_cpu_ms();
     color.process(rig, 1, bundle);
     const auto t2 = Clock::now();
+    if (host) c[2] = process_cpu_ms();
     if (flow_on) flow->warp(bundle, rois);
     const auto t3 = Clock::now();
+    if (host) c[3] = process_cpu_ms();
     compositor.compose(flow_on ? rois : bundle, out);
     const auto t4 = Clock::now();
+    if (host) {
+      c[4] = process_cpu_ms();
+      for (int k = 0; k < 4; ++k) t.cpu[k] += c[k + 1] - c[k];
+      t.cpu[4] += c[4] - c[0];
+    }
     auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
     t.copy.push_back(ms(t0, t1));
     t.color.push_back(ms(t1, t2));
@@ -219,6 +240,9 @@ int main(int argc, char** argv) {
           }
           if (cpu_frames > 0) {
             print_row(name, pano, cpu_label, t);
+            const double n = double(cpu_frames);
+            std::printf("  CPU time ms per panorama, all threads (the work): copy %.1f color %.1f flowwarp %.1f blend "
+                        "%.1f chain %.1f\n", t.cpu[0] / n, t.cpu[1] / n, t.cpu[2] / n, t.cpu[3] / n, t.cpu[4] / n);
             if (!with_flow || chains == "flow") json += ",\"panorama\":\"" + std::string(pano) + "\"";
             json += ",\"cpu" + key + "\":" + json_row(t);
           }
