@@ -98,11 +98,18 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
     nearest_ = nearest_view_labels(views_, width_, height_, mask);
     nearest_mask_ = mask;
   }
-  labels_ = nearest_;
+  // labels_ = nearest_ and a zeroed mix map, by rows on OpenCV's threads (full-frame byte maps:
+  // a serial copy and fill were ~3 ms per 3x1080p canvas, a serial section on every core count)
+  labels_.resize(nearest_.size());
   if (settings_.mix_radius > 0)
-    mix_.assign(std::size_t(width_) * height_, 0);
+    mix_.resize(std::size_t(width_) * height_);
   else
     mix_.clear();
+  for_rows(height_, [&](int y) {
+    const std::size_t row = std::size_t(y) * width_;
+    if (row + width_ <= nearest_.size()) std::copy_n(nearest_.data() + row, width_, labels_.data() + row);
+    if (!mix_.empty()) std::fill_n(mix_.data() + row, width_, uint8_t(0));
+  });
   for (Pair& p : pairs_) {
     if (!(mask >> p.a & 1) || !(mask >> p.b & 1)) {
       p.path.clear();
