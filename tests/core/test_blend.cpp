@@ -174,6 +174,39 @@ TEST(Blend, PrewarpedAutoCropIsTheCanvasSubRectangle) {
   EXPECT_EQ(cv::norm(out, expect, cv::NORM_INF), 0.0);
 }
 
+// Pre-warped views with crop=auto and a mild scale (bilinear): the output is OpenCV's bilinear warp
+// of the whole fused canvas, byte for byte, although only the canvas rows it reads are fused.
+TEST(Blend, PrewarpedBilinearScaleIsTheWarpOfTheWholeCanvas) {
+  CropRig c = make_tilted_crop_rig();
+  Compositor full(Backend::Cpu), scaled(Backend::Cpu);
+  full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
+  CompositorSettings s;
+  s.crop = CropMode::Auto;
+  s.output_width = 2 * int(0.45 * full.geometry().width);
+  scaled.prepare(c.rig, s, CompositorInput::Prewarped);
+  const OutputGeometry& g = scaled.geometry();
+  const Eigen::Matrix3d& A = g.canvas_to_output;
+  ASSERT_GE(A(0, 0), 0.75);
+  ASSERT_LT(A(0, 0), 1.0);
+  std::vector<cv::Mat> warped;
+  std::vector<ImageView> views;
+  const std::vector<cv::Mat> cams = {c.cam0, c.cam1};
+  for (std::size_t i = 0; i < cams.size(); ++i) {
+    const ViewPlacement& p = full.prewarped_placements()[i];
+    cv::Mat w;
+    cv::resize(cams[i], w, cv::Size(p.roi.width, p.roi.height));
+    warped.push_back(w);
+    views.push_back(as_view(warped.back()));
+  }
+  cv::Mat canvas(full.geometry().height, full.geometry().width, CV_8UC4);
+  full.compose(views, as_view(canvas));
+  cv::Mat out(g.height, g.width, CV_8UC4), expect;
+  scaled.compose(views, as_view(out));
+  const cv::Matx23d affine(A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2));
+  cv::warpAffine(canvas, expect, affine, out.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0, 0, 0, 255));
+  EXPECT_EQ(cv::norm(out, expect, cv::NORM_INF), 0.0);
+}
+
 // Pre-warped views with crop=auto and a strong downscale (stitchflowwarp's canvas into a smaller
 // panorama): each output pixel is the area average of the canvas under its footprint (one pass,
 // no bilinear second pass, not shifted), within one level of rounding, and the same on any

@@ -32,6 +32,8 @@ void BlenderCpu::prepare(const std::vector<ViewPlacement>& views, int out_width,
   views_ = views;
   out_w_ = out_width;
   out_h_ = out_height;
+  row_first_ = 0;
+  row_end_ = out_height;
   normalised_.clear();
   raw_.assign(views.size(), cv::Mat());
   for (std::size_t i = 0; i < views.size(); ++i) raw_[i] = position_weight_map(views[i]);
@@ -109,7 +111,7 @@ void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out
   for (std::size_t i = 0; i < warped.size(); ++i)
     if (!warped[i].empty() && !views_[i].roi.empty()) mask |= uint64_t(1) << i;
   const std::vector<cv::Mat>& weights = weights_for(mask);
-  cv::parallel_for_(cv::Range(0, out_h_), [&](const cv::Range& range) {
+  cv::parallel_for_(cv::Range(row_first_, row_end_), [&](const cv::Range& range) {
     std::vector<uint32_t> acc(static_cast<std::size_t>(out_w_) * 4);
     for (int y = range.start; y < range.end; ++y) {
       std::fill(acc.begin(), acc.end(), 0u);
