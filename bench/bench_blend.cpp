@@ -2,7 +2,7 @@
 // views stitchflowwarp pre-warped onto the canvas (fuse, then crop and scale into the output),
 // for the weighted mean (the baseline, measured in the same run), multiband, multiband with
 // DP seams, and the consensus blend (the weighted mean with DP seams and the mix map). GPU: views and panorama in device memory; wall-clock medians, stream synchronised.
-// usage: stitch-bench-blend [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--bands N]
+// usage: stitch-bench-blend [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--bands N] [--case NxWxH]
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -57,14 +57,19 @@ double time_compose(Compositor& c, const std::vector<ImageView>& views, const Im
 int main(int argc, char** argv) {
   std::string json_path, photo_path = "build/tests/boat1_1600.ppm";
   int frames = 100, cpu_frames = 5, bands = MultibandBlender::kDefaultBands;
+  std::vector<stitch_bench::Case> cases = {{3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {6, 1920, 1080}};
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--json") && i + 1 < argc) json_path = argv[++i];
     else if (!std::strcmp(argv[i], "--photo") && i + 1 < argc) photo_path = argv[++i];
     else if (!std::strcmp(argv[i], "--frames") && i + 1 < argc) frames = std::max(1, std::atoi(argv[++i]));
     else if (!std::strcmp(argv[i], "--cpu-frames") && i + 1 < argc) cpu_frames = std::atoi(argv[++i]);
     else if (!std::strcmp(argv[i], "--bands") && i + 1 < argc) bands = std::atoi(argv[++i]);
-    else {
-      std::fprintf(stderr, "usage: %s [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--bands N]\n", argv[0]);
+    else if (!std::strcmp(argv[i], "--case") && i + 1 < argc) {  // NxWxH: one size
+      stitch_bench::Case c{};
+      if (!stitch_bench::parse_case(argv[++i], c)) return 2;
+      cases = {c};
+    } else {
+      std::fprintf(stderr, "usage: %s [--json FILE] [--photo PPM] [--frames N] [--cpu-frames N] [--bands N] [--case NxWxH]\n", argv[0]);
       return 2;
     }
   }
@@ -72,7 +77,6 @@ int main(int argc, char** argv) {
   const bool gpu = cuda_device_available();
   if (!gpu) std::printf("no CUDA device: CPU only\n");
   try {
-    const std::vector<stitch_bench::Case> cases = {{3, 640, 480}, {2, 1920, 1080}, {3, 1920, 1080}, {6, 1920, 1080}};
     std::printf("blend stage, ms per panorama (median); %d bands\n", bands);
     std::printf("%-12s %-11s %-5s %10s %10s %13s %10s %10s %13s %11s\n", "cameras", "panorama", "path", "weighted",
                 "multiband", "multiband+dp", "consensus", "+multiband", "+multiband+dp", "+consensus");

@@ -86,4 +86,13 @@ Comparison compare(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
   return s;
 }
 
+bool parse_case(const char* text, Case& c) {
+  if (std::sscanf(text, "%dx%dx%d", &c.cameras, &c.width, &c.height) != 3 || c.cameras < 2 || c.width < 64 ||
+      c.height < 64) {
+    std::fprintf(stderr, "--case: cameras x width x height, e.g. 3x1920x1080\n");
+    return false;
+  }
+  return true;
+}
+
 }  // namespace stitch_bench

@@ -44,6 +44,8 @@ struct Series {
 struct Case {
   int cameras, width, height;
 };
+// "NxWxH" (e.g. 3x1920x1080) into c; false (with a message on stderr) when it is not one.
+bool parse_case(const char* text, Case& c);
 
 // A rotating rig of c.cameras cameras spanning at most 100 degrees (planar canvas), adjacent
 // views overlapping ~30%, rough homographies computed.

@@ -5,13 +5,17 @@
 //       calibration, lens on vs the same rig with the lens ignored: PSNR against the ground
 //       truth, and straightness (the worst deviation from its chord, canvas pixels, of scene
 //       lines seen through each camera and mapped to the plane canvas).
-//   stitch-bench-lens --timing [--backend cuda|cpu] [--iterations 50]   compose time per
-//       panorama: 3 x 1920x1080 radtan on a plane (vs the same rig pinhole), and 2 x 3840x3840
-//       200-degree fisheyes to a 7680x3840 sphere.
+//   stitch-bench-lens --timing [--backend cuda|cpu] [--iterations 50]   what the lens costs per
+//       panorama in compose and in the flow warp (frames already in the backend's memory):
+//       3 x 1920x1080 radtan on a plane vs the same rig pinhole, and 2 x 3840x3840 200-degree
+//       fisheyes to a 7680x3840 sphere.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#ifndef STITCH_LENS_TIMING_ONLY
 #include <opencv2/imgcodecs.hpp>
+#endif
 #include <string>
 
 #include "image_compare.hpp"
@@ -19,7 +23,11 @@
 #include "stitch/blend/compositor.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
+#include "stitch/warp/flow_warper.hpp"
 #include "stitch/warp/geometry.hpp"
+#ifdef STITCH_HAVE_CUDA
+#include "stitch/cuda/cuda_util.hpp"
+#endif
 
 using namespace stitch;
 
@@ -73,6 +81,7 @@ double straightness(const Rig& truth, const Rig& rig) {
   return worst;
 }
 
+#ifndef STITCH_LENS_TIMING_ONLY
 int quality(const std::string& path, int size) {
   cv::Mat bgr = cv::imread(path, cv::IMREAD_COLOR), pano;
   if (bgr.empty()) {
@@ -128,34 +137,86 @@ int quality(const std::string& path, int size) {
   }
   return 0;
 }
+#endif
 
-double time_compose(const Rig& rig, Backend b, int iterations) {
-  std::vector<cv::Mat> frames;
-  for (const auto& c : rig.cameras) {
-    cv::Mat f(c.height, c.width, CV_8UC4);
-    cv::randu(f, cv::Scalar::all(0), cv::Scalar::all(255));
-    frames.push_back(f);
-  }
-  Compositor comp(b);
-  comp.prepare(rig, CompositorSettings{});
-  cv::Mat pano(comp.geometry().height, comp.geometry().width, CV_8UC4);
+// Frames (random pixels) in the backend's memory, as the elements hand them on: device memory on
+// CUDA (no upload in the times), host memory on the CPU.
+struct Frames {
+  std::vector<cv::Mat> host;
+#ifdef STITCH_HAVE_CUDA
+  std::vector<DeviceBuffer> device;
+#endif
   std::vector<ImageView> views;
-  for (auto& f : frames) views.push_back(as_view(f));
-  comp.compose(views, as_view(pano));  // warm up
-  const auto t0 = std::chrono::steady_clock::now();
-  for (int i = 0; i < iterations; ++i) comp.compose(views, as_view(pano));
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / iterations;
+  ImageView make(Backend b, int w, int h) {
+    host.emplace_back(std::max(1, h), std::max(1, w), CV_8UC4);
+    cv::randu(host.back(), cv::Scalar::all(0), cv::Scalar::all(255));
+    ImageView v = as_view(host.back());
+#ifdef STITCH_HAVE_CUDA
+    if (b == Backend::Cuda) {
+      device.emplace_back(host.back().total() * 4);
+      STITCH_CUDA(cudaMemcpy(device.back().data(), host.back().data, host.back().total() * 4, cudaMemcpyHostToDevice));
+      v.data = device.back().data();
+      v.on_device = true;
+    }
+#endif
+    views.push_back(v);
+    return v;
+  }
+};
+
+template <typename F>
+double median_ms(int iterations, F&& f) {
+  f();  // warm up
+  std::vector<double> ms;
+  for (int i = 0; i < iterations; ++i) {
+    const auto t0 = std::chrono::steady_clock::now();
+    f();
+    ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(ms.begin(), ms.end());
+  return ms[ms.size() / 2];
+}
+
+// The two per-view mappings the lens enters on every frame: compose (weighted mean straight from
+// the frames) and the flow warp (pre-warp + flow in the overlaps + local warp), each synchronised.
+struct LensCost {
+  double compose_ms, flowwarp_ms;
+};
+LensCost time_rig(const Rig& rig, Backend b, int iterations) {
+  Frames in, rois;
+  for (const auto& c : rig.cameras) in.make(b, c.width, c.height);
+  Compositor direct(b);
+  direct.prepare(rig, CompositorSettings{});
+  const OutputGeometry& g = direct.geometry();
+  Frames out;
+  const ImageView pano = out.make(b, g.width, g.height);
+  LensCost cost{};
+  cost.compose_ms = median_ms(iterations, [&] { direct.compose(in.views, pano); });
+  Compositor planner(b);
+  planner.prepare(rig, CompositorSettings{}, CompositorInput::Prewarped);
+  for (const auto& p : planner.prewarped_placements()) rois.make(b, p.roi.width, p.roi.height);
+  auto flow = FlowWarper::create(b);
+  flow->set_settings(FlowWarpSettings{});  // flow on, medium quality
+  const OutputGeometry canvas = canvas_geometry(rig);
+  flow->prepare(planner.prewarped_placements(), canvas.width, canvas.height);
+  cost.flowwarp_ms = median_ms(iterations, [&] { flow->warp(in.views, rois.views); });
+  return cost;
 }
 
 int timing(Backend b, int iterations) {
-  const Rig radtan = radtan_rig(1920, 1080, -0.25, 70);
+  const Rig radtan = radtan_rig(1920, 1080, -0.25, 60);
   const Rig sphere = testdata::dual_fisheye_rig(3840, 200, 7680 / (2 * CV_PI));
-  std::printf("backend %s, %d iterations, host frames (upload included on CUDA)\n", b == Backend::Cuda ? "cuda" : "cpu",
-              iterations);
-  std::printf("3x1920x1080 radtan plane (%dx%d): %.3f ms; same rig pinhole: %.3f ms\n", radtan.canvas_width,
-              radtan.canvas_height, time_compose(radtan, b, iterations), time_compose(ignoring_lenses(radtan), b, iterations));
-  std::printf("2x3840x3840 fisheye 200 -> %dx%d sphere: %.3f ms\n", sphere.canvas_width, sphere.canvas_height,
-              time_compose(sphere, b, iterations));
+  std::printf("backend %s, median of %d iterations, frames already in %s memory\n", b == Backend::Cuda ? "cuda" : "cpu",
+              iterations, b == Backend::Cuda ? "device" : "host");
+  std::printf("| rig | canvas | compose ms | flow warp ms |\n|---|---|---|---|\n");
+  auto row = [&](const char* name, const Rig& rig) {
+    const LensCost c = time_rig(rig, b, iterations);
+    std::printf("| %s | %dx%d | %.3f | %.3f |\n", name, rig.canvas_width, rig.canvas_height, c.compose_ms, c.flowwarp_ms);
+    std::fflush(stdout);
+  };
+  row("3x1920x1080 radtan k1 -0.25, plane", radtan);
+  row("3x1920x1080 same rig, pinhole", ignoring_lenses(radtan));
+  row("2x3840x3840 fisheye 200, sphere", sphere);
   return 0;
 }
 
@@ -185,8 +246,13 @@ int main(int argc, char** argv) {
       }
       return timing(backend == "cuda" ? Backend::Cuda : Backend::Cpu, iterations);
     }
+#ifdef STITCH_LENS_TIMING_ONLY
+    std::fprintf(stderr, "this build times only: --timing\n");
+    return 2;
+#else
     if (photo.empty()) photo = "data/photos/boat1_1600.jpg";
     return quality(photo, std::max(64, size));
+#endif
   } catch (const std::exception& e) {
     std::fprintf(stderr, "stitch-bench-lens: %s\n", e.what());
     return 1;

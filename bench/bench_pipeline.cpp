@@ -262,11 +262,7 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--small")) cases = {{3, 640, 480}};
     else if (!std::strcmp(argv[i], "--case") && i + 1 < argc) {  // NxWxH: one size
       stitch_bench::Case c{};
-      if (std::sscanf(argv[++i], "%dx%dx%d", &c.cameras, &c.width, &c.height) != 3 || c.cameras < 2 || c.width < 64 ||
-          c.height < 64) {
-        std::fprintf(stderr, "--case: cameras x width x height, e.g. 3x1920x1080\n");
-        return 2;
-      }
+      if (!stitch_bench::parse_case(argv[++i], c)) return 2;
       cases = {c};
     }
     else if (!std::strcmp(argv[i], "--handoff") && i + 1 < argc) {

@@ -17,7 +17,7 @@ if [ "${1:-}" = pack ]; then
   cp "$BUILD/tests/boat1_1600.ppm" .gpubundle/
   bins=""
   for t in $GPU_TESTS; do [ -x "$BUILD/tests/$t" ] && bins="$bins $BUILD/tests/$t"; done
-  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection stitch-bench-blend stitch-bench-e2e; do
+  for b in stitch-bench-cuda stitch-bench-chain stitch-bench-pipeline stitch-bench-projection stitch-bench-blend stitch-bench-e2e stitch-bench-lens-timing; do
     [ -x "$BUILD/bench/$b" ] && bins="$bins $BUILD/bench/$b"
   done
   GST_PLUGINS="coreelements videoconvertscale app isomp4 videoparsersbad nvcodec typefindfunctions multifile videotestsrc x264 x265" \

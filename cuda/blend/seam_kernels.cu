@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <cuda_pipeline.h>
 #include "../launch_check.hpp"
 #include "seam_kernels.hpp"
 
@@ -97,56 +98,152 @@ __global__ void mix_apply_kernel(DeviceImage out, MixViews v, const uint8_t* lab
   for (int k = 0; k < 3; ++k) o[k] = sm::mix_value(o[k], src[k], m);
 }
 
-// One block per pair: the rows one after the other (each depends on the one before), the columns
-// of a row across the threads; two rows of energy in shared memory. Thread 0 sums the previous
-// seam's cost on the way (row order, as the CPU). The walk back is serial, so the steps come to
-// shared memory a band of `walk_rows` rows at a time (every thread loading) and thread 0 follows
-// them there: a global load per row made it latency-bound (~1 us a row on tall overlaps).
-__global__ void dp_kernel(const SeamDpJob* jobs, float stability, float hold, int walk_rows) {
-  extern __shared__ float energy[];  // 2 x max_cols, then walk_rows x max_cols steps
-  __shared__ int best_col, keep;
-  const SeamDpJob job = jobs[blockIdx.x];
-  const int rows = job.rows, cols = job.cols;
-  float* above = energy;
-  float* here = energy + cols;
-  int8_t* band = reinterpret_cast<int8_t*>(energy + 2 * cols);
-  float previous_cost = 0.f;
-  for (int r = 0; r < rows; ++r) {
-    const int prev = job.previous ? job.previous[r] : -1;
-    for (int c = threadIdx.x; c < cols; c += blockDim.x)
-      job.steps[size_t(r) * cols + c] =
-          int8_t(sm::dp_cell(above, c, cols, r == 0, job.cost[size_t(r) * cols + c], stability, prev, here[c]));
-    if (threadIdx.x == 0 && job.previous) previous_cost = sm::add(previous_cost, job.cost[size_t(r) * cols + prev]);
-    __syncthreads();
-    float* t = above;
-    above = here;
-    here = t;
+// The sweeps (seam_math.hpp dp_meeting_row): two blocks per pair, one down through rows
+// [0, m), one up through rows [m, rows), the rows one after the other (each depends on the one
+// before), the columns of a row across the threads; two rows of energy in shared memory. The
+// costs (and last frame's path) come to shared memory a band of rows at a time, the next band
+// copied asynchronously while this one is swept: a global load per row made every row wait
+// ~1 us (latency, not bytes). Thread 0 sums last frame's path's cost in its sweep's row order.
+// Each block leaves its last energy row and that sum in job.edge (up: edge + cols, sums at 2 cols).
+__global__ void dp_sweep_kernel(const SeamDpJob* jobs, float stability, int band_rows) {
+  extern __shared__ float shared[];  // 2 x (cols + 2) energy, 2 x band_rows x cols costs, 2 x band_rows path
+  const SeamDpJob job = jobs[blockIdx.x >> 1];
+  const bool up = blockIdx.x & 1;
+  const int rows = job.rows, cols = job.cols, m = sm::dp_meeting_row(rows);
+  const int n = up ? rows - m : m;  // rows this sweep takes; the k-th is row(k)
+  auto row = [&](int k) { return up ? rows - 1 - k : k; };
+  // Energy rows with a +inf cell on either side, and all 0 before the first row: then every cell
+  // is dp_cell without its border and first-row tests (a neighbour of +inf is never taken, and
+  // three equal zeros go straight): the same energies and steps with fewer instructions a row,
+  // which is what a row costs here (issue-bound: a block's warps share one SM's schedulers).
+  float* above = shared + 1;
+  float* here = shared + cols + 3;
+  for (int c = threadIdx.x - 1; c <= cols; c += blockDim.x) {
+    const bool border = c < 0 || c == cols;
+    above[c] = border ? INFINITY : 0.f;
+    here[c] = border ? INFINITY : 0.f;
   }
+  float* bands = shared + 2 * (cols + 2);
+  int* path_bands = reinterpret_cast<int*>(bands + size_t(2) * band_rows * cols);
+  const int n_bands = (n + band_rows - 1) / band_rows;
+  // Band b holds sweep rows [b B, b B + count); in memory they are rows [lowest, lowest + count).
+  auto lowest = [&](int b) { return up ? row(min(n, (b + 1) * band_rows) - 1) : b * band_rows; };
+  auto load = [&](int b) {
+    const int count = min(band_rows, n - b * band_rows), r0 = lowest(b);
+    float* dst = bands + (b & 1) * band_rows * cols;
+    const float* src = job.cost + size_t(r0) * cols;
+    for (int i = threadIdx.x; i < count * cols; i += blockDim.x)
+      __pipeline_memcpy_async(dst + i, src + i, sizeof(float));
+    if (job.previous) {
+      int* pdst = path_bands + (b & 1) * band_rows;
+      for (int i = threadIdx.x; i < count; i += blockDim.x)
+        __pipeline_memcpy_async(pdst + i, job.previous + r0 + i, sizeof(int));
+    }
+    __pipeline_commit();
+  };
+  if (n_bands > 0) load(0);
+  const bool pulled = job.previous != nullptr;
+  int8_t* steps = job.steps + size_t(row(0)) * cols;  // this row's steps; the next is `stride` on
+  const int stride = up ? -cols : cols;
+  float previous_cost = 0.f;
+  for (int b = 0; b < n_bands; ++b) {
+    if (b + 1 < n_bands)
+      load(b + 1);  // its buffer was last read by band b - 1, which every thread has finished
+    else
+      __pipeline_commit();  // an empty group: wait_prior(1) below then waits for band b
+    __pipeline_wait_prior(1);
+    __syncthreads();
+    const int count = min(band_rows, n - b * band_rows), r0 = lowest(b);
+    const float* cost = bands + (b & 1) * band_rows * cols;
+    const int* previous = path_bands + (b & 1) * band_rows;
+    for (int k = b * band_rows; k < b * band_rows + count; ++k) {
+      const int at = row(k) - r0;
+      const float* cost_row = cost + at * cols;
+      const int prev = pulled ? previous[at] : -1;
+      for (int c = threadIdx.x; c < cols; c += blockDim.x) {  // sm::dp_cell, borders as +inf cells
+        float best = above[c];
+        int step = 0;
+        const float left = above[c - 1], right = above[c + 1];
+        if (left < best) best = left, step = -1;
+        if (right < best) best = right, step = 1;
+        float energy = sm::add(best, cost_row[c]);
+        if (prev >= 0) energy = sm::add(energy, sm::mul(stability, float(sm::absi(c - prev))));
+        here[c] = energy;
+        steps[c] = int8_t(step);
+      }
+      if (threadIdx.x == 0 && pulled) previous_cost = sm::add(previous_cost, cost_row[prev]);
+      steps += stride;
+      __syncthreads();
+      float* t = above;
+      above = here;
+      here = t;
+    }
+  }
+  __pipeline_wait_prior(0);
+  float* edge = job.edge + (up ? cols : 0);
+  for (int c = threadIdx.x; c < cols; c += blockDim.x) edge[c] = above[c];  // all 0 when n == 0
+  if (threadIdx.x == 0) job.edge[2 * cols + (up ? 1 : 0)] = previous_cost;
+}
+
+// Where the sweeps meet, and the walk from there: two blocks per pair again, both finding the
+// same meeting column (the first least of seam_math.hpp meet_cell), then one walking up through
+// the down sweep's steps, the other down through the up sweep's. Last frame's path is kept while
+// it holds (keep_previous on the two sums). The walks are serial, so the steps come to shared
+// memory a band of walk_rows rows at a time (every thread loading) and thread 0 follows them.
+__global__ void dp_walk_kernel(const SeamDpJob* jobs, float hold, int walk_rows) {
+  extern __shared__ float walk_shared[];  // cols total, cols meet steps, walk_rows x cols steps
+  __shared__ int best_col, keep;
+  const SeamDpJob job = jobs[blockIdx.x >> 1];
+  const bool up = blockIdx.x & 1;
+  const int rows = job.rows, cols = job.cols, m = sm::dp_meeting_row(rows);
+  float* total = walk_shared;
+  int8_t* meet = reinterpret_cast<int8_t*>(total + cols);
+  int8_t* band = meet + ((cols + 15) / 16) * 16;
+  for (int c = threadIdx.x; c < cols; c += blockDim.x)
+    meet[c] = int8_t(sm::meet_cell(job.edge, job.edge + cols, c, cols, m == 0, total[c]));
+  __syncthreads();
   if (threadIdx.x == 0) {
     int c = 0;  // the first minimum, as std::min_element
     for (int k = 1; k < cols; ++k)
-      if (above[k] < above[c]) c = k;
+      if (total[k] < total[c]) c = k;
     best_col = c;
-    // the seam holds still until something crosses it
-    keep = job.previous && sm::keep_previous(previous_cost, above[c], rows, hold) ? 1 : 0;
+    keep = job.previous &&
+                   sm::keep_previous(sm::add(job.edge[2 * cols], job.edge[2 * cols + 1]), total[c], rows, hold)
+               ? 1
+               : 0;
   }
   __syncthreads();
+  const int first = up ? m : 0, last = up ? rows : m;  // this block's rows [first, last)
   if (keep) {
-    for (int r = threadIdx.x; r < rows; r += blockDim.x) job.path[r] = job.previous[r];
+    for (int r = first + int(threadIdx.x); r < last; r += blockDim.x) job.path[r] = job.previous[r];
     return;
   }
-  int c = best_col;
-  for (int top = rows; top > 0; top -= walk_rows) {
-    const int r0 = top > walk_rows ? top - walk_rows : 0;
-    const int n = (top - r0) * cols;
-    for (int i = threadIdx.x; i < n; i += blockDim.x) band[i] = job.steps[size_t(r0) * cols + i];
-    __syncthreads();
-    if (threadIdx.x == 0)
-      for (int r = top - 1; r >= r0; --r) {
-        job.path[r] = c;
-        c += band[(r - r0) * cols + c];
-      }
-    __syncthreads();  // the band is read before the next one overwrites it
+  if (!up) {  // rows m - 1 .. 0, through the down sweep's steps
+    int c = best_col + meet[best_col];
+    for (int top = m; top > 0; top -= walk_rows) {
+      const int r0 = top > walk_rows ? top - walk_rows : 0;
+      for (int i = threadIdx.x; i < (top - r0) * cols; i += blockDim.x) band[i] = job.steps[size_t(r0) * cols + i];
+      __syncthreads();
+      if (threadIdx.x == 0)
+        for (int r = top - 1; r >= r0; --r) {
+          job.path[r] = c;
+          c += band[(r - r0) * cols + c];
+        }
+      __syncthreads();  // the band is read before the next one overwrites it
+    }
+  } else {  // rows m .. rows - 1, through the up sweep's steps
+    int c = best_col;
+    for (int r0 = m; r0 < rows; r0 += walk_rows) {
+      const int r1 = min(rows, r0 + walk_rows);
+      for (int i = threadIdx.x; i < (r1 - r0) * cols; i += blockDim.x) band[i] = job.steps[size_t(r0) * cols + i];
+      __syncthreads();
+      if (threadIdx.x == 0)
+        for (int r = r0; r < r1; ++r) {
+          job.path[r] = c;
+          c += band[(r - r0) * cols + c];
+        }
+      __syncthreads();
+    }
   }
 }
 
@@ -206,14 +303,30 @@ void launch_seam_mix_apply(const DeviceImage& out, const MixViews& views, const 
 
 void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream) {
   if (n_jobs <= 0) return;
-  const int walk_rows = std::max(1, std::min(64, 16384 / std::max(1, max_cols)));  // <= 16 KB of steps
-  const size_t shared = size_t(2) * max_cols * sizeof(float) + size_t(walk_rows) * max_cols + sizeof(float);
-  if (shared > 48 * 1024) {
-    const cudaError_t e = cudaFuncSetAttribute(dp_kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(shared));
-    if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp_kernel: overlap too wide: ") + cudaGetErrorString(e));
-  }
-  dp_kernel<<<n_jobs, 1024, shared, stream>>>(jobs, stability, hold, walk_rows);
-  check_launch("seam dp_kernel");
+  // Sweeps: cost bands of up to 32 rows, double-buffered, within ~96 KB of shared memory.
+  const size_t row_bytes = size_t(max_cols) * sizeof(float);
+  const size_t budget = 96 * 1024, energy = 2 * (row_bytes + 2 * sizeof(float));
+  const int band_rows =
+      int(std::max<size_t>(1, std::min<size_t>(32, budget > energy ? (budget - energy) / (2 * row_bytes + 8) : 1)));
+  const size_t shared = energy + size_t(band_rows) * (2 * row_bytes + 2 * sizeof(int));
+  // Walks: the meeting row's energies and steps, then bands of up to 64 rows of steps.
+  const size_t walk_fixed = 5 * size_t(max_cols) + 16, walk_budget = 48 * 1024;
+  const int walk_rows =
+      walk_fixed + max_cols <= walk_budget ? int(std::min<size_t>(64, (walk_budget - walk_fixed) / max_cols)) : 1;
+  const size_t walk_shared = row_bytes + size_t((max_cols + 15) / 16 * 16) + size_t(walk_rows) * max_cols;
+  auto allow = [](const void* kernel, size_t bytes) {
+    if (bytes <= 48 * 1024) return;
+    const cudaError_t e = cudaFuncSetAttribute(kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(bytes));
+    if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp: overlap too wide: ") + cudaGetErrorString(e));
+  };
+  allow(reinterpret_cast<const void*>(dp_sweep_kernel), shared);
+  allow(reinterpret_cast<const void*>(dp_walk_kernel), walk_shared);
+  // A thread per column up to 1024: fewer warps make each row's barrier cheaper.
+  const int threads = std::min(1024, std::max(32, (max_cols + 31) / 32 * 32));
+  dp_sweep_kernel<<<2 * n_jobs, threads, shared, stream>>>(jobs, stability, band_rows);
+  check_launch("seam dp_sweep_kernel");
+  dp_walk_kernel<<<2 * n_jobs, threads, walk_shared, stream>>>(jobs, hold, walk_rows);
+  check_launch("seam dp_walk_kernel");
 }
 
 void launch_seam_labels(uint8_t* labels, int label_width, const SeamPairGeometry& pair, const float* centre,

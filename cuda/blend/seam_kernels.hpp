@@ -47,6 +47,7 @@ struct SeamDpJob {
   const int* previous;
   int8_t* steps;
   int* path;
+  float* edge;  // 2 cols + 2 floats of scratch: where the two sweeps meet (seam_kernels.cu)
 };
 // All pairs at once, one block each (a block sweeps its rows one after the other); jobs is in
 // device memory; max_cols sizes the shared rows.

@@ -392,3 +392,48 @@ TEST(Seam, ConsensusBlendTakesOneViewWhereTheViewsDisagreeAndTheMeanWhereTheyAgr
   std::printf("overlap away from the object: %.3f%% of pixels = the weighted mean\n", 100.0 * same / n);
   EXPECT_GE(double(same) / n, 0.995);
 }
+
+// The DP sweeps from both ends and meets in the middle (seam_math.hpp dp_meeting_row): the path
+// must be the least-energy one a one-way sweep finds, continuous, for any row count.
+TEST(Seam, PathFromBothEndsIsTheLeastEnergyPath) {
+  cv::RNG rng(7);
+  const seam::Weights w{1.f, 0.5f, 2.f, /*stability=*/0.f, /*hold=*/1.f, 0.f, 0, 0, 12, 30};
+  for (int rows : {1, 2, 3, 8, 101, 240})
+    for (int cols : {1, 2, 5, 64}) {
+      std::vector<float> costs(std::size_t(rows) * cols);
+      for (float& c : costs) c = float(rng.uniform(0., 50.));
+      std::vector<double> e(cols, 0.), n(cols);  // a one-way sweep in doubles
+      for (int r = 0; r < rows; ++r) {
+        for (int c = 0; c < cols; ++c) {
+          double best = r ? e[c] : 0.;
+          if (r && c > 0) best = std::min(best, e[c - 1]);
+          if (r && c + 1 < cols) best = std::min(best, e[c + 1]);
+          n[c] = best + costs[std::size_t(r) * cols + c];
+        }
+        std::swap(e, n);
+      }
+      const double least = *std::min_element(e.begin(), e.end());
+      std::vector<int> path;
+      seam_path(costs, rows, cols, nullptr, w, path);
+      ASSERT_EQ(int(path.size()), rows);
+      double energy = 0.;
+      for (int r = 0; r < rows; ++r) {
+        ASSERT_GE(path[r], 0);
+        ASSERT_LT(path[r], cols);
+        if (r) ASSERT_LE(std::abs(path[r] - path[r - 1]), 1) << rows << "x" << cols << " row " << r;
+        energy += costs[std::size_t(r) * cols + path[r]];
+      }
+      EXPECT_NEAR(energy, least, 1e-3 * (1. + least)) << rows << "x" << cols;
+      // Last frame's path is kept while it costs within `hold` a row of the best, replaced otherwise.
+      std::vector<int> previous(rows, cols - 1), kept;
+      seam::Weights loose = w, strict = w;
+      loose.hold = 1e4f;
+      strict.hold = 0.f;
+      seam_path(costs, rows, cols, previous.data(), loose, kept);
+      EXPECT_EQ(kept, previous);
+      double previous_energy = 0.;
+      for (int r = 0; r < rows; ++r) previous_energy += costs[std::size_t(r) * cols + cols - 1];
+      seam_path(costs, rows, cols, previous.data(), strict, kept);
+      if (previous_energy > least + 1e-2) EXPECT_NE(kept, previous) << rows << "x" << cols;
+    }
+}

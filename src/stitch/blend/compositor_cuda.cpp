@@ -40,8 +40,7 @@ struct CudaComposer::State {
   // The consensus blend (weighted mean + seams): the weighted mean of the views, then where
   // they disagree the seam's view (SeamFinder::mix, stitch::seam::mix_value).
   void consensus_fuse(const std::vector<ImageView>& views, const ImageView& out) {
-    stream.sync();  // uploads and warps done: the seam finder has its own stream (and syncs it)
-    const uint8_t* labels = seam->find(views);
+    const uint8_t* labels = seam->find(views, stream.get());  // in this stream's order: no host wait
     std::vector<stitch_cuda::DeviceImage> images(views.size());
     stitch_cuda::MixViews mv{};
     mv.n = int(views.size());

@@ -120,6 +120,42 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
   return labels_;
 }
 
+void seam_path(const std::vector<float>& costs, int rows, int cols, const int* previous, const seam::Weights& w,
+               std::vector<int>& path) {
+  const int m = seam::dp_meeting_row(rows);
+  std::vector<float> down(cols), up(cols), next(cols), total(cols);
+  std::vector<int8_t> step(std::size_t(rows) * cols), meet(cols);
+  float down_sum = 0.f, up_sum = 0.f;  // last frame's path's cost, in each sweep's row order
+  for (int r = 0; r < m; ++r) {
+    for (int c = 0; c < cols; ++c)
+      step[std::size_t(r) * cols + c] = int8_t(seam::dp_cell(down.data(), c, cols, r == 0, costs[std::size_t(r) * cols + c],
+                                                             w.stability, previous ? previous[r] : -1, next[c]));
+    if (previous) down_sum = seam::add(down_sum, costs[std::size_t(r) * cols + previous[r]]);
+    std::swap(down, next);
+  }
+  for (int r = rows - 1; r >= m; --r) {
+    for (int c = 0; c < cols; ++c)
+      step[std::size_t(r) * cols + c] = int8_t(seam::dp_cell(up.data(), c, cols, r == rows - 1,
+                                                             costs[std::size_t(r) * cols + c], w.stability,
+                                                             previous ? previous[r] : -1, next[c]));
+    if (previous) up_sum = seam::add(up_sum, costs[std::size_t(r) * cols + previous[r]]);
+    std::swap(up, next);
+  }
+  for (int c = 0; c < cols; ++c) meet[c] = int8_t(seam::meet_cell(down.data(), up.data(), c, cols, m == 0, total[c]));
+  const int best = int(std::min_element(total.begin(), total.end()) - total.begin());
+  path.assign(rows, 0);
+  if (previous && seam::keep_previous(seam::add(down_sum, up_sum), total[best], rows, w.hold)) {
+    std::copy(previous, previous + rows, path.begin());  // the seam holds still until something crosses it
+    return;
+  }
+  path[m] = best;
+  for (int r = m + 1; r < rows; ++r) path[r] = path[r - 1] + step[std::size_t(r - 1) * cols + path[r - 1]];
+  for (int r = m - 1, c = best + meet[best]; r >= 0; --r) {
+    path[r] = c;
+    c += step[std::size_t(r) * cols + c];
+  }
+}
+
 void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
   // Work in the seam's frame: "rows" run along the seam, "columns" across it.
   const int rows = p.vertical ? p.box.height : p.box.width, cols = p.vertical ? p.box.width : p.box.height;
@@ -202,29 +238,8 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
       }
     });
   }
-  std::vector<float> energy(cols), next(cols);
-  std::vector<int8_t> step(std::size_t(rows) * cols);
-  for (int r = 0; r < rows; ++r) {
-    for (int c = 0; c < cols; ++c)
-      step[std::size_t(r) * cols + c] =
-          int8_t(seam::dp_cell(energy.data(), c, cols, r == 0, costs[std::size_t(r) * cols + c], w.stability,
-                               has_previous ? p.previous_path[r] : -1, next[c]));
-    std::swap(energy, next);
-  }
-  std::vector<int> path(rows);
-  int c = int(std::min_element(energy.begin(), energy.end()) - energy.begin());
-  float previous_cost = 0.f;
-  if (has_previous)  // the seam holds still until something crosses it
-    for (int r = 0; r < rows; ++r)
-      previous_cost = seam::add(previous_cost, costs[std::size_t(r) * cols + p.previous_path[r]]);
-  if (has_previous && seam::keep_previous(previous_cost, energy[std::size_t(c)], rows, w.hold)) {
-    path = p.previous_path;
-  } else {
-    for (int r = rows - 1; r >= 0; --r) {
-      path[r] = c;
-      c += step[std::size_t(r) * cols + c];
-    }
-  }
+  std::vector<int> path;
+  seam_path(costs, rows, cols, has_previous ? p.previous_path.data() : nullptr, w, path);
   p.path = path;
   p.previous_path = path;
   // Every overlap pixel labelled a or b goes to a before the seam and to b after it.

@@ -80,6 +80,13 @@ class SeamFinder {
   std::vector<uint8_t> nearest_;
 };
 
+// The least-energy path through costs (rows x cols; one column per row, moving at most one column
+// a row; seam_math.hpp dp_cell with the pull towards `previous`, nullptr: none), found from both
+// ends (seam_math.hpp dp_meeting_row) in the order the CUDA sweeps take; or `previous` itself
+// while it holds (keep_previous).
+void seam_path(const std::vector<float>& costs, int rows, int cols, const int* previous, const seam::Weights& w,
+               std::vector<int>& path);
+
 // The consensus blend on the CPU: `out` holds the weighted mean of `warped` (placed at views'
 // rois); every pixel whose mix level m > 0 becomes mix_value(mean, view[label], m).
 void apply_seam_mix(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& warped,

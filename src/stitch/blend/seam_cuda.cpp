@@ -1,5 +1,6 @@
 #include "stitch/blend/seam_cuda.hpp"
 
+#include <cstring>
 #include <stdexcept>
 
 #include "../../../cuda/blend/seam_kernels.hpp"
@@ -16,14 +17,15 @@ struct SeamFinderCuda::State {
   struct PairState {
     stitch_cuda::SeamPairGeometry geometry;
     int rows = 0, cols = 0;
-    DeviceBuffer centre, cost, steps, path, previous, diff, across;  // diff, across: clearance sums
+    DeviceBuffer centre, cost, steps, path, previous, diff, across, edge;  // diff, across: window sums
     bool has_previous = false, cut = false;
   };
   std::vector<PairState> pairs;
   std::vector<DeviceBuffer> luma, previous_luma;
   std::vector<bool> has_luma;
-  DeviceBuffer labels, nearest, jobs, mix;  // mix: the consensus blend's levels (mix_radius > 0)  // jobs: the DP jobs of the cut pairs
-  std::vector<stitch_cuda::SeamDpJob> host_jobs;
+  DeviceBuffer labels, nearest, mix;  // mix: the consensus blend's levels (mix_radius > 0)
+  DeviceBuffer jobs;                   // the DP jobs of the cut pairs, uploaded when they change
+  std::vector<stitch_cuda::SeamDpJob> host_jobs, uploaded_jobs;
   uint64_t nearest_mask = ~uint64_t(0);
   CudaStream stream;
   explicit State(const SeamSettings& s) : planner(s) {}
@@ -60,6 +62,7 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
     ps.diff.resize(cells * sizeof(int));
     ps.across.resize(cells * sizeof(int));
     ps.steps.resize(cells);
+    ps.edge.resize((2 * std::size_t(ps.cols) + 2) * sizeof(float));
     ps.path.resize(ps.rows * sizeof(int));
     ps.previous.resize(ps.rows * sizeof(int));
     s_->pairs.push_back(std::move(ps));
@@ -78,10 +81,10 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
   s_->nearest_mask = ~uint64_t(0);
 }
 
-const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
+const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaStream_t stream) {
   State& s = *s_;
   if (warped.size() != s.views.size()) throw std::invalid_argument("view count differs from prepare()");
-  const cudaStream_t st = s.stream.get();
+  const cudaStream_t st = stream ? stream : s.stream.get();
   uint64_t mask = 0;
   for (std::size_t i = 0; i < warped.size(); ++i) {
     if (warped[i].empty() || s.views[i].roi.empty()) {
@@ -128,13 +131,21 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
                                   reinterpret_cast<int*>(p.across.data()), st);
     s.host_jobs.push_back({reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
                            p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
-                           reinterpret_cast<int8_t*>(p.steps.data()), reinterpret_cast<int*>(p.path.data())});
+                           reinterpret_cast<int8_t*>(p.steps.data()), reinterpret_cast<int*>(p.path.data()),
+                           reinterpret_cast<float*>(p.edge.data())});
     max_cols = std::max(max_cols, p.cols);
   }
   if (!s.host_jobs.empty()) {
     const std::size_t bytes = s.host_jobs.size() * sizeof(stitch_cuda::SeamDpJob);
-    s.jobs.resize(bytes);
-    STITCH_CUDA(cudaMemcpyAsync(s.jobs.data(), s.host_jobs.data(), bytes, cudaMemcpyHostToDevice, st));
+    // The jobs change only when a pair gains or loses its previous path (a camera comes or
+    // goes): an upload from pageable memory may wait for the stream, so it is not made per frame.
+    if (s.uploaded_jobs.size() != s.host_jobs.size() ||
+        std::memcmp(s.uploaded_jobs.data(), s.host_jobs.data(), bytes) != 0) {
+      s.jobs.resize(bytes);
+      STITCH_CUDA(cudaMemcpyAsync(s.jobs.data(), s.host_jobs.data(), bytes, cudaMemcpyHostToDevice, st));
+      STITCH_CUDA(cudaStreamSynchronize(st));  // the source is host memory that changes
+      s.uploaded_jobs = s.host_jobs;
+    }
     stitch_cuda::launch_seam_dp(reinterpret_cast<const stitch_cuda::SeamDpJob*>(s.jobs.data()), int(s.host_jobs.size()),
                                 max_cols, w.stability, w.hold, st);
   }
@@ -148,7 +159,7 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped) {
     STITCH_CUDA(cudaMemcpyAsync(p.previous.data(), p.path.data(), p.rows * sizeof(int), cudaMemcpyDeviceToDevice, st));
     p.has_previous = true;
   }
-  s.stream.sync();
+  if (!stream) s.stream.sync();
   return s.labels.data();
 }
 

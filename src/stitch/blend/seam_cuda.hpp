@@ -5,6 +5,8 @@
 #include <memory>
 #include <vector>
 
+#include <cuda_runtime_api.h>
+
 #include "stitch/blend/seam.hpp"
 
 namespace stitch {
@@ -15,8 +17,10 @@ class SeamFinderCuda {
   ~SeamFinderCuda();
   void prepare(const std::vector<ViewPlacement>& views, int width, int height);
   // Device labels (width*height) for this frame's views (device memory, roi-sized; empty =
-  // missing); valid until the next call.
-  const uint8_t* find(const std::vector<ImageView>& warped);
+  // missing); valid until the next call. Without a stream the finder works on its own and has
+  // finished on return; with one (where the views were written) it is only queued there, and
+  // the labels and mix map are ready in that stream's order (no host synchronisation).
+  const uint8_t* find(const std::vector<ImageView>& warped, cudaStream_t stream = nullptr);
   // The last paths, downloaded (for tests): one per pair of pairs(), empty when not cut.
   std::vector<std::vector<int>> paths() const;
   std::vector<uint8_t> labels() const;  // the last find()'s, downloaded

@@ -115,6 +115,16 @@ STITCH_HD int dp_cell(const float* above, int c, int cols, bool first_row, float
   return step;
 }
 
+// The path is found from both ends at once (bidirectional DP): rows [0, m) are swept down from
+// the first row, rows [m, rows) up from the last, and the two sweeps meet between rows m - 1 and
+// m. The least-energy path through the whole overlap is the least of `meet_cell` (the down
+// sweep's energies above, the up sweep's at m, whose cost the up sweep already holds), so each
+// sweep is half as long: the rows one after another are what a sweep's time is.
+STITCH_HD int dp_meeting_row(int rows) { return rows / 2; }
+STITCH_HD int meet_cell(const float* down, const float* up, int c, int cols, bool no_down, float& energy) {
+  return dp_cell(down, c, cols, no_down, up[c], 0.f, -1, energy);
+}
+
 // Last frame's path is kept while its cost now is within `hold` per row of the best path's
 // energy: the seam holds still until something crosses it (its cost then rises: motion,
 // difference), instead of drifting with noise.
