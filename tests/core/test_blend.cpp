@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/blend/blender_cpu.hpp"
@@ -171,4 +172,108 @@ TEST(Blend, PrewarpedAutoCropIsTheCanvasSubRectangle) {
   const int tx = int(std::lround(-g.canvas_to_output(0, 2))), ty = int(std::lround(-g.canvas_to_output(1, 2)));
   const cv::Mat expect = canvas(cv::Rect(tx, ty, g.width, g.height));
   EXPECT_EQ(cv::norm(out, expect, cv::NORM_INF), 0.0);
+}
+
+// Pre-warped views with crop=auto and a mild scale (bilinear): the output is OpenCV's bilinear warp
+// of the whole fused canvas, byte for byte, although only the canvas rows it reads are fused.
+TEST(Blend, PrewarpedBilinearScaleIsTheWarpOfTheWholeCanvas) {
+  CropRig c = make_tilted_crop_rig();
+  Compositor full(Backend::Cpu), scaled(Backend::Cpu);
+  full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
+  CompositorSettings s;
+  s.crop = CropMode::Auto;
+  s.output_width = 2 * int(0.45 * full.geometry().width);
+  scaled.prepare(c.rig, s, CompositorInput::Prewarped);
+  const OutputGeometry& g = scaled.geometry();
+  const Eigen::Matrix3d& A = g.canvas_to_output;
+  ASSERT_GE(A(0, 0), 0.75);
+  ASSERT_LT(A(0, 0), 1.0);
+  std::vector<cv::Mat> warped;
+  std::vector<ImageView> views;
+  const std::vector<cv::Mat> cams = {c.cam0, c.cam1};
+  for (std::size_t i = 0; i < cams.size(); ++i) {
+    const ViewPlacement& p = full.prewarped_placements()[i];
+    cv::Mat w;
+    cv::resize(cams[i], w, cv::Size(p.roi.width, p.roi.height));
+    warped.push_back(w);
+    views.push_back(as_view(warped.back()));
+  }
+  cv::Mat canvas(full.geometry().height, full.geometry().width, CV_8UC4);
+  full.compose(views, as_view(canvas));
+  cv::Mat out(g.height, g.width, CV_8UC4), expect;
+  scaled.compose(views, as_view(out));
+  const cv::Matx23d affine(A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2));
+  cv::warpAffine(canvas, expect, affine, out.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0, 0, 0, 255));
+  EXPECT_EQ(cv::norm(out, expect, cv::NORM_INF), 0.0);
+}
+
+// Pre-warped views with crop=auto and a strong downscale (stitchflowwarp's canvas into a smaller
+// panorama): each output pixel is the area average of the canvas under its footprint (one pass,
+// no bilinear second pass, not shifted), within one level of rounding, and the same on any
+// thread count.
+TEST(Blend, PrewarpedDownscaleIsTheCanvasAreaAverage) {
+  for (const int width : {320, 210}) {  // 3 and 4 canvas pixels under an output pixel
+  SCOPED_TRACE(width);
+  CropRig c = make_tilted_crop_rig();
+  Compositor full(Backend::Cpu), scaled(Backend::Cpu);
+  full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
+  CompositorSettings s;
+  s.crop = CropMode::Auto;
+  s.output_width = width;
+  scaled.prepare(c.rig, s, CompositorInput::Prewarped);
+  const OutputGeometry& g = scaled.geometry();
+  const Eigen::Matrix3d& A = g.canvas_to_output;
+  ASSERT_LT(A(0, 0), 0.75);
+  ASSERT_LT(A(1, 1), 0.75);
+  std::vector<cv::Mat> warped;
+  std::vector<ImageView> views;
+  const std::vector<cv::Mat> cams = {c.cam0, c.cam1};
+  for (std::size_t i = 0; i < cams.size(); ++i) {
+    const ViewPlacement& p = full.prewarped_placements()[i];
+    cv::Mat w;
+    cv::resize(cams[i], w, cv::Size(p.roi.width, p.roi.height));
+    warped.push_back(w);
+    views.push_back(as_view(warped.back()));
+  }
+  cv::Mat canvas(full.geometry().height, full.geometry().width, CV_8UC4);
+  full.compose(views, as_view(canvas));
+  const int threads = cv::getNumThreads();
+  cv::Mat out1(g.height, g.width, CV_8UC4), out3(g.height, g.width, CV_8UC4);
+  cv::setNumThreads(3);
+  scaled.compose(views, as_view(out3));
+  cv::setNumThreads(1);
+  scaled.compose(views, as_view(out1));
+  cv::setNumThreads(threads);
+  EXPECT_EQ(cv::norm(out1, out3, cv::NORM_INF), 0.0);
+  // The reference: exact overlaps in doubles (canvas pixel x covers [x - 0.5, x + 0.5]).
+  auto overlaps = [](double s, double t, int u, int n) {
+    std::vector<std::pair<int, double>> o;
+    const double f0 = (u - 0.5 - t) / s, f1 = (u + 0.5 - t) / s;
+    for (int x = std::max(0, int(std::floor(f0)) - 1); x <= std::min(n - 1, int(std::ceil(f1)) + 1); ++x) {
+      const double w = std::min(f1, x + 0.5) - std::max(f0, x - 0.5);
+      if (w > 1e-9) o.push_back({x, w});
+    }
+    return o;
+  };
+  double worst = 0;
+  for (int v = 0; v < g.height; ++v) {
+    const auto oy = overlaps(A(1, 1), A(1, 2), v, canvas.rows);
+    for (int u = 0; u < g.width; ++u) {
+      const auto ox = overlaps(A(0, 0), A(0, 2), u, canvas.cols);
+      for (int k = 0; k < 3; ++k) {
+        double sum = 0, total = 0;
+        for (const auto& [y, wy] : oy)
+          for (const auto& [x, wx] : ox) {
+            sum += wy * wx * canvas.at<cv::Vec4b>(y, x)[k];
+            total += wy * wx;
+          }
+        const double expect = total > 0 ? sum / total : 0;
+        worst = std::max(worst, std::abs(out1.at<cv::Vec4b>(v, u)[k] - expect));
+      }
+    }
+  }
+  EXPECT_LE(worst, 1.0) << "largest difference from the canvas' area average";
+  std::printf("downscale %.3f x %.3f to %dx%d: largest difference from the area average %.3f\n", A(0, 0), A(1, 1),
+              g.width, g.height, worst);
+  }
 }

@@ -1,6 +1,7 @@
 #include "stitch/blend/blender_cpu.hpp"
 
 #include <Eigen/Core>
+#include <opencv2/core/hal/intrin.hpp>
 #include <stdexcept>
 
 #ifdef STITCH_HAVE_CUDA
@@ -31,6 +32,8 @@ void BlenderCpu::prepare(const std::vector<ViewPlacement>& views, int out_width,
   views_ = views;
   out_w_ = out_width;
   out_h_ = out_height;
+  row_first_ = 0;
+  row_end_ = out_height;
   normalised_.clear();
   raw_.assign(views.size(), cv::Mat());
   for (std::size_t i = 0; i < views.size(); ++i) raw_[i] = position_weight_map(views[i]);
@@ -108,7 +111,7 @@ void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out
   for (std::size_t i = 0; i < warped.size(); ++i)
     if (!warped[i].empty() && !views_[i].roi.empty()) mask |= uint64_t(1) << i;
   const std::vector<cv::Mat>& weights = weights_for(mask);
-  cv::parallel_for_(cv::Range(0, out_h_), [&](const cv::Range& range) {
+  cv::parallel_for_(cv::Range(row_first_, row_end_), [&](const cv::Range& range) {
     std::vector<uint32_t> acc(static_cast<std::size_t>(out_w_) * 4);
     for (int y = range.start; y < range.end; ++y) {
       std::fill(acc.begin(), acc.end(), 0u);
@@ -119,7 +122,26 @@ void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out
         const uint16_t* pw = weights[i].ptr<uint16_t>(y - r.y);
         const uint8_t* pp = warped[i].row(y - r.y);
         uint32_t* pa = acc.data() + static_cast<std::size_t>(r.x) * 4;
-        for (int x = 0; x < r.width; ++x) {
+        int x = 0;
+#if CV_SIMD128
+        // 4 pixels at a time: each pixel's weight times its 4 channels (exact integers, as below)
+        for (; x + 4 <= r.width; x += 4) {
+          cv::v_uint16x8 p0, p1, w2, w2b, w01, w23;
+          cv::v_expand(cv::v_load(pp + 4 * x), p0, p1);
+          const cv::v_uint16x8 w4 = cv::v_load_low(pw + x);
+          cv::v_zip(w4, w4, w2, w2b);     // w0 w0 w1 w1 w2 w2 w3 w3
+          cv::v_zip(w2, w2, w01, w23);    // w0 x4, w1 x4 | w2 x4, w3 x4
+          cv::v_uint32x4 m0, m1, m2, m3;
+          cv::v_mul_expand(p0, w01, m0, m1);
+          cv::v_mul_expand(p1, w23, m2, m3);
+          uint32_t* q = pa + 4 * x;
+          cv::v_store(q, cv::v_load(q) + m0);
+          cv::v_store(q + 4, cv::v_load(q + 4) + m1);
+          cv::v_store(q + 8, cv::v_load(q + 8) + m2);
+          cv::v_store(q + 12, cv::v_load(q + 12) + m3);
+        }
+#endif
+        for (; x < r.width; ++x) {
           const uint32_t w = pw[x];
           pa[4 * x + 0] += w * pp[4 * x + 0];
           pa[4 * x + 1] += w * pp[4 * x + 1];
@@ -129,7 +151,19 @@ void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out
       }
       uint8_t* po = out.row(y);
       constexpr uint32_t half = 1u << (kWeightBits - 1);
-      for (int x = 0; x < out_w_ * 4; ++x) po[x] = static_cast<uint8_t>((acc[x] + half) >> kWeightBits);
+      const int n = out_w_ * 4;
+      const uint32_t* pa = acc.data();
+      int x = 0;
+#if CV_SIMD128
+      // (acc + half) >> kWeightBits (at most 255: the weights sum to 1), alpha set to 255
+      const cv::v_uint8x16 opaque = cv::v_reinterpret_as_u8(cv::v_setall_u32(0xff000000u));
+      for (; x + 16 <= n; x += 16) {
+        const cv::v_uint16x8 lo = cv::v_rshr_pack<kWeightBits>(cv::v_load(pa + x), cv::v_load(pa + x + 4));
+        const cv::v_uint16x8 hi = cv::v_rshr_pack<kWeightBits>(cv::v_load(pa + x + 8), cv::v_load(pa + x + 12));
+        cv::v_store(po + x, cv::v_pack(lo, hi) | opaque);
+      }
+#endif
+      for (; x < n; ++x) po[x] = static_cast<uint8_t>((pa[x] + half) >> kWeightBits);
       // The panorama is opaque: uncovered corners are black, not transparent.
       for (int x = 0; x < out_w_; ++x) po[4 * x + 3] = 255;
     }

@@ -1,4 +1,5 @@
 #pragma once
+#include <algorithm>
 #include <map>
 #include <opencv2/core.hpp>
 
@@ -25,11 +26,19 @@ class BlenderCpu final : public Blender {
 
   // Normalised Q14 weights of each view (roi-sized, CV_16U) for a set of present views.
   const std::vector<cv::Mat>& weights_for(uint64_t present_mask);
+  // Only output rows [first, end) are fused from now on (the rest left as they are): a canvas
+  // that is cropped/scaled afterwards needs only the rows the output reads. prepare() resets it
+  // to every row.
+  void set_rows(int first, int end) {
+    row_first_ = std::clamp(first, 0, out_h_);
+    row_end_ = std::clamp(end, row_first_, out_h_);
+  }
 
  private:
   std::vector<ViewPlacement> views_;
   std::vector<cv::Mat> raw_;  // CV_32F, roi-sized
   int out_w_ = 0, out_h_ = 0;
+  int row_first_ = 0, row_end_ = 0;
   std::map<uint64_t, std::vector<cv::Mat>> normalised_;
 };
 

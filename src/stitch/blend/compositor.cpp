@@ -1,7 +1,14 @@
 #include "stitch/blend/compositor.hpp"
 
+#include "stitch/blend/blender_cpu.hpp"
+
+#include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
+#include <ctime>
+#include <opencv2/core/hal/intrin.hpp>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
@@ -9,6 +16,31 @@
 namespace stitch {
 
 namespace {
+// STITCH_BLEND_PROFILE=1: the CPU blend's phases (warp, fuse, seams, mix, resample) in wall ms on
+// stderr, to see where a stage's time goes at a given thread count.
+struct BlendProfile {
+  static bool on() {
+    static const bool enabled = std::getenv("STITCH_BLEND_PROFILE") != nullptr;
+    return enabled;
+  }
+  static double cpu_ms() {  // the process' CPU time, all threads
+    timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+  }
+  std::chrono::steady_clock::time_point last = std::chrono::steady_clock::now();
+  double last_cpu = on() ? cpu_ms() : 0;
+  void mark(const char* what) {
+    if (!on()) return;
+    const auto now = std::chrono::steady_clock::now();
+    const double cpu = cpu_ms();
+    std::fprintf(stderr, "blend %s %.2f ms (CPU time %.2f ms)\n", what,
+                 std::chrono::duration<double, std::milli>(now - last).count(), cpu - last_cpu);
+    last = now;
+    last_cpu = cpu;
+  }
+};
+
 // True when output = canvas shifted by whole pixels and inside it: the crop/scale pass is a copy.
 bool crop_only(const Eigen::Matrix3d& A, const cv::Size& canvas, const cv::Size& out) {
   auto whole = [](double v) { return std::abs(v - std::round(v)) < 1e-9; };
@@ -17,6 +49,191 @@ bool crop_only(const Eigen::Matrix3d& A, const cv::Size& canvas, const cv::Size&
     return false;
   const long tx = std::lround(-A(0, 2)), ty = std::lround(-A(1, 2));
   return tx >= 0 && ty >= 0 && tx + out.width <= canvas.width && ty + out.height <= canvas.height;
+}
+
+// The canvas rows [first, end) that compose_prewarped's crop/scale of the canvas into `out` reads
+// (with a row to spare at each end); every row when the map is not a scale and translation.
+std::pair<int, int> canvas_rows_read(const Eigen::Matrix3d& A, const cv::Size& canvas, const cv::Size& out) {
+  if (crop_only(A, canvas, out)) {
+    const int ty = int(std::lround(-A(1, 2)));
+    return {ty, ty + out.height};
+  }
+  if (A(0, 1) != 0 || A(1, 0) != 0 || A(1, 1) <= 0) return {0, canvas.height};
+  const double s = A(1, 1), t = A(1, 2);
+  double first, last;  // canvas rows, centre coordinates
+  if (A(0, 0) < 0.75 && s < 0.75) {  // resample_area: the footprints of rows 0 .. H-1
+    first = (-0.5 - t) / s;
+    last = (out.height - 0.5 - t) / s;
+  } else if (A(0, 0) >= 0.75) {  // bilinear: the two rows around each sample
+    first = (0 - t) / s;
+    last = (out.height - 1 - t) / s + 1;
+  } else {
+    return {0, canvas.height};
+  }
+  const int y0 = std::max(0, int(std::floor(first)) - 1);
+  const int y1 = std::min(canvas.height, int(std::ceil(last)) + 2);
+  return y1 > y0 ? std::make_pair(y0, y1) : std::make_pair(0, canvas.height);
+}
+
+// One axis of an area resample: output pixel u covers [u - 0.5, u + 0.5], i.e. canvas
+// [(u - 0.5 - t) / s, (u + 0.5 - t) / s]; each canvas pixel it overlaps weighs its overlap (pixels
+// off the canvas left out, the rest renormalised). Weights in 1/2^14, summing to exactly 2^14 (the
+// rounding remainder on the largest); `taps` entries per output pixel, padded with zero weights;
+// count 0: the footprint misses the canvas (black).
+struct AreaTaps {
+  static constexpr int kBits = 14;
+  int taps = 1;
+  std::vector<int> index, count;
+  std::vector<int32_t> weight;
+  int first(int u) const { return index[std::size_t(u) * taps]; }
+  int last(int u) const { return index[std::size_t(u) * taps + std::max(0, count[u] - 1)]; }
+};
+
+AreaTaps area_taps(double s, double t, int src, int dst) {
+  AreaTaps a;
+  a.taps = int(std::ceil(1.0 / s)) + 1;
+  a.index.assign(std::size_t(dst) * a.taps, 0);
+  a.weight.assign(a.index.size(), 0);
+  a.count.assign(dst, 0);
+  std::vector<double> w(a.taps);
+  for (int u = 0; u < dst; ++u) {
+    const double f0 = (u - 0.5 - t) / s, f1 = (u + 0.5 - t) / s;
+    const int x0 = std::max(0, int(std::floor(f0 + 0.5))), x1 = std::min(src - 1, int(std::ceil(f1 + 0.5)) - 1);
+    double total = 0;
+    int n = 0;
+    for (int x = x0; x <= x1 && n < a.taps; ++x) {
+      const double o = std::min(f1, x + 0.5) - std::max(f0, x - 0.5);
+      if (o <= 1e-9) continue;
+      a.index[std::size_t(u) * a.taps + n] = x;
+      w[n++] = o;
+      total += o;
+    }
+    a.count[u] = n;
+    if (n == 0) continue;
+    int sum = 0, strongest = 0;
+    for (int k = 0; k < n; ++k) {
+      int32_t& q = a.weight[std::size_t(u) * a.taps + k];
+      q = int32_t(std::lround(w[k] / total * (1 << AreaTaps::kBits)));
+      sum += q;
+      if (w[k] > w[strongest]) strongest = k;
+    }
+    a.weight[std::size_t(u) * a.taps + strongest] += (1 << AreaTaps::kBits) - sum;
+    for (int k = n; k < a.taps; ++k) a.index[std::size_t(u) * a.taps + k] = a.index[std::size_t(u) * a.taps];
+  }
+  return a;
+}
+
+// dst = the area average of src under x -> sx x + tx, y -> sy y + ty (a downscale: s < 1), in one
+// pass by output rows on every thread: each output row combines its canvas rows (int16, 7
+// fraction bits), then resamples that row along x. Integers per pixel, so the same output on any
+// thread count; SIMD pairs of taps (pmaddwd-style dot products). Replaces INTER_AREA to an integer
+// grid followed by a bilinear warp (two passes; OpenCV's area resize at a non-integer scale is its
+// slow generic path, 28% of the flow chain's time on one thread).
+void resample_area(const cv::Mat& src, cv::Mat& dst, double sx, double tx, double sy, double ty) {
+  const AreaTaps ax = area_taps(sx, tx, src.cols, dst.cols), ay = area_taps(sy, ty, src.rows, dst.rows);
+  constexpr int kRowBits = 7;  // fraction bits of the combined rows: 255 << 7 fits int16
+  constexpr int kOutShift = AreaTaps::kBits + kRowBits;
+  // The canvas columns any output pixel reads, with room for the unused half of a last tap pair.
+  int c0 = src.cols, c1 = -1;
+  for (int u = 0; u < dst.cols; ++u)
+    if (ax.count[u] > 0) c0 = std::min(c0, ax.first(u)), c1 = std::max(c1, ax.last(u));
+  const int pairs_x = (ax.taps + 1) / 2, pairs_y = (ay.taps + 1) / 2;
+  // Per output column and pair of taps: (w_k, w_k+1) as one int32 (low half first), and the
+  // first tap's column relative to c0.
+  std::vector<int32_t> wx(std::size_t(dst.cols) * pairs_x);
+  std::vector<int> x0(dst.cols, 0);
+  for (int u = 0; u < dst.cols; ++u) {
+    x0[u] = std::max(0, ax.index[std::size_t(u) * ax.taps] - std::max(c0, 0));
+    for (int j = 0; j < pairs_x; ++j) {
+      const int k = 2 * j;
+      const int32_t w0 = ax.count[u] ? ax.weight[std::size_t(u) * ax.taps + k] : 0;
+      const int32_t w1 = ax.count[u] && k + 1 < ax.taps ? ax.weight[std::size_t(u) * ax.taps + k + 1] : 0;
+      wx[std::size_t(u) * pairs_x + j] = int32_t(uint32_t(uint16_t(w0)) | uint32_t(uint16_t(w1)) << 16);
+    }
+  }
+  const int span = c1 >= c0 ? c1 - c0 + 1 : 0;
+  const int stripes = std::max(1, dst.rows / 8);
+  cv::parallel_for_(cv::Range(0, dst.rows), [&](const cv::Range& range) {
+    // one output row's canvas rows combined: span pixels, plus two pixels of zeros that an odd
+    // tap count's padding tap reads (its weight is 0)
+    std::vector<int16_t> row(std::size_t(span + 2) * 4 + 8, 0);
+    for (int v = range.start; v < range.end; ++v) {
+      uint8_t* pd = dst.ptr<uint8_t>(v);
+      if (ay.count[v] == 0 || span == 0) {
+        for (int u = 0; u < dst.cols; ++u) pd[4 * u] = pd[4 * u + 1] = pd[4 * u + 2] = 0, pd[4 * u + 3] = 255;
+        continue;
+      }
+      // Along y: row = sum_k w_k src[y_k] (rounded to kRowBits fraction bits).
+      const int n = span * 4;
+      int x = 0;
+#if CV_SIMD128
+      for (; x + 16 <= n; x += 16) {
+        cv::v_int32x4 acc0 = cv::v_setzero_s32(), acc1 = acc0, acc2 = acc0, acc3 = acc0;
+        for (int j = 0; j < pairs_y; ++j) {
+          const int k = 2 * j;
+          const int32_t w0 = ay.weight[std::size_t(v) * ay.taps + k];
+          const int32_t w1 = k + 1 < ay.taps ? ay.weight[std::size_t(v) * ay.taps + k + 1] : 0;
+          const int ya = ay.index[std::size_t(v) * ay.taps + k];
+          const int yb = k + 1 < ay.taps ? ay.index[std::size_t(v) * ay.taps + k + 1] : ya;
+          const cv::v_int16x8 w = cv::v_reinterpret_as_s16(
+              cv::v_setall_s32(int32_t(uint32_t(uint16_t(w0)) | uint32_t(uint16_t(w1)) << 16)));
+          const cv::v_uint8x16 a = cv::v_load(src.ptr<uint8_t>(ya) + 4 * c0 + x);
+          const cv::v_uint8x16 b = cv::v_load(src.ptr<uint8_t>(yb) + 4 * c0 + x);
+          cv::v_uint16x8 a0, a1, b0, b1;
+          cv::v_expand(a, a0, a1);
+          cv::v_expand(b, b0, b1);
+          cv::v_int16x8 ab0, ab1, ab2, ab3;
+          cv::v_zip(cv::v_reinterpret_as_s16(a0), cv::v_reinterpret_as_s16(b0), ab0, ab1);
+          cv::v_zip(cv::v_reinterpret_as_s16(a1), cv::v_reinterpret_as_s16(b1), ab2, ab3);
+          acc0 += cv::v_dotprod(ab0, w);
+          acc1 += cv::v_dotprod(ab1, w);
+          acc2 += cv::v_dotprod(ab2, w);
+          acc3 += cv::v_dotprod(ab3, w);
+        }
+        cv::v_store(row.data() + x, cv::v_rshr_pack<AreaTaps::kBits - kRowBits>(acc0, acc1));
+        cv::v_store(row.data() + x + 8, cv::v_rshr_pack<AreaTaps::kBits - kRowBits>(acc2, acc3));
+      }
+#endif
+      for (; x < n; ++x) {
+        int32_t acc = 0;
+        for (int k = 0; k < ay.taps; ++k)
+          acc += ay.weight[std::size_t(v) * ay.taps + k] * src.ptr<uint8_t>(ay.index[std::size_t(v) * ay.taps + k])[4 * c0 + x];
+        row[x] = int16_t((acc + (1 << (AreaTaps::kBits - kRowBits - 1))) >> (AreaTaps::kBits - kRowBits));
+      }
+      // Along x: each output pixel from its taps, two at a time.
+      int u = 0;
+#if CV_SIMD128
+      for (; u + 2 <= dst.cols; u += 2) {
+        cv::v_int32x4 acc[2];
+        for (int e = 0; e < 2; ++e) {
+          acc[e] = cv::v_setzero_s32();
+          const int16_t* pr = row.data() + 4 * x0[u + e];
+          const int32_t* w = wx.data() + std::size_t(u + e) * pairs_x;
+          for (int j = 0; j < pairs_x; ++j) {
+            const cv::v_int16x8 q = cv::v_load(pr + 8 * j);  // taps 2j, 2j+1: r g b a r g b a
+            cv::v_int16x8 lo, hi;
+            cv::v_zip(q, cv::v_rotate_right<4>(q), lo, hi);  // r r g g b b a a
+            acc[e] += cv::v_dotprod(lo, cv::v_reinterpret_as_s16(cv::v_setall_s32(w[j])));
+          }
+        }
+        cv::v_pack_u_store(pd + 4 * u, cv::v_rshr_pack<kOutShift>(acc[0], acc[1]));
+      }
+#endif
+      for (; u < dst.cols; ++u) {
+        const int16_t* pr = row.data() + 4 * x0[u];
+        for (int ch = 0; ch < 4; ++ch) {
+          int32_t acc = 0;
+          for (int j = 0; j < pairs_x; ++j) {
+            const int32_t w = wx[std::size_t(u) * pairs_x + j];
+            acc += int32_t(int16_t(w & 0xffff)) * pr[8 * j + ch] + int32_t(int16_t(uint32_t(w) >> 16)) * pr[8 * j + 4 + ch];
+          }
+          pd[4 * u + ch] = uint8_t(std::min(255, std::max(0, (acc + (1 << (kOutShift - 1))) >> kOutShift)));
+        }
+      }
+      for (u = 0; u < dst.cols; ++u)
+        if (ax.count[u] == 0) pd[4 * u] = pd[4 * u + 1] = pd[4 * u + 2] = 0, pd[4 * u + 3] = 255;
+    }
+  }, stripes);
 }
 }  // namespace
 
@@ -79,19 +296,34 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   if (cuda_) cuda_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
 #endif
   if (!cuda_) blender_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
+  if (!cuda_ && resample_) {
+    // The weighted mean fuses only the canvas rows the crop/scale reads (crop=auto drops the
+    // canvas' top and bottom: 18% of the 3x1080p ring's canvas).
+    if (auto* weighted = dynamic_cast<BlenderCpu*>(blender_.get())) {
+      const auto rows = canvas_rows_read(geometry_.canvas_to_output, {blend_geometry_.width, blend_geometry_.height},
+                                         {geometry_.width, geometry_.height});
+      weighted->set_rows(rows.first, rows.second);
+    }
+  }
   if (seam_) seam_->prepare(blend_views_, blend_geometry_.width, blend_geometry_.height);
 }
 
 void Compositor::fuse_cpu(const std::vector<ImageView>& views, const ImageView& out) {
+  BlendProfile profile;
   if (seam_ && blend_mode_ == BlendMode::Multiband) {
     static_cast<MultibandBlender&>(*blender_).set_labels(seam_->find(views).data());
+    profile.mark("seams");
     blender_->fuse(views, out);
+    profile.mark("multiband");
     return;
   }
   blender_->fuse(views, out);
+  profile.mark("fuse");
   if (seam_) {  // the consensus blend
     const std::vector<uint8_t>& labels = seam_->find(views);
+    profile.mark("seams");
     apply_seam_mix(blend_views_, views, labels, seam_->mix(), out);
+    profile.mark("mix");
   }
 }
 
@@ -126,6 +358,7 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
   canvas.height = blend_geometry_.height;
   canvas.pitch = static_cast<std::size_t>(canvas.width) * 4;
   fuse_cpu(views, canvas);
+  BlendProfile profile;
   const cv::Mat src(canvas.height, canvas.width, CV_8UC4, canvas.data, canvas.pitch);
   cv::Mat dst(out.height, out.width, CV_8UC4, out.data, out.pitch);
   const Eigen::Matrix3d& A = geometry_.canvas_to_output;
@@ -140,6 +373,13 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
     return;
   }
   const cv::Matx23d affine(A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2));
+  if (A(0, 0) < 0.75 && A(1, 1) < 0.75 && A(0, 1) == 0 && A(1, 0) == 0) {
+    // A strong downscale (crop=auto of an oversized canvas): area-averaged so that it does not
+    // alias, straight from the canvas in one pass.
+    resample_area(src, dst, A(0, 0), A(0, 2), A(1, 1), A(1, 2));
+    profile.mark("resample (area)");
+    return;
+  }
   if (A(0, 0) < 0.75) {
     // Area-average first so that a strong downscale does not alias; then the rest of the
     // affine map (pixel centres: canvas x -> s·x + t, resized u <-> (u + 0.5)/k - 0.5).
@@ -149,9 +389,11 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
     const double ax = A(0, 0) / kx, ay = A(1, 1) / ky;
     const cv::Matx23d rest(ax, 0, 0.5 * ax - 0.5 * A(0, 0) + A(0, 2), 0, ay, 0.5 * ay - 0.5 * A(1, 1) + A(1, 2));
     cv::warpAffine(small, dst, rest, dst.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0, 0, 0, 255));
+    profile.mark("resample (area + bilinear)");
     return;
   }
   cv::warpAffine(src, dst, affine, dst.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0, 0, 0, 255));
+  profile.mark("resample (bilinear)");
 }
 
 void Compositor::draw_debug(uint64_t present, const ImageView& out) {
@@ -206,6 +448,7 @@ void Compositor::compose_views(const std::vector<ImageView>& frames, const Image
     compose_prewarped(frames, out);
     return;
   }
+  BlendProfile profile;
   std::vector<ImageView> warped(frames.size());
   for (std::size_t i = 0; i < frames.size(); ++i) {
     if (cuda_ && !frames[i].empty() &&
@@ -237,6 +480,7 @@ void Compositor::compose_views(const std::vector<ImageView>& frames, const Image
     return;
   }
 #endif
+  profile.mark("warp");
   fuse_cpu(warped, out);
 }
 
