@@ -1142,6 +1142,7 @@ namespace {
 // (dense_matches.hpp, ~0.06 px), located through the current fit, twice (the second pass through
 // the first refit). A pair with too few of them keeps its keypoints. The refit is kept only when
 // the held-out keypoint matches agree about as well as before (a wrong start tracks nothing sane).
+// Each pass takes the alignment's sub-pixel phase bias off its matches first (correct_phase_bias).
 constexpr double kDenseRobustScale = 2.0;
 RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, const std::vector<PairData>& pairs,
                                     const std::vector<std::vector<ImageView>>& sets) {
@@ -1160,6 +1161,7 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   RotationFit rot = start;
   for (int pass = 0; pass < 2; ++pass) {
     std::vector<PairMatches> dense = dense_matches(rot.rig, links, images);
+    correct_phase_bias(rot.rig, dense);  // sub-pixel peak locking, under the fit the matches came through
     int dense_pairs = 0;
     for (const auto& k : keypoints) {
       auto it = std::find_if(dense.begin(), dense.end(), [&](const PairMatches& d) { return d.a == k.a && d.b == k.b; });
