@@ -179,7 +179,9 @@ TEST(CalibLens, EstimatesAcrossTheRange) {
     for (std::size_t i = 0; i < r.rig.cameras.size(); ++i)
       std::printf("  camera %zu: k1 %+.4f k2 %+.4f f %.2f (true 260)\n", i, r.rig.cameras[i].lens.k1,
                   r.rig.cameras[i].lens.k2, r.rig.cameras[i].fx);
-    EXPECT_LE(err, 0.5) << k1;
+    // 0.262 / 0.054 px measured (0.305 / 0.099 before the phase-bias correction): the issue's
+    // 0.5 px with a margin that still catches a regression of the dense refit.
+    EXPECT_LE(err, 0.4) << k1;
     EXPECT_LE(al.median_px, 0.3) << k1;
     EXPECT_LE(worst_k1, 0.1 * std::abs(k1)) << k1;
     for (const auto& c : r.rig.cameras) EXPECT_TRUE(lens_problem(c).empty()) << k1;
