@@ -329,8 +329,42 @@ int main(int argc, char** argv) {
           k.ra.push_back(m.ra[i]); k.rb.push_back(m.rb[i]); k.pa.push_back(m.pa[i]); k.pb.push_back(m.pb[i]); k.weight.push_back(1);
         }
         std::printf("dense %d-%d: %zu matches, %d off by > 2 px under truth\n", a, b, m.ra.size(), bad);
+        if (variant == 0 && k.ra.size() >= 10) {
+          // Signed bias of the dense matches under the truth, by b's x bin (x and y of a->b minus b).
+          std::vector<Eigen::Vector2d> bsum(8, Eigen::Vector2d::Zero());
+          std::vector<int> bcnt(8, 0);
+          for (std::size_t i = 0; i < k.ra.size(); ++i) {
+            Eigen::Vector2d q;
+            transfer(truth, a, b, k.ra[i], q);
+            const int bin = std::clamp(int(k.rb[i].x() / 40), 0, 7);
+            bsum[bin] += q - k.rb[i];
+            bcnt[bin]++;
+          }
+          {
+            // By the sub-pixel phase of the located point (points picked in a: rb not whole).
+            double ps[4] = {0, 0, 0, 0}, py[4] = {0, 0, 0, 0};
+            int pn[4] = {0, 0, 0, 0};
+            for (std::size_t i = 0; i < k.ra.size(); ++i) {
+              if (std::abs(k.rb[i].x() - std::round(k.rb[i].x())) < 1e-9) continue;
+              Eigen::Vector2d q;
+              transfer(truth, a, b, k.ra[i], q);
+              const double fx = k.rb[i].x() - std::floor(k.rb[i].x()), fy = k.rb[i].y() - std::floor(k.rb[i].y());
+              ps[std::min(3, int(fx * 4))] += (q - k.rb[i]).x();
+              pn[std::min(3, int(fx * 4))]++;
+              py[std::min(3, int(fy * 4))] += (q - k.rb[i]).y();
+            }
+            std::printf("  dense x bias by frac(x) quarter:");
+            for (int i = 0; i < 4; ++i) std::printf(" %+.4f(%d)", pn[i] ? ps[i] / pn[i] : 0.0, pn[i]);
+            std::printf("\n");
+          }
+          std::printf("  dense bias (a->b transfer minus b) by b's x bin:");
+          for (int i = 0; i < 8; ++i)
+            if (bcnt[i]) std::printf(" [%d:%d %+.3f,%+.3f]", i * 40, bcnt[i], bsum[i].x() / bcnt[i], bsum[i].y() / bcnt[i]);
+          std::printf("\n");
+        }
         if (k.ra.size() >= 10) dm.push_back(k);
       }
+    if (getenv("PHASE")) std::printf("phase correction over %d matches\n", correct_phase_bias(guide, dm));
     analyse(dm, variant == 0 ? "dense, guided by the truth" : "dense, guided by the SIFT optimum");
   }
   return 0;

@@ -179,7 +179,9 @@ TEST(CalibLens, EstimatesAcrossTheRange) {
     for (std::size_t i = 0; i < r.rig.cameras.size(); ++i)
       std::printf("  camera %zu: k1 %+.4f k2 %+.4f f %.2f (true 260)\n", i, r.rig.cameras[i].lens.k1,
                   r.rig.cameras[i].lens.k2, r.rig.cameras[i].fx);
-    EXPECT_LE(err, 0.5) << k1;
+    // 0.236 / 0.088 px measured (0.305 / 0.099 before the phase-bias correction and Cauchy 1): the issue's
+    // 0.5 px with a margin that still catches a regression of the dense refit.
+    EXPECT_LE(err, 0.4) << k1;
     EXPECT_LE(al.median_px, 0.3) << k1;
     EXPECT_LE(worst_k1, 0.1 * std::abs(k1)) << k1;
     for (const auto& c : r.rig.cameras) EXPECT_TRUE(lens_problem(c).empty()) << k1;
@@ -226,4 +228,56 @@ TEST(CalibLens, DenseMatchesAreHundredthsOfAPixel) {
     EXPECT_LE(p90, 0.12) << a;
     EXPECT_GE(reach, 0.85) << a;
   }
+}
+
+// Sub-pixel "peak locking" of the dense matches (correct_phase_bias): under the true rig the
+// located points' residuals follow their sub-pixel phase (a few thousandths of a pixel, coherent
+// over the overlap). Estimated through a rig a little off (as the calibrator does, through its
+// own fit), the periodic part is taken off: the phase-dependent residual against the truth drops.
+TEST(CalibLens, DensePhaseBiasIsTakenOff) {
+  const Scene& s = scene();
+  Rig guide = s.truth;
+  guide.cameras[0].yaw_deg += 0.02;
+  guide.cameras[2].fx *= 1.001;
+  guide.cameras[2].fy *= 1.001;
+  std::vector<DenseImage> imgs;
+  for (const auto& f : s.frames) {
+    cv::Mat g;
+    cv::cvtColor(f, g, cv::COLOR_RGBA2GRAY);
+    imgs.push_back(prepare_dense_image(g));
+  }
+  std::vector<PairMatches> m;
+  for (int a : {0, 1}) m.push_back(dense_pair_matches(guide, a, a + 1, imgs[a], imgs[a + 1]));
+  // Amplitude of the first harmonic of the residual (truth minus located) over the phase, both axes.
+  auto amplitude = [&](const std::vector<PairMatches>& ms) {
+    double sum[2][2] = {{0, 0}, {0, 0}};
+    int n = 0;
+    for (const auto& p : ms)
+      for (std::size_t k = 0; k < p.ra.size(); ++k) {
+        const bool wa = p.ra[k] == p.ra[k].array().round().matrix();
+        const Eigen::Vector2d& loc = wa ? p.rb[k] : p.ra[k];
+        const Camera &S = s.truth.cameras[wa ? p.a : p.b], &T = s.truth.cameras[wa ? p.b : p.a];
+        Eigen::Vector3d ray;
+        Eigen::Vector2d q;
+        if (!lens_unproject(S, wa ? p.ra[k] : p.rb[k], ray) || !lens_project(T, T.R().transpose() * (S.R() * ray), q)) continue;
+        const Eigen::Vector2d e = q - loc;
+        if (e.norm() > 0.5) continue;
+        for (int ax = 0; ax < 2; ++ax) {
+          const double t = 2 * M_PI * (loc[ax] - std::floor(loc[ax]));
+          sum[ax][0] += e[ax] * std::sin(t), sum[ax][1] += e[ax] * std::cos(t);
+        }
+        ++n;
+      }
+    double amp = 0;
+    for (int ax = 0; ax < 2; ++ax) amp = std::max(amp, 2 * std::hypot(sum[ax][0], sum[ax][1]) / std::max(n, 1));
+    return amp;
+  };
+  const double before = amplitude(m);
+  const int used = correct_phase_bias(guide, m);
+  const double after = amplitude(m);
+  std::printf("dense phase bias (first harmonic, worse axis): %.4f px before, %.4f px after the correction (%d matches)\n",
+              before, after, used);
+  EXPECT_GE(used, 300);
+  EXPECT_GT(before, 0.003);
+  EXPECT_LT(after, 0.5 * before);
 }

@@ -272,4 +272,71 @@ std::vector<PairMatches> dense_matches(const Rig& rig, const std::vector<std::pa
   return out;
 }
 
+int correct_phase_bias(const Rig& rig, std::vector<PairMatches>& matches) {
+  auto whole = [](const Eigen::Vector2d& v) {
+    return std::abs(v.x() - std::round(v.x())) < 1e-9 && std::abs(v.y() - std::round(v.y())) < 1e-9;
+  };
+  auto basis = [](double f, double* b) {
+    const double t = 2 * M_PI * f;
+    b[0] = 1, b[1] = std::sin(t), b[2] = std::cos(t), b[3] = std::sin(2 * t), b[4] = std::cos(2 * t);
+  };
+  // Per axis: normal equations of the residual on (1, sin, cos, sin 2, cos 2) of the phase.
+  Eigen::Matrix<double, 5, 5> N[2] = {Eigen::Matrix<double, 5, 5>::Zero(), Eigen::Matrix<double, 5, 5>::Zero()};
+  Eigen::Matrix<double, 5, 1> r[2] = {Eigen::Matrix<double, 5, 1>::Zero(), Eigen::Matrix<double, 5, 1>::Zero()};
+  int used = 0;
+  for (const auto& m : matches) {
+    if (m.ra.size() != m.pa.size() || m.rb.size() != m.pb.size()) continue;
+    const Camera &ca = rig.cameras.at(m.a), &cb = rig.cameras.at(m.b);
+    const Transfer ab(ca, cb), ba(cb, ca);
+    for (std::size_t k = 0; k < m.ra.size(); ++k) {
+      const bool wa = whole(m.ra[k]), wb = whole(m.rb[k]);
+      if (wa == wb) continue;
+      const Eigen::Vector2d& loc = wa ? m.rb[k] : m.ra[k];
+      Eigen::Vector2d pred;
+      if (!(wa ? ab(m.ra[k], pred) : ba(m.rb[k], pred))) continue;
+      const Eigen::Vector2d e = pred - loc;
+      if (!(e.norm() < 0.5)) continue;
+      for (int ax = 0; ax < 2; ++ax) {
+        double b[5];
+        basis(loc[ax] - std::floor(loc[ax]), b);
+        const Eigen::Map<const Eigen::Matrix<double, 5, 1>> bv(b);
+        N[ax] += bv * bv.transpose();
+        r[ax] += bv * e[ax];
+      }
+      ++used;
+    }
+  }
+  if (used < 200) return 0;
+  Eigen::Matrix<double, 5, 1> c[2];
+  for (int ax = 0; ax < 2; ++ax) {
+    c[ax] = N[ax].ldlt().solve(r[ax]);
+    c[ax][0] = 0;  // the mean is the rig's business
+    if (!c[ax].allFinite()) return 0;
+  }
+  auto shift = [&](const Eigen::Vector2d& v) {
+    Eigen::Vector2d s;
+    for (int ax = 0; ax < 2; ++ax) {
+      double b[5];
+      basis(v[ax] - std::floor(v[ax]), b);
+      s[ax] = Eigen::Map<const Eigen::Matrix<double, 5, 1>>(b).dot(c[ax]);
+    }
+    return s;
+  };
+  for (auto& m : matches) {
+    if (m.ra.size() != m.pa.size() || m.rb.size() != m.pb.size()) continue;
+    const Camera &ca = rig.cameras.at(m.a), &cb = rig.cameras.at(m.b);
+    for (std::size_t k = 0; k < m.ra.size(); ++k) {
+      const bool wa = whole(m.ra[k]), wb = whole(m.rb[k]);
+      if (wa == wb) continue;
+      Eigen::Vector2d& loc = wa ? m.rb[k] : m.ra[k];
+      const Eigen::Vector2d moved = loc + shift(loc);
+      Eigen::Vector2d ideal;
+      if (!undistort_point(wa ? cb : ca, moved, ideal)) continue;
+      loc = moved;
+      (wa ? m.pb[k] : m.pa[k]) = ideal;
+    }
+  }
+  return used;
+}
+
 }  // namespace stitch
