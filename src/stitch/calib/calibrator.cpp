@@ -1143,11 +1143,14 @@ namespace {
 // the first refit). A pair with too few of them keeps its keypoints. The refit is kept only when
 // the held-out keypoint matches agree about as well as before (a wrong start tracks nothing sane).
 constexpr double kDenseRobustScale = 2.0;
+// `rays`: the ray-matched pairs (wide lenses) instead, adjusted with `base`'s options (a narrow
+// ring's shared lens and focal).
 RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, const std::vector<PairData>& pairs,
-                                    const std::vector<std::vector<ImageView>>& sets) {
+                                    const std::vector<std::vector<ImageView>>& sets, bool rays = false,
+                                    const BundleAdjustOptions& base = {}) {
   std::vector<std::pair<int, int>> links;
   for (const auto& p : pairs)
-    if (p.ok && !p.rays) links.emplace_back(p.a, p.b);
+    if (p.ok && p.rays == rays) links.emplace_back(p.a, p.b);
   if (links.empty() || sets.empty()) return start;
   std::vector<std::vector<DenseImage>> images;
   const std::size_t take = std::min<std::size_t>(sets.size(), 3);
@@ -1159,7 +1162,9 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   const std::vector<PairMatches> keypoints = training_matches(pairs);
   RotationFit rot = start;
   for (int pass = 0; pass < 2; ++pass) {
-    std::vector<PairMatches> dense = dense_matches(rot.rig, links, images);
+    DenseMatchOptions dopt;
+    dopt.rays = rays;
+    std::vector<PairMatches> dense = dense_matches(rot.rig, links, images, dopt);
     int dense_pairs = 0;
     for (const auto& k : keypoints) {
       auto it = std::find_if(dense.begin(), dense.end(), [&](const PairMatches& d) { return d.a == k.a && d.b == k.b; });
@@ -1174,7 +1179,7 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
     RotationFit f;
     f.rig = rot.rig;
     for (std::size_t i = 0; i < f.rig.cameras.size(); ++i) f.rig.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
-    BundleAdjustOptions bo;
+    BundleAdjustOptions bo = base;
     bo.robust_scale = kDenseRobustScale;
     f.ba = bundle_adjust(f.rig, dense, bo);
     if (!f.ba.ok || !f.ba.lens_warning.empty()) break;
@@ -1445,6 +1450,14 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
         pairs = std::move(pairs2);
         count_matched();
       }
+    }
+    if (rot.ok && estimating && any_rays && o.dense_lens_matches) {
+      // Wide lenses: keypoints on a fisheye's rim are placed with a bias that follows the lens's
+      // anisotropy (a patch 100 degrees off the axis is stretched 1.8x along the rim in one
+      // camera, 1.4x at 80 degrees in the other), which a narrow ring turns into k1 and focal
+      // error. Photometric matches aligned through the rig's own lens map carry no such bias
+      // and cover the whole ring, not only the corners SIFT finds.
+      rot = refine_on_dense_matches(rot, rough, pairs, sets, true, ba_options);
     }
     if (rot.ok && decline_unpinned(rot)) {
       // Again on the final (tight) matches; declined: the same matches, the given lens.
