@@ -1164,6 +1164,7 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   for (int pass = 0; pass < 2; ++pass) {
     DenseMatchOptions dopt;
     dopt.rays = rays;
+    if (rays) dopt.max_points = 2000;
     std::vector<PairMatches> dense = dense_matches(rot.rig, links, images, dopt);
     int dense_pairs = 0;
     for (const auto& k : keypoints) {

@@ -99,19 +99,19 @@ void track(const Camera& cs, const Camera& ct, const DenseImage& S, const DenseI
   const double tmargin = 1.5 * R + o.max_shift_px + 2;
   cv::Mat mask = cv::Mat::zeros(S.gray.size(), CV_8U);
   // A patch wholly inside the image circle (a fisheye's black rim is a strong edge that no
-  // other camera sees): its square's corners must be seen, not its centre alone.
-  auto sees_square = [](const Camera& c, double x, double y, double half) {
-    if (!c.lens.circle) return lens_sees(c, x, y);
-    return lens_sees(c, x - half, y - half) && lens_sees(c, x + half, y - half) && lens_sees(c, x - half, y + half) &&
-           lens_sees(c, x + half, y + half);
+  // other camera sees): `margin` pixels inside it, not its centre alone.
+  auto sees_patch = [](const Camera& c, double x, double y, double margin) {
+    if (!lens_sees(c, x, y) || !c.lens.circle) return lens_sees(c, x, y);
+    return std::hypot(x - c.lens.circle->cx, y - c.lens.circle->cy) + margin < c.lens.circle->radius;
   };
   for (int y = border; y < S.gray.rows - border; y += step)
     for (int x = border; x < S.gray.cols - border; x += step) {
       Eigen::Vector2d q;
-      if (!sees_square(cs, x + 0.5 * step, y + 0.5 * step, 0.5 * step + R + 1) || !tr({x + 0.5 * step, y + 0.5 * step}, q))
+      if (!sees_patch(cs, x + 0.5 * step, y + 0.5 * step, 0.71 * step + 1.42 * R + 1) ||
+          !tr({x + 0.5 * step, y + 0.5 * step}, q))
         continue;
       if (q.x() < tmargin || q.y() < tmargin || q.x() > ct.width - 1 - tmargin || q.y() > ct.height - 1 - tmargin ||
-          !sees_square(ct, q.x(), q.y(), tmargin))
+          !sees_patch(ct, q.x(), q.y(), 2 * R + 2))
         continue;
       mask(cv::Rect(x, y, std::min(step, S.gray.cols - border - x), std::min(step, S.gray.rows - border - y))) = 255;
     }
