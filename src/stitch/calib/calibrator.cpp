@@ -1144,10 +1144,11 @@ namespace {
 // the held-out keypoint matches agree about as well as before (a wrong start tracks nothing sane).
 constexpr double kDenseRobustScale = 2.0;
 // `rays`: the ray-matched pairs (wide lenses) instead, adjusted with `base`'s options (a narrow
-// ring's shared lens and focal).
+// ring's shared lens and focal). `refitted`: whether the dense fit was kept.
 RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, const std::vector<PairData>& pairs,
                                     const std::vector<std::vector<ImageView>>& sets, bool rays = false,
-                                    const BundleAdjustOptions& base = {}) {
+                                    const BundleAdjustOptions& base = {}, bool* refitted = nullptr) {
+  if (refitted) *refitted = false;
   std::vector<std::pair<int, int>> links;
   for (const auto& p : pairs)
     if (p.ok && p.rays == rays) links.emplace_back(p.a, p.b);
@@ -1161,6 +1162,7 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   }
   const std::vector<PairMatches> keypoints = training_matches(pairs);
   RotationFit rot = start;
+  int accepted = 0;
   for (int pass = 0; pass < 2; ++pass) {
     DenseMatchOptions dopt;
     dopt.rays = rays;
@@ -1187,10 +1189,12 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
     f.ok = true;
     f.warnings = start.warnings;
     rot = std::move(f);
+    ++accepted;
   }
   const double before = residuals(start.rig, pairs, true, true).rms_px;
   const double after = residuals(rot.rig, pairs, true, true).rms_px;
   if (before > 0 && !(after <= 1.2 * before + 0.05)) return start;
+  if (refitted) *refitted = accepted > 0;
   return rot;
 }
 
@@ -1367,6 +1371,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // measured k1 -0.0177 +- 0.003 for -0.02; 3 sigma let k1 -0.021 +- 0.005 through for a true
   // 0: the ring's sigma is optimistic), and declined otherwise. True when any was declined
   // (the caller adjusts again without them).
+  bool ring_unrefined = false;  // ray pairs whose photometric refit failed (below)
   auto decline_unpinned = [&](const RotationFit& fit) {
     bool declined = false;
     for (int i : narrow) {
@@ -1375,7 +1380,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       const double sigma = i < int(fit.ba.lens_k1_sigma.size()) ? fit.ba.lens_k1_sigma[i] : 1e9;
       if (2 * sigma <= std::max(0.1 * std::abs(k1), 0.004)) continue;
       char why[96];
-      if (std::abs(k1) > 5 * sigma) {
+      if (std::abs(k1) > 5 * sigma && !ring_unrefined) {
         std::snprintf(why, sizeof why, "k1 %+.4f +- %.4f", k1, sigma);
         res.warnings.push_back("camera " + std::to_string(i) + ": " + why +
                                " estimated loosely from a narrow overlap ring (a back-to-back pair); give the lens "
@@ -1458,7 +1463,12 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       // camera, 1.4x at 80 degrees in the other), which a narrow ring turns into k1 and focal
       // error. Photometric matches aligned through the rig's own lens map carry no such bias
       // and cover the whole ring, not only the corners SIFT finds.
-      rot = refine_on_dense_matches(rot, rough, pairs, sets, true, ba_options);
+      bool refitted = false;
+      rot = refine_on_dense_matches(rot, rough, pairs, sets, true, ba_options, &refitted);
+      // No photometric refit (a ring too narrow or bare to track 40 patches on, e.g. 190
+      // degrees): the keypoint fit's sigma is optimistic (k1 -0.021 +- 0.0025 for a true 0, 10 dB
+      // lost), so a loosely determined k1 is declined rather than kept with a warning.
+      ring_unrefined = !refitted;
     }
     if (rot.ok && decline_unpinned(rot)) {
       // Again on the final (tight) matches; declined: the same matches, the given lens.
