@@ -1220,6 +1220,25 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   }
   const int n = int(rough.cameras.size());
   if (rough.reference < 0 || rough.reference >= n) throw RigError("reference camera index out of range");
+  // Lens views beyond what a plane canvas shows (a fisheye rig on the default plane): the
+  // canvas its views need when no one chose the plane, else a warning naming the cameras.
+  std::vector<std::string> plane_notes;
+  bool plane_switched = false;
+  if (const PlaneCanvasCheck pc = check_plane_canvas(rough); !pc.projection.empty()) {
+    const bool chosen = o.projection || !rough.projection_default;
+    for (const auto& p : pc.problems)
+      plane_notes.push_back(p + (chosen ? "; only rays within 90 degrees of that axis are drawn, the rest is black: use "
+                                          "projection " + pc.projection
+                                        : "; the rig file names no projection: using a " + pc.projection + " canvas"));
+    if (!chosen) {
+      rough.projection = pc.projection;
+      for (auto& c : rough.cameras) c.homography.reset();
+      rough.canvas_width = rough.canvas_height = 0;
+      rough.canvas_scale = 0;
+      rough.canvas_wrap = false;
+      plane_switched = true;
+    }
+  }
   CameraModel model = effective_model(o);
   const bool plane_induced = rough.planar() && rough.plane_distance_m > 0;
   if (plane_induced) {
@@ -1233,6 +1252,8 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   for (const auto& c : rough.cameras) have_all &= bool(c.homography);
 
   CalibrationResult res;
+  res.warnings = plane_notes;
+  res.projection_chosen = plane_switched;
   for (int i = 0; i < n; ++i)
     if (const std::string w = lens_warning(rough.cameras[i]); !w.empty())
       res.warnings.push_back("camera " + std::to_string(i) + ": " + w);
@@ -1561,6 +1582,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       refine_homography_chain(chain, sets, o, {});
     }
     res = chain;
+    res.warnings.insert(res.warnings.begin(), plane_notes.begin(), plane_notes.end());
     res.model = CameraModel::Homography;
     res.rotation_heldout_px = hr;
     res.homography_heldout_px = hh;
