@@ -12,8 +12,9 @@
 // that) with the same rig composed with its true lenses.
 //
 //   stitch-bench-lens-psnr --photo a.jpg [--photo b.jpg] [--seeds 2] [--cases radtan,fisheye]
-//                          [--supersample 2]
+//                          [--supersample 2] [--dense 0]
 // --supersample N: render each camera N x N supersampled (default 2; 4 aliases less).
+// --dense 0: the calibrator's photometric refit off (the baseline before it).
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -94,19 +95,21 @@ int main(int argc, char** argv) {
   int seeds = 1;
   std::string which = "radtan,fisheye";
   int supersample = 2;
+  bool dense = true;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--photo") photos.push_back(v);
     else if (k == "--seeds") seeds = std::stoi(v);
     else if (k == "--cases") which = v;
     else if (k == "--supersample") supersample = std::stoi(v);
+    else if (k == "--dense") dense = v != "0";  // 0: the calibrator's photometric refit off (the baseline before it)
     else {
       std::fprintf(stderr, "unknown option %s\n", k.c_str());
       return 2;
     }
   }
   if (photos.empty()) {
-    std::fprintf(stderr, "usage: %s --photo a.jpg [--photo b.jpg] [--seeds 2] [--cases radtan,fisheye]\n", argv[0]);
+    std::fprintf(stderr, "usage: %s --photo a.jpg [--photo b.jpg] [--seeds 2] [--cases radtan,fisheye] [--supersample 2] [--dense 0]\n", argv[0]);
     return 2;
   }
   std::vector<Case> cases;
@@ -124,6 +127,7 @@ int main(int argc, char** argv) {
     const Views sphere_views{80, {{0, 0}, {90, 0}, {180, 0}, {-90, 0}, {45, 40}, {-135, 40}, {135, -40}, {-45, -40}}};
     cases.push_back({"dual fisheye 190 k1 0", testdata::dual_fisheye_rig(480, 190, 0, 0.0), true, sphere_views});
     cases.push_back({"dual fisheye 200 k1 -0.02", testdata::dual_fisheye_rig(480, 200, 0, -0.02), true, sphere_views});
+    cases.push_back({"dual fisheye 210 k1 +0.02", testdata::dual_fisheye_rig(480, 210, 0, 0.02), true, sphere_views});
     cases.push_back({"dual fisheye 220 k1 +0.01", testdata::dual_fisheye_rig(480, 220, 0, 0.01), true, sphere_views});
     cases.push_back({"fisheye ring 3x180 k1 -0.02", testdata::fisheye_ring(3, 320, 180), true, sphere_views});
     cases.push_back({"fisheye ring 4x160 k1 -0.02", testdata::fisheye_ring(4, 320, 160), true, sphere_views});
@@ -164,7 +168,9 @@ int main(int argc, char** argv) {
         double k1_est = 0, f_est = 0, secs = 0;
         try {
           const auto t0 = std::chrono::steady_clock::now();
-          const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+          CalibrationOptions co;
+          co.dense_lens_matches = dense;
+          const CalibrationResult r = calibrate_from_rig(rough, views, co);
           secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
           const Rig est = testdata::aligned_to_truth(r.rig, truth);
           qc = quality_of(est, frames, gt, mask, cs.views);

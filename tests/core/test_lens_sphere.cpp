@@ -229,8 +229,10 @@ TEST(DualFisheye, EstimatesASharedK1FromTheOverlapRingOrDeclines) {
       // (The shared unknown is the bend at the half diagonal, so k1 differs by the focal ratio.)
       EXPECT_NEAR(r.rig.cameras[0].lens.k1, r.rig.cameras[1].lens.k1, 0.03 * std::abs(r.rig.cameras[0].lens.k1) + 1e-4);
       EXPECT_LE(err, 1.0) << cs.fov;
+      // Branch lens-dual: photometric matches through the lens map (unbiased, the whole ring) pin
+      // it within 10 % (measured 0.3-3.5 % on both photos; keypoints alone: 11-22 %).
       const double dk = std::abs(r.rig.cameras[0].lens.k1 - cs.k1);
-      EXPECT_LE(dk, std::max(0.004, 0.3 * std::abs(cs.k1))) << cs.fov;
+      EXPECT_LE(dk, std::max(0.001, 0.1 * std::abs(cs.k1))) << cs.fov;
       worst_est_seam = std::max(worst_est_seam, err);
       if (cs.k1 != 0) worst_k1 = std::max(worst_k1, dk / std::abs(cs.k1));
     }
@@ -238,8 +240,10 @@ TEST(DualFisheye, EstimatesASharedK1FromTheOverlapRingOrDeclines) {
   std::printf("shared k1 estimated in %d of %zu cases: worst seam %.3f px, worst k1 error %.0f %%\n", estimated,
               std::size(cases), worst_est_seam, 100 * worst_k1);
   // The cases where the ring pins k1 down (measured: 4 of 5; 190 deg with k1 0 declines, at no
-  // cost) must not regress to declining.
-  EXPECT_GE(estimated, 3);
+  // cost) must not regress to declining; their seams (0.01-0.06 px measured; 0.23 px from
+  // keypoints alone) stay well under a pixel.
+  EXPECT_GE(estimated, 4);
+  EXPECT_LE(worst_est_seam, 0.15);
 }
 
 // Two back-to-back fisheyes of different frames (no identical lens to share one k1 with): the
@@ -393,3 +397,90 @@ TEST(CircularFisheyes, FoundAndCalibratedFromTheImagesAlone) {
   cv::Mat black(480, 480, CV_8UC4, cv::Scalar(0, 0, 0, 255));
   EXPECT_FALSE(find_image_circle(as_view(black)));
 }
+
+// Lens rigs on a plane canvas (branch lens-dual): a plane shows only rays less than 90 degrees off
+// the reference camera's axis. A fisheye rig whose file names no projection gets the canvas its
+// views need, with a warning naming each camera; one that asks for the plane keeps it, warned.
+namespace {
+std::string without_projection(const Rig& rig) {
+  std::string json = rig_to_json_string(rig);
+  const std::size_t at = json.find("\"projection\"");
+  const std::size_t end = json.find(',', at);
+  json.erase(at, end + 1 - at);
+  return json;
+}
+bool names(const std::vector<std::string>& warnings, const std::string& what, const std::string& also) {
+  for (const auto& w : warnings)
+    if (w.find(what) != std::string::npos && w.find(also) != std::string::npos) return true;
+  return false;
+}
+}  // namespace
+
+TEST(PlaneCanvas, FisheyeViewsBeyondThePlaneAreNamedAndGetACurvedCanvas) {
+  Rig dual = testdata::dual_fisheye_rig(480, 200, 0, -0.02);
+  dual.projection = "plane";
+  dual.canvas_width = dual.canvas_height = 0, dual.canvas_scale = 0, dual.canvas_wrap = false;
+  const Rig loaded = rig_from_json_string(without_projection(dual));
+  EXPECT_TRUE(loaded.projection_default);
+  EXPECT_EQ(loaded.projection, "plane");
+  EXPECT_FALSE(rig_from_json_string(rig_to_json_string(dual)).projection_default);
+  const PlaneCanvasCheck pc = check_plane_canvas(loaded);
+  EXPECT_EQ(pc.projection, "spherical");
+  ASSERT_EQ(pc.problems.size(), 2u);
+  EXPECT_NE(pc.problems[0].find("camera 0 (fisheye, 200 degrees across)"), std::string::npos) << pc.problems[0];
+  EXPECT_NE(pc.problems[1].find("camera 1"), std::string::npos);
+  EXPECT_NE(pc.problems[1].find("cannot show"), std::string::npos);
+  EXPECT_NEAR(pc.worst_off_deg, 180, 1e-9);  // the back camera holds the point opposite the front axis
+  EXPECT_NE(pc.problems[0].find("100 degrees off"), std::string::npos) << pc.problems[0];
+  // A fisheye of 160 degrees alone (80 off its axis, the reference's): stretched 41x, named.
+  Rig one = dual;
+  one.cameras.resize(1);
+  one.cameras[0] = testdata::fisheye_camera(480, 160);
+  const PlaneCanvasCheck p1 = check_plane_canvas(one);
+  ASSERT_EQ(p1.problems.size(), 1u);
+  EXPECT_NE(p1.problems[0].find("stretches them"), std::string::npos) << p1.problems[0];
+  // A wide radtan trio spanning 2 x 88 degrees on the horizon: cylindrical.
+  Rig wide = testdata::radtan_trio(320, 240, 260, 50, -0.1, 0.01, true, "plane", 0.0);
+  const PlaneCanvasCheck pw = check_plane_canvas(wide);
+  EXPECT_EQ(pw.projection, "cylindrical");
+  EXPECT_EQ(pw.problems.size(), 2u);  // the side cameras, not the reference
+  // What a plane shows well: nothing to say. A narrow radtan trio, a pinhole rig however wide,
+  // and a rig given by homographies (the surround view's ground plane) are left alone.
+  EXPECT_TRUE(check_plane_canvas(testdata::radtan_trio(320, 240, 260, 35, -0.2, 0.04, true, "plane")).problems.empty());
+  EXPECT_TRUE(check_plane_canvas(testdata::radtan_trio(320, 240, 260, 50, 0, 0, false, "plane")).problems.empty());
+  Rig given = wide;
+  for (auto& c : given.cameras) c.homography = Eigen::Matrix3d::Identity();
+  EXPECT_TRUE(check_plane_canvas(given).problems.empty());
+  EXPECT_TRUE(check_plane_canvas(testdata::dual_fisheye_rig(480, 200)).problems.empty());  // spherical already
+}
+
+TEST(PlaneCanvas, DualFisheyeWithoutAProjectionIsCalibratedOnASphere) {
+  std::string name;
+  const cv::Mat photo = equirect_photo(name);
+  ASSERT_FALSE(photo.empty());
+  const Rig truth = testdata::dual_fisheye_rig(480, 200, 0, -0.02);
+  std::vector<cv::Mat> frames;
+  std::vector<ImageView> views;
+  render_views(photo, truth, frames, views);
+  Rig rough = testdata::rough_sphere(truth, 11);
+  rough.projection = "plane";
+  for (auto& c : rough.cameras) c.homography.reset();
+  // The default (no "projection" in the file): a spherical canvas, said so, calibrated as one.
+  const Rig from_file = rig_from_json_string(without_projection(rough));
+  const CalibrationResult r = calibrate_from_rig(from_file, views, CalibrationOptions{});
+  for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+  EXPECT_EQ(r.rig.projection, "spherical");
+  EXPECT_TRUE(r.projection_chosen);
+  EXPECT_TRUE(names(r.warnings, "camera 1 (fisheye", "using a spherical canvas"));
+  EXPECT_LE(worst_seam_px(r.rig, truth, 0, 1, nullptr), 1.0);
+  // Asked for explicitly (the file, or the element's projection): the plane stays, with the warning.
+  const CalibrationResult p = calibrate_from_rig(rough, views, CalibrationOptions{});
+  EXPECT_EQ(p.rig.projection, "plane");
+  EXPECT_TRUE(names(p.warnings, "camera 1 (fisheye", "use projection spherical"));
+  CalibrationOptions plane;
+  plane.projection = Projection::Plane;
+  const CalibrationResult q = calibrate_from_rig(from_file, views, plane);
+  EXPECT_EQ(q.rig.projection, "plane");
+  EXPECT_TRUE(names(q.warnings, "camera 0 (fisheye", "cannot show them"));
+}
+

@@ -1148,11 +1148,15 @@ namespace {
 // corner error 0.544 -> 0.486 px and the focal scale's rms error 0.109 -> 0.103 px with the
 // phase-bias correction (BENCHMARKS.md, "Radtan registration"); 0 and 4 did worse on the PSNR bench.
 constexpr double kDenseRobustScale = 1.0;
+// `rays`: the ray-matched pairs (wide lenses) instead, adjusted with `base`'s options (a narrow
+// ring's shared lens and focal). `refitted`: whether the dense fit was kept.
 RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, const std::vector<PairData>& pairs,
-                                    const std::vector<std::vector<ImageView>>& sets) {
+                                    const std::vector<std::vector<ImageView>>& sets, bool rays = false,
+                                    const BundleAdjustOptions& base = {}, bool* refitted = nullptr) {
+  if (refitted) *refitted = false;
   std::vector<std::pair<int, int>> links;
   for (const auto& p : pairs)
-    if (p.ok && !p.rays) links.emplace_back(p.a, p.b);
+    if (p.ok && p.rays == rays) links.emplace_back(p.a, p.b);
   if (links.empty() || sets.empty()) return start;
   std::vector<std::vector<DenseImage>> images;
   const std::size_t take = std::min<std::size_t>(sets.size(), 3);
@@ -1163,9 +1167,13 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   }
   const std::vector<PairMatches> keypoints = training_matches(pairs);
   RotationFit rot = start;
+  int accepted = 0;
   for (int pass = 0; pass < 2; ++pass) {
-    std::vector<PairMatches> dense = dense_matches(rot.rig, links, images);
-    correct_phase_bias(rot.rig, dense);  // sub-pixel peak locking, under the fit the matches came through
+    DenseMatchOptions dopt;
+    dopt.rays = rays;
+    if (rays) dopt.max_points = 2000;
+    std::vector<PairMatches> dense = dense_matches(rot.rig, links, images, dopt);
+    if (!rays) correct_phase_bias(rot.rig, dense);  // sub-pixel peak locking, under the fit the matches came through
     int dense_pairs = 0;
     for (const auto& k : keypoints) {
       auto it = std::find_if(dense.begin(), dense.end(), [&](const PairMatches& d) { return d.a == k.a && d.b == k.b; });
@@ -1180,17 +1188,19 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
     RotationFit f;
     f.rig = rot.rig;
     for (std::size_t i = 0; i < f.rig.cameras.size(); ++i) f.rig.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
-    BundleAdjustOptions bo;
+    BundleAdjustOptions bo = base;
     bo.robust_scale = kDenseRobustScale;
     f.ba = bundle_adjust(f.rig, dense, bo);
     if (!f.ba.ok || !f.ba.lens_warning.empty()) break;
     f.ok = true;
     f.warnings = start.warnings;
     rot = std::move(f);
+    ++accepted;
   }
   const double before = residuals(start.rig, pairs, true, true).rms_px;
   const double after = residuals(rot.rig, pairs, true, true).rms_px;
   if (before > 0 && !(after <= 1.2 * before + 0.05)) return start;
+  if (refitted) *refitted = accepted > 0;
   return rot;
 }
 
@@ -1216,6 +1226,25 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   }
   const int n = int(rough.cameras.size());
   if (rough.reference < 0 || rough.reference >= n) throw RigError("reference camera index out of range");
+  // Lens views beyond what a plane canvas shows (a fisheye rig on the default plane): the
+  // canvas its views need when no one chose the plane, else a warning naming the cameras.
+  std::vector<std::string> plane_notes;
+  bool plane_switched = false;
+  if (const PlaneCanvasCheck pc = check_plane_canvas(rough); !pc.projection.empty()) {
+    const bool chosen = o.projection || !rough.projection_default;
+    for (const auto& p : pc.problems)
+      plane_notes.push_back(p + (chosen ? "; only rays within 90 degrees of that axis are drawn, the rest is black: use "
+                                          "projection " + pc.projection
+                                        : "; the rig file names no projection: using a " + pc.projection + " canvas"));
+    if (!chosen) {
+      rough.projection = pc.projection;
+      for (auto& c : rough.cameras) c.homography.reset();
+      rough.canvas_width = rough.canvas_height = 0;
+      rough.canvas_scale = 0;
+      rough.canvas_wrap = false;
+      plane_switched = true;
+    }
+  }
   CameraModel model = effective_model(o);
   const bool plane_induced = rough.planar() && rough.plane_distance_m > 0;
   if (plane_induced) {
@@ -1229,6 +1258,8 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   for (const auto& c : rough.cameras) have_all &= bool(c.homography);
 
   CalibrationResult res;
+  res.warnings = plane_notes;
+  res.projection_chosen = plane_switched;
   for (int i = 0; i < n; ++i)
     if (const std::string w = lens_warning(rough.cameras[i]); !w.empty())
       res.warnings.push_back("camera " + std::to_string(i) + ": " + w);
@@ -1367,6 +1398,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // measured k1 -0.0177 +- 0.003 for -0.02; 3 sigma let k1 -0.021 +- 0.005 through for a true
   // 0: the ring's sigma is optimistic), and declined otherwise. True when any was declined
   // (the caller adjusts again without them).
+  bool ring_unrefined = false;  // ray pairs whose photometric refit failed (below)
   auto decline_unpinned = [&](const RotationFit& fit) {
     bool declined = false;
     for (int i : narrow) {
@@ -1375,7 +1407,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       const double sigma = i < int(fit.ba.lens_k1_sigma.size()) ? fit.ba.lens_k1_sigma[i] : 1e9;
       if (2 * sigma <= std::max(0.1 * std::abs(k1), 0.004)) continue;
       char why[96];
-      if (std::abs(k1) > 5 * sigma) {
+      if (std::abs(k1) > 5 * sigma && !ring_unrefined) {
         std::snprintf(why, sizeof why, "k1 %+.4f +- %.4f", k1, sigma);
         res.warnings.push_back("camera " + std::to_string(i) + ": " + why +
                                " estimated loosely from a narrow overlap ring (a back-to-back pair); give the lens "
@@ -1451,6 +1483,19 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
         pairs = std::move(pairs2);
         count_matched();
       }
+    }
+    if (rot.ok && estimating && any_rays && o.dense_lens_matches) {
+      // Wide lenses: keypoints on a fisheye's rim are placed with a bias that follows the lens's
+      // anisotropy (a patch 100 degrees off the axis is stretched 1.8x along the rim in one
+      // camera, 1.4x at 80 degrees in the other), which a narrow ring turns into k1 and focal
+      // error. Photometric matches aligned through the rig's own lens map carry no such bias
+      // and cover the whole ring, not only the corners SIFT finds.
+      bool refitted = false;
+      rot = refine_on_dense_matches(rot, rough, pairs, sets, true, ba_options, &refitted);
+      // No photometric refit (a ring too narrow or bare to track 40 patches on, e.g. 190
+      // degrees): the keypoint fit's sigma is optimistic (k1 -0.021 +- 0.0025 for a true 0, 10 dB
+      // lost), so a loosely determined k1 is declined rather than kept with a warning.
+      ring_unrefined = !refitted;
     }
     if (rot.ok && decline_unpinned(rot)) {
       // Again on the final (tight) matches; declined: the same matches, the given lens.
@@ -1543,6 +1588,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       refine_homography_chain(chain, sets, o, {});
     }
     res = chain;
+    res.warnings.insert(res.warnings.begin(), plane_notes.begin(), plane_notes.end());
     res.model = CameraModel::Homography;
     res.rotation_heldout_px = hr;
     res.homography_heldout_px = hh;

@@ -46,7 +46,8 @@ struct CalibrationOptions {
   // Lenses being estimated (issue 15): once the adjustment is close, fit again on
   // correspondences located photometrically all over each overlap (dense_matches.hpp) rather
   // than on the SIFT keypoints alone, whose ~0.25 px noise extrapolated to 1-2 px at the frame
-  // corners. Wide-lens (ray-matched) pairs keep their keypoints.
+  // corners. Wide-lens (ray-matched) pairs too, through their lenses (branch lens-dual): a
+  // back-to-back ring's keypoints carry a bias that reads as k1.
   bool dense_lens_matches = true;
   int max_features = 4000;         // per image and overlap
   double feature_megapixels = 1.0; // larger frames are downscaled for detection

@@ -98,12 +98,20 @@ void track(const Camera& cs, const Camera& ct, const DenseImage& S, const DenseI
   const int step = 4, border = R + 2;
   const double tmargin = 1.5 * R + o.max_shift_px + 2;
   cv::Mat mask = cv::Mat::zeros(S.gray.size(), CV_8U);
+  // A patch wholly inside the image circle (a fisheye's black rim is a strong edge that no
+  // other camera sees): `margin` pixels inside it, not its centre alone.
+  auto sees_patch = [](const Camera& c, double x, double y, double margin) {
+    if (!lens_sees(c, x, y) || !c.lens.circle) return lens_sees(c, x, y);
+    return std::hypot(x - c.lens.circle->cx, y - c.lens.circle->cy) + margin < c.lens.circle->radius;
+  };
   for (int y = border; y < S.gray.rows - border; y += step)
     for (int x = border; x < S.gray.cols - border; x += step) {
       Eigen::Vector2d q;
-      if (!lens_sees(cs, x, y) || !tr({x + 0.5 * step, y + 0.5 * step}, q)) continue;
+      if (!sees_patch(cs, x + 0.5 * step, y + 0.5 * step, 0.71 * step + 1.42 * R + 1) ||
+          !tr({x + 0.5 * step, y + 0.5 * step}, q))
+        continue;
       if (q.x() < tmargin || q.y() < tmargin || q.x() > ct.width - 1 - tmargin || q.y() > ct.height - 1 - tmargin ||
-          !lens_sees(ct, q.x(), q.y()))
+          !sees_patch(ct, q.x(), q.y(), 2 * R + 2))
         continue;
       mask(cv::Rect(x, y, std::min(step, S.gray.cols - border - x), std::min(step, S.gray.rows - border - y))) = 255;
     }
@@ -241,8 +249,8 @@ PairMatches dense_pair_matches(const Rig& rig, int a, int b, const DenseImage& A
   pa.insert(pa.end(), qa.begin(), qa.end());
   pb.insert(pb.end(), qb.begin(), qb.end());
   for (std::size_t k = 0; k < pa.size(); ++k) {
-    Eigen::Vector2d ia, ib;
-    if (!undistort_point(ca, pa[k], ia) || !undistort_point(cb, pb[k], ib)) continue;
+    Eigen::Vector2d ia = pa[k], ib = pb[k];
+    if (!o.rays && (!undistort_point(ca, pa[k], ia) || !undistort_point(cb, pb[k], ib))) continue;
     m.ra.push_back(pa[k]);
     m.rb.push_back(pb[k]);
     m.pa.push_back(ia);

@@ -25,6 +25,10 @@ struct DenseMatchOptions {
                                // smoothed to the same resolution through the rig's local scale
   double max_shift_px = 3.0;   // how far off the rig's prediction may be
   double min_ncc = 0.92;       // normalised cross-correlation of an accepted alignment
+  // Wide lenses matched on rays (a back-to-back fisheye ring, >= 90 degrees off the axis, has no
+  // ideal pinhole pixel): pa / pb repeat the raw pixels, as the ray matches do (the adjustment
+  // works on ra / rb). Off: matches without an ideal pixel are dropped.
+  bool rays = false;
 };
 
 // A grey frame prepared for alignment.

@@ -286,4 +286,70 @@ std::string lens_warning(const Camera& c) {
          " px): a rectilinear image given the fisheye model? Use \"radtan\" or \"pinhole\"";
 }
 
+PlaneCanvasCheck check_plane_canvas(const Rig& rig) {
+  PlaneCanvasCheck out;
+  const int n = int(rig.cameras.size());
+  if (!rig.planar() || rig.reference < 0 || rig.reference >= n) return out;
+  bool lenses = false, homographies = true;
+  for (const auto& c : rig.cameras) {
+    lenses |= !c.lens.pinhole();
+    homographies &= bool(c.homography);
+  }
+  if (!lenses || homographies || rig.plane_distance_m > 0) return out;
+  const Eigen::Vector3d zref = rig.cameras[rig.reference].R().col(2);
+  double max_pitch = 0;
+  for (int i = 0; i < n; ++i) {
+    const Camera& c = rig.cameras[i];
+    if (!(c.fx > 0) || !(c.fy > 0) || c.width <= 0 || c.height <= 0) continue;
+    // The view's outline: along rays from the principal point, the farthest raw pixel that the
+    // lens sees and unprojects (the frame's border, the image circle, or the lens's limit).
+    const Eigen::Matrix3d R = c.R();
+    const double reach = std::hypot(std::max(c.cx, c.width - c.cx), std::max(c.cy, c.height - c.cy));
+    double off = 0, view = 0;
+    for (int k = 0; k < 72; ++k) {
+      const double phi = 2 * kPi * k / 72, du = std::cos(phi), dv = std::sin(phi);
+      Eigen::Vector3d last(0, 0, 1);
+      auto at = [&](double t, Eigen::Vector3d& ray) {
+        return lens_sees(c, c.cx + t * du, c.cy + t * dv) && lens_unproject(c, {c.cx + t * du, c.cy + t * dv}, ray);
+      };
+      const double step = std::max(1.0, reach / 64);
+      double good = 0;
+      for (double t = 0; t <= reach; t += step) {
+        Eigen::Vector3d ray;
+        if (!at(t, ray)) break;
+        last = ray, good = t;
+      }
+      // The outline to a hundredth of a pixel (bisection past the last step seen).
+      for (double lo = good, hi = good + step; hi - lo > 0.01;) {
+        const double mid = 0.5 * (lo + hi);
+        Eigen::Vector3d ray;
+        if (at(mid, ray)) lo = mid, last = ray;
+        else hi = mid;
+      }
+      const Eigen::Vector3d r = (R * last).normalized();
+      off = std::max(off, std::acos(std::clamp(r.dot(zref), -1.0, 1.0)) * 180 / kPi);
+      view = std::max(view, std::acos(std::clamp(last.z(), -1.0, 1.0)) * 180 / kPi);
+      max_pitch = std::max(max_pitch, std::abs(std::asin(std::clamp(-r.y(), -1.0, 1.0))) * 180 / kPi);
+    }
+    // A view that holds the point opposite the reference axis (a back-to-back camera) reaches
+    // 180 degrees, inside its outline.
+    // (A camera facing away from it, the reference itself, has no direction to that point.)
+    const Eigen::Vector3d back = R.transpose() * (-zref);
+    Eigen::Vector2d q;
+    if (back.z() > -1 + 1e-9 && lens_project(c, back, q) && lens_sees(c, q.x(), q.y())) off = 180;
+    out.worst_off_deg = std::max(out.worst_off_deg, off);
+    if (off < kPlaneCanvasMaxOffDeg) continue;
+    const char* model = c.lens.model == Lens::Model::Fisheye ? "fisheye" : c.lens.model == Lens::Model::Radtan ? "radtan" : "pinhole";
+    out.problems.push_back(
+        "camera " + std::to_string(i) + " (" + model + ", " + std::to_string(int(std::lround(2 * view))) +
+        " degrees across) sees rays " + std::to_string(int(std::lround(off))) +
+        " degrees off the reference camera's axis: " +
+        (off >= 90 ? std::string("a plane canvas cannot show them (it ends at 90)")
+                   : std::string("a plane canvas stretches them ") +
+                         std::to_string(int(std::lround(1 / std::pow(std::cos(off * kPi / 180), 2)))) + "x"));
+  }
+  if (!out.problems.empty()) out.projection = max_pitch >= 60 ? "spherical" : "cylindrical";
+  return out;
+}
+
 }  // namespace stitch

@@ -54,4 +54,20 @@ std::string lens_problem(const Camera& c);
 constexpr double kFisheyeMinDiagonalFovDeg = 140.0;
 std::string lens_warning(const Camera& c);
 
+// Lens cameras on a plane canvas (issue 15): the plane is the reference camera's image plane and
+// shows only rays less than 90 degrees off its axis, stretched without bound towards 90 (4x at
+// 60, 15x at 75). A rotating rig whose lens views reach kPlaneCanvasMaxOffDeg or more off that
+// axis (a fisheye of 150 degrees or more, or a wide lens turned away) needs a curved canvas.
+// `problems`: one line per such camera, naming it; `projection`: the canvas its views need
+// ("spherical" when a view comes within 30 degrees of a pole, else "cylindrical"), empty when the
+// plane is fine. Rigs of pinholes only, and rigs given by homographies (a ground plane, a
+// calibration), are not checked.
+constexpr double kPlaneCanvasMaxOffDeg = 75.0;
+struct PlaneCanvasCheck {
+  std::string projection;
+  std::vector<std::string> problems;
+  double worst_off_deg = 0;  // the farthest view ray from the reference axis, degrees
+};
+PlaneCanvasCheck check_plane_canvas(const Rig& rig);
+
 }  // namespace stitch

@@ -101,6 +101,7 @@ Rig rig_load_opencv_yaml(const std::string& path) {
   try {
     const cv::FileNode root = fs.root();
     if (!text(root["projection"]).empty()) rig.projection = text(root["projection"]);
+    else rig.projection_default = true;  // plane unless the views need more (check_plane_canvas)
     projection_from_name(rig.projection);
     if (!root["camera_matrix"].empty()) {
       rig.cameras.push_back(camera_from_node(root, "camera 0", nullptr));

@@ -245,6 +245,8 @@ Rig rig_from_json_string(const std::string& text) {
   if (auto it = j.find("projection"); it != j.end()) {
     if (!it->is_string()) fail("", "\"projection\" must be a string");
     rig.projection = it->get<std::string>();
+  } else {
+    rig.projection_default = true;
   }
   projection_from_name(rig.projection);  // throws, naming the supported ones
   auto cams = j.find("cameras");

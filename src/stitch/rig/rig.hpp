@@ -70,6 +70,9 @@ Projection projection_from_name(const std::string& name);  // throws RigError na
 
 struct Rig {
   std::string projection = "plane";
+  // The rig file gave no "projection" (plane by default): a calibration may pick a curved canvas
+  // when the views need one (lens rigs on a plane, issue 15). False when set in code or a file.
+  bool projection_default = false;
   int reference = 0;
   int canvas_width = 0, canvas_height = 0;  // 0 when not calibrated
   double plane_distance_m = 0;              // >0: plane-induced homographies use "t"
