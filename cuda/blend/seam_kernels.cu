@@ -101,8 +101,10 @@ __global__ void mix_along_kernel(SeamPairGeometry p, const int* across, const fl
   const int level = blank(counts, 0) || blank(counts, 1) ? 255 : sm::mix_level(w, sum);
   uint8_t& m = mix[size_t(p.box_y + by) * label_width + p.box_x + bx];
   m = uint8_t(max(int(m), level));  // pairs run one after another: no race
-  float& v = cost[size_t(row) * cols + col];
-  v = sm::crossing_cost(w, v, ce, level);
+  if (w.crossing > 0.f) {
+    float& v = cost[size_t(row) * cols + col];
+    v = sm::crossing_cost(w, v, ce, level);
+  }
 }
 
 __global__ void mix_apply_kernel(DeviceImage out, MixViews v, const uint8_t* labels, const uint8_t* mix) {

@@ -39,8 +39,9 @@ struct SeamSettings {
   // Where the views disagree, a seam point costs crossing_weight at the overlap's border and twice
   // that in its middle instead of its per-pixel cost (seam_math.hpp crossing_cost): a seam that
   // must cross a near object and its parallax copy crosses at the border, where the least of the
-  // object shows twice. 0: off. Needs mix_radius > 0.
-  float crossing_weight = 64.f;
+  // object shows twice. 0: off (the default: on the rendered parallax rigs 64 cut the ghost ratio
+  // a little and raised flicker by up to 18 points, BENCHMARKS.md). Needs mix_radius > 0.
+  float crossing_weight = 0.f;
 };
 
 class SeamFinder {
