@@ -23,19 +23,30 @@ __global__ void luma_kernel(DeviceImage view, uint8_t* luma) {
 
 __global__ void cost_kernel(SeamPairGeometry p, DeviceImage va, DeviceImage vb, const uint8_t* la, const uint8_t* lb,
                             const uint8_t* pa, const uint8_t* pb, const float* centre_map, sm::Weights w, float* cost,
-                            int* diff) {
+                            int* diff, int* counts) {
   const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
-  if (bx >= p.box_w || by >= p.box_h) return;
+  const bool in_box = bx < p.box_w && by < p.box_h;
+  const float centre = in_box ? centre_map[size_t(by) * p.box_w + bx] : -1.f;
+  const int x = p.box_x + bx, y = p.box_y + by;
+  const bool inside = centre >= 0.f;
+  const int a = inside ? luma_at(la, p.roi_a, x, y) : 255, b = inside ? luma_at(lb, p.roi_b, x, y) : 255;
+  if (counts) {  // the overlap's pixels and the dark ones of each view, a warp's worth per atomic
+    const unsigned n_in = __ballot_sync(0xffffffffu, inside), n_a = __ballot_sync(0xffffffffu, a <= sm::kDark),
+                   n_b = __ballot_sync(0xffffffffu, b <= sm::kDark);
+    if ((threadIdx.x & 31) == 0 && n_in) {
+      atomicAdd(counts, __popc(n_in));
+      if (n_a) atomicAdd(counts + 1, __popc(n_a));
+      if (n_b) atomicAdd(counts + 2, __popc(n_b));
+    }
+  }
+  if (!in_box) return;
   const int row = p.vertical ? by : bx, col = p.vertical ? bx : by, cols = p.vertical ? p.box_w : p.box_h;
   float& out = cost[size_t(row) * cols + col];
-  const float centre = centre_map[size_t(by) * p.box_w + bx];
-  if (centre < 0.f) {
+  if (!inside) {
     out = sm::kOutside;
     if (diff) diff[size_t(row) * cols + col] = 0;
     return;
   }
-  const int x = p.box_x + bx, y = p.box_y + by;
-  const int a = luma_at(la, p.roi_a, x, y), b = luma_at(lb, p.roi_b, x, y);
   const int gradients = abs(luma_at(la, p.roi_a, x + 1, y) - luma_at(la, p.roi_a, x - 1, y)) +
                         abs(luma_at(la, p.roi_a, x, y + 1) - luma_at(la, p.roi_a, x, y - 1)) +
                         abs(luma_at(lb, p.roi_b, x + 1, y) - luma_at(lb, p.roi_b, x - 1, y)) +
@@ -72,17 +83,29 @@ __global__ void clearance_along_kernel(const int* across, int rows, int cols, sm
   v = sm::add(v, sm::clearance_cost(w, sum));
 }
 
+__device__ __forceinline__ bool blank(const int* counts, int view) {  // view 0: a, 1: b
+  return counts && sm::view_blank(counts[1 + view], counts[2 - view], counts[0]);
+}
+
+// The pair's mix levels (max into the mix map) and, from them, the crossing cost (as SeamFinder::cut).
 __global__ void mix_along_kernel(SeamPairGeometry p, const int* across, const float* centre, sm::Weights w,
-                                 uint8_t* mix, int label_width) {
+                                 const int* counts, float* cost, uint8_t* mix, int label_width) {
   const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
-  if (bx >= p.box_w || by >= p.box_h || centre[size_t(by) * p.box_w + bx] < 0.f) return;
+  if (bx >= p.box_w || by >= p.box_h) return;
+  const float ce = centre[size_t(by) * p.box_w + bx];
+  if (ce < 0.f) return;
   const int row = p.vertical ? by : bx, col = p.vertical ? bx : by;
   const int rows = p.vertical ? p.box_h : p.box_w, cols = p.vertical ? p.box_w : p.box_h;
   int sum = 0;
   for (int k = max(0, row - w.mix_radius); k <= min(rows - 1, row + w.mix_radius); ++k)
     sum += across[size_t(k) * cols + col];
+  const int level = blank(counts, 0) || blank(counts, 1) ? 255 : sm::mix_level(w, sum);
   uint8_t& m = mix[size_t(p.box_y + by) * label_width + p.box_x + bx];
-  m = uint8_t(max(int(m), sm::mix_level(w, sum)));  // pairs run one after another: no race
+  m = uint8_t(max(int(m), level));  // pairs run one after another: no race
+  if (w.crossing > 0.f) {
+    float& v = cost[size_t(row) * cols + col];
+    v = sm::crossing_cost(w, v, ce, level);
+  }
 }
 
 __global__ void mix_apply_kernel(DeviceImage out, MixViews v, const uint8_t* labels, const uint8_t* mix) {
@@ -247,12 +270,13 @@ __global__ void dp_walk_kernel(const SeamDpJob* jobs, float hold, int walk_rows)
   }
 }
 
-__global__ void labels_kernel(uint8_t* labels, int label_width, SeamPairGeometry p, const float* centre, const int* path) {
+__global__ void labels_kernel(uint8_t* labels, int label_width, SeamPairGeometry p, const float* centre, const int* path,
+                              const int* counts) {
   const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
   if (bx >= p.box_w || by >= p.box_h || centre[size_t(by) * p.box_w + bx] < 0.f) return;
   const int row = p.vertical ? by : bx, col = p.vertical ? bx : by;
   uint8_t& l = labels[size_t(p.box_y + by) * label_width + p.box_x + bx];
-  if (l == p.a || l == p.b) l = uint8_t(col < path[row] ? p.a : p.b);
+  if (l == p.a || l == p.b) l = uint8_t(blank(counts, 0) ? p.b : blank(counts, 1) ? p.a : col < path[row] ? p.a : p.b);
 }
 
 const dim3 kBlock(32, 8);
@@ -268,12 +292,12 @@ void launch_seam_luma(const DeviceImage& view, uint8_t* luma, cudaStream_t strea
 void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, const DeviceImage& view_b,
                       const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
                       const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
-                      float* cost, int* diff, int* across, cudaStream_t stream) {
+                      float* cost, int* diff, int* across, int* counts, cudaStream_t stream) {
   const bool clearance = weights.clearance_radius > 0 && weights.clearance > 0.f && diff && across;
   const bool mixing = weights.mix_radius > 0 && diff;
   cost_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, view_a, view_b, luma_a, luma_b, previous_a,
                                                                       previous_b, centre, weights, cost,
-                                                                      clearance || mixing ? diff : nullptr);
+                                                                      clearance || mixing ? diff : nullptr, counts);
   check_launch("seam cost_kernel");
   if (!clearance) return;
   const int rows = pair.vertical ? pair.box_h : pair.box_w, cols = pair.vertical ? pair.box_w : pair.box_h;
@@ -284,13 +308,14 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
 }
 
 void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
-                     const stitch::seam::Weights& weights, uint8_t* mix, int label_width, cudaStream_t stream) {
+                     const stitch::seam::Weights& weights, const int* counts, float* cost, uint8_t* mix,
+                     int label_width, cudaStream_t stream) {
   if (weights.mix_radius <= 0) return;
   const int rows = pair.vertical ? pair.box_h : pair.box_w, cols = pair.vertical ? pair.box_w : pair.box_h;
   clearance_across_kernel<<<grid_for(cols, rows), kBlock, 0, stream>>>(diff, rows, cols, weights.mix_radius, across);
   check_launch("seam mix across kernel");
-  mix_along_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, across, centre, weights, mix,
-                                                                            label_width);
+  mix_along_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, across, centre, weights, counts,
+                                                                            cost, mix, label_width);
   check_launch("seam mix_along_kernel");
 }
 
@@ -330,8 +355,9 @@ void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stabi
 }
 
 void launch_seam_labels(uint8_t* labels, int label_width, const SeamPairGeometry& pair, const float* centre,
-                        const int* path, cudaStream_t stream) {
-  labels_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(labels, label_width, pair, centre, path);
+                        const int* path, const int* counts, cudaStream_t stream) {
+  labels_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(labels, label_width, pair, centre, path,
+                                                                         counts);
   check_launch("seam labels_kernel");
 }
 

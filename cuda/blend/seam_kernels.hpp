@@ -21,15 +21,20 @@ void launch_seam_luma(const DeviceImage& view, uint8_t* luma, cudaStream_t strea
 // cost (rows x cols in the seam's frame) of every box pixel; centre (box-sized) < 0 outside
 // the overlap. previous lumas may equal the current ones (no motion). diff and across (rows x
 // cols ints, scratch) hold the clearance term's sums; nullptr or a radius of 0: no clearance.
+// counts (3 ints, zeroed by the caller before; may be nullptr): += the overlap's pixels and those
+// at or below stitch::seam::kDark in view a and in view b (stitch::seam::view_blank).
 void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, const DeviceImage& view_b,
                       const uint8_t* luma_a, const uint8_t* luma_b, const uint8_t* previous_a,
                       const uint8_t* previous_b, const float* centre, const stitch::seam::Weights& weights,
-                      float* cost, int* diff, int* across, cudaStream_t stream);
+                      float* cost, int* diff, int* across, int* counts, cudaStream_t stream);
 // The consensus blend's mix levels of one pair (stitch::seam::mix_level over the (2 mix_radius
 // + 1)^2 window of diff, the sums launch_seam_cost left when weights.mix_radius > 0; across:
-// scratch), written as the max with what `mix` (label_width wide, zeroed per frame) holds.
+// scratch), written as the max with what `mix` (label_width wide, zeroed per frame) holds; 255
+// over the whole overlap when a view is blank (counts). The pair's own level then turns its cost
+// into stitch::seam::crossing_cost: run it between launch_seam_cost and launch_seam_dp.
 void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
-                     const stitch::seam::Weights& weights, uint8_t* mix, int label_width, cudaStream_t stream);
+                     const stitch::seam::Weights& weights, const int* counts, float* cost, uint8_t* mix,
+                     int label_width, cudaStream_t stream);
 // out (the weighted mean of the views) <- mix_value(out, view[label], mix) where mix > 0.
 // views[i].data == nullptr: view i missing; rois[i] = {x, y, w, h} on out.
 struct MixViews {
@@ -54,8 +59,9 @@ struct SeamDpJob {
 // A pair whose previous path still costs within hold per row of the best keeps it
 // (stitch::seam::keep_previous).
 void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream);
-// Overlap pixels labelled a or b: a before the path, b from it on.
+// Overlap pixels labelled a or b: a before the path, b from it on; all the other view's when one
+// is blank (counts, as launch_seam_cost left them; nullptr: never).
 void launch_seam_labels(uint8_t* labels, int label_width, const SeamPairGeometry& pair, const float* centre,
-                        const int* path, cudaStream_t stream);
+                        const int* path, const int* counts, cudaStream_t stream);
 
 }  // namespace stitch_cuda

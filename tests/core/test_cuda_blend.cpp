@@ -123,7 +123,7 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
   gpu.prepare(views, g.width, g.height);
   ASSERT_GE(gpu.pairs().size(), 2u);  // neighbours (and the outer views, where they meet)
   cv::RNG rng(3);
-  for (int frame = 0; frame < 4; ++frame) {
+  for (int frame = 0; frame < 5; ++frame) {  // frame 4: view 1 black (no signal; it loses its overlaps)
     // Each frame: the views shifted a little (motion) plus noise, the same on both backends.
     std::vector<cv::Mat> frames;
     for (std::size_t i = 0; i < views.size(); ++i) {
@@ -131,6 +131,7 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
       const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 2.0 * frame, 0, 1, 0);
       cv::warpAffine(s.frames[i], f, shift, s.frames[i].size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
       rng.fill(noise, cv::RNG::UNIFORM, 0, 8);
+      if (frame == 4 && i == 1) f.setTo(cv::Scalar(0, 0, 0, 255));
       frames.push_back(f + noise);
     }
     WarpedViews w(views, frames);

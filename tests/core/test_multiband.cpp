@@ -437,3 +437,69 @@ TEST(Seam, PathFromBothEndsIsTheLeastEnergyPath) {
       if (previous_energy > least + 1e-2) EXPECT_NE(kept, previous) << rows << "x" << cols;
     }
 }
+
+// A camera that shows nothing (all black: no signal, lens cap) counts as missing in its
+// overlaps: the good view wins the whole overlap, pixel for pixel, instead of the seam cutting a
+// jagged edge into the good view's side wherever its pixels are darkest.
+TEST(Seam, ABlackViewLosesTheWholeOverlapToTheGoodOne) {
+  SeamScene s(294);
+  cv::RNG rng(5);
+  cv::Mat good0 = with_noise(s.cam0, rng), good1 = with_noise(s.cam1, rng);
+  for (int black = 0; black < 2; ++black) {
+    cv::Mat dark(s.cam0.size(), CV_8UC4, cv::Scalar(0, 0, 0, 255));
+    dark = with_noise(dark, rng);  // a dark sensor's noise: still "no signal"
+    cv::Mat f0 = black == 0 ? dark : good0, f1 = black == 1 ? dark : good1;
+    CompositorSettings settings;
+    settings.seam = SeamMode::DynamicProgramming;
+    Compositor c(Backend::Cpu);
+    c.prepare(s.rig, settings);
+    cv::Mat out(c.geometry().height, c.geometry().width, CV_8UC4);
+    c.compose({as_view(f0), as_view(f1)}, as_view(out));
+    // The overlap (canvas x 200..399), rows clear of the magenta square: the good view exactly.
+    std::size_t same = 0, n = 0;
+    for (int y = 0; y < out.rows; ++y) {
+      if (y >= 95 && y < 185) continue;
+      for (int x = 202; x < 398; ++x, ++n) {
+        const cv::Vec4b o = out.at<cv::Vec4b>(y, x);
+        const cv::Vec4b g = black == 0 ? good1.at<cv::Vec4b>(y, x - 200) : good0.at<cv::Vec4b>(y, x);
+        same += o[0] == g[0] && o[1] == g[1] && o[2] == g[2];
+      }
+    }
+    std::printf("view %d black: %.3f%% of the overlap is the good view\n", black, 100.0 * same / n);
+    EXPECT_EQ(same, n) << "view " << black << " black";
+  }
+}
+
+// A near object and its parallax copy that fill the overlap from border to border: every seam
+// crosses them. Through the middle it shows a disparity-wide strip of the object twice; at the
+// overlap's border only what lies beyond the border. The crossing cost (off by default: on the
+// rendered rigs it trades flicker for little ghost, BENCHMARKS.md) puts it at a border.
+TEST(Seam, CrossesAnObjectAndItsCopyAtTheOverlapsBorderWhenItCannotGoAround) {
+  SeamScene s(294);
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  cv::Mat cam0 = s.cam0.clone(), cam1 = s.cam1.clone();
+  const cv::Mat object = photo(cv::Rect(420, 260, 170, 80));
+  object.copyTo(cam0(cv::Rect(190, 100, 170, 80)));        // canvas x 190..359 in view 0
+  object.copyTo(cam1(cv::Rect(230 - 200, 100, 170, 80)));  // and 40 px further right in view 1: 230..399
+  cv::RNG rng(9);
+  cv::Mat f0 = with_noise(cam0, rng), f1 = with_noise(cam1, rng);
+  for (float crossing : {0.f, 64.f}) {  // off (the default: BENCHMARKS.md), and on
+    SeamSettings settings;
+    settings.crossing_weight = crossing;
+    SeamFinder finder(settings);
+    finder.prepare(s.views, s.geometry.width, s.geometry.height);
+    finder.find({as_view(f0), as_view(f1)});
+    const SeamFinder::Pair& p = finder.pairs()[0];
+    int at_border = 0;
+    for (int y = 104; y < 176; ++y) {
+      const int x = p.box.x + p.path[y - p.box.y];
+      at_border += x <= p.box.x + 12 || x >= p.box.x + p.box.width - 12;
+    }
+    std::printf("crossing weight %.0f: the seam at the overlap's border on %d of 72 rows of the object\n", crossing,
+                at_border);
+    if (crossing > 0)
+      EXPECT_GE(at_border, 36);  // then it walks back at one pixel a row, to where the centre cost is least
+    else
+      EXPECT_LT(at_border, 36);  // the per-pixel cost alone crosses in the middle
+  }
+}

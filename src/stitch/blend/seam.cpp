@@ -185,9 +185,22 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
   const bool has_previous = int(p.previous_path.size()) == rows;
   // Every cell's cost once (the DP and last frame's path read it), then the clearance term.
   std::vector<float> costs(std::size_t(rows) * cols);
+  // A blank (black, missing-signal) view loses the overlap: its dark pixels counted per row (the
+  // rows run in parallel; integer sums, so the same in any order).
+  std::vector<int> row_cells(rows, 0), row_dark_a(rows, 0), row_dark_b(rows, 0);
   for_rows(rows, [&](int r) {
-    for (int c = 0; c < cols; ++c) costs[std::size_t(r) * cols + c] = cost(r, c);
+    for (int c = 0; c < cols; ++c) {
+      const float v = costs[std::size_t(r) * cols + c] = cost(r, c);
+      if (v == seam::kOutside) continue;
+      const int x = p.box.x + (p.vertical ? c : r), y = p.box.y + (p.vertical ? r : c);
+      row_cells[r]++;
+      row_dark_a[r] += luma(la, ra, x, y) <= seam::kDark;
+      row_dark_b[r] += luma(lb, rb, x, y) <= seam::kDark;
+    }
   });
+  int cells = 0, dark_a = 0, dark_b = 0;
+  for (int r = 0; r < rows; ++r) cells += row_cells[r], dark_a += row_dark_a[r], dark_b += row_dark_b[r];
+  const bool blank_a = seam::view_blank(dark_a, dark_b, cells), blank_b = seam::view_blank(dark_b, dark_a, cells);
   const bool clearance = w.clearance_radius > 0 && w.clearance > 0.f, mixing = w.mix_radius > 0;
   std::vector<int> diff, across;
   if (clearance || mixing) {
@@ -233,8 +246,11 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
         int sum = 0;
         for (int k = std::max(0, r - R); k <= std::min(rows - 1, r + R); ++k) sum += across[std::size_t(k) * cols + c];
         const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
+        const int level = blank_a || blank_b ? 255 : seam::mix_level(w, sum);
         uint8_t& m = mix_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
-        m = uint8_t(std::max(int(m), seam::mix_level(w, sum)));
+        m = uint8_t(std::max(int(m), level));
+        float& v = costs[std::size_t(r) * cols + c];
+        v = seam::crossing_cost(w, v, p.centre_cost[std::size_t(by) * p.box.width + bx], level);
       }
     });
   }
@@ -248,7 +264,7 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
       const int bx = p.vertical ? cc : r, by = p.vertical ? r : cc;
       if (p.centre_cost[std::size_t(by) * p.box.width + bx] < 0) continue;
       uint8_t& l = labels_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
-      if (l == p.a || l == p.b) l = uint8_t(cc < path[r] ? p.a : p.b);
+      if (l == p.a || l == p.b) l = uint8_t(blank_a ? p.b : blank_b ? p.a : cc < path[r] ? p.a : p.b);
     }
   });
 }

@@ -36,6 +36,12 @@ struct SeamSettings {
   int mix_radius = 4;
   int agree_level = 12;
   int disagree_level = 30;
+  // Where the views disagree, a seam point costs crossing_weight at the overlap's border and twice
+  // that in its middle instead of its per-pixel cost (seam_math.hpp crossing_cost): a seam that
+  // must cross a near object and its parallax copy crosses at the border, where the least of the
+  // object shows twice. 0: off (the default: on the rendered parallax rigs 64 cut the ghost ratio
+  // a little and raised flicker by up to 18 points, BENCHMARKS.md). Needs mix_radius > 0.
+  float crossing_weight = 0.f;
 };
 
 class SeamFinder {
@@ -67,7 +73,8 @@ class SeamFinder {
   seam::Weights weights() const {
     return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
             settings_.hold, settings_.clearance_weight, settings_.clearance_radius,
-            settings_.mix_radius, settings_.agree_level, settings_.disagree_level};
+            settings_.mix_radius, settings_.agree_level, settings_.disagree_level, settings_.crossing_weight,
+            settings_.centre_weight};
   }
 
   SeamSettings settings_;

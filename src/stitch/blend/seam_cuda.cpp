@@ -18,6 +18,7 @@ struct SeamFinderCuda::State {
     stitch_cuda::SeamPairGeometry geometry;
     int rows = 0, cols = 0;
     DeviceBuffer centre, cost, steps, path, previous, diff, across, edge;  // diff, across: window sums
+    DeviceBuffer counts;  // the overlap's pixels, and the dark ones of a and b (a blank view loses the overlap)
     bool has_previous = false, cut = false;
   };
   std::vector<PairState> pairs;
@@ -65,6 +66,7 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
     ps.edge.resize((2 * std::size_t(ps.cols) + 2) * sizeof(float));
     ps.path.resize(ps.rows * sizeof(int));
     ps.previous.resize(ps.rows * sizeof(int));
+    ps.counts.resize(3 * sizeof(int));
     s_->pairs.push_back(std::move(ps));
   }
   s_->luma.clear();
@@ -111,7 +113,8 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
   const SeamSettings& settings = s.planner.settings();
   const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability,
                         settings.hold, settings.clearance_weight, settings.clearance_radius,
-                        settings.mix_radius, settings.agree_level, settings.disagree_level};
+                        settings.mix_radius, settings.agree_level, settings.disagree_level, settings.crossing_weight,
+                        settings.centre_weight};
   if (w.mix_radius > 0) STITCH_CUDA(cudaMemsetAsync(s.mix.data(), 0, std::size_t(s.width) * s.height, st));
   // Costs of every cut pair, then all their DP sweeps in one launch, then the labels pair by pair
   // (in the CPU's order: boxes of different pairs may overlap).
@@ -124,11 +127,17 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
       p.has_previous = false;
       continue;
     }
+    STITCH_CUDA(cudaMemsetAsync(p.counts.data(), 0, 3 * sizeof(int), st));
     stitch_cuda::launch_seam_cost(p.geometry, to_device_image(warped[a]), to_device_image(warped[b]),
                                   s.luma[a].data(), s.luma[b].data(), s.previous_luma[a].data(),
                                   s.previous_luma[b].data(), reinterpret_cast<const float*>(p.centre.data()), w,
                                   reinterpret_cast<float*>(p.cost.data()), reinterpret_cast<int*>(p.diff.data()),
-                                  reinterpret_cast<int*>(p.across.data()), st);
+                                  reinterpret_cast<int*>(p.across.data()), reinterpret_cast<int*>(p.counts.data()), st);
+    // the mix levels, and from them the crossing cost, before the DP reads the costs
+    stitch_cuda::launch_seam_mix(p.geometry, reinterpret_cast<const int*>(p.diff.data()),
+                                 reinterpret_cast<int*>(p.across.data()), reinterpret_cast<const float*>(p.centre.data()),
+                                 w, reinterpret_cast<const int*>(p.counts.data()), reinterpret_cast<float*>(p.cost.data()),
+                                 s.mix.data(), s.width, st);
     s.host_jobs.push_back({reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
                            p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
                            reinterpret_cast<int8_t*>(p.steps.data()), reinterpret_cast<int*>(p.path.data()),
@@ -152,10 +161,8 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
   for (State::PairState& p : s.pairs) {
     if (!p.cut) continue;
     stitch_cuda::launch_seam_labels(s.labels.data(), s.width, p.geometry, reinterpret_cast<const float*>(p.centre.data()),
-                                    reinterpret_cast<const int*>(p.path.data()), st);
-    stitch_cuda::launch_seam_mix(p.geometry, reinterpret_cast<const int*>(p.diff.data()),
-                                 reinterpret_cast<int*>(p.across.data()), reinterpret_cast<const float*>(p.centre.data()),
-                                 w, s.mix.data(), s.width, st);
+                                    reinterpret_cast<const int*>(p.path.data()),
+                                    reinterpret_cast<const int*>(p.counts.data()), st);
     STITCH_CUDA(cudaMemcpyAsync(p.previous.data(), p.path.data(), p.rows * sizeof(int), cudaMemcpyDeviceToDevice, st));
     p.has_previous = true;
   }

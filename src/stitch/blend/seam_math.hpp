@@ -16,6 +16,9 @@ struct Weights {  // SeamSettings, for the kernels
   int clearance_radius;  // px; 0: no clearance term
   int mix_radius;        // px: the consensus blend's window; 0: no mix map
   int agree, disagree;   // window means of |dr|+|dg|+|db|: mix 0 at or below agree, 255 at or above disagree
+  float crossing;        // cost of a seam point where the views disagree (mix 255) at the overlap's border;
+                         // twice that at its middle (crossing_cost); 0: the per-pixel cost only
+  float centre_max;      // the centre cost at the overlap's border (SeamSettings::centre_weight)
 };
 
 
@@ -91,6 +94,33 @@ STITCH_HD int mix_level(const Weights& w, int sum) {
   if (sum <= lo) return 0;
   if (sum >= hi || hi <= lo) return 255;
   return int((long long)(sum - lo) * 255 / (hi - lo));
+}
+
+// Where the views disagree, crossing the disagreement is unavoidable only when a near object and
+// its parallax copy fill the overlap from border to border; a cut through the middle of the pair
+// then shows a d px strip of the object twice (d: the disparity), a cut at the overlap's border
+// only what of the object lies beyond that border. The per-pixel difference says the opposite
+// (it is lowest where the object overlaps its own copy, in the middle), so a cell of full
+// disagreement (mix level m = 255) costs at least `crossing` at the border, rising to twice that
+// at the middle; a cell of partial disagreement the blend of that and its per-pixel cost by m;
+// never less than its per-pixel cost (what only one view shows stays dear). A seam that can go
+// around the disagreement (agreement costs far less) still does: the object comes whole.
+STITCH_HD float crossing_cost(const Weights& w, float cost, float centre, int m) {
+  if (m <= 0 || w.crossing <= 0.f) return cost;
+  const float border = w.centre_max > 0.f ? add(2.f, -div(centre, w.centre_max)) : 1.f;  // 1 at the border, 2 in the middle
+  const float blob = mul(w.crossing, border);
+  if (blob <= cost) return cost;  // never cheaper than the per-pixel cost: what only one view shows stays dear
+  if (m >= 255) return blob;
+  return add(mul(cost, div(float(255 - m), 255.f)), mul(blob, div(float(m), 255.f)));
+}
+
+// A view that shows nothing in an overlap (an all-black or missing-signal camera: luma at or
+// below kDark on nearly every pixel, while the other view is mostly not dark) counts as missing
+// there: the other view wins the whole overlap. `dark_*`: the pair's overlap pixels at or below
+// kDark in each view, `cells`: the overlap's pixels. Integers: the same decision on both backends.
+constexpr int kDark = 16;
+STITCH_HD bool view_blank(int dark_self, int dark_other, int cells) {
+  return cells > 0 && 50LL * dark_self >= 49LL * cells && 2LL * dark_other < cells;
 }
 
 // One channel of the consensus blend: the weighted mean and the labelled view's value, mixed by
