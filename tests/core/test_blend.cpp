@@ -1,6 +1,8 @@
 // Warp + position-weighted blend (paper eq. 15-16) on real images.
 #include <gtest/gtest.h>
 
+#include <functional>
+
 #include <Eigen/Dense>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
@@ -174,32 +176,44 @@ TEST(Blend, PrewarpedAutoCropIsTheCanvasSubRectangle) {
   EXPECT_EQ(cv::norm(out, expect, cv::NORM_INF), 0.0);
 }
 
+// The tilted crop rig's two views pre-warped onto its canvas (stitchflowwarp's output), the
+// canvas they fuse into, and a compositor that crops (auto) and scales it to an output
+// `output_width(canvas width)` wide.
+struct PrewarpedScale {
+  CropRig c = make_tilted_crop_rig();
+  Compositor full{Backend::Cpu}, scaled{Backend::Cpu};
+  std::vector<cv::Mat> warped;
+  std::vector<ImageView> views;
+  cv::Mat canvas;
+  explicit PrewarpedScale(const std::function<int(int)>& output_width) {
+    full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
+    CompositorSettings s;
+    s.crop = CropMode::Auto;
+    s.output_width = output_width(full.geometry().width);
+    scaled.prepare(c.rig, s, CompositorInput::Prewarped);
+    const std::vector<cv::Mat> cams = {c.cam0, c.cam1};
+    for (std::size_t i = 0; i < cams.size(); ++i) {
+      const ViewPlacement& p = full.prewarped_placements()[i];
+      warped.emplace_back();
+      cv::resize(cams[i], warped.back(), cv::Size(p.roi.width, p.roi.height));
+    }
+    for (auto& w : warped) views.push_back(as_view(w));
+    canvas.create(full.geometry().height, full.geometry().width, CV_8UC4);
+    full.compose(views, as_view(canvas));
+  }
+};
+
 // Pre-warped views with crop=auto and a mild scale (bilinear): the output is OpenCV's bilinear warp
 // of the whole fused canvas, byte for byte, although only the canvas rows it reads are fused.
 TEST(Blend, PrewarpedBilinearScaleIsTheWarpOfTheWholeCanvas) {
-  CropRig c = make_tilted_crop_rig();
-  Compositor full(Backend::Cpu), scaled(Backend::Cpu);
-  full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
-  CompositorSettings s;
-  s.crop = CropMode::Auto;
-  s.output_width = 2 * int(0.45 * full.geometry().width);
-  scaled.prepare(c.rig, s, CompositorInput::Prewarped);
+  PrewarpedScale t([](int canvas_width) { return 2 * int(0.45 * canvas_width); });
+  Compositor& scaled = t.scaled;
+  const std::vector<ImageView>& views = t.views;
+  const cv::Mat& canvas = t.canvas;
   const OutputGeometry& g = scaled.geometry();
   const Eigen::Matrix3d& A = g.canvas_to_output;
   ASSERT_GE(A(0, 0), 0.75);
   ASSERT_LT(A(0, 0), 1.0);
-  std::vector<cv::Mat> warped;
-  std::vector<ImageView> views;
-  const std::vector<cv::Mat> cams = {c.cam0, c.cam1};
-  for (std::size_t i = 0; i < cams.size(); ++i) {
-    const ViewPlacement& p = full.prewarped_placements()[i];
-    cv::Mat w;
-    cv::resize(cams[i], w, cv::Size(p.roi.width, p.roi.height));
-    warped.push_back(w);
-    views.push_back(as_view(warped.back()));
-  }
-  cv::Mat canvas(full.geometry().height, full.geometry().width, CV_8UC4);
-  full.compose(views, as_view(canvas));
   cv::Mat out(g.height, g.width, CV_8UC4), expect;
   scaled.compose(views, as_view(out));
   const cv::Matx23d affine(A(0, 0), A(0, 1), A(0, 2), A(1, 0), A(1, 1), A(1, 2));
@@ -214,29 +228,14 @@ TEST(Blend, PrewarpedBilinearScaleIsTheWarpOfTheWholeCanvas) {
 TEST(Blend, PrewarpedDownscaleIsTheCanvasAreaAverage) {
   for (const int width : {320, 210}) {  // 3 and 4 canvas pixels under an output pixel
   SCOPED_TRACE(width);
-  CropRig c = make_tilted_crop_rig();
-  Compositor full(Backend::Cpu), scaled(Backend::Cpu);
-  full.prepare(c.rig, CompositorSettings{}, CompositorInput::Prewarped);
-  CompositorSettings s;
-  s.crop = CropMode::Auto;
-  s.output_width = width;
-  scaled.prepare(c.rig, s, CompositorInput::Prewarped);
+  PrewarpedScale t([&](int) { return width; });
+  Compositor& scaled = t.scaled;
+  const std::vector<ImageView>& views = t.views;
+  const cv::Mat& canvas = t.canvas;
   const OutputGeometry& g = scaled.geometry();
   const Eigen::Matrix3d& A = g.canvas_to_output;
   ASSERT_LT(A(0, 0), 0.75);
   ASSERT_LT(A(1, 1), 0.75);
-  std::vector<cv::Mat> warped;
-  std::vector<ImageView> views;
-  const std::vector<cv::Mat> cams = {c.cam0, c.cam1};
-  for (std::size_t i = 0; i < cams.size(); ++i) {
-    const ViewPlacement& p = full.prewarped_placements()[i];
-    cv::Mat w;
-    cv::resize(cams[i], w, cv::Size(p.roi.width, p.roi.height));
-    warped.push_back(w);
-    views.push_back(as_view(warped.back()));
-  }
-  cv::Mat canvas(full.geometry().height, full.geometry().width, CV_8UC4);
-  full.compose(views, as_view(canvas));
   const int threads = cv::getNumThreads();
   cv::Mat out1(g.height, g.width, CV_8UC4), out3(g.height, g.width, CV_8UC4);
   cv::setNumThreads(3);

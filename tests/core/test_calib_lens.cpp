@@ -188,22 +188,33 @@ TEST(CalibLens, EstimatesAcrossTheRange) {
   }
 }
 
+// The true rig a little off, as the calibrator's fit is when it locates dense matches: camera 0
+// turned by `yaw_deg`, camera 2's focal length times `focal`.
+static Rig off_truth(Rig rig, double yaw_deg, double focal) {
+  rig.cameras[0].yaw_deg += yaw_deg;
+  rig.cameras[2].fx *= focal;
+  rig.cameras[2].fy *= focal;
+  return rig;
+}
+
+static std::vector<DenseImage> dense_images(const std::vector<cv::Mat>& frames) {
+  std::vector<DenseImage> imgs;
+  for (const auto& f : frames) {
+    cv::Mat g;
+    cv::cvtColor(f, g, cv::COLOR_RGBA2GRAY);
+    imgs.push_back(prepare_dense_image(g));
+  }
+  return imgs;
+}
+
 // The dense matches themselves (issue 15): through a rig a little off the truth (yaw 0.3 degrees,
 // focal 0.5 %), the photometric alignment places hundreds of correspondences a pair to a few
 // hundredths of a pixel of where the true rig puts them (SIFT keypoints: ~0.25 px), over the
 // whole overlap, corners included.
 TEST(CalibLens, DenseMatchesAreHundredthsOfAPixel) {
   const Scene& s = scene();
-  Rig guide = s.truth;
-  guide.cameras[0].yaw_deg += 0.3;
-  guide.cameras[2].fx *= 1.005;
-  guide.cameras[2].fy *= 1.005;
-  std::vector<DenseImage> imgs;
-  for (const auto& f : s.frames) {
-    cv::Mat g;
-    cv::cvtColor(f, g, cv::COLOR_RGBA2GRAY);
-    imgs.push_back(prepare_dense_image(g));
-  }
+  const Rig guide = off_truth(s.truth, 0.3, 1.005);
+  const std::vector<DenseImage> imgs = dense_images(s.frames);
   for (int a : {0, 1}) {
     const PairMatches m = dense_pair_matches(guide, a, a + 1, imgs[a], imgs[a + 1]);
     std::vector<double> e;
@@ -236,16 +247,8 @@ TEST(CalibLens, DenseMatchesAreHundredthsOfAPixel) {
 // own fit), the periodic part is taken off: the phase-dependent residual against the truth drops.
 TEST(CalibLens, DensePhaseBiasIsTakenOff) {
   const Scene& s = scene();
-  Rig guide = s.truth;
-  guide.cameras[0].yaw_deg += 0.02;
-  guide.cameras[2].fx *= 1.001;
-  guide.cameras[2].fy *= 1.001;
-  std::vector<DenseImage> imgs;
-  for (const auto& f : s.frames) {
-    cv::Mat g;
-    cv::cvtColor(f, g, cv::COLOR_RGBA2GRAY);
-    imgs.push_back(prepare_dense_image(g));
-  }
+  const Rig guide = off_truth(s.truth, 0.02, 1.001);
+  const std::vector<DenseImage> imgs = dense_images(s.frames);
   std::vector<PairMatches> m;
   for (int a : {0, 1}) m.push_back(dense_pair_matches(guide, a, a + 1, imgs[a], imgs[a + 1]));
   // Amplitude of the first harmonic of the residual (truth minus located) over the phase, both axes.
