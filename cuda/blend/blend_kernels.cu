@@ -4,6 +4,7 @@
 #include "../launch_check.hpp"
 #include "../common.cuh"
 #include "blend_kernels.hpp"
+#include "stitch/blend/seam_math.hpp"
 
 namespace stitch_cuda {
 
@@ -16,6 +17,11 @@ struct ComposeParams {
   float color[kMaxViews][9];
   int has_color;
   DeviceImage out;
+  // The consensus blend in the same pass (fuse only; nullptr: none): out.width-wide labels and
+  // mix levels: where a level m > 0, the rounded mean becomes stitch::seam::mix_value(mean, labelled view, m)
+  // (the CPU: seam.hpp apply_seam_mix).
+  const uint8_t* labels;
+  const uint8_t* mix;
 };
 
 template <bool kCurved>
@@ -51,6 +57,29 @@ __device__ __forceinline__ void store_mean(const DeviceImage& out, int x, int y,
   *reinterpret_cast<uchar4*>(out.data + size_t(y) * out.pitch + size_t(x) * 4) = o;
 }
 
+// The weighted mean as store_mean rounds it, then the consensus blend's mix towards the labelled
+// view (seam.hpp apply_seam_mix on the CPU, the same arithmetic), in the fuse's own pass.
+__device__ __forceinline__ void store_mixed(const ComposeParams& p, int x, int y, float r, float g, float b, float wsum) {
+  uchar4 o = make_uchar4(0, 0, 0, 255);
+  if (wsum > 0.f) {
+    const float inv = 1.f / wsum;
+    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
+  }
+  const size_t at = size_t(y) * p.out.width + x;
+  const int m = p.mix[at], l = p.labels[at];
+  if (m && l < p.n && p.src[l].data) {
+    const ViewGeometry& v = p.views[l];
+    if (x >= v.roi_x && y >= v.roi_y && x < v.roi_x + v.roi_w && y < v.roi_y + v.roi_h) {
+      const uchar4 q =
+          *reinterpret_cast<const uchar4*>(p.src[l].data + size_t(y - v.roi_y) * p.src[l].pitch + size_t(x - v.roi_x) * 4);
+      o.x = stitch::seam::mix_value(o.x, q.x, m);
+      o.y = stitch::seam::mix_value(o.y, q.y, m);
+      o.z = stitch::seam::mix_value(o.z, q.z, m);
+    }
+  }
+  *reinterpret_cast<uchar4*>(p.out.data + size_t(y) * p.out.pitch + size_t(x) * 4) = o;
+}
+
 // mode 0: views are warped rois (fuse); mode 1: views are camera frames (compose).
 template <int kMode, bool kCurved>
 __global__ void blend_kernel(const ComposeParams p) {
@@ -76,7 +105,10 @@ __global__ void blend_kernel(const ComposeParams p) {
     b += w * c.z;
     wsum += w;
   }
-  store_mean(p.out, x, y, r, g, b, wsum);
+  if (kMode == 0 && p.mix)
+    store_mixed(p, x, y, r, g, b, wsum);
+  else
+    store_mean(p.out, x, y, r, g, b, wsum);
 }
 
 struct TexComposeParams {
@@ -160,8 +192,9 @@ void launch_resample_affine(const DeviceImage& src, const float* inverse_affine,
 }
 
 void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, const DeviceImage& out,
-                 cudaStream_t stream) {
-  const ComposeParams p = params_of(n, views, warped, out);
+                 cudaStream_t stream, const uint8_t* labels, const uint8_t* mix) {
+  ComposeParams p = params_of(n, views, warped, out);
+  if (labels && mix) p.labels = labels, p.mix = mix;
   const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
   if (any_curved(views, n)) blend_kernel<0, true><<<grid, block, 0, stream>>>(p);
   else blend_kernel<0, false><<<grid, block, 0, stream>>>(p);

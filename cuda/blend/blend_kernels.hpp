@@ -33,9 +33,10 @@ struct ViewGeometry {
 void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream);
 
 // Position-weighted mean of views already warped into their rois; warped[i].data == nullptr
-// leaves view i out. Uncovered pixels are opaque black.
+// leaves view i out. Uncovered pixels are opaque black. With labels and mix (out.width wide, the
+// seam finder's): the consensus blend in the same pass (seam.hpp apply_seam_mix on the CPU).
 void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, const DeviceImage& out,
-                 cudaStream_t stream);
+                 cudaStream_t stream, const uint8_t* labels = nullptr, const uint8_t* mix = nullptr);
 
 // Warp + optional 3x3 color matrix per view + blend in one pass: every input pixel is read
 // about once and the output written once. frames[i].data == nullptr leaves camera i out;

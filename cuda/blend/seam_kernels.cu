@@ -108,19 +108,6 @@ __global__ void mix_along_kernel(SeamPairGeometry p, const int* across, const fl
   }
 }
 
-__global__ void mix_apply_kernel(DeviceImage out, MixViews v, const uint8_t* labels, const uint8_t* mix) {
-  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
-  if (x >= out.width || y >= out.height) return;
-  const size_t at = size_t(y) * out.width + x;
-  const int m = mix[at], l = labels[at];
-  if (!m || l >= v.n || !v.view[l].data) return;
-  const int* r = v.roi[l];
-  if (x < r[0] || y < r[1] || x >= r[0] + r[2] || y >= r[1] + r[3]) return;
-  const uint8_t* src = v.view[l].data + size_t(y - r[1]) * v.view[l].pitch + size_t(x - r[0]) * 4;
-  uint8_t* o = out.data + size_t(y) * out.pitch + size_t(x) * 4;
-  for (int k = 0; k < 3; ++k) o[k] = sm::mix_value(o[k], src[k], m);
-}
-
 // The sweeps (seam_math.hpp dp_meeting_row): two blocks per pair, one down through rows
 // [0, m), one up through rows [m, rows), the rows one after the other (each depends on the one
 // before), the columns of a row across the threads; two rows of energy in shared memory. The
@@ -317,13 +304,6 @@ void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across,
   mix_along_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, across, centre, weights, counts,
                                                                             cost, mix, label_width);
   check_launch("seam mix_along_kernel");
-}
-
-void launch_seam_mix_apply(const DeviceImage& out, const MixViews& views, const uint8_t* labels, const uint8_t* mix,
-                           cudaStream_t stream) {
-  if (out.width <= 0 || out.height <= 0) return;
-  mix_apply_kernel<<<grid_for(out.width, out.height), kBlock, 0, stream>>>(out, views, labels, mix);
-  check_launch("seam mix_apply_kernel");
 }
 
 void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream) {

@@ -35,15 +35,6 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
 void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
                      const stitch::seam::Weights& weights, const int* counts, float* cost, uint8_t* mix,
                      int label_width, cudaStream_t stream);
-// out (the weighted mean of the views) <- mix_value(out, view[label], mix) where mix > 0.
-// views[i].data == nullptr: view i missing; rois[i] = {x, y, w, h} on out.
-struct MixViews {
-  int n;
-  DeviceImage view[16];
-  int roi[16][4];
-};
-void launch_seam_mix_apply(const DeviceImage& out, const MixViews& views, const uint8_t* labels, const uint8_t* mix,
-                           cudaStream_t stream);
 // One pair's dynamic programming: the least-energy path through cost (rows x cols);
 // previous == nullptr: no pull; steps: rows x cols scratch; path: rows.
 struct SeamDpJob {

@@ -42,18 +42,12 @@ struct CudaComposer::State {
   void consensus_fuse(const std::vector<ImageView>& views, const ImageView& out) {
     const uint8_t* labels = seam->find(views, stream.get());  // in this stream's order: no host wait
     std::vector<stitch_cuda::DeviceImage> images(views.size());
-    stitch_cuda::MixViews mv{};
-    mv.n = int(views.size());
-    for (std::size_t i = 0; i < views.size(); ++i) {
-      if (views[i].empty()) continue;
-      images[i] = to_device_image(views[i]);
-      mv.view[i] = images[i];
-      const stitch_cuda::ViewGeometry& g = this->views[i];
-      mv.roi[i][0] = g.roi_x, mv.roi[i][1] = g.roi_y, mv.roi[i][2] = g.roi_w, mv.roi[i][3] = g.roi_h;
-    }
+    for (std::size_t i = 0; i < views.size(); ++i)
+      if (!views[i].empty()) images[i] = to_device_image(views[i]);
     const stitch_cuda::DeviceImage d = to_device_image(out);
-    stitch_cuda::launch_fuse(int(images.size()), this->views.data(), images.data(), d, stream.get());
-    if (const uint8_t* mix = seam->mix_map()) stitch_cuda::launch_seam_mix_apply(d, mv, labels, mix, stream.get());
+    // The weighted mean and, where the views disagree, the seam's view: one pass over the output.
+    stitch_cuda::launch_fuse(int(images.size()), this->views.data(), images.data(), d, stream.get(), labels,
+                             seam->mix_map());
   }
   void rect_fuse(const std::vector<ImageView>& views, const ImageView& out) {
     if (multiband)
