@@ -1654,6 +1654,13 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
     }
     if (best_error < 0.7) break;  // a good fit: the guess was close enough
   }
+  // A fit this poor is no fisheye rig (a vignetted rectilinear camera, a spotlit scene): the
+  // pinhole path gets its turn.
+  constexpr double kFisheyeFitMaxPx = 1.5;
+  if (best && !(best_error < kFisheyeFitMaxPx)) {
+    last_error = "held-out error " + std::to_string(best_error) + " px";
+    best.reset();
+  }
   if (!best)
     throw RigError("the cameras show image circles (circular fisheye lenses) but no 360 rig of them fits the images" +
                    (last_error.empty() ? std::string() : " (" + last_error + ")") +
@@ -1670,9 +1677,23 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
 
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
-  if (o.circular_fisheyes && !sets.empty())
-    if (std::optional<CalibrationResult> fisheyes = calibrate_circular_fisheyes(sets, reference, o)) return *fisheyes;
-  CalibrationResult pin = calibrate_from_images_pinhole(sets, reference, o);
+  // Circles that no fisheye rig fits (a spotlit stage in a dark room?) fall back to the pinhole
+  // path; when that fails too, the error says both.
+  std::string fisheye_error;
+  if (o.circular_fisheyes && !sets.empty()) {
+    try {
+      if (std::optional<CalibrationResult> fisheyes = calibrate_circular_fisheyes(sets, reference, o)) return *fisheyes;
+    } catch (const RigError& e) {
+      fisheye_error = e.what();
+    }
+  }
+  CalibrationResult pin;
+  try {
+    pin = calibrate_from_images_pinhole(sets, reference, o);
+  } catch (const RigError& e) {
+    if (fisheye_error.empty()) throw;
+    throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
+  }
   if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
   // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.
   Rig rough = pin.rig;
