@@ -55,6 +55,7 @@ Rig ignoring_lenses(Rig rig) {
   return rig;
 }
 
+#ifndef STITCH_LENS_TIMING_ONLY
 // Scene lines through each camera (rows and columns of rays across its view), seen in raw pixels
 // through the TRUE lens, mapped to the plane canvas by `rig`: the worst distance of a point from
 // its line's chord (0 = straight).
@@ -81,7 +82,6 @@ double straightness(const Rig& truth, const Rig& rig) {
   return worst;
 }
 
-#ifndef STITCH_LENS_TIMING_ONLY
 int quality(const std::string& path, int size) {
   cv::Mat bgr = cv::imread(path, cv::IMREAD_COLOR), pano;
   if (bgr.empty()) {
@@ -230,7 +230,7 @@ int main(int argc, char** argv) {
     const std::string k = argv[i];
     if (k == "--timing") do_timing = true;
     else if (i + 1 < argc && k == "--photo") photo = argv[++i];
-    else if (i + 1 < argc && k == "--size") size = std::atoi(argv[++i]);
+    else if (i + 1 < argc && k == "--size") size = std::atoi(argv[++i]);  // quality only
     else if (i + 1 < argc && k == "--backend") backend = argv[++i];
     else if (i + 1 < argc && k == "--iterations") iterations = std::atoi(argv[++i]);
     else {
@@ -247,7 +247,7 @@ int main(int argc, char** argv) {
       return timing(backend == "cuda" ? Backend::Cuda : Backend::Cpu, iterations);
     }
 #ifdef STITCH_LENS_TIMING_ONLY
-    std::fprintf(stderr, "this build times only: --timing\n");
+    std::fprintf(stderr, "this build times only: --timing (photo %s, size %d ignored)\n", photo.c_str(), size);
     return 2;
 #else
     if (photo.empty()) photo = "data/photos/boat1_1600.jpg";

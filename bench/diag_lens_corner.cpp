@@ -190,6 +190,17 @@ int main(int argc, char** argv) {
     }
     return Eigen::Map<Eigen::VectorXd>(v.data(), v.size()).eval();
   };
+  // Central differences of resid at x (rows residuals).
+  auto jacobian = [&](const Eigen::VectorXd& x, Eigen::Index rows) {
+    Eigen::MatrixXd J(rows, x.size());
+    for (Eigen::Index j = 0; j < x.size(); ++j) {
+      Eigen::VectorXd xp = x, xm = x;
+      xp[j] += 1e-6;
+      xm[j] -= 1e-6;
+      J.col(j) = (resid(xp) - resid(xm)) / 2e-6;
+    }
+    return J;
+  };
   auto corners = [&](const Eigen::VectorXd& x) {
     const Rig r = apply(truth, x);
     std::vector<double> v;
@@ -234,13 +245,7 @@ int main(int argc, char** argv) {
   Eigen::VectorXd x = x0;
   for (int it = 0; it < 8; ++it) {
     const Eigen::VectorXd r = resid(x);
-    Eigen::MatrixXd Jx(r.size(), np);
-    for (int j = 0; j < np; ++j) {
-      Eigen::VectorXd xp = x, xm = x;
-      xp[j] += 1e-6;
-      xm[j] -= 1e-6;
-      Jx.col(j) = (resid(xp) - resid(xm)) / 2e-6;
-    }
+    const Eigen::MatrixXd Jx = jacobian(x, r.size());
     x -= (Jx.transpose() * Jx).ldlt().solve(Jx.transpose() * r);
   }
   const Rig opt = apply(truth, x);
@@ -287,13 +292,7 @@ int main(int argc, char** argv) {
         const double e2 = r[i] * r[i] + r[i + 1] * r[i + 1];
         w[i] = w[i + 1] = 1.0 / (1.0 + e2 / (c * c));
       }
-      Eigen::MatrixXd Jx(r.size(), np);
-      for (int j = 0; j < np; ++j) {
-        Eigen::VectorXd xp = xr, xm = xr;
-        xp[j] += 1e-6;
-        xm[j] -= 1e-6;
-        Jx.col(j) = (resid(xp) - resid(xm)) / 2e-6;
-      }
+      const Eigen::MatrixXd Jx = jacobian(xr, r.size());
       xr -= (Jx.transpose() * w.asDiagonal() * Jx).ldlt().solve(Jx.transpose() * w.asDiagonal() * r);
     }
     const Rig o2 = apply(truth, xr);

@@ -47,24 +47,20 @@ __device__ __forceinline__ void apply_color(float4& c, const float* M) {
   c.z = fminf(fmaxf(cb, 0.f), 255.f);
 }
 
-// The weighted mean into an opaque pixel; black where no view covers it.
+// The weighted mean as an opaque pixel; black where no view covers it.
+__device__ __forceinline__ uchar4 mean_pixel(float r, float g, float b, float wsum) {
+  if (!(wsum > 0.f)) return make_uchar4(0, 0, 0, 255);
+  const float inv = 1.f / wsum;
+  return make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
+}
 __device__ __forceinline__ void store_mean(const DeviceImage& out, int x, int y, float r, float g, float b, float wsum) {
-  uchar4 o = make_uchar4(0, 0, 0, 255);
-  if (wsum > 0.f) {
-    const float inv = 1.f / wsum;
-    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
-  }
-  *reinterpret_cast<uchar4*>(out.data + size_t(y) * out.pitch + size_t(x) * 4) = o;
+  *reinterpret_cast<uchar4*>(out.data + size_t(y) * out.pitch + size_t(x) * 4) = mean_pixel(r, g, b, wsum);
 }
 
 // The weighted mean as store_mean rounds it, then the consensus blend's mix towards the labelled
 // view (seam.hpp apply_seam_mix on the CPU, the same arithmetic), in the fuse's own pass.
 __device__ __forceinline__ void store_mixed(const ComposeParams& p, int x, int y, float r, float g, float b, float wsum) {
-  uchar4 o = make_uchar4(0, 0, 0, 255);
-  if (wsum > 0.f) {
-    const float inv = 1.f / wsum;
-    o = make_uchar4(to_u8(r * inv), to_u8(g * inv), to_u8(b * inv), 255);
-  }
+  uchar4 o = mean_pixel(r, g, b, wsum);
   const size_t at = size_t(y) * p.out.width + x;
   const int m = p.mix[at], l = p.labels[at];
   if (m && l < p.n && p.src[l].data) {

@@ -1,5 +1,7 @@
 #include <algorithm>
 #include <cuda_pipeline.h>
+#include <map>
+#include <mutex>
 #include "../launch_check.hpp"
 #include "seam_kernels.hpp"
 
@@ -122,10 +124,7 @@ __global__ void dp_sweep_kernel(const SeamDpJob* jobs, float stability, int band
   const int rows = job.rows, cols = job.cols, m = sm::dp_meeting_row(rows);
   const int n = up ? rows - m : m;  // rows this sweep takes; the k-th is row(k)
   auto row = [&](int k) { return up ? rows - 1 - k : k; };
-  // Energy rows with a +inf cell on either side, and all 0 before the first row: then every cell
-  // is dp_cell without its border and first-row tests (a neighbour of +inf is never taken, and
-  // three equal zeros go straight): the same energies and steps with fewer instructions a row,
-  // which is what a row costs here (issue-bound: a block's warps share one SM's schedulers).
+  // Energy rows padded for sm::dp_cell_padded: a +inf cell on either side, all 0 before the first row.
   float* above = shared + 1;
   float* here = shared + cols + 3;
   for (int c = threadIdx.x - 1; c <= cols; c += blockDim.x) {
@@ -170,17 +169,8 @@ __global__ void dp_sweep_kernel(const SeamDpJob* jobs, float stability, int band
       const int at = row(k) - r0;
       const float* cost_row = cost + at * cols;
       const int prev = pulled ? previous[at] : -1;
-      for (int c = threadIdx.x; c < cols; c += blockDim.x) {  // sm::dp_cell, borders as +inf cells
-        float best = above[c];
-        int step = 0;
-        const float left = above[c - 1], right = above[c + 1];
-        if (left < best) best = left, step = -1;
-        if (right < best) best = right, step = 1;
-        float energy = sm::add(best, cost_row[c]);
-        if (prev >= 0) energy = sm::add(energy, sm::mul(stability, float(sm::absi(c - prev))));
-        here[c] = energy;
-        steps[c] = int8_t(step);
-      }
+      for (int c = threadIdx.x; c < cols; c += blockDim.x)
+        steps[c] = int8_t(sm::dp_cell_padded(above, c, cost_row[c], stability, prev, here[c]));
       if (threadIdx.x == 0 && pulled) previous_cost = sm::add(previous_cost, cost_row[prev]);
       steps += stride;
       __syncthreads();
@@ -228,32 +218,21 @@ __global__ void dp_walk_kernel(const SeamDpJob* jobs, float hold, int walk_rows)
     for (int r = first + int(threadIdx.x); r < last; r += blockDim.x) job.path[r] = job.previous[r];
     return;
   }
-  if (!up) {  // rows m - 1 .. 0, through the down sweep's steps
-    int c = best_col + meet[best_col];
-    for (int top = m; top > 0; top -= walk_rows) {
-      const int r0 = top > walk_rows ? top - walk_rows : 0;
-      for (int i = threadIdx.x; i < (top - r0) * cols; i += blockDim.x) band[i] = job.steps[size_t(r0) * cols + i];
-      __syncthreads();
-      if (threadIdx.x == 0)
-        for (int r = top - 1; r >= r0; --r) {
-          job.path[r] = c;
-          c += band[(r - r0) * cols + c];
-        }
-      __syncthreads();  // the band is read before the next one overwrites it
-    }
-  } else {  // rows m .. rows - 1, through the up sweep's steps
-    int c = best_col;
-    for (int r0 = m; r0 < rows; r0 += walk_rows) {
-      const int r1 = min(rows, r0 + walk_rows);
-      for (int i = threadIdx.x; i < (r1 - r0) * cols; i += blockDim.x) band[i] = job.steps[size_t(r0) * cols + i];
-      __syncthreads();
-      if (threadIdx.x == 0)
-        for (int r = r0; r < r1; ++r) {
-          job.path[r] = c;
-          c += band[(r - r0) * cols + c];
-        }
-      __syncthreads();
-    }
+  // Down block: rows m - 1 .. 0 through the down sweep's steps; up block: rows m .. rows - 1
+  // through the up sweep's. Either way path[r] = c, then c moves by the step stored at row r.
+  const int dir = up ? 1 : -1, count = last - first;
+  int c = up ? best_col : best_col + meet[best_col];
+  for (int done = 0; done < count; done += walk_rows) {
+    const int n = min(walk_rows, count - done);
+    const int r0 = up ? first + done : last - done - n;  // the band holds rows [r0, r0 + n)
+    for (int i = threadIdx.x; i < n * cols; i += blockDim.x) band[i] = job.steps[size_t(r0) * cols + i];
+    __syncthreads();
+    if (threadIdx.x == 0)
+      for (int k = 0, r = up ? r0 : r0 + n - 1; k < n; ++k, r += dir) {
+        job.path[r] = c;
+        c += band[(r - r0) * cols + c];
+      }
+    __syncthreads();  // the band is read before the next one overwrites it
   }
 }
 
@@ -306,6 +285,22 @@ void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across,
   check_launch("seam mix_along_kernel");
 }
 
+// Kernels asking for more than 48 KB of dynamic shared memory must say so once per device; the
+// largest size allowed so far is remembered, so the hot path makes no driver call per frame.
+static void allow_dynamic_shared(const void* kernel, size_t bytes) {
+  if (bytes <= 48 * 1024) return;
+  static std::mutex lock;
+  static std::map<std::pair<const void*, int>, size_t> allowed;
+  int device = 0;
+  cudaGetDevice(&device);
+  std::lock_guard<std::mutex> guard(lock);
+  size_t& done = allowed[{kernel, device}];
+  if (bytes <= done) return;
+  const cudaError_t e = cudaFuncSetAttribute(kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(bytes));
+  if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp: overlap too wide: ") + cudaGetErrorString(e));
+  done = bytes;
+}
+
 void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stability, float hold, cudaStream_t stream) {
   if (n_jobs <= 0) return;
   // Sweeps: cost bands of up to 32 rows, double-buffered, within ~96 KB of shared memory.
@@ -319,13 +314,8 @@ void launch_seam_dp(const SeamDpJob* jobs, int n_jobs, int max_cols, float stabi
   const int walk_rows =
       walk_fixed + max_cols <= walk_budget ? int(std::min<size_t>(64, (walk_budget - walk_fixed) / max_cols)) : 1;
   const size_t walk_shared = row_bytes + size_t((max_cols + 15) / 16 * 16) + size_t(walk_rows) * max_cols;
-  auto allow = [](const void* kernel, size_t bytes) {
-    if (bytes <= 48 * 1024) return;
-    const cudaError_t e = cudaFuncSetAttribute(kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, int(bytes));
-    if (e != cudaSuccess) throw std::runtime_error(std::string("seam dp: overlap too wide: ") + cudaGetErrorString(e));
-  };
-  allow(reinterpret_cast<const void*>(dp_sweep_kernel), shared);
-  allow(reinterpret_cast<const void*>(dp_walk_kernel), walk_shared);
+  allow_dynamic_shared(reinterpret_cast<const void*>(dp_sweep_kernel), shared);
+  allow_dynamic_shared(reinterpret_cast<const void*>(dp_walk_kernel), walk_shared);
   // A thread per column up to 1024: fewer warps make each row's barrier cheaper.
   const int threads = std::min(1024, std::max(32, (max_cols + 31) / 32 * 32));
   dp_sweep_kernel<<<2 * n_jobs, threads, shared, stream>>>(jobs, stability, band_rows);

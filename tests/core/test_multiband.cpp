@@ -397,7 +397,7 @@ TEST(Seam, ConsensusBlendTakesOneViewWhereTheViewsDisagreeAndTheMeanWhereTheyAgr
 // must be the least-energy one a one-way sweep finds, continuous, for any row count.
 TEST(Seam, PathFromBothEndsIsTheLeastEnergyPath) {
   cv::RNG rng(7);
-  const seam::Weights w{1.f, 0.5f, 2.f, /*stability=*/0.f, /*hold=*/1.f, 0.f, 0, 0, 12, 30};
+  const seam::Weights w{1.f, 0.5f, 2.f, /*stability=*/0.f, /*hold=*/1.f, 0.f, 0, 0, 12, 30, /*crossing=*/0.f, 8.f};
   for (int rows : {1, 2, 3, 8, 101, 240})
     for (int cols : {1, 2, 5, 64}) {
       std::vector<float> costs(std::size_t(rows) * cols);
@@ -420,7 +420,9 @@ TEST(Seam, PathFromBothEndsIsTheLeastEnergyPath) {
       for (int r = 0; r < rows; ++r) {
         ASSERT_GE(path[r], 0);
         ASSERT_LT(path[r], cols);
-        if (r) ASSERT_LE(std::abs(path[r] - path[r - 1]), 1) << rows << "x" << cols << " row " << r;
+        if (r) {
+          ASSERT_LE(std::abs(path[r] - path[r - 1]), 1) << rows << "x" << cols << " row " << r;
+        }
         energy += costs[std::size_t(r) * cols + path[r]];
       }
       EXPECT_NEAR(energy, least, 1e-3 * (1. + least)) << rows << "x" << cols;
@@ -434,7 +436,9 @@ TEST(Seam, PathFromBothEndsIsTheLeastEnergyPath) {
       double previous_energy = 0.;
       for (int r = 0; r < rows; ++r) previous_energy += costs[std::size_t(r) * cols + cols - 1];
       seam_path(costs, rows, cols, previous.data(), strict, kept);
-      if (previous_energy > least + 1e-2) EXPECT_NE(kept, previous) << rows << "x" << cols;
+      if (previous_energy > least + 1e-2) {
+        EXPECT_NE(kept, previous) << rows << "x" << cols;
+      }
     }
 }
 

@@ -123,25 +123,30 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
 void seam_path(const std::vector<float>& costs, int rows, int cols, const int* previous, const seam::Weights& w,
                std::vector<int>& path) {
   const int m = seam::dp_meeting_row(rows);
-  std::vector<float> down(cols), up(cols), next(cols), total(cols);
+  std::vector<float> total(cols);
   std::vector<int8_t> step(std::size_t(rows) * cols), meet(cols);
-  float down_sum = 0.f, up_sum = 0.f;  // last frame's path's cost, in each sweep's row order
-  for (int r = 0; r < m; ++r) {
-    for (int c = 0; c < cols; ++c)
-      step[std::size_t(r) * cols + c] = int8_t(seam::dp_cell(down.data(), c, cols, r == 0, costs[std::size_t(r) * cols + c],
-                                                             w.stability, previous ? previous[r] : -1, next[c]));
-    if (previous) down_sum = seam::add(down_sum, costs[std::size_t(r) * cols + previous[r]]);
-    std::swap(down, next);
-  }
-  for (int r = rows - 1; r >= m; --r) {
-    for (int c = 0; c < cols; ++c)
-      step[std::size_t(r) * cols + c] = int8_t(seam::dp_cell(up.data(), c, cols, r == rows - 1,
-                                                             costs[std::size_t(r) * cols + c], w.stability,
-                                                             previous ? previous[r] : -1, next[c]));
-    if (previous) up_sum = seam::add(up_sum, costs[std::size_t(r) * cols + previous[r]]);
-    std::swap(up, next);
-  }
-  for (int c = 0; c < cols; ++c) meet[c] = int8_t(seam::meet_cell(down.data(), up.data(), c, cols, m == 0, total[c]));
+  // One sweep over rows first, first + dir, ... (count of them), on energy rows padded for
+  // dp_cell_padded; returns the last row's energies (with their pads) and last frame's path's
+  // cost, summed in the sweep's row order.
+  auto sweep = [&](int first, int dir, int count, float& previous_sum) {
+    std::vector<float> above(cols + 2, 0.f), here(cols + 2, 0.f);
+    above[0] = above[cols + 1] = here[0] = here[cols + 1] = std::numeric_limits<float>::infinity();
+    previous_sum = 0.f;
+    for (int k = 0, r = first; k < count; ++k, r += dir) {
+      const float* cost_row = costs.data() + std::size_t(r) * cols;
+      const int prev = previous ? previous[r] : -1;
+      for (int c = 0; c < cols; ++c)
+        step[std::size_t(r) * cols + c] =
+            int8_t(seam::dp_cell_padded(above.data() + 1, c, cost_row[c], w.stability, prev, here[c + 1]));
+      if (previous) previous_sum = seam::add(previous_sum, cost_row[prev]);
+      std::swap(above, here);
+    }
+    return above;
+  };
+  float down_sum = 0.f, up_sum = 0.f;
+  const std::vector<float> down = sweep(0, 1, m, down_sum), up = sweep(rows - 1, -1, rows - m, up_sum);
+  for (int c = 0; c < cols; ++c)
+    meet[c] = int8_t(seam::meet_cell(down.data() + 1, up.data() + 1, c, cols, m == 0, total[c]));
   const int best = int(std::min_element(total.begin(), total.end()) - total.begin());
   path.assign(rows, 0);
   if (previous && seam::keep_previous(seam::add(down_sum, up_sum), total[best], rows, w.hold)) {

@@ -145,6 +145,21 @@ STITCH_HD int dp_cell(const float* above, int c, int cols, bool first_row, float
   return step;
 }
 
+// dp_cell on an energy row that has a +inf cell on either side (above[-1], above[cols]) and is
+// all zeros before a sweep's first row: no border or first-row tests (a +inf neighbour is never
+// taken; three equal zeros go straight), the same energies and steps as dp_cell. The sweeps use
+// it on both backends: on the device a row costs its instructions (the sweep is issue-bound).
+STITCH_HD int dp_cell_padded(const float* above, int c, float cost, float stability, int previous, float& energy) {
+  float best = above[c];
+  int step = 0;
+  const float left = above[c - 1], right = above[c + 1];
+  if (left < best) best = left, step = -1;
+  if (right < best) best = right, step = 1;
+  energy = add(best, cost);
+  if (previous >= 0) energy = add(energy, mul(stability, float(absi(c - previous))));
+  return step;
+}
+
 // The path is found from both ends at once (bidirectional DP): rows [0, m) are swept down from
 // the first row, rows [m, rows) up from the last, and the two sweeps meet between rows m - 1 and
 // m. The least-energy path through the whole overlap is the least of `meet_cell` (the down
