@@ -67,16 +67,19 @@ __device__ __forceinline__ float position_weight(float u, float v, int w, int h)
   return fminf(wx, 1.f) * fminf(wy, 1.f);
 }
 
+// Across the wrap a view's roi is the whole width: whether column x is one it cannot reach.
+__device__ __forceinline__ bool outside_wrap_span(const ViewGeometry& vg, int x) {
+  if (vg.wrap_w <= 0) return false;
+  const float xu = float(x) < vg.span_x0 ? float(x + vg.wrap_w) : float(x);
+  return xu > vg.span_x1;
+}
+
 // Position weight of view `vg` at output pixel (x, y), with its camera coordinates; 0 where the
 // view does not cover the pixel.
 template <bool kCurved>
 __device__ __forceinline__ float view_weight(const ViewGeometry& vg, int x, int y, float& u, float& v) {
   if (x < vg.roi_x || y < vg.roi_y || x >= vg.roi_x + vg.roi_w || y >= vg.roi_y + vg.roi_h) return 0.f;
-  if (kCurved && vg.wrap_w > 0) {
-    // Across the wrap the roi is the whole width: skip the columns the view cannot reach.
-    const float xu = float(x) < vg.span_x0 ? float(x + vg.wrap_w) : float(x);
-    if (xu > vg.span_x1) return 0.f;
-  }
+  if (kCurved && outside_wrap_span(vg, x)) return 0.f;
   if (!view_to_camera<kCurved>(vg, float(x), float(y), u, v)) return 0.f;
   if (kCurved && vg.has_lens) return stitch_projection::lens_position_weight(vg.lens, u, v, vg.camera_w, vg.camera_h);
   return position_weight(u, v, vg.camera_w, vg.camera_h);

@@ -265,6 +265,10 @@ __global__ void flow_warp_views_kernel(const ViewsParam vp, const Destinations o
   if (x >= dst.width || y >= dst.height) return;
   const ViewGeometry& me = vp.views[v];
   const int px = me.roi_x + x, py = me.roi_y + y;
+  if (kCurved && outside_wrap_span(me, px)) {  // the whole width across the wrap: most columns unseen
+    *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) = make_uchar4(0, 0, 0, 0);
+    return;
+  }
   float dx = 0.f, dy = 0.f;
   float wsum = -1.f;  // computed once, when a pair covers the pixel
   for (int i = 0; i < n_pairs; ++i) {

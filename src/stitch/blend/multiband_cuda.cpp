@@ -27,7 +27,9 @@ class MultibandBlenderCuda final : public MultibandBlender {
     const int L = layout_.bands;
     int max_w = 0, max_h = 0;
     for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
-    // One allocation each for the canvas pyramid, the view pyramid and the up/down scratch.
+    // One allocation each for the canvas pyramid, the view pyramid, the hole filling's levels
+    // 1..L and the collapse's two scratch levels (level 1 at most: the finest level of the fill
+    // and of the collapse is never stored, the kernels fuse it into their consumers).
     const int fill_w = layout_.fill_width, fill_h = layout_.fill_height;  // the hole filling's level 0
     acc_.assign(L + 1, {});
     gauss_.assign(L + 1, {});
@@ -40,14 +42,13 @@ class MultibandBlenderCuda final : public MultibandBlender {
       gauss_[k] = {nullptr, max_w >> k, max_w >> k, max_h >> k};
       view_px += std::size_t(gauss_[k].pitch) * gauss_[k].height;
       pull_[k] = fill_[k] = {nullptr, fill_w >> k, fill_w >> k, fill_h >> k};
-      fill_px += std::size_t(pull_[k].pitch) * pull_[k].height;
+      if (k > 0) fill_px += std::size_t(pull_[k].pitch) * pull_[k].height;
     }
-    const std::size_t scratch_px = std::size_t(layout_.padded_width) * layout_.padded_height;
+    const std::size_t scratch_px = L > 0 ? std::size_t(acc_[1].width) * acc_[1].height : 1;
     acc_mem_.resize(acc_px * sizeof(float4));
     gauss_mem_.resize(view_px * sizeof(float4));
-    pull_mem_.resize(fill_px * sizeof(float4));
-    fill_mem_.resize(fill_px * sizeof(float4));
-    tmp_mem_.resize(scratch_px * sizeof(float4));
+    pull_mem_.resize(std::max<std::size_t>(fill_px, 1) * sizeof(float4));
+    fill_mem_.resize(std::max<std::size_t>(fill_px, 1) * sizeof(float4));
     up_mem_.resize(scratch_px * sizeof(float4));
     img_mem_.resize(scratch_px * sizeof(float4));
     float4* a = reinterpret_cast<float4*>(acc_mem_.data());
@@ -59,6 +60,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
       a += std::size_t(acc_[k].pitch) * acc_[k].height;
       gauss_[k].data = g;
       g += std::size_t(gauss_[k].pitch) * gauss_[k].height;
+      if (k == 0) continue;
       pull_[k].data = pl;
       fill_[k].data = fl;
       pl += std::size_t(pull_[k].pitch) * pull_[k].height;
@@ -101,45 +103,37 @@ class MultibandBlenderCuda final : public MultibandBlender {
       const Rect& roi = views_[i].roi;
       std::vector<FloatImage> g(L + 1);
       for (int k = 0; k <= L; ++k) g[k] = sized(gauss_[k], pr.width >> k, pr.height >> k);
-      // Holes filled from the view's own content (pull-push), as the CPU's fill_holes.
+      // Holes filled from the view's own content (pull-push), as the CPU's fill_holes; level 0 of
+      // the pull and of the fill exist only inside the kernels that read them.
       const int fw = padded_to_bands(roi.width, L), fh = padded_to_bands(roi.height, L);
       std::vector<FloatImage> pull(L + 1), fill(L + 1);
-      for (int k = 0; k <= L; ++k) {
+      for (int k = 1; k <= L; ++k) {
         pull[k] = sized(pull_[k], fw >> k, fh >> k);
         fill[k] = sized(fill_[k], fw >> k, fh >> k);
       }
-      stitch_cuda::launch_mb_premultiply(to_device_image(warped[i]), pull[0], s);
-      for (int k = 1; k <= L; ++k) stitch_cuda::launch_mb_down(pull[k - 1], tmp(pull[k - 1].height, pull[k].width), pull[k], s);
-      stitch_cuda::launch_mb_push(pull[L], FloatImage{}, fill[L], s);
-      for (int k = L - 1; k >= 0; --k) {
-        const FloatImage upper = scratch(up_mem_, fill[k].width, fill[k].height);
-        stitch_cuda::launch_mb_up(fill[k + 1], tmp(fill[k + 1].height, fill[k].width), upper, s);
-        stitch_cuda::launch_mb_push(pull[k], upper, fill[k], s);
+      const stitch_cuda::DeviceImage view = to_device_image(warped[i]);
+      if (L > 0) {
+        stitch_cuda::launch_mb_premultiply_down(view, fw, fh, pull[1], s);
+        for (int k = 2; k <= L; ++k) stitch_cuda::launch_mb_down(pull[k - 1], pull[k], s);
+        stitch_cuda::launch_mb_push(pull[L], FloatImage{}, fill[L], s);
+        for (int k = L - 1; k >= 1; --k) stitch_cuda::launch_mb_push(pull[k], fill[k + 1], fill[k], s);
       }
-      stitch_cuda::launch_mb_load_view(fill[0], roi.width, roi.height, roi.x - pr.x, roi.y - pr.y, pr.x, pr.y, labels,
-                                       layout_.width, layout_.height, int(i), g[0], s);
-      for (int k = 1; k <= L; ++k) stitch_cuda::launch_mb_down(g[k - 1], tmp(g[k - 1].height, g[k].width), g[k], s);
-      for (int k = 0; k <= L; ++k) {
-        FloatImage upper;
-        if (k < L) {
-          upper = scratch(up_mem_, g[k].width, g[k].height);
-          stitch_cuda::launch_mb_up(g[k + 1], tmp(g[k + 1].height, g[k].width), upper, s);
-        }
-        stitch_cuda::launch_mb_accumulate(g[k], upper, acc_[k], pr.x >> k, pr.y >> k, s);
-      }
+      stitch_cuda::launch_mb_load_view(view, L > 0 ? fill[1] : FloatImage{}, fw, fh, roi.width, roi.height, roi.x - pr.x,
+                                       roi.y - pr.y, pr.x, pr.y, labels, layout_.width, layout_.height, int(i), g[0], s);
+      for (int k = 1; k <= L; ++k) stitch_cuda::launch_mb_down(g[k - 1], g[k], s);
+      for (int k = 0; k <= L; ++k)
+        stitch_cuda::launch_mb_accumulate(g[k], k < L ? g[k + 1] : FloatImage{}, acc_[k], pr.x >> k, pr.y >> k, s);
     }
-    // Collapse: img_L = acc_L normalised; img_k = up(img_k+1) + acc_k normalised. The levels
-    // alternate between two scratch images.
-    FloatImage img = scratch(img_mem_, acc_[L].width, acc_[L].height);
-    stitch_cuda::launch_mb_add_normalised(acc_[L], img, false, s);
-    for (int k = L - 1; k >= 0; --k) {
+    // Collapse: img_L = acc_L normalised; img_k = up(img_k+1) + acc_k normalised, the levels
+    // alternating between two scratch images; level 0 goes straight to the output.
+    FloatImage img{};
+    for (int k = L; k >= 1; --k) {
       DeviceBuffer& target = (img.data == reinterpret_cast<float4*>(img_mem_.data())) ? up_mem_ : img_mem_;
       const FloatImage next = scratch(target, acc_[k].width, acc_[k].height);
-      stitch_cuda::launch_mb_up(img, tmp(img.height, next.width), next, s);
-      stitch_cuda::launch_mb_add_normalised(acc_[k], next, true, s);
+      stitch_cuda::launch_mb_collapse(acc_[k], img, next, s);
       img = next;
     }
-    stitch_cuda::launch_mb_store(img, labels, to_device_image(out), s);
+    stitch_cuda::launch_mb_store(acc_[0], img, labels, to_device_image(out), s);
     stream_.sync();
   }
 
@@ -153,7 +147,6 @@ class MultibandBlenderCuda final : public MultibandBlender {
   static FloatImage scratch(const DeviceBuffer& mem, int w, int h) {
     return {reinterpret_cast<float4*>(mem.data()), w, w, h};
   }
-  FloatImage tmp(int h, int w) const { return scratch(tmp_mem_, w, h); }
 
   // Labels on the device for this set of present views: the nearest-view labels, or the
   // custom ones with missing views' pixels given to the nearest present view.
@@ -176,7 +169,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
   std::vector<ViewPlacement> views_;
   MultibandLayout layout_;
   std::vector<FloatImage> acc_, gauss_, pull_, fill_;  // pull_, fill_: the hole filling
-  DeviceBuffer acc_mem_, gauss_mem_, pull_mem_, fill_mem_, tmp_mem_, up_mem_, img_mem_, labels_dev_;
+  DeviceBuffer acc_mem_, gauss_mem_, pull_mem_, fill_mem_, up_mem_, img_mem_, labels_dev_;
   uint64_t nearest_mask_ = ~uint64_t(0);  // the present views the device labels are for
   uint64_t nearest_for_ = ~uint64_t(0);   // the present views nearest_ is for
   std::vector<uint8_t> custom_, nearest_;
