@@ -11,6 +11,7 @@
 
 #include "stitch/blend/blender_cpu.hpp"
 #include "stitch/blend/compositor.hpp"
+#include "stitch/blend/multiband.hpp"
 #include "stitch/color/color.hpp"
 #include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/calib/calibrator.hpp"
@@ -368,6 +369,55 @@ TEST(Projection, RingOfSixStitchesWithTheWrapSeamAligned) {
   }
 }
 
+TEST(Projection, MultibandAcrossTheWrapBlendsTheWrappingViewInTwoPieces) {
+  // A ring of six: camera 3 crosses the wrap, its roi is the whole width. Its multiband
+  // pyramids cover only the columns it reaches, one piece at each edge; the panorama is the
+  // weighted mean's (same exposures, true rig) up to the blend's smoothing, continuous at the wrap.
+  for (Projection kind : kCurved) {
+    testdata::RingScene s = testdata::render_ring(testdata::test_photo(), 6, 480, 360, 300.0, kind, 0.0, 60.0);
+    rig_layout_canvas(s.truth);
+    const std::vector<ViewPlacement> views = place_views(s.truth, canvas_geometry(s.truth));
+    const int W = s.truth.canvas_width, H = s.truth.canvas_height;
+    const MultibandLayout layout = plan_multiband(views, W, H, 5);
+    int pieces_of_3 = 0, width_of_3 = 0;
+    for (const MultibandPiece& p : layout.pieces)
+      if (p.view == 3) ++pieces_of_3, width_of_3 += p.rect.width;
+    EXPECT_EQ(layout.pieces.size(), 7u) << projection_name(kind);
+    EXPECT_EQ(pieces_of_3, 2);
+    EXPECT_LT(width_of_3, W / 2);
+    std::vector<ImageView> host;
+    for (auto& f : s.frames) host.push_back(as_view(f));
+    cv::Mat panos[2];
+    for (int mb = 0; mb < 2; ++mb) {
+      CompositorSettings settings;
+      if (mb) settings.blend = BlendMode::Multiband;
+      Compositor c(Backend::Cpu);
+      c.prepare(s.truth, settings);
+      const OutputGeometry& g = c.geometry();
+      panos[mb].create(g.height, g.width, CV_8UC4);
+      c.compose(host, as_view(panos[mb]));
+    }
+    const double psnr = testdata::psnr_rgb(panos[1], panos[0]);
+    cv::Mat gray;
+    cv::cvtColor(panos[1], gray, cv::COLOR_RGBA2GRAY);
+    const int w = gray.cols, y0 = gray.rows / 2 - 40, y1 = gray.rows / 2 + 40;
+    auto column_diff = [&](int xa, int xb) {
+      double d = 0;
+      for (int y = y0; y < y1; ++y) d += std::abs(int(gray.at<uint8_t>(y, xa)) - int(gray.at<uint8_t>(y, xb)));
+      return d / (y1 - y0);
+    };
+    double local = 0;
+    for (int k = 1; k <= 10; ++k) local += column_diff(w - 1 - k, w - k) + column_diff(k - 1, k);
+    local /= 20;
+    const double wrap = column_diff(w - 1, 0);
+    std::printf("%s ring, multiband: camera 3 in %d pieces %d px wide of %d; vs weighted %.2f dB; wrap step %.2f, "
+                "neighbours %.2f\n",
+                projection_name(kind), pieces_of_3, width_of_3, W, psnr, wrap, local);
+    EXPECT_GT(psnr, 30.0);
+    EXPECT_LE(wrap, 1.5 * local);
+  }
+}
+
 namespace {
 
 // Correspondences between cameras a and b of `truth` (a grid over a, kept where b sees it too),
@@ -574,6 +624,21 @@ TEST(ProjectionCuda, WarpAndComposeMatchCpu) {
       g.compose(host, as_view(got));
       const double psnr = testdata::psnr_rgb(got, want);
       std::printf("%s compose %dx%d: CUDA vs CPU PSNR %.2f dB\n", projection_name(kind), og.width, og.height, psnr);
+      EXPECT_GE(psnr, 45.0);
+    }
+    {  // multiband: the view across the wrap in two pieces on both backends
+      CompositorSettings settings;
+      settings.blend = BlendMode::Multiband;
+      Compositor c(Backend::Cpu), g(Backend::Cuda);
+      c.prepare(s.truth, settings);
+      g.prepare(s.truth, settings);
+      const OutputGeometry& og = c.geometry();
+      cv::Mat want(og.height, og.width, CV_8UC4), got(og.height, og.width, CV_8UC4, cv::Scalar::all(77));
+      c.compose(host, as_view(want));
+      g.compose(host, as_view(got));
+      const double psnr = testdata::psnr_rgb(got, want);
+      std::printf("%s multiband compose %dx%d: CUDA vs CPU PSNR %.2f dB\n", projection_name(kind), og.width, og.height,
+                  psnr);
       EXPECT_GE(psnr, 45.0);
     }
   }

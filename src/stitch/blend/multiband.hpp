@@ -18,15 +18,34 @@ enum class BlendMode { Weighted, Multiband };
 
 constexpr uint8_t kNoView = 255;  // label of a pixel no view covers
 
-// Where each view's pyramid lies on the padded canvas: all sizes are multiples of 2^bands,
-// so level k of a view is exactly the canvas' level k over (rect >> k).
+// One pyramid of a view: `part` of its roi (output pixels) and `rect`, that part widened and
+// aligned. A view across the 360-degree wrap (roi the whole width) has two, one at each edge
+// over the columns it reaches, instead of one pyramid as wide as the panorama.
+struct MultibandPiece {
+  int view = 0;
+  Rect part;
+  Rect rect;
+};
+
+// Where each view's pyramids lie on the padded canvas: all sizes are multiples of 2^bands,
+// so level k of a piece is exactly the canvas' level k over (rect >> k).
 struct MultibandLayout {
   int bands = 0;
   int width = 0, height = 0;                // the blended output
   int padded_width = 0, padded_height = 0;  // multiples of 2^bands
-  std::vector<Rect> rects;                  // per view: its roi widened and aligned; empty: not visible
-  int fill_width = 0, fill_height = 0;      // the largest roi padded to 2^bands (the hole filling's level 0)
+  std::vector<MultibandPiece> pieces;       // the visible views' pyramids, in view order
+  int fill_width = 0, fill_height = 0;      // the largest part padded to 2^bands (the hole filling's level 0)
+  int max_rect_width = 1, max_rect_height = 1;
 };
+
+// The pixels of `warped` (the view's roi) that `piece` covers.
+inline ImageView piece_pixels(const ImageView& warped, const Rect& roi, const MultibandPiece& piece) {
+  ImageView v = warped;
+  v.data += std::size_t(piece.part.x - roi.x) * 4 + std::size_t(piece.part.y - roi.y) * warped.pitch;
+  v.width = piece.part.width;
+  v.height = piece.part.height;
+  return v;
+}
 
 // n rounded up to a multiple of 2^bands: the size a view's hole filling works on.
 inline int padded_to_bands(int n, int bands) { return (n + (1 << bands) - 1) >> bands << bands; }

@@ -29,18 +29,34 @@ MultibandLayout plan_multiband(const std::vector<ViewPlacement>& views, int widt
   // spread past its rectangle.
   const int gap = 3 * unit;
   l.fill_width = l.fill_height = unit;
-  for (const ViewPlacement& v : views) {
-    l.fill_width = std::max(l.fill_width, padded_to_bands(v.roi.width, l.bands));
-    l.fill_height = std::max(l.fill_height, padded_to_bands(v.roi.height, l.bands));
-    Rect r;
-    if (!v.roi.empty()) {
-      const int x0 = std::max(0, (v.roi.x - gap) / unit * unit);
-      const int y0 = std::max(0, (v.roi.y - gap) / unit * unit);
-      const int x1 = std::min(l.padded_width, (v.roi.x + v.roi.width + gap + unit - 1) / unit * unit);
-      const int y1 = std::min(l.padded_height, (v.roi.y + v.roi.height + gap + unit - 1) / unit * unit);
-      r = {x0, y0, x1 - x0, y1 - y0};
+  auto add_piece = [&](int view, const Rect& part) {
+    l.fill_width = std::max(l.fill_width, padded_to_bands(part.width, l.bands));
+    l.fill_height = std::max(l.fill_height, padded_to_bands(part.height, l.bands));
+    const int x0 = std::max(0, (part.x - gap) / unit * unit);
+    const int y0 = std::max(0, (part.y - gap) / unit * unit);
+    const int x1 = std::min(l.padded_width, (part.x + part.width + gap + unit - 1) / unit * unit);
+    const int y1 = std::min(l.padded_height, (part.y + part.height + gap + unit - 1) / unit * unit);
+    const Rect rect{x0, y0, x1 - x0, y1 - y0};
+    l.max_rect_width = std::max(l.max_rect_width, rect.width);
+    l.max_rect_height = std::max(l.max_rect_height, rect.height);
+    l.pieces.push_back({view, part, rect});
+  };
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const ViewPlacement& v = views[i];
+    if (v.roi.empty()) continue;
+    const Rect& r = v.roi;
+    if (v.wrap_width == width && r.x == 0 && r.width == width) {
+      // Across the wrap: the columns from span_x0 to the right edge, and from the left edge to
+      // span_x1 - width, when their pyramids (widened by the gap) stay apart.
+      const int right_x = std::max(0, int(std::floor(v.span_x0)));
+      const int left_end = std::min(width, int(std::ceil(v.span_x1)) - width + 1);
+      if (left_end > 0 && right_x < width && left_end + 2 * gap + 2 * unit < right_x) {
+        add_piece(int(i), Rect{0, r.y, left_end, r.height});
+        add_piece(int(i), Rect{right_x, r.y, width - right_x, r.height});
+        continue;
+      }
     }
-    l.rects.push_back(r);
+    add_piece(int(i), r);
   }
   return l;
 }
@@ -216,8 +232,7 @@ class MultibandBlenderCpu final : public MultibandBlender {
     views_ = views;
     layout_ = plan_multiband(views, out_width, out_height, bands_);
     nearest_.clear();
-    int max_w = 1, max_h = 1;
-    for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
+    const int max_w = layout_.max_rect_width, max_h = layout_.max_rect_height;
     acc_.assign(layout_.bands + 1, Level());
     gauss_.assign(layout_.bands + 1, Level());
     for (int k = 0; k <= layout_.bands; ++k) {
@@ -258,12 +273,13 @@ class MultibandBlenderCpu final : public MultibandBlender {
     std::vector<Level>& acc = acc_;
     for (int k = 0; k <= L; ++k) zero(acc[k]);
     std::vector<Level> g(L + 1);
-    for (std::size_t i = 0; i < warped.size(); ++i) {
+    for (const MultibandPiece& piece : layout_.pieces) {
+      const int i = piece.view;
       if (!(mask >> i & 1)) continue;
-      const Rect& pr = layout_.rects[i];
+      const Rect& pr = piece.rect;
       for (int k = 0; k <= L; ++k) g[k] = part(gauss_[k], pr.height >> k, pr.width >> k);
-      fill_holes(warped[i], L, pull_, filled_, upper_, scratch_);
-      load_view(int(i), filled_[0], labels, g[0]);
+      fill_holes(piece_pixels(warped[i], views_[i].roi, piece), L, pull_, filled_, upper_, scratch_);
+      load_view(piece, filled_[0], labels, g[0]);
       for (int k = 1; k <= L; ++k) down(g[k - 1], scratch_, g[k]);
       for (int k = 0; k <= L; ++k) {
         const Level upper = k < L ? part(upper_, g[k].rows, g[k].cols) : Level();
@@ -335,9 +351,10 @@ class MultibandBlenderCpu final : public MultibandBlender {
 
   // Level 0 of view i over its padded rectangle: its hole-filled pixels (`filled`, roi at the
   // top left; mirrored outside the roi) and its mask (1 where the labels give it the pixel).
-  void load_view(int i, const Level& filled, const std::vector<uint8_t>& labels, Level g) const {
-    const Rect& pr = layout_.rects[i];
-    const Rect& roi = views_[i].roi;
+  void load_view(const MultibandPiece& piece, const Level& filled, const std::vector<uint8_t>& labels, Level g) const {
+    const int i = piece.view;
+    const Rect& pr = piece.rect;
+    const Rect& roi = piece.part;
     cv::parallel_for_(cv::Range(0, pr.height), [&](const cv::Range& r) {
       for (int y = r.start; y < r.end; ++y) {
         const int cy = pr.y + y;

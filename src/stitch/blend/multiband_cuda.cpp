@@ -25,8 +25,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
     custom_.clear();
     device_labels_ = nullptr;
     const int L = layout_.bands;
-    int max_w = 0, max_h = 0;
-    for (const Rect& r : layout_.rects) max_w = std::max(max_w, r.width), max_h = std::max(max_h, r.height);
+    const int max_w = layout_.max_rect_width, max_h = layout_.max_rect_height;
     // One allocation each for the canvas pyramid, the view pyramid, the hole filling's levels
     // 1..L and the collapse's two scratch levels (level 1 at most: the finest level of the fill
     // and of the collapse is never stored, the kernels fuse it into their consumers).
@@ -97,10 +96,11 @@ class MultibandBlenderCuda final : public MultibandBlender {
     const cudaStream_t s = stream_.get();
     const int L = layout_.bands;
     STITCH_CUDA(cudaMemsetAsync(acc_mem_.data(), 0, acc_mem_.size(), s));
-    for (std::size_t i = 0; i < warped.size(); ++i) {
+    for (const MultibandPiece& piece : layout_.pieces) {
+      const int i = piece.view;
       if (!(mask >> i & 1)) continue;
-      const Rect& pr = layout_.rects[i];
-      const Rect& roi = views_[i].roi;
+      const Rect& pr = piece.rect;
+      const Rect& roi = piece.part;
       std::vector<FloatImage> g(L + 1);
       for (int k = 0; k <= L; ++k) g[k] = sized(gauss_[k], pr.width >> k, pr.height >> k);
       // Holes filled from the view's own content (pull-push), as the CPU's fill_holes; level 0 of
@@ -111,7 +111,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
         pull[k] = sized(pull_[k], fw >> k, fh >> k);
         fill[k] = sized(fill_[k], fw >> k, fh >> k);
       }
-      const stitch_cuda::DeviceImage view = to_device_image(warped[i]);
+      const stitch_cuda::DeviceImage view = to_device_image(piece_pixels(warped[i], views_[i].roi, piece));
       if (L > 0) {
         stitch_cuda::launch_mb_premultiply_down(view, fw, fh, pull[1], s);
         for (int k = 2; k <= L; ++k) stitch_cuda::launch_mb_down(pull[k - 1], pull[k], s);
@@ -119,7 +119,7 @@ class MultibandBlenderCuda final : public MultibandBlender {
         for (int k = L - 1; k >= 1; --k) stitch_cuda::launch_mb_push(pull[k], fill[k + 1], fill[k], s);
       }
       stitch_cuda::launch_mb_load_view(view, L > 0 ? fill[1] : FloatImage{}, fw, fh, roi.width, roi.height, roi.x - pr.x,
-                                       roi.y - pr.y, pr.x, pr.y, labels, layout_.width, layout_.height, int(i), g[0], s);
+                                       roi.y - pr.y, pr.x, pr.y, labels, layout_.width, layout_.height, i, g[0], s);
       for (int k = 1; k <= L; ++k) stitch_cuda::launch_mb_down(g[k - 1], g[k], s);
       for (int k = 0; k <= L; ++k)
         stitch_cuda::launch_mb_accumulate(g[k], k < L ? g[k + 1] : FloatImage{}, acc_[k], pr.x >> k, pr.y >> k, s);
