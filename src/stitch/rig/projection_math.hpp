@@ -19,9 +19,18 @@ namespace stitch_projection {
 
 enum Kind : int { kPlane = 0, kCylindrical = 1, kSpherical = 2, kCubemap = 3 };
 
-STITCH_HD float p_sin(float x) { return sinf(x); }
+// On the device the hardware sine and cosine: canvas angles lie within about ±2π, where their
+// error (~1e-6) is a thousandth of a pixel at a focal length of 2000 px, far below the 1/256 px
+// of the texture units' bilinear weights; the accurate ones cost ~30 instructions each at every
+// output pixel of every curved view.
+#ifdef __CUDA_ARCH__
+__device__ __forceinline__ float p_sin(float x) { return __sinf(x); }
+__device__ __forceinline__ float p_cos(float x) { return __cosf(x); }
+#else
+inline float p_sin(float x) { return sinf(x); }
+inline float p_cos(float x) { return cosf(x); }
+#endif
 STITCH_HD double p_sin(double x) { return sin(x); }
-STITCH_HD float p_cos(float x) { return cosf(x); }
 STITCH_HD double p_cos(double x) { return cos(x); }
 STITCH_HD float p_atan2(float y, float x) { return atan2f(y, x); }
 STITCH_HD double p_atan2(double y, double x) { return atan2(y, x); }
