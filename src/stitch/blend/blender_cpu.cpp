@@ -1,5 +1,8 @@
 #include "stitch/blend/blender_cpu.hpp"
 
+#include <algorithm>
+#include "stitch/blend/seam_math.hpp"
+
 #include <Eigen/Core>
 #include <opencv2/core/hal/intrin.hpp>
 #include <stdexcept>
@@ -104,6 +107,24 @@ const std::vector<cv::Mat>& BlenderCpu::weights_for(uint64_t mask) {
 }
 
 void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out) {
+  fuse_rows(warped, out, nullptr, nullptr, nullptr);
+}
+
+void BlenderCpu::fuse_mixed(const std::vector<ImageView>& warped, const ImageView& out,
+                            const std::vector<uint8_t>& labels, const std::vector<uint8_t>& mix,
+                            const std::vector<Rect>& regions) {
+  if (mix.empty()) {
+    fuse_rows(warped, out, nullptr, nullptr, nullptr);
+    return;
+  }
+  if (mix.size() != std::size_t(out.width) * out.height || labels.size() != mix.size())
+    throw std::invalid_argument("mix map size differs from the output");
+  fuse_rows(warped, out, &labels, &mix, &regions);
+}
+
+void BlenderCpu::fuse_rows(const std::vector<ImageView>& warped, const ImageView& out,
+                           const std::vector<uint8_t>* labels, const std::vector<uint8_t>* mix,
+                           const std::vector<Rect>* regions) {
   if (warped.size() != views_.size()) throw std::invalid_argument("view count differs from prepare()");
   if (out.width != out_w_ || out.height != out_h_) throw std::invalid_argument("output size differs from prepare()");
   if (out.on_device) throw std::invalid_argument("CPU blender got device memory");
@@ -113,6 +134,7 @@ void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out
   const std::vector<cv::Mat>& weights = weights_for(mask);
   cv::parallel_for_(cv::Range(row_first_, row_end_), [&](const cv::Range& range) {
     std::vector<uint32_t> acc(static_cast<std::size_t>(out_w_) * 4);
+    std::vector<std::pair<int, int>> spans;  // this row's columns [x0, x1) that the mix may touch
     for (int y = range.start; y < range.end; ++y) {
       std::fill(acc.begin(), acc.end(), 0u);
       for (std::size_t i = 0; i < warped.size(); ++i) {
@@ -166,6 +188,25 @@ void BlenderCpu::fuse(const std::vector<ImageView>& warped, const ImageView& out
       for (; x < n; ++x) po[x] = static_cast<uint8_t>((pa[x] + half) >> kWeightBits);
       // The panorama is opaque: uncovered corners are black, not transparent.
       for (int x = 0; x < out_w_; ++x) po[4 * x + 3] = 255;
+      if (!mix) continue;
+      // The consensus blend's mix on this row (apply_seam_mix's arithmetic), in its regions'
+      // columns, each column once.
+      spans.clear();
+      for (const Rect& g : *regions)
+        if (y >= g.y && y < g.y + g.height) spans.push_back({std::max(0, g.x), std::min(out_w_, g.x + g.width)});
+      std::sort(spans.begin(), spans.end());
+      int done = 0;
+      const uint8_t* m = mix->data() + std::size_t(y) * out_w_;
+      const uint8_t* l = labels->data() + std::size_t(y) * out_w_;
+      for (const auto& s : spans)
+        for (int x = std::max(s.first, done); x < s.second; ++x) {
+          done = x + 1;
+          if (!m[x] || l[x] >= warped.size() || warped[l[x]].empty()) continue;
+          const Rect& r = views_[l[x]].roi;
+          if (x < r.x || y < r.y || x >= r.x + r.width || y >= r.y + r.height) continue;
+          const uint8_t* v = warped[l[x]].row(y - r.y) + 4 * (x - r.x);
+          for (int k = 0; k < 3; ++k) po[4 * x + k] = seam::mix_value(po[4 * x + k], v[k], m[x]);
+        }
     }
   });
 }

@@ -22,6 +22,12 @@ class BlenderCpu final : public Blender {
 
   void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) override;
   void fuse(const std::vector<ImageView>& warped, const ImageView& out) override;
+  // fuse() and then the consensus blend's mix (apply_seam_mix: each pixel with mix > 0 moved
+  // towards its label's view) in the same pass over the output, row by row while the row is in
+  // cache: the same bytes as fuse() followed by apply_seam_mix(). `mix` must be 0 outside
+  // `regions` (the seam finder's pair boxes; only they are read).
+  void fuse_mixed(const std::vector<ImageView>& warped, const ImageView& out, const std::vector<uint8_t>& labels,
+                  const std::vector<uint8_t>& mix, const std::vector<Rect>& regions);
   Backend backend() const override { return Backend::Cpu; }
 
   // Normalised Q14 weights of each view (roi-sized, CV_16U) for a set of present views.
@@ -40,6 +46,8 @@ class BlenderCpu final : public Blender {
   int out_w_ = 0, out_h_ = 0;
   int row_first_ = 0, row_end_ = 0;
   std::map<uint64_t, std::vector<cv::Mat>> normalised_;
+  void fuse_rows(const std::vector<ImageView>& warped, const ImageView& out, const std::vector<uint8_t>* labels,
+                 const std::vector<uint8_t>* mix, const std::vector<Rect>* regions);
 };
 
 }  // namespace stitch

@@ -317,14 +317,23 @@ void Compositor::fuse_cpu(const std::vector<ImageView>& views, const ImageView& 
     profile.mark("multiband");
     return;
   }
-  blender_->fuse(views, out);
-  profile.mark("fuse");
-  if (seam_) {  // the consensus blend
+  if (seam_) {  // the consensus blend: seams from the views, then the fuse with the mix in its pass
     const std::vector<uint8_t>& labels = seam_->find(views);
     profile.mark("seams");
+    if (auto* weighted = dynamic_cast<BlenderCpu*>(blender_.get())) {
+      std::vector<Rect> boxes;
+      for (const SeamFinder::Pair& p : seam_->pairs()) boxes.push_back(p.box);
+      weighted->fuse_mixed(views, out, labels, seam_->mix(), boxes);
+      profile.mark("fuse + mix");
+      return;
+    }
+    blender_->fuse(views, out);
     apply_seam_mix(blend_views_, views, labels, seam_->mix(), out);
-    profile.mark("mix");
+    profile.mark("fuse, mix");
+    return;
   }
+  blender_->fuse(views, out);
+  profile.mark("fuse");
 }
 
 void Compositor::compose_prewarped(const std::vector<ImageView>& views, const ImageView& out) {
