@@ -210,9 +210,19 @@ class ColorOpsCpu final : public ColorOps {
     for (int c = 0; c < 3 && identity_lut; ++c)
       for (int v = 0; v < 256 && identity_lut; ++v) identity_lut = lut[c][v] == v;
     const int knee = std::clamp(highlight_knee, 0, 255);
+    // Every view's bands of rows in one parallel loop (one wait for the threads, not one per
+    // view); each band keeps a copy of its input rows for the highlight roll-off, in a buffer the
+    // thread keeps (no allocation per band).
+    constexpr int kBand = 32;
+    struct Job {
+      cv::Mat img;
+      cv::Matx44f T;
+      bool matrix;
+    };
+    std::vector<Job> jobs;
+    std::vector<int> first_band{0};
     for (std::size_t i = 0; i < views.size(); ++i) {
       if (views[i].empty()) continue;
-      cv::Mat img = as_mat(views[i]);
       const Eigen::Matrix3d& M = matrices[i];
       const bool matrix = !M.isIdentity(1e-9);
       if (!matrix && identity_lut) continue;
@@ -220,14 +230,21 @@ class ColorOpsCpu final : public ColorOps {
       cv::Matx44f T = cv::Matx44f::eye();
       for (int c = 0; c < 3; ++c)
         for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
-      // Row bands in parallel (issue 17: the CPU chain scales with cores); each band keeps a
-      // copy of its input rows for the highlight roll-off.
-      cv::parallel_for_(cv::Range(0, img.rows), [&](const cv::Range& rows) {
-        cv::Mat band = img.rowRange(rows);
-        if (matrix) {
-          cv::Mat input;
+      jobs.push_back({as_mat(views[i]), T, matrix});
+      first_band.push_back(first_band.back() + (jobs.back().img.rows + kBand - 1) / kBand);
+    }
+    if (jobs.empty()) return;
+    cv::parallel_for_(cv::Range(0, first_band.back()), [&](const cv::Range& bands) {
+      static thread_local cv::Mat input;
+      std::size_t j = std::size_t(std::upper_bound(first_band.begin(), first_band.end(), bands.start) - first_band.begin()) - 1;
+      for (int t = bands.start; t < bands.end; ++t) {
+        while (t >= first_band[j + 1]) ++j;
+        const Job& job = jobs[j];
+        const int y0 = (t - first_band[j]) * kBand;
+        cv::Mat band = job.img.rowRange(y0, std::min(job.img.rows, y0 + kBand));
+        if (job.matrix) {
           if (knee < 255) band.copyTo(input);
-          cv::transform(band, band, T);
+          cv::transform(band, band, job.T);
           if (knee < 255)
             for (int y = 0; y < band.rows; ++y) {
               const uint8_t* p = input.ptr<uint8_t>(y);
@@ -251,8 +268,8 @@ class ColorOpsCpu final : public ColorOps {
             }
           }
         }
-      }, std::max(1.0, img.rows / 32.0));
-    }
+      }
+    }, double(first_band.back()));
   }
 
   void gather(const ImageView& view, const std::vector<int32_t>& xy,
