@@ -46,6 +46,15 @@ class BlenderCpu final : public Blender {
   int out_w_ = 0, out_h_ = 0;
   int row_first_ = 0, row_end_ = 0;
   std::map<uint64_t, std::vector<cv::Mat>> normalised_;
+  // Per output row, runs of pixels by what the fuse does there: one view has the whole weight
+  // (view >= 0: the pixel is that view's, copied), several views share it (kMixed: the weighted
+  // sum), or none covers it (kUncovered: opaque black). Per set of present views, like normalised_.
+  struct Span {
+    int x0, x1, view;
+  };
+  static constexpr int kMixed = -1, kUncovered = -2;
+  std::map<uint64_t, std::vector<std::vector<Span>>> spans_;
+  const std::vector<std::vector<Span>>& spans_for(uint64_t mask);
   void fuse_rows(const std::vector<ImageView>& warped, const ImageView& out, const std::vector<uint8_t>* labels,
                  const std::vector<uint8_t>* mix, const std::vector<Rect>* regions);
 };
