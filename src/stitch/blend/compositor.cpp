@@ -1,7 +1,9 @@
 #include "stitch/blend/compositor.hpp"
 
 #include "stitch/blend/blender_cpu.hpp"
+#include "stitch/warp/warper_cpu.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -480,8 +482,29 @@ void Compositor::compose_views(const std::vector<ImageView>& frames, const Image
     dst.width = v.roi.width;
     dst.height = v.roi.height;
     dst.pitch = static_cast<std::size_t>(v.roi.width) * 4;
-    warper_->warp(static_cast<int>(i), frames[i], dst);
     warped[i] = dst;
+  }
+  if (!cuda_) {
+    // Every view's bands of rows warped in one parallel loop (one wait for the threads, not one
+    // per view); a band's pixels are the ones the whole view's warp gives (WarperCpu::warp_part).
+    auto* cpu = dynamic_cast<WarperCpu*>(warper_.get());
+    constexpr int kBand = 32;
+    std::vector<int> first_band{0};
+    for (std::size_t i = 0; i < frames.size(); ++i)
+      first_band.push_back(first_band.back() + (warped[i].empty() ? 0 : (warped[i].height + kBand - 1) / kBand));
+    if (cpu && first_band.back() > 0) {
+      cv::parallel_for_(cv::Range(0, first_band.back()), [&](const cv::Range& bands) {
+        std::size_t i = std::size_t(std::upper_bound(first_band.begin(), first_band.end(), bands.start) - first_band.begin()) - 1;
+        for (int t = bands.start; t < bands.end; ++t) {
+          while (t >= first_band[i + 1]) ++i;
+          const int y0 = (t - first_band[i]) * kBand;
+          cpu->warp_part(int(i), frames[i], warped[i], {0, y0, warped[i].width, std::min(kBand, warped[i].height - y0)});
+        }
+      }, double(first_band.back()));
+    } else {
+      for (std::size_t i = 0; i < frames.size(); ++i)
+        if (!warped[i].empty()) warper_->warp(static_cast<int>(i), frames[i], warped[i]);
+    }
   }
 #ifdef STITCH_HAVE_CUDA
   if (cuda_) {
