@@ -40,6 +40,7 @@ void BlenderCpu::prepare(const std::vector<ViewPlacement>& views, int out_width,
   row_end_ = out_height;
   normalised_.clear();
   spans_.clear();
+  cores_.clear();
   raw_.assign(views.size(), cv::Mat());
   for (std::size_t i = 0; i < views.size(); ++i) raw_[i] = position_weight_map(views[i]);
 }
@@ -180,10 +181,23 @@ void BlenderCpu::fuse_rows(const std::vector<ImageView>& warped, const ImageView
           continue;
         }
         if (span.view >= 0) {  // one view's weight is 1: (w p + half) >> kWeightBits = p
-          const Rect& r = views_[static_cast<std::size_t>(span.view)].roi;
-          std::memcpy(po + 4 * span.x0, warped[static_cast<std::size_t>(span.view)].row(y - r.y) + 4 * (span.x0 - r.x),
-                      static_cast<std::size_t>(span.x1 - span.x0) * 4);
-          for (int x = span.x0; x < span.x1; ++x) po[4 * x + 3] = 255;
+          const std::size_t v = static_cast<std::size_t>(span.view);
+          const Rect& r = views_[v].roi;
+          auto copy = [&](int x0, int x1) {
+            if (x1 <= x0) return;
+            std::memcpy(po + 4 * x0, warped[v].row(y - r.y) + 4 * (x0 - r.x), static_cast<std::size_t>(x1 - x0) * 4);
+            for (int x = x0; x < x1; ++x) po[4 * x + 3] = 255;
+          };
+          // The view's core on this row is in the output already (set_cores): the rest is copied.
+          std::pair<int, int> core{0, 0};
+          const int band = (y - r.y) / kCoreBand;
+          if (v < cores_.size() && band < int(cores_[v].size())) core = cores_[v][static_cast<std::size_t>(band)];
+          if (core.second <= core.first) {
+            copy(span.x0, span.x1);
+          } else {
+            copy(span.x0, std::min(span.x1, core.first));
+            copy(std::max(span.x0, core.second), span.x1);
+          }
           continue;
         }
         // Several views: the weighted sum of the span's pixels.
