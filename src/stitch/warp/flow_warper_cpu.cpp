@@ -272,7 +272,7 @@ class FlowWarperCpu final : public FlowWarper {
         throw std::invalid_argument("flow warp: destination " + std::to_string(i) + " is not roi-sized");
     }
     // The homography warp of each view is written after the flows, and only where the flow
-    // does not re-warp the view (displace()): the same pixels with less work.
+    // does not re-warp the view (displacement_fields()): the same pixels with less work.
     stats_.clear();
     if (!settings_.flow) {
       for (std::size_t i = 0; i < frames.size(); ++i)
@@ -328,8 +328,36 @@ class FlowWarperCpu final : public FlowWarper {
     const Clock::time_point t2 = Clock::now();
     for (Pair* p : active) estimate(*p);
     const Clock::time_point t3 = Clock::now();
+    // Every view's homography-only parts, cut into bands of 32 rows, in one parallel loop (one
+    // wait for the threads, not one per part); then the displaced bands.
+    struct Part {
+      int view;
+      Rect rect;  // roi coordinates
+    };
+    std::vector<Part> parts;
+    std::vector<std::vector<Rect>> moved(views_.size());
+    std::vector<std::vector<cv::Mat>> fields(views_.size());
+    for (std::size_t i = 0; i < views_.size(); ++i) {
+      if (frames[i].empty() || views_[i].roi.empty()) continue;
+      displacement_fields(int(i), frames, moved[i], fields[i]);
+      for (const Rect& part : complement(views_[i].roi.width, views_[i].roi.height, moved[i]))
+        for (int y = part.y; y < part.y + part.height; y += 32)
+          parts.push_back({int(i), {part.x, y, part.width, std::min(32, part.y + part.height - y)}});
+    }
+    if (!parts.empty())
+      cv::parallel_for_(cv::Range(0, int(parts.size())), [&](const cv::Range& r) {
+        for (int k = r.start; k < r.end; ++k) {
+          const Part& part = parts[std::size_t(k)];
+          warper_->warp_part(part.view, frames[std::size_t(part.view)], warped[std::size_t(part.view)], part.rect);
+        }
+      }, double(parts.size()));
     for (std::size_t i = 0; i < views_.size(); ++i)
-      if (!frames[i].empty() && !views_[i].roi.empty()) displace(int(i), frames[i], warped[i], frames);
+      for (std::size_t k = 0; k < moved[i].size(); ++k) {
+        cv::Mat mx, my;
+        camera_maps(views_[i], moved[i][k], fields[i][k], mx, my);
+        cv::Mat out = as_mat(warped[i])(to_cv(moved[i][k]));
+        cv::remap(as_mat(frames[i]), out, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+      }
     if (profile) {
       std::fprintf(stderr, "flow warp ms: overlaps %.1f, flows %.1f (%zu tasks, slowest %.1f), estimate %.1f, warp %.1f\n",
                    ms(t0, t1), ms(t1, t2), tasks.size(),
@@ -589,10 +617,11 @@ class FlowWarperCpu final : public FlowWarper {
 
   // Warps view v: moved by the weighted flow toward each neighbour it overlaps, band by band,
   // and by the homography alone elsewhere.
-  void displace(int v, const ImageView& frame, const ImageView& dst, const std::vector<ImageView>& frames) {
+  // View v's bands (roi coordinates) that the flow moves, and their displacement fields; the
+  // rest of the view is the homography's (warp() warps both).
+  void displacement_fields(int v, const std::vector<ImageView>& frames, std::vector<Rect>& moved,
+                           std::vector<cv::Mat>& fields) {
     const ViewPlacement& view = views_[v];
-    std::vector<Rect> moved;  // roi coordinates
-    std::vector<cv::Mat> fields;
     for (const Rect& band : bands_[v]) {
       cv::Mat d(band.height, band.width, CV_32FC2);
       in_strips(d.rows, [&](int y0, int y1) { d.rowRange(y0, y1).setTo(cv::Scalar::all(0)); });
@@ -624,14 +653,6 @@ class FlowWarperCpu final : public FlowWarper {
       if (*std::max_element(row_max.begin(), row_max.end()) < kNegligiblePx) continue;
       moved.push_back(shifted(band, -view.roi.x, -view.roi.y));
       fields.push_back(d);
-    }
-    for (const Rect& part : complement(view.roi.width, view.roi.height, moved))
-      warper_->warp_part(v, frame, dst, part);
-    for (std::size_t k = 0; k < moved.size(); ++k) {
-      cv::Mat mx, my;
-      camera_maps(view, moved[k], fields[k], mx, my);
-      cv::Mat out = as_mat(dst)(to_cv(moved[k]));
-      cv::remap(as_mat(frame), out, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
     }
   }
 
