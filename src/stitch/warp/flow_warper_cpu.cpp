@@ -55,31 +55,75 @@ void in_strips(int n, const F& f) {
   });
 }
 
-cv::Mat to_float(const cv::Mat& gray) {
-  cv::Mat out(gray.size(), CV_32FC(gray.channels()));
-  in_strips(gray.rows, [&](int y0, int y1) {
-    cv::Mat o = out.rowRange(y0, y1);
-    gray.rowRange(y0, y1).convertTo(o, o.type());
+// in_strips over several images in one parallel loop (one wait for the threads): f(image, y0, y1).
+template <class F>
+void in_strips_n(const std::vector<int>& ns, const F& f) {
+  std::vector<int> strips(ns.size()), first{0};
+  for (std::size_t i = 0; i < ns.size(); ++i) {
+    strips[i] = std::max(1, std::min(ns[i] / 8, 4 * cv::getNumThreads()));
+    first.push_back(first.back() + strips[i]);
+  }
+  cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
+    std::size_t i = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
+    for (int k = r.start; k < r.end; ++k) {
+      while (k >= first[i + 1]) ++i;
+      const int s = k - first[i], n = ns[i];
+      f(i, int(int64_t(n) * s / strips[i]), int(int64_t(n) * (s + 1) / strips[i]));
+    }
+  });
+}
+
+// for_rows over several images in one parallel loop: f(image, y).
+template <class F>
+void for_rows_n(const std::vector<int>& ns, const F& f) {
+  std::vector<int> first{0};
+  for (const int n : ns) first.push_back(first.back() + n);
+  if (first.back() == 0) return;
+  cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
+    std::size_t i = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
+    for (int k = r.start; k < r.end; ++k) {
+      while (k >= first[i + 1]) ++i;
+      f(i, k - first[i]);
+    }
+  });
+}
+
+std::vector<int> rows_of(const std::vector<cv::Mat>& m) {
+  std::vector<int> n;
+  for (const cv::Mat& x : m) n.push_back(x.rows);
+  return n;
+}
+
+std::vector<cv::Mat> to_float_n(const std::vector<cv::Mat>& grays) {
+  std::vector<cv::Mat> out;
+  for (const cv::Mat& g : grays) out.emplace_back(g.size(), CV_32FC(g.channels()));
+  in_strips_n(rows_of(grays), [&](std::size_t i, int y0, int y1) {
+    cv::Mat o = out[i].rowRange(y0, y1);
+    grays[i].rowRange(y0, y1).convertTo(o, o.type());
   });
   return out;
 }
 
-// GaussianBlur (float images) into a new matrix, by row strips.
-cv::Mat blurred(const cv::Mat& src, double sigma) {
-  CV_Assert(src.depth() == CV_32F);
-  cv::Mat dst(src.size(), src.type());
-  in_strips(src.rows, [&](int y0, int y1) {
-    cv::Mat d = dst.rowRange(y0, y1);
-    cv::GaussianBlur(src.rowRange(y0, y1), d, cv::Size(0, 0), sigma);
+// GaussianBlur (float images) into new matrices, by row strips (of all the images at once).
+std::vector<cv::Mat> blurred_n(const std::vector<cv::Mat>& srcs, double sigma) {
+  std::vector<cv::Mat> out;
+  for (const cv::Mat& src : srcs) {
+    CV_Assert(src.depth() == CV_32F);
+    out.emplace_back(src.size(), src.type());
+  }
+  in_strips_n(rows_of(srcs), [&](std::size_t i, int y0, int y1) {
+    cv::Mat d = out[i].rowRange(y0, y1);
+    cv::GaussianBlur(srcs[i].rowRange(y0, y1), d, cv::Size(0, 0), sigma);
   });
-  return dst;
+  return out;
 }
 
-cv::Mat product(const cv::Mat& a, const cv::Mat& b) {
-  cv::Mat out(a.size(), a.type());
-  in_strips(a.rows, [&](int y0, int y1) {
-    cv::Mat o = out.rowRange(y0, y1);
-    cv::multiply(a.rowRange(y0, y1), b.rowRange(y0, y1), o);
+std::vector<cv::Mat> product_n(const std::vector<cv::Mat>& as, const std::vector<cv::Mat>& bs) {
+  std::vector<cv::Mat> out;
+  for (const cv::Mat& a : as) out.emplace_back(a.size(), a.type());
+  in_strips_n(rows_of(as), [&](std::size_t i, int y0, int y1) {
+    cv::Mat o = out[i].rowRange(y0, y1);
+    cv::multiply(as[i].rowRange(y0, y1), bs[i].rowRange(y0, y1), o);
   });
   return out;
 }
@@ -114,23 +158,25 @@ std::vector<Rect> complement(int width, int height, const std::vector<Rect>& hol
   return out;
 }
 
-// exp(-(|fwd(p) + bwd(p + fwd(p))| / tau)^2): 1 where the two directions agree.
-cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, float tau) {
-  cv::Mat map(fwd.size(), CV_32FC2);
-  for_rows(fwd.rows, [&](int y) {
-    const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
-    cv::Vec2f* pm = map.ptr<cv::Vec2f>(y);
-    for (int x = 0; x < fwd.cols; ++x) pm[x] = cv::Vec2f(x + pf[x][0], y + pf[x][1]);
+// exp(-(|fwd(p) + bwd(p + fwd(p))| / tau)^2): 1 where the two directions agree. For several
+// (fwd, bwd) pairs at once.
+std::vector<cv::Mat> forward_backward_confidence_n(const std::vector<cv::Mat>& fwd, const std::vector<cv::Mat>& bwd,
+                                                   float tau) {
+  std::vector<cv::Mat> map, back(fwd.size()), conf;
+  for (const cv::Mat& f : fwd) map.emplace_back(f.size(), CV_32FC2), conf.emplace_back(f.size(), CV_32F);
+  for_rows_n(rows_of(fwd), [&](std::size_t i, int y) {
+    const cv::Vec2f* pf = fwd[i].ptr<cv::Vec2f>(y);
+    cv::Vec2f* pm = map[i].ptr<cv::Vec2f>(y);
+    for (int x = 0; x < fwd[i].cols; ++x) pm[x] = cv::Vec2f(x + pf[x][0], y + pf[x][1]);
   });
-  cv::Mat back;
-  cv::remap(bwd, back, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-  cv::Mat conf(fwd.size(), CV_32F);
+  for (std::size_t i = 0; i < fwd.size(); ++i)
+    cv::remap(bwd[i], back[i], map[i], cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   const float inv = 1.f / (tau * tau);
-  for_rows(fwd.rows, [&](int y) {
-    const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
-    const cv::Vec2f* pb = back.ptr<cv::Vec2f>(y);
-    float* pc = conf.ptr<float>(y);
-    for (int x = 0; x < fwd.cols; ++x) {
+  for_rows_n(rows_of(fwd), [&](std::size_t i, int y) {
+    const cv::Vec2f* pf = fwd[i].ptr<cv::Vec2f>(y);
+    const cv::Vec2f* pb = back[i].ptr<cv::Vec2f>(y);
+    float* pc = conf[i].ptr<float>(y);
+    for (int x = 0; x < fwd[i].cols; ++x) {
       const float ex = pf[x][0] + pb[x][0], ey = pf[x][1] + pb[x][1];
       pc[x] = std::exp(-(ex * ex + ey * ey) * inv);
     }
@@ -138,7 +184,6 @@ cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, floa
   return conf;
 }
 
-// Bilinear sample of a float image, the position clamped into it (as the CUDA kernels read).
 float sample(const cv::Mat& img, float x, float y) {
   x = std::clamp(x, 0.f, float(img.cols - 1));
   y = std::clamp(y, 0.f, float(img.rows - 1));
@@ -151,21 +196,23 @@ float sample(const cv::Mat& img, float x, float y) {
 }
 
 // The matching-cost gate of the flow a->b (flow_gate_math.hpp): per pixel, how much the flow
-// improves the match over the homography, blurred, mapped to 0..1.
-cv::Mat cost_gate(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow) {
-  cv::Mat improvement(a.size(), CV_32F);
-  for_rows(a.rows, [&](int y) {
-    const float* pa = a.ptr<float>(y);
-    const float* pb = b.ptr<float>(y);
-    const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
-    float* pi = improvement.ptr<float>(y);
-    for (int x = 0; x < a.cols; ++x)
-      pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b, x + pf[x][0], y + pf[x][1]));
+// improves the match over the homography, blurred, mapped to 0..1. For several (a, b, flow) at once.
+std::vector<cv::Mat> cost_gate_n(const std::vector<cv::Mat>& a, const std::vector<cv::Mat>& b,
+                                 const std::vector<cv::Mat>& flow) {
+  std::vector<cv::Mat> improvement;
+  for (const cv::Mat& x : a) improvement.emplace_back(x.size(), CV_32F);
+  for_rows_n(rows_of(a), [&](std::size_t i, int y) {
+    const float* pa = a[i].ptr<float>(y);
+    const float* pb = b[i].ptr<float>(y);
+    const cv::Vec2f* pf = flow[i].ptr<cv::Vec2f>(y);
+    float* pi = improvement[i].ptr<float>(y);
+    for (int x = 0; x < a[i].cols; ++x)
+      pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b[i], x + pf[x][0], y + pf[x][1]));
   });
-  improvement = blurred(improvement, flow_gate::kGateSigma);
-  for_rows(a.rows, [&](int y) {
-    float* pi = improvement.ptr<float>(y);
-    for (int x = 0; x < a.cols; ++x) pi[x] = flow_gate::gate(pi[x]);
+  improvement = blurred_n(improvement, flow_gate::kGateSigma);
+  for_rows_n(rows_of(a), [&](std::size_t i, int y) {
+    float* pi = improvement[i].ptr<float>(y);
+    for (int x = 0; x < a[i].cols; ++x) pi[x] = flow_gate::gate(pi[x]);
   });
   return improvement;
 }
@@ -514,12 +561,15 @@ class FlowWarperCpu final : public FlowWarper {
     const cv::Mat ab = p.ab, ba = p.ba;
 
     const float tau = float(settings_.consistency_px * scale);
-    const cv::Mat conf_ab = forward_backward_confidence(ab, ba, std::max(tau, 0.25f));
-    const cv::Mat conf_ba = forward_backward_confidence(ba, ab, std::max(tau, 0.25f));
+    // Both directions in each parallel loop (one wait for the threads, not two).
+    const std::vector<cv::Mat> conf = forward_backward_confidence_n({ab, ba}, {ba, ab}, std::max(tau, 0.25f));
+    const cv::Mat& conf_ab = conf[0];
     // The flow counts only where it improves the match over the homography.
-    const cv::Mat fa = to_float(gray[0]), fb = to_float(gray[1]);
-    const cv::Mat trust_ab = settings_.fallback ? product(conf_ab, cost_gate(fa, fb, ab)) : conf_ab;
-    const cv::Mat trust_ba = settings_.fallback ? product(conf_ba, cost_gate(fb, fa, ba)) : conf_ba;
+    const std::vector<cv::Mat> f = to_float_n({gray[0], gray[1]});
+    const cv::Mat &fa = f[0], &fb = f[1];
+    const std::vector<cv::Mat> trust =
+        settings_.fallback ? product_n(conf, cost_gate_n({fa, fb}, {fb, fa}, {ab, ba})) : conf;
+    const cv::Mat &trust_ab = trust[0], &trust_ba = trust[1];
     cv::Mat both = p.side[0].valid & p.side[1].valid;
     FlowPairStats st;
     st.view_a = p.a;
@@ -529,8 +579,9 @@ class FlowWarperCpu final : public FlowWarper {
     st.confident_fraction = n_valid ? cv::countNonZero((conf_ab > 0.5) & both) / double(n_valid) : 0.0;
 
     const cv::Mat still = init ? stillness(gray, p.prev_gray) : cv::Mat();
-    p.flow_ab = refine(ab, trust_ab, prev_ab, still);
-    p.flow_ba = refine(ba, trust_ba, prev_ba, still);
+    const std::vector<cv::Mat> refined = refine_n({ab, ba}, {trust_ab, trust_ba}, {prev_ab, prev_ba}, still);
+    p.flow_ab = refined[0];
+    p.flow_ba = refined[1];
     p.prev_gray[0] = gray[0];
     p.prev_gray[1] = gray[1];
     p.history = true;
@@ -569,22 +620,27 @@ class FlowWarperCpu final : public FlowWarper {
   // smoothed, then blended with the previous frame's where neither view changed: there the
   // scene is static and so is the right flow, so estimation jitter is averaged away; where
   // the content moved, the new flow is taken at once.
-  cv::Mat refine(const cv::Mat& flow, const cv::Mat& conf, const cv::Mat& prev, const cv::Mat& stillness) const {
-    cv::Mat out(flow.size(), CV_32FC2);
-    for_rows(flow.rows, [&](int y) {
-      const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
-      const float* pc = conf.ptr<float>(y);
-      cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
-      for (int x = 0; x < flow.cols; ++x) po[x] = pf[x] * pc[x];
+  // For several (flow, conf, prev) at once (the same stillness).
+  std::vector<cv::Mat> refine_n(const std::vector<cv::Mat>& flow, const std::vector<cv::Mat>& conf,
+                                const std::vector<cv::Mat>& prev, const cv::Mat& stillness) const {
+    std::vector<cv::Mat> out;
+    for (const cv::Mat& f : flow) out.emplace_back(f.size(), CV_32FC2);
+    for_rows_n(rows_of(flow), [&](std::size_t i, int y) {
+      const cv::Vec2f* pf = flow[i].ptr<cv::Vec2f>(y);
+      const float* pc = conf[i].ptr<float>(y);
+      cv::Vec2f* po = out[i].ptr<cv::Vec2f>(y);
+      for (int x = 0; x < flow[i].cols; ++x) po[x] = pf[x] * pc[x];
     });
-    out = blurred(out, 1.5);
+    out = blurred_n(out, 1.5);
     const float s = float(settings_.temporal_smoothing);
-    if (prev.empty() || stillness.empty() || s <= 0.f) return out;
-    for_rows(out.rows, [&](int y) {
-      const cv::Vec2f* pp = prev.ptr<cv::Vec2f>(y);
+    if (stillness.empty() || s <= 0.f) return out;
+    std::vector<int> rows;  // the flows with a previous one to blend with
+    for (std::size_t i = 0; i < out.size(); ++i) rows.push_back(prev[i].empty() ? 0 : out[i].rows);
+    for_rows_n(rows, [&](std::size_t i, int y) {
+      const cv::Vec2f* pp = prev[i].ptr<cv::Vec2f>(y);
       const float* ps = stillness.ptr<float>(y);
-      cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
-      for (int x = 0; x < out.cols; ++x) {
+      cv::Vec2f* po = out[i].ptr<cv::Vec2f>(y);
+      for (int x = 0; x < out[i].cols; ++x) {
         const float keep = s * ps[x];
         po[x] = keep * pp[x] + (1.f - keep) * po[x];
       }
@@ -596,11 +652,9 @@ class FlowWarperCpu final : public FlowWarper {
   // changed by a few grey levels. Local means are compared, so sensor noise is not motion.
   static cv::Mat stillness(const cv::Mat gray[2], const cv::Mat prev[2]) {
     if (prev[0].empty() || prev[0].size() != gray[0].size()) return cv::Mat();
-    cv::Mat a[2], b[2];
-    for (int k = 0; k < 2; ++k) {
-      a[k] = blurred(to_float(gray[k]), 2.0);
-      b[k] = blurred(to_float(prev[k]), 2.0);
-    }
+    // The four images in each parallel loop.
+    const std::vector<cv::Mat> m = blurred_n(to_float_n({gray[0], gray[1], prev[0], prev[1]}), 2.0);
+    const cv::Mat a[2] = {m[0], m[1]}, b[2] = {m[2], m[3]};
     cv::Mat still(gray[0].size(), CV_32F);
     for_rows(still.rows, [&](int y) {
       const float *a0 = a[0].ptr<float>(y), *b0 = b[0].ptr<float>(y);
