@@ -63,6 +63,7 @@ void in_strips_n(const std::vector<int>& ns, const F& f) {
     strips[i] = std::max(1, std::min(ns[i] / 8, 4 * cv::getNumThreads()));
     first.push_back(first.back() + strips[i]);
   }
+  if (first.back() == 0) return;
   cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
     std::size_t i = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
     for (int k = r.start; k < r.end; ++k) {
@@ -373,7 +374,7 @@ class FlowWarperCpu final : public FlowWarper {
         p->next[0] = p->next[1] = cv::Mat();
       }
     const Clock::time_point t2 = Clock::now();
-    for (Pair* p : active) estimate(*p);
+    estimate_all(active);
     const Clock::time_point t3 = Clock::now();
     // Every view's homography-only parts, cut into bands of 32 rows, in one parallel loop (one
     // wait for the threads, not one per part); then the displaced bands.
@@ -553,23 +554,73 @@ class FlowWarperCpu final : public FlowWarper {
   }
 
   // After the flows: confidence, gating, refinement, stats and the output-resolution flows.
-  void estimate(Pair& p) {
+  // Every active pair at once: each step runs both directions of every pair in one parallel
+  // loop (one wait for the threads, not one per pair and direction); item 2k is pair k's a->b,
+  // 2k + 1 its b->a. Then each pair's stats and output-resolution flows.
+  void estimate_all(const std::vector<Pair*>& pairs) {
+    const double scale = flow_scale(settings_.quality);
+    const float tau = float(settings_.consistency_px * scale);
+    std::vector<cv::Mat> fwd, bwd, grays, prevs;
+    for (Pair* p : pairs) {
+      fwd.insert(fwd.end(), {p->ab, p->ba});
+      bwd.insert(bwd.end(), {p->ba, p->ab});
+      grays.insert(grays.end(), {p->gray[0], p->gray[1]});
+      prevs.insert(prevs.end(), {p->prev_ab, p->prev_ba});
+    }
+    const std::vector<cv::Mat> conf = forward_backward_confidence_n(fwd, bwd, std::max(tau, 0.25f));
+    // The flow counts only where it improves the match over the homography.
+    const std::vector<cv::Mat> f = to_float_n(grays);  // 2k: view a's, 2k + 1: view b's
+    std::vector<cv::Mat> trust = conf;
+    if (settings_.fallback) {
+      std::vector<cv::Mat> from, to;
+      for (std::size_t k = 0; k < pairs.size(); ++k) {
+        from.insert(from.end(), {f[2 * k], f[2 * k + 1]});
+        to.insert(to.end(), {f[2 * k + 1], f[2 * k]});
+      }
+      trust = product_n(conf, cost_gate_n(from, to, fwd));
+    }
+    // The stillness of every pair with a history (its four images in the same loops): 1 where
+    // neither view's overlap changed since the last frame, falling to 0 where either changed by a
+    // few grey levels. Local means are compared, so sensor noise is not motion.
+    std::vector<cv::Mat> still_of(pairs.size());
+    {
+      std::vector<cv::Mat> images;
+      std::vector<std::size_t> with;
+      for (std::size_t k = 0; k < pairs.size(); ++k) {
+        const Pair& p = *pairs[k];
+        if (!p.init || p.prev_gray[0].empty() || p.prev_gray[0].size() != p.gray[0].size()) continue;
+        with.push_back(k);
+        images.insert(images.end(), {p.gray[0], p.gray[1], p.prev_gray[0], p.prev_gray[1]});
+      }
+      const std::vector<cv::Mat> m = blurred_n(to_float_n(images), 2.0);
+      std::vector<int> rows;
+      for (const std::size_t k : with) {
+        still_of[k].create(pairs[k]->gray[0].size(), CV_32F);
+        rows.push_back(still_of[k].rows);
+      }
+      for_rows_n(rows, [&](std::size_t j, int y) {
+        const float *a0 = m[4 * j].ptr<float>(y), *a1 = m[4 * j + 1].ptr<float>(y);
+        const float *b0 = m[4 * j + 2].ptr<float>(y), *b1 = m[4 * j + 3].ptr<float>(y);
+        float* ps = still_of[with[j]].ptr<float>(y);
+        for (int x = 0; x < still_of[with[j]].cols; ++x) {
+          const float change = std::max(std::fabs(a0[x] - b0[x]), std::fabs(a1[x] - b1[x]));
+          const float c = std::max(0.f, change - 1.f) / 2.f;
+          ps[x] = std::exp(-c * c);
+        }
+      });
+    }
+    std::vector<cv::Mat> stills;
+    for (std::size_t k = 0; k < pairs.size(); ++k) stills.insert(stills.end(), {still_of[k], still_of[k]});
+    const std::vector<cv::Mat> refined = refine_n(fwd, trust, prevs, stills);
+    for (std::size_t k = 0; k < pairs.size(); ++k)
+      finish_estimate(*pairs[k], conf[2 * k], f[2 * k], f[2 * k + 1], refined[2 * k], refined[2 * k + 1]);
+  }
+
+  // One pair's stats, gate decision and output-resolution flows, after estimate_all's loops.
+  void finish_estimate(Pair& p, const cv::Mat& conf_ab, const cv::Mat& fa, const cv::Mat& fb, const cv::Mat& flow_ab,
+                       const cv::Mat& flow_ba) {
     cv::Mat* gray = p.gray;
     const double scale = flow_scale(settings_.quality);
-    const bool init = p.init;
-    const cv::Mat prev_ab = p.prev_ab, prev_ba = p.prev_ba;
-    const cv::Mat ab = p.ab, ba = p.ba;
-
-    const float tau = float(settings_.consistency_px * scale);
-    // Both directions in each parallel loop (one wait for the threads, not two).
-    const std::vector<cv::Mat> conf = forward_backward_confidence_n({ab, ba}, {ba, ab}, std::max(tau, 0.25f));
-    const cv::Mat& conf_ab = conf[0];
-    // The flow counts only where it improves the match over the homography.
-    const std::vector<cv::Mat> f = to_float_n({gray[0], gray[1]});
-    const cv::Mat &fa = f[0], &fb = f[1];
-    const std::vector<cv::Mat> trust =
-        settings_.fallback ? product_n(conf, cost_gate_n({fa, fb}, {fb, fa}, {ab, ba})) : conf;
-    const cv::Mat &trust_ab = trust[0], &trust_ba = trust[1];
     cv::Mat both = p.side[0].valid & p.side[1].valid;
     FlowPairStats st;
     st.view_a = p.a;
@@ -578,10 +629,8 @@ class FlowWarperCpu final : public FlowWarper {
     const int n_valid = cv::countNonZero(both);
     st.confident_fraction = n_valid ? cv::countNonZero((conf_ab > 0.5) & both) / double(n_valid) : 0.0;
 
-    const cv::Mat still = init ? stillness(gray, p.prev_gray) : cv::Mat();
-    const std::vector<cv::Mat> refined = refine_n({ab, ba}, {trust_ab, trust_ba}, {prev_ab, prev_ba}, still);
-    p.flow_ab = refined[0];
-    p.flow_ba = refined[1];
+    p.flow_ab = flow_ab;
+    p.flow_ba = flow_ba;
     p.prev_gray[0] = gray[0];
     p.prev_gray[1] = gray[1];
     p.history = true;
@@ -620,9 +669,9 @@ class FlowWarperCpu final : public FlowWarper {
   // smoothed, then blended with the previous frame's where neither view changed: there the
   // scene is static and so is the right flow, so estimation jitter is averaged away; where
   // the content moved, the new flow is taken at once.
-  // For several (flow, conf, prev) at once (the same stillness).
+  // For several (flow, conf, prev, stillness) at once.
   std::vector<cv::Mat> refine_n(const std::vector<cv::Mat>& flow, const std::vector<cv::Mat>& conf,
-                                const std::vector<cv::Mat>& prev, const cv::Mat& stillness) const {
+                                const std::vector<cv::Mat>& prev, const std::vector<cv::Mat>& stillness) const {
     std::vector<cv::Mat> out;
     for (const cv::Mat& f : flow) out.emplace_back(f.size(), CV_32FC2);
     for_rows_n(rows_of(flow), [&](std::size_t i, int y) {
@@ -633,12 +682,13 @@ class FlowWarperCpu final : public FlowWarper {
     });
     out = blurred_n(out, 1.5);
     const float s = float(settings_.temporal_smoothing);
-    if (stillness.empty() || s <= 0.f) return out;
-    std::vector<int> rows;  // the flows with a previous one to blend with
-    for (std::size_t i = 0; i < out.size(); ++i) rows.push_back(prev[i].empty() ? 0 : out[i].rows);
+    if (s <= 0.f) return out;
+    std::vector<int> rows;  // the flows with a previous one and a stillness to blend with
+    for (std::size_t i = 0; i < out.size(); ++i)
+      rows.push_back(prev[i].empty() || stillness[i].empty() ? 0 : out[i].rows);
     for_rows_n(rows, [&](std::size_t i, int y) {
       const cv::Vec2f* pp = prev[i].ptr<cv::Vec2f>(y);
-      const float* ps = stillness.ptr<float>(y);
+      const float* ps = stillness[i].ptr<float>(y);
       cv::Vec2f* po = out[i].ptr<cv::Vec2f>(y);
       for (int x = 0; x < out[i].cols; ++x) {
         const float keep = s * ps[x];
@@ -648,29 +698,6 @@ class FlowWarperCpu final : public FlowWarper {
     return out;
   }
 
-  // 1 where neither view's overlap changed since the last frame, falling to 0 where either
-  // changed by a few grey levels. Local means are compared, so sensor noise is not motion.
-  static cv::Mat stillness(const cv::Mat gray[2], const cv::Mat prev[2]) {
-    if (prev[0].empty() || prev[0].size() != gray[0].size()) return cv::Mat();
-    // The four images in each parallel loop.
-    const std::vector<cv::Mat> m = blurred_n(to_float_n({gray[0], gray[1], prev[0], prev[1]}), 2.0);
-    const cv::Mat a[2] = {m[0], m[1]}, b[2] = {m[2], m[3]};
-    cv::Mat still(gray[0].size(), CV_32F);
-    for_rows(still.rows, [&](int y) {
-      const float *a0 = a[0].ptr<float>(y), *b0 = b[0].ptr<float>(y);
-      const float *a1 = a[1].ptr<float>(y), *b1 = b[1].ptr<float>(y);
-      float* ps = still.ptr<float>(y);
-      for (int x = 0; x < still.cols; ++x) {
-        const float change = std::max(std::fabs(a0[x] - b0[x]), std::fabs(a1[x] - b1[x]));
-        const float c = std::max(0.f, change - 1.f) / 2.f;
-        ps[x] = std::exp(-c * c);
-      }
-    });
-    return still;
-  }
-
-  // Warps view v: moved by the weighted flow toward each neighbour it overlaps, band by band,
-  // and by the homography alone elsewhere.
   // View v's bands (roi coordinates) that the flow moves, and their displacement fields; the
   // rest of the view is the homography's (warp() warps both).
   void displacement_fields(int v, const std::vector<ImageView>& frames, std::vector<Rect>& moved,
