@@ -507,3 +507,97 @@ TEST(Seam, CrossesAnObjectAndItsCopyAtTheOverlapsBorderWhenItCannotGoAround) {
       EXPECT_LT(at_border, 36);  // the per-pixel cost alone crosses in the middle
   }
 }
+
+// The CPU consensus blend composes in fewer passes (issue 17: the seams before the fuse, the mix
+// inside the fuse, single-view runs warped straight into the output, labels and mix reset only in
+// the pairs' boxes): frame after frame, with views dropping out and coming back, its output must
+// be the bytes of the plain sequence (warp every view, fuse, find the seams, apply the mix), and
+// outside the pairs' boxes the labels are the nearest view's and the mix map 0.
+TEST(Seam, ConsensusComposeEqualsWarpFuseSeamsMixAcrossDropouts) {
+  testdata::RotatingRig s = rotating_rig();
+  CompositorSettings settings;
+  settings.seam = SeamMode::DynamicProgramming;
+  Compositor compositor(Backend::Cpu);
+  compositor.prepare(s.rig, settings);
+  const OutputGeometry& g = compositor.geometry();
+  const std::vector<ViewPlacement> views = place_views(s.rig, g);
+  auto warper = Warper::create(Backend::Cpu);
+  warper->prepare(views);
+  BlenderCpu blender;
+  blender.prepare(views, g.width, g.height);
+  SeamFinder finder(settings.seam_settings);
+  finder.prepare(views, g.width, g.height);
+  ASSERT_GE(finder.pairs().size(), 2u);
+  cv::RNG rng(5);
+  const uint64_t masks[] = {0b111, 0b111, 0b101, 0b111, 0b011, 0b011, 0b111, 0b111};
+  std::size_t mixed = 0;  // pixels with a mix level > 0, over the frames
+  for (int t = 0; t < int(std::size(masks)); ++t) {
+    std::vector<cv::Mat> frames, rois(3);
+    std::vector<ImageView> in(3), warped(3);
+    for (int i = 0; i < 3; ++i) {
+      frames.push_back(with_noise(s.frames[std::size_t(i)], rng));
+      // Something near that moves: a patch only this camera sees, at a new place every frame,
+      // so that the views disagree (mix levels > 0) somewhere else in every frame.
+      const int w = frames.back().cols, h = frames.back().rows;
+      const cv::Rect patch(rng.uniform(0, w - 60), rng.uniform(0, h - 60), 60, 60);
+      cv::rectangle(frames.back(), patch, cv::Scalar(rng.uniform(0, 256), rng.uniform(0, 256), rng.uniform(0, 256), 255),
+                    cv::FILLED);
+      if (!(masks[t] >> i & 1)) continue;
+      in[std::size_t(i)] = as_view(frames.back());
+      const Rect& r = views[std::size_t(i)].roi;
+      rois[std::size_t(i)].create(r.height, r.width, CV_8UC4);
+      warped[std::size_t(i)] = as_view(rois[std::size_t(i)]);
+      warper->warp(i, in[std::size_t(i)], warped[std::size_t(i)]);
+    }
+    cv::Mat got(g.height, g.width, CV_8UC4, cv::Scalar::all(7)), want(g.height, g.width, CV_8UC4);
+    compositor.compose(in, as_view(got));
+    blender.fuse(warped, as_view(want));
+    const std::vector<uint8_t>& labels = finder.find(warped);
+    apply_seam_mix(views, warped, labels, finder.mix(), as_view(want));
+    EXPECT_EQ(cv::norm(got, want, cv::NORM_INF), 0.0) << "frame " << t;
+    const std::vector<uint8_t> nearest = nearest_view_labels(views, g.width, g.height, masks[t]);
+    std::size_t off = 0;
+    for (int y = 0; y < g.height; ++y)
+      for (int x = 0; x < g.width; ++x) {
+        bool in_box = false;
+        for (const SeamFinder::Pair& p : finder.pairs())
+          in_box |= x >= p.box.x && x < p.box.x + p.box.width && y >= p.box.y && y < p.box.y + p.box.height;
+        const std::size_t k = std::size_t(y) * g.width + x;
+        if (!in_box) off += labels[k] != nearest[k] || finder.mix()[k] != 0;
+      }
+    EXPECT_EQ(off, 0u) << "frame " << t << ": labels or mix changed outside the pairs' boxes";
+    mixed += std::count_if(finder.mix().begin(), finder.mix().end(), [](uint8_t m) { return m > 0; });
+    // The mix levels from their definition (this frame only, no blank view here): per pair of
+    // present views, the window sum of |a - b| over the overlap cells around each overlap pixel;
+    // the max over pairs. Catches a level left over from an earlier frame.
+    const SeamSettings& ss = finder.settings();
+    seam::Weights w{};
+    w.mix_radius = ss.mix_radius;
+    w.agree = ss.agree_level;
+    w.disagree = ss.disagree_level;
+    std::vector<uint8_t> expect(std::size_t(g.width) * g.height, 0);
+    for (const SeamFinder::Pair& p : finder.pairs()) {
+      if (!(masks[t] >> p.a & 1) || !(masks[t] >> p.b & 1)) continue;
+      const Rect &ra = views[std::size_t(p.a)].roi, &rb = views[std::size_t(p.b)].roi;
+      auto diff = [&](int bx, int by) {
+        if (bx < 0 || by < 0 || bx >= p.box.width || by >= p.box.height) return 0;
+        if (p.centre_cost[std::size_t(by) * p.box.width + bx] < 0) return 0;
+        const int x = p.box.x + bx, y = p.box.y + by;
+        return seam::color_difference_sum(warped[std::size_t(p.a)].row(y - ra.y) + 4 * (x - ra.x),
+                                          warped[std::size_t(p.b)].row(y - rb.y) + 4 * (x - rb.x));
+      };
+      const int R = ss.mix_radius;
+      for (int by = 0; by < p.box.height; ++by)
+        for (int bx = 0; bx < p.box.width; ++bx) {
+          if (p.centre_cost[std::size_t(by) * p.box.width + bx] < 0) continue;
+          int sum = 0;
+          for (int dy = -R; dy <= R; ++dy)
+            for (int dx = -R; dx <= R; ++dx) sum += diff(bx + dx, by + dy);
+          uint8_t& e = expect[std::size_t(p.box.y + by) * g.width + p.box.x + bx];
+          e = uint8_t(std::max(int(e), seam::mix_level(w, sum)));
+        }
+    }
+    EXPECT_TRUE(expect == finder.mix()) << "frame " << t << ": mix levels differ from their definition";
+  }
+  EXPECT_GT(mixed, 1000u);  // the consensus mix did act
+}

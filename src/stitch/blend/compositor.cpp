@@ -1,7 +1,9 @@
 #include "stitch/blend/compositor.hpp"
 
 #include "stitch/blend/blender_cpu.hpp"
+#include "stitch/warp/warper_cpu.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -317,14 +319,23 @@ void Compositor::fuse_cpu(const std::vector<ImageView>& views, const ImageView& 
     profile.mark("multiband");
     return;
   }
-  blender_->fuse(views, out);
-  profile.mark("fuse");
-  if (seam_) {  // the consensus blend
+  if (seam_) {  // the consensus blend: seams from the views, then the fuse with the mix in its pass
     const std::vector<uint8_t>& labels = seam_->find(views);
     profile.mark("seams");
+    if (auto* weighted = dynamic_cast<BlenderCpu*>(blender_.get())) {
+      std::vector<Rect> boxes;
+      for (const SeamFinder::Pair& p : seam_->pairs()) boxes.push_back(p.box);
+      weighted->fuse_mixed(views, out, labels, seam_->mix(), boxes);
+      profile.mark("fuse + mix");
+      return;
+    }
+    blender_->fuse(views, out);
     apply_seam_mix(blend_views_, views, labels, seam_->mix(), out);
-    profile.mark("mix");
+    profile.mark("fuse, mix");
+    return;
   }
+  blender_->fuse(views, out);
+  profile.mark("fuse");
 }
 
 void Compositor::compose_prewarped(const std::vector<ImageView>& views, const ImageView& out) {
@@ -471,8 +482,89 @@ void Compositor::compose_views(const std::vector<ImageView>& frames, const Image
     dst.width = v.roi.width;
     dst.height = v.roi.height;
     dst.pitch = static_cast<std::size_t>(v.roi.width) * 4;
-    warper_->warp(static_cast<int>(i), frames[i], dst);
     warped[i] = dst;
+  }
+  if (!cuda_) {
+    // Every view's bands of rows warped in one parallel loop (one wait for the threads, not one
+    // per view); a band's pixels are the ones the whole view's warp gives (WarperCpu::warp_part).
+    auto* cpu = dynamic_cast<WarperCpu*>(warper_.get());
+    constexpr int kBand = BlenderCpu::kCoreBand;
+    std::vector<int> first_band{0};
+    for (std::size_t i = 0; i < frames.size(); ++i)
+      first_band.push_back(first_band.back() + (warped[i].empty() ? 0 : (warped[i].height + kBand - 1) / kBand));
+    // With the weighted mean (and the consensus blend), the part of a band where the view has the
+    // whole weight on every row is warped straight into the output (its core): the fuse would
+    // only copy it there from the view's rectangle. Never within 2 px of a seam pair's box, whose
+    // pixels (and their neighbours, for the gradients) the seams and the mix read from the views.
+    auto* weighted = dynamic_cast<BlenderCpu*>(blender_.get());
+    BlenderCpu::Cores cores(frames.size());
+    if (cpu && weighted && out.width == blend_geometry_.width && out.height == blend_geometry_.height) {
+      uint64_t mask = 0;
+      for (std::size_t i = 0; i < frames.size(); ++i)
+        if (!warped[i].empty()) mask |= uint64_t(1) << i;
+      const std::vector<std::vector<BlenderCpu::Span>>& spans = weighted->spans_for(mask);
+      std::vector<Rect> keep_out;
+      if (seam_)
+        for (const SeamFinder::Pair& p : seam_->pairs())
+          keep_out.push_back({p.box.x - 2, p.box.y - 2, p.box.width + 4, p.box.height + 4});
+      for (std::size_t i = 0; i < frames.size(); ++i) {
+        if (warped[i].empty()) continue;
+        const Rect& r = views_[i].roi;
+        cores[i].assign(std::size_t((r.height + kBand - 1) / kBand), {0, 0});
+        for (std::size_t t = 0; t < cores[i].size(); ++t) {
+          const int y0 = r.y + int(t) * kBand, y1 = std::min(r.y + r.height, y0 + kBand);
+          int lo = r.x, hi = r.x + r.width;  // what every row of the band has of this view alone
+          for (int y = y0; y < y1 && hi > lo; ++y) {
+            if (y < 0 || y >= out.height) {
+              hi = lo;
+              break;
+            }
+            int best0 = 0, best1 = 0;  // the row's longest run of this view alone
+            for (const BlenderCpu::Span& sp : spans[std::size_t(y)])
+              if (sp.view == int(i) && sp.x1 - sp.x0 > best1 - best0) best0 = sp.x0, best1 = sp.x1;
+            lo = std::max(lo, best0);
+            hi = std::min(hi, best1);
+          }
+          for (const Rect& g : keep_out) {
+            if (hi <= lo || g.y >= y1 || g.y + g.height <= y0 || g.x >= hi || g.x + g.width <= lo) continue;
+            const int left = g.x - lo, right = hi - (g.x + g.width);  // keep the longer side
+            if (left >= right) hi = std::max(lo, g.x);
+            else lo = std::min(hi, g.x + g.width);
+          }
+          if (hi > lo) cores[i][t] = {lo, hi};
+        }
+      }
+    }
+    if (cpu && first_band.back() > 0) {
+      cv::parallel_for_(cv::Range(0, first_band.back()), [&](const cv::Range& bands) {
+        std::size_t i = std::size_t(std::upper_bound(first_band.begin(), first_band.end(), bands.start) - first_band.begin()) - 1;
+        for (int t = bands.start; t < bands.end; ++t) {
+          while (t >= first_band[i + 1]) ++i;
+          const int y0 = (t - first_band[i]) * kBand, rows = std::min(kBand, warped[i].height - y0);
+          const int w = warped[i].width;
+          const Rect& r = views_[i].roi;
+          const std::pair<int, int> core = cores[i].empty() ? std::make_pair(0, 0) : cores[i][std::size_t(t - first_band[i])];
+          if (core.second <= core.first) {
+            cpu->warp_part(int(i), frames[i], warped[i], {0, y0, w, rows});
+            continue;
+          }
+          const int a = core.first - r.x, b = core.second - r.x;  // roi columns of the core
+          if (a > 0) cpu->warp_part(int(i), frames[i], warped[i], {0, y0, a, rows});
+          if (b < w) cpu->warp_part(int(i), frames[i], warped[i], {b, y0, w - b, rows});
+          uint8_t* o = out.row(r.y + y0) + 4 * std::size_t(core.first);
+          cpu->warp_part_to(int(i), frames[i], {a, y0, b - a, rows}, o, out.pitch);
+          for (int y = 0; y < rows; ++y) {  // the panorama is opaque
+            uint8_t* p = o + std::size_t(y) * out.pitch;
+            for (int x = 0; x < b - a; ++x) p[4 * x + 3] = 255;
+          }
+        }
+      }, double(first_band.back()));
+      weighted = dynamic_cast<BlenderCpu*>(blender_.get());
+      if (weighted) weighted->set_cores(std::move(cores));
+    } else {
+      for (std::size_t i = 0; i < frames.size(); ++i)
+        if (!warped[i].empty()) warper_->warp(static_cast<int>(i), frames[i], warped[i]);
+    }
   }
 #ifdef STITCH_HAVE_CUDA
   if (cuda_) {
@@ -482,6 +574,7 @@ void Compositor::compose_views(const std::vector<ImageView>& frames, const Image
 #endif
   profile.mark("warp");
   fuse_cpu(warped, out);
+  if (auto* weighted = dynamic_cast<BlenderCpu*>(blender_.get())) weighted->set_cores({});
 }
 
 }  // namespace stitch

@@ -60,6 +60,13 @@ class SeamFinder {
     Rect box;              // bounding box of the overlap, in output pixels
     std::vector<float> centre_cost;  // box-sized: centre_weight · (how far from the overlap's middle); < 0: outside
     std::vector<int> path, previous_path;
+    // find()'s per-frame work, kept between frames (no allocation, no page faults per frame):
+    // costs in the seam's frame, the views' colour differences and their window sums across the
+    // seam, the DP's steps, the dark-pixel counts per row, and whether a view is blank here.
+    std::vector<float> costs;
+    std::vector<int> diff, across, row_cells, row_dark_a, row_dark_b;
+    std::vector<int8_t> step;
+    bool blank_a = false, blank_b = false;
   };
   const std::vector<Pair>& pairs() const { return pairs_; }
   const SeamSettings& settings() const { return settings_; }
@@ -69,7 +76,8 @@ class SeamFinder {
   const std::vector<uint8_t>& mix() const { return mix_; }
 
  private:
-  void cut(Pair& p, const std::vector<ImageView>& warped);
+  // The phases of find() over every cut pair at once (rows of all pairs in one parallel loop).
+  void cut_all(const std::vector<int>& cut, const std::vector<ImageView>& warped);
   seam::Weights weights() const {
     return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
             settings_.hold, settings_.clearance_weight, settings_.clearance_radius,
@@ -85,6 +93,11 @@ class SeamFinder {
   std::vector<uint8_t> labels_, mix_;
   uint64_t nearest_mask_ = ~uint64_t(0);
   std::vector<uint8_t> nearest_;
+  // Per view, disjoint rectangles (roi coordinates) holding every pixel whose luma a cut reads
+  // (each pair's box grown by 1, clipped to the roi): the luma is computed there only.
+  std::vector<std::vector<Rect>> luma_rects_;
+  bool boxes_disjoint_ = true;  // no two pairs' boxes share a pixel: their writes may run together
+  bool labels_fresh_ = false;   // labels_/mix_ hold nearest_/0 outside the pairs' boxes
 };
 
 // The least-energy path through costs (rows x cols; one column per row, moving at most one column

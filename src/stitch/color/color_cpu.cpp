@@ -66,39 +66,59 @@ class ColorOpsCpu final : public ColorOps {
     if (request.balance && request.balance_matrices.size() < views.size())
       throw std::invalid_argument("color: a balance matrix per view is needed");
     out.pairs.resize(sampling_.pairs.size());
+    // Every pair's chunks in one parallel loop per pass (one wait for the threads per pass, not
+    // one per pair and pass); each pair's partial sums are still added in its chunk order.
+    std::vector<int> active;  // the pairs reduced this frame
     for (std::size_t k = 0; k < sampling_.pairs.size(); ++k) {
-      PairStats& s = out.pairs[k];
-      s = PairStats{};
+      out.pairs[k] = PairStats{};
       const ColorSampling::Pair& g = sampling_.pairs[k];
-      if (!request.pairs || views[g.a].empty() || views[g.b].empty()) continue;
-      std::vector<SampleState>& state = motion_[k];
-      const int chunks = chunk_count(g.count());
-      // Pass 1 (the mask): which samples changed since the last frame, and how many.
-      std::vector<PairStats> part(static_cast<std::size_t>(chunks));
-      std::vector<uint64_t> moved(std::size_t(chunks), 0);
-      in_chunks(g.count(), [&](int c, int i0, int i1) {
-        PairStats& ps = part[std::size_t(c)];
-        for (int i = i0; i < i1; ++i) {
-          const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
-          const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
-          SampleState& st = state[std::size_t(i)];
-          st.moved = 0;
-          if (!a || !b) continue;
-          ++ps.inview;
-          if (!fresh_ && (mask_moved(a, st.a, request.motion_threshold) || mask_moved(b, st.b, request.motion_threshold))) {
-            st.moved = 1;
-            ++moved[std::size_t(c)];
-          }
-          for (int ch = 0; ch < 3; ++ch) {
-            st.a[ch] = a[ch];
-            st.b[ch] = b[ch];
-            ps.sum_a[ch] += a[ch];
-            ps.sum_b[ch] += b[ch];
-          }
+      if (request.pairs && !views[g.a].empty() && !views[g.b].empty()) active.push_back(int(k));
+    }
+    std::vector<int> first{0};  // active pair j's chunks are [first[j], first[j + 1])
+    for (const int k : active) first.push_back(first.back() + chunk_count(sampling_.pairs[std::size_t(k)].count()));
+    // f(j, chunk, i0, i1): chunk (global index) of active pair j, its samples [i0, i1)
+    auto for_chunks = [&](const auto& f) {
+      if (first.back() == 0) return;
+      cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
+        std::size_t j = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
+        for (int c = r.start; c < r.end; ++c) {
+          while (c >= first[j + 1]) ++j;
+          const int local = c - first[j], n = sampling_.pairs[std::size_t(active[j])].count();
+          f(j, c, local * kChunk, std::min(n, (local + 1) * kChunk));
         }
       });
+    };
+    std::vector<PairStats> part(std::size_t(first.back()));
+    std::vector<uint64_t> moved(std::size_t(first.back()), 0);
+    // Pass 1 (the mask): which samples changed since the last frame, and how many.
+    for_chunks([&](std::size_t j, int c, int i0, int i1) {
+      const ColorSampling::Pair& g = sampling_.pairs[std::size_t(active[j])];
+      std::vector<SampleState>& state = motion_[std::size_t(active[j])];
+      PairStats& ps = part[std::size_t(c)];
+      for (int i = i0; i < i1; ++i) {
+        const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
+        const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
+        SampleState& st = state[std::size_t(i)];
+        st.moved = 0;
+        if (!a || !b) continue;
+        ++ps.inview;
+        if (!fresh_ && (mask_moved(a, st.a, request.motion_threshold) || mask_moved(b, st.b, request.motion_threshold))) {
+          st.moved = 1;
+          ++moved[std::size_t(c)];
+        }
+        for (int ch = 0; ch < 3; ++ch) {
+          st.a[ch] = a[ch];
+          st.b[ch] = b[ch];
+          ps.sum_a[ch] += a[ch];
+          ps.sum_b[ch] += b[ch];
+        }
+      }
+    });
+    std::vector<char> restart(active.size(), 0);
+    for (std::size_t j = 0; j < active.size(); ++j) {
+      PairStats& s = out.pairs[std::size_t(active[j])];
       uint64_t moved_now = 0;
-      for (int c = 0; c < chunks; ++c) {
+      for (int c = first[j]; c < first[j + 1]; ++c) {
         const PairStats& ps = part[std::size_t(c)];
         s.inview += ps.inview;
         moved_now += moved[std::size_t(c)];
@@ -109,39 +129,49 @@ class ColorOpsCpu final : public ColorOps {
       }
       // Most of the overlap changed at once: an exposure step or a cut, not people walking.
       // Motion cannot be told there, so the state restarts (every sample static).
-      const bool restart = fresh_ || moved_now * 2 > s.inview;
-      s.global_change = !fresh_ && restart && s.inview > 0;
-      std::fill(part.begin(), part.end(), PairStats{});
-      std::vector<std::vector<int>> kept(static_cast<std::size_t>(chunks));
-      in_chunks(g.count(), [&](int c, int i0, int i1) {
-        PairStats& ps = part[std::size_t(c)];
-        std::vector<int>& use = kept[std::size_t(c)];
-        for (int i = i0; i < i1; ++i) {
-          const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
-          const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
-          if (!a || !b) continue;
-          SampleState& st = state[std::size_t(i)];
-          st.age = uint8_t(restart ? request.static_frames : st.moved ? 0 : std::min(255, st.age + 1));
-          const bool still = st.age >= request.static_frames;
-          const bool aligned = mask_aligned(luma_gradient(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]),
-                                            luma_gradient(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]),
-                                            request.align_tolerance);
-          ps.moving += !still;
-          ps.misaligned += !aligned;
-          if (!usable(a, request) || !usable(b, request)) continue;
-          if (request.static_mask && (!still || !aligned)) continue;
-          use.push_back(i);
-          ++ps.count;
-          for (int ch = 0; ch < 3; ++ch) {
-            ps.hist_a[ch][a[ch]]++;
-            ps.hist_b[ch][b[ch]]++;
-          }
-          add_moments(ps.aa, a, a);
-          add_moments(ps.bb, b, b);
-          add_moments(ps.ab, a, b);
+      restart[j] = fresh_ || moved_now * 2 > s.inview;
+      s.global_change = !fresh_ && restart[j] && s.inview > 0;
+    }
+    std::fill(part.begin(), part.end(), PairStats{});
+    std::vector<std::vector<int>> kept(std::size_t(first.back()));
+    for_chunks([&](std::size_t j, int c, int i0, int i1) {
+      const ColorSampling::Pair& g = sampling_.pairs[std::size_t(active[j])];
+      std::vector<SampleState>& state = motion_[std::size_t(active[j])];
+      PairStats& ps = part[std::size_t(c)];
+      std::vector<int>& use = kept[std::size_t(c)];
+      for (int i = i0; i < i1; ++i) {
+        const uint8_t* a = pixel(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]);
+        const uint8_t* b = pixel(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]);
+        if (!a || !b) continue;
+        SampleState& st = state[std::size_t(i)];
+        st.age = uint8_t(restart[j] ? request.static_frames : st.moved ? 0 : std::min(255, st.age + 1));
+        const bool still = st.age >= request.static_frames;
+        const bool aligned = mask_aligned(luma_gradient(views[g.a], g.xy_a[2 * i], g.xy_a[2 * i + 1]),
+                                          luma_gradient(views[g.b], g.xy_b[2 * i], g.xy_b[2 * i + 1]),
+                                          request.align_tolerance);
+        ps.moving += !still;
+        ps.misaligned += !aligned;
+        if (!usable(a, request) || !usable(b, request)) continue;
+        if (request.static_mask && (!still || !aligned)) continue;
+        use.push_back(i);
+        ++ps.count;
+        for (int ch = 0; ch < 3; ++ch) {
+          ps.hist_a[ch][a[ch]]++;
+          ps.hist_b[ch][b[ch]]++;
         }
-      });
-      for (int c = 0; c < chunks; ++c) {
+        add_moments(ps.aa, a, a);
+        add_moments(ps.bb, b, b);
+        add_moments(ps.ab, a, b);
+      }
+    });
+    // The histogram matches' lookups (per pair, from its merged histograms), then the matched
+    // moments of every matched pair's kept samples in one parallel loop.
+    std::vector<std::array<std::array<uint8_t, 256>, 3>> luts(active.size());
+    std::vector<char> matched_pair(active.size(), 0);
+    for (std::size_t j = 0; j < active.size(); ++j) {
+      const std::size_t k = std::size_t(active[j]);
+      PairStats& s = out.pairs[k];
+      for (int c = first[j]; c < first[j + 1]; ++c) {
         const PairStats& ps = part[std::size_t(c)];
         s.moving += ps.moving;
         s.misaligned += ps.misaligned;
@@ -159,48 +189,65 @@ class ColorOpsCpu final : public ColorOps {
       }
       const HistogramMatch match = k < request.match.size() ? request.match[k] : HistogramMatch::None;
       if (match == HistogramMatch::None) continue;
+      matched_pair[j] = 1;
       const bool a_onto_b = match == HistogramMatch::AOntoB;
-      std::array<uint8_t, 256> lut[3];
       for (int ch = 0; ch < 3; ++ch)
-        lut[ch] = a_onto_b ? histogram_specification(s.hist_a[ch], s.hist_b[ch])
-                           : histogram_specification(s.hist_b[ch], s.hist_a[ch]);
-      const ImageView& side = a_onto_b ? views[g.a] : views[g.b];
-      const std::vector<int32_t>& xy = a_onto_b ? g.xy_a : g.xy_b;
-      std::vector<Moments3> matched(static_cast<std::size_t>(chunks), Moments3{});
-      cv::parallel_for_(cv::Range(0, chunks), [&](const cv::Range& r) {
-        for (int c = r.start; c < r.end; ++c)
-          for (int i : kept[std::size_t(c)]) {
-            const uint8_t* x = pixel(side, xy[2 * i], xy[2 * i + 1]);
-            const uint8_t y[3] = {lut[0][x[0]], lut[1][x[1]], lut[2][x[2]]};
-            add_moments(matched[std::size_t(c)], x, y);
-          }
-      });
-      for (const Moments3& m : matched)
-        for (int j = 0; j < 9; ++j) s.matched[j] += m[j];
+        luts[j][std::size_t(ch)] = a_onto_b ? histogram_specification(s.hist_a[ch], s.hist_b[ch])
+                                            : histogram_specification(s.hist_b[ch], s.hist_a[ch]);
     }
-    if (request.pairs) fresh_ = false;
-    out.balance.resize(views.size());
-    for (std::size_t i = 0; i < views.size(); ++i) {
-      ChannelHistograms& h = out.balance[i];
-      for (auto& channel : h) channel.fill(0);
-      if (!request.balance || views[i].empty()) continue;
-      const Eigen::Matrix3d& M = request.balance_matrices[i];
-      const std::vector<int32_t>& xy = sampling_.balance_xy[i];
-      const int n = int(xy.size() / 2);
-      std::vector<ChannelHistograms> part(static_cast<std::size_t>(chunk_count(n)));
-      in_chunks(n, [&](int c, int i0, int i1) {
-        ChannelHistograms& ph = part[std::size_t(c)];
-        for (auto& channel : ph) channel.fill(0);
-        for (int j = i0; j < i1; ++j) {
-          const uint8_t* p = pixel(views[i], xy[2 * j], xy[2 * j + 1]);
-          if (!p) continue;
-          for (int ch = 0; ch < 3; ++ch) ph[ch][corrected_level(p, M, ch)]++;
+    std::vector<Moments3> matched(std::size_t(first.back()), Moments3{});
+    if (std::find(matched_pair.begin(), matched_pair.end(), 1) != matched_pair.end())
+      for_chunks([&](std::size_t j, int c, int, int) {
+        if (!matched_pair[j]) return;
+        const std::size_t k = std::size_t(active[j]);
+        const ColorSampling::Pair& g = sampling_.pairs[k];
+        const bool a_onto_b = request.match[k] == HistogramMatch::AOntoB;
+        const ImageView& side = a_onto_b ? views[g.a] : views[g.b];
+        const std::vector<int32_t>& xy = a_onto_b ? g.xy_a : g.xy_b;
+        const auto& lut = luts[j];
+        for (int i : kept[std::size_t(c)]) {
+          const uint8_t* x = pixel(side, xy[2 * i], xy[2 * i + 1]);
+          const uint8_t y[3] = {lut[0][x[0]], lut[1][x[1]], lut[2][x[2]]};
+          add_moments(matched[std::size_t(c)], x, y);
         }
       });
-      for (const ChannelHistograms& ph : part)
-        for (int ch = 0; ch < 3; ++ch)
-          for (int v = 0; v < 256; ++v) h[ch][v] += ph[ch][v];
+    for (std::size_t j = 0; j < active.size(); ++j) {
+      if (!matched_pair[j]) continue;
+      PairStats& s = out.pairs[std::size_t(active[j])];
+      for (int c = first[j]; c < first[j + 1]; ++c)
+        for (int m = 0; m < 9; ++m) s.matched[m] += matched[std::size_t(c)][m];
     }
+    if (request.pairs) fresh_ = false;
+    // The balance histograms: every view's chunks in one parallel loop, added in chunk order.
+    out.balance.resize(views.size());
+    std::vector<int> bfirst{0};
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      for (auto& channel : out.balance[i]) channel.fill(0);
+      const bool on = request.balance && !views[i].empty();
+      bfirst.push_back(bfirst.back() + (on ? chunk_count(int(sampling_.balance_xy[i].size() / 2)) : 0));
+    }
+    std::vector<ChannelHistograms> bpart(std::size_t(bfirst.back()));
+    if (bfirst.back() > 0)
+      cv::parallel_for_(cv::Range(0, bfirst.back()), [&](const cv::Range& r) {
+        std::size_t i = std::size_t(std::upper_bound(bfirst.begin(), bfirst.end(), r.start) - bfirst.begin()) - 1;
+        for (int c = r.start; c < r.end; ++c) {
+          while (c >= bfirst[i + 1]) ++i;
+          const Eigen::Matrix3d& M = request.balance_matrices[i];
+          const std::vector<int32_t>& xy = sampling_.balance_xy[i];
+          const int n = int(xy.size() / 2), i0 = (c - bfirst[i]) * kChunk, i1 = std::min(n, i0 + kChunk);
+          ChannelHistograms& ph = bpart[std::size_t(c)];
+          for (auto& channel : ph) channel.fill(0);
+          for (int j = i0; j < i1; ++j) {
+            const uint8_t* p = pixel(views[i], xy[2 * j], xy[2 * j + 1]);
+            if (!p) continue;
+            for (int ch = 0; ch < 3; ++ch) ph[ch][corrected_level(p, M, ch)]++;
+          }
+        }
+      });
+    for (std::size_t i = 0; i < views.size(); ++i)
+      for (int c = bfirst[i]; c < bfirst[i + 1]; ++c)
+        for (int ch = 0; ch < 3; ++ch)
+          for (int v = 0; v < 256; ++v) out.balance[i][ch][v] += bpart[std::size_t(c)][ch][v];
   }
 
   void apply_all(const std::vector<ImageView>& views, const std::vector<Eigen::Matrix3d>& matrices,
@@ -210,9 +257,19 @@ class ColorOpsCpu final : public ColorOps {
     for (int c = 0; c < 3 && identity_lut; ++c)
       for (int v = 0; v < 256 && identity_lut; ++v) identity_lut = lut[c][v] == v;
     const int knee = std::clamp(highlight_knee, 0, 255);
+    // Every view's bands of rows in one parallel loop (one wait for the threads, not one per
+    // view); each band keeps a copy of its input rows for the highlight roll-off, in a buffer the
+    // thread keeps (no allocation per band).
+    constexpr int kBand = 32;
+    struct Job {
+      cv::Mat img;
+      cv::Matx44f T;
+      bool matrix;
+    };
+    std::vector<Job> jobs;
+    std::vector<int> first_band{0};
     for (std::size_t i = 0; i < views.size(); ++i) {
       if (views[i].empty()) continue;
-      cv::Mat img = as_mat(views[i]);
       const Eigen::Matrix3d& M = matrices[i];
       const bool matrix = !M.isIdentity(1e-9);
       if (!matrix && identity_lut) continue;
@@ -220,14 +277,21 @@ class ColorOpsCpu final : public ColorOps {
       cv::Matx44f T = cv::Matx44f::eye();
       for (int c = 0; c < 3; ++c)
         for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
-      // Row bands in parallel (issue 17: the CPU chain scales with cores); each band keeps a
-      // copy of its input rows for the highlight roll-off.
-      cv::parallel_for_(cv::Range(0, img.rows), [&](const cv::Range& rows) {
-        cv::Mat band = img.rowRange(rows);
-        if (matrix) {
-          cv::Mat input;
+      jobs.push_back({as_mat(views[i]), T, matrix});
+      first_band.push_back(first_band.back() + (jobs.back().img.rows + kBand - 1) / kBand);
+    }
+    if (jobs.empty()) return;
+    cv::parallel_for_(cv::Range(0, first_band.back()), [&](const cv::Range& bands) {
+      static thread_local cv::Mat input;
+      std::size_t j = std::size_t(std::upper_bound(first_band.begin(), first_band.end(), bands.start) - first_band.begin()) - 1;
+      for (int t = bands.start; t < bands.end; ++t) {
+        while (t >= first_band[j + 1]) ++j;
+        const Job& job = jobs[j];
+        const int y0 = (t - first_band[j]) * kBand;
+        cv::Mat band = job.img.rowRange(y0, std::min(job.img.rows, y0 + kBand));
+        if (job.matrix) {
           if (knee < 255) band.copyTo(input);
-          cv::transform(band, band, T);
+          cv::transform(band, band, job.T);
           if (knee < 255)
             for (int y = 0; y < band.rows; ++y) {
               const uint8_t* p = input.ptr<uint8_t>(y);
@@ -251,8 +315,8 @@ class ColorOpsCpu final : public ColorOps {
             }
           }
         }
-      }, std::max(1.0, img.rows / 32.0));
-    }
+      }
+    }, double(first_band.back()));
   }
 
   void gather(const ImageView& view, const std::vector<int32_t>& xy,

@@ -55,31 +55,76 @@ void in_strips(int n, const F& f) {
   });
 }
 
-cv::Mat to_float(const cv::Mat& gray) {
-  cv::Mat out(gray.size(), CV_32FC(gray.channels()));
-  in_strips(gray.rows, [&](int y0, int y1) {
-    cv::Mat o = out.rowRange(y0, y1);
-    gray.rowRange(y0, y1).convertTo(o, o.type());
+// in_strips over several images in one parallel loop (one wait for the threads): f(image, y0, y1).
+template <class F>
+void in_strips_n(const std::vector<int>& ns, const F& f) {
+  std::vector<int> strips(ns.size()), first{0};
+  for (std::size_t i = 0; i < ns.size(); ++i) {
+    strips[i] = std::max(1, std::min(ns[i] / 8, 4 * cv::getNumThreads()));
+    first.push_back(first.back() + strips[i]);
+  }
+  if (first.back() == 0) return;
+  cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
+    std::size_t i = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
+    for (int k = r.start; k < r.end; ++k) {
+      while (k >= first[i + 1]) ++i;
+      const int s = k - first[i], n = ns[i];
+      f(i, int(int64_t(n) * s / strips[i]), int(int64_t(n) * (s + 1) / strips[i]));
+    }
+  });
+}
+
+// for_rows over several images in one parallel loop: f(image, y).
+template <class F>
+void for_rows_n(const std::vector<int>& ns, const F& f) {
+  std::vector<int> first{0};
+  for (const int n : ns) first.push_back(first.back() + n);
+  if (first.back() == 0) return;
+  cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
+    std::size_t i = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
+    for (int k = r.start; k < r.end; ++k) {
+      while (k >= first[i + 1]) ++i;
+      f(i, k - first[i]);
+    }
+  });
+}
+
+std::vector<int> rows_of(const std::vector<cv::Mat>& m) {
+  std::vector<int> n;
+  for (const cv::Mat& x : m) n.push_back(x.rows);
+  return n;
+}
+
+std::vector<cv::Mat> to_float_n(const std::vector<cv::Mat>& grays) {
+  std::vector<cv::Mat> out;
+  for (const cv::Mat& g : grays) out.emplace_back(g.size(), CV_32FC(g.channels()));
+  in_strips_n(rows_of(grays), [&](std::size_t i, int y0, int y1) {
+    cv::Mat o = out[i].rowRange(y0, y1);
+    grays[i].rowRange(y0, y1).convertTo(o, o.type());
   });
   return out;
 }
 
-// GaussianBlur (float images) into a new matrix, by row strips.
-cv::Mat blurred(const cv::Mat& src, double sigma) {
-  CV_Assert(src.depth() == CV_32F);
-  cv::Mat dst(src.size(), src.type());
-  in_strips(src.rows, [&](int y0, int y1) {
-    cv::Mat d = dst.rowRange(y0, y1);
-    cv::GaussianBlur(src.rowRange(y0, y1), d, cv::Size(0, 0), sigma);
+// GaussianBlur (float images) into new matrices, by row strips (of all the images at once).
+std::vector<cv::Mat> blurred_n(const std::vector<cv::Mat>& srcs, double sigma) {
+  std::vector<cv::Mat> out;
+  for (const cv::Mat& src : srcs) {
+    CV_Assert(src.depth() == CV_32F);
+    out.emplace_back(src.size(), src.type());
+  }
+  in_strips_n(rows_of(srcs), [&](std::size_t i, int y0, int y1) {
+    cv::Mat d = out[i].rowRange(y0, y1);
+    cv::GaussianBlur(srcs[i].rowRange(y0, y1), d, cv::Size(0, 0), sigma);
   });
-  return dst;
+  return out;
 }
 
-cv::Mat product(const cv::Mat& a, const cv::Mat& b) {
-  cv::Mat out(a.size(), a.type());
-  in_strips(a.rows, [&](int y0, int y1) {
-    cv::Mat o = out.rowRange(y0, y1);
-    cv::multiply(a.rowRange(y0, y1), b.rowRange(y0, y1), o);
+std::vector<cv::Mat> product_n(const std::vector<cv::Mat>& as, const std::vector<cv::Mat>& bs) {
+  std::vector<cv::Mat> out;
+  for (const cv::Mat& a : as) out.emplace_back(a.size(), a.type());
+  in_strips_n(rows_of(as), [&](std::size_t i, int y0, int y1) {
+    cv::Mat o = out[i].rowRange(y0, y1);
+    cv::multiply(as[i].rowRange(y0, y1), bs[i].rowRange(y0, y1), o);
   });
   return out;
 }
@@ -114,23 +159,25 @@ std::vector<Rect> complement(int width, int height, const std::vector<Rect>& hol
   return out;
 }
 
-// exp(-(|fwd(p) + bwd(p + fwd(p))| / tau)^2): 1 where the two directions agree.
-cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, float tau) {
-  cv::Mat map(fwd.size(), CV_32FC2);
-  for_rows(fwd.rows, [&](int y) {
-    const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
-    cv::Vec2f* pm = map.ptr<cv::Vec2f>(y);
-    for (int x = 0; x < fwd.cols; ++x) pm[x] = cv::Vec2f(x + pf[x][0], y + pf[x][1]);
+// exp(-(|fwd(p) + bwd(p + fwd(p))| / tau)^2): 1 where the two directions agree. For several
+// (fwd, bwd) pairs at once.
+std::vector<cv::Mat> forward_backward_confidence_n(const std::vector<cv::Mat>& fwd, const std::vector<cv::Mat>& bwd,
+                                                   float tau) {
+  std::vector<cv::Mat> map, back(fwd.size()), conf;
+  for (const cv::Mat& f : fwd) map.emplace_back(f.size(), CV_32FC2), conf.emplace_back(f.size(), CV_32F);
+  for_rows_n(rows_of(fwd), [&](std::size_t i, int y) {
+    const cv::Vec2f* pf = fwd[i].ptr<cv::Vec2f>(y);
+    cv::Vec2f* pm = map[i].ptr<cv::Vec2f>(y);
+    for (int x = 0; x < fwd[i].cols; ++x) pm[x] = cv::Vec2f(x + pf[x][0], y + pf[x][1]);
   });
-  cv::Mat back;
-  cv::remap(bwd, back, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-  cv::Mat conf(fwd.size(), CV_32F);
+  for (std::size_t i = 0; i < fwd.size(); ++i)
+    cv::remap(bwd[i], back[i], map[i], cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   const float inv = 1.f / (tau * tau);
-  for_rows(fwd.rows, [&](int y) {
-    const cv::Vec2f* pf = fwd.ptr<cv::Vec2f>(y);
-    const cv::Vec2f* pb = back.ptr<cv::Vec2f>(y);
-    float* pc = conf.ptr<float>(y);
-    for (int x = 0; x < fwd.cols; ++x) {
+  for_rows_n(rows_of(fwd), [&](std::size_t i, int y) {
+    const cv::Vec2f* pf = fwd[i].ptr<cv::Vec2f>(y);
+    const cv::Vec2f* pb = back[i].ptr<cv::Vec2f>(y);
+    float* pc = conf[i].ptr<float>(y);
+    for (int x = 0; x < fwd[i].cols; ++x) {
       const float ex = pf[x][0] + pb[x][0], ey = pf[x][1] + pb[x][1];
       pc[x] = std::exp(-(ex * ex + ey * ey) * inv);
     }
@@ -138,7 +185,6 @@ cv::Mat forward_backward_confidence(const cv::Mat& fwd, const cv::Mat& bwd, floa
   return conf;
 }
 
-// Bilinear sample of a float image, the position clamped into it (as the CUDA kernels read).
 float sample(const cv::Mat& img, float x, float y) {
   x = std::clamp(x, 0.f, float(img.cols - 1));
   y = std::clamp(y, 0.f, float(img.rows - 1));
@@ -151,21 +197,23 @@ float sample(const cv::Mat& img, float x, float y) {
 }
 
 // The matching-cost gate of the flow a->b (flow_gate_math.hpp): per pixel, how much the flow
-// improves the match over the homography, blurred, mapped to 0..1.
-cv::Mat cost_gate(const cv::Mat& a, const cv::Mat& b, const cv::Mat& flow) {
-  cv::Mat improvement(a.size(), CV_32F);
-  for_rows(a.rows, [&](int y) {
-    const float* pa = a.ptr<float>(y);
-    const float* pb = b.ptr<float>(y);
-    const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
-    float* pi = improvement.ptr<float>(y);
-    for (int x = 0; x < a.cols; ++x)
-      pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b, x + pf[x][0], y + pf[x][1]));
+// improves the match over the homography, blurred, mapped to 0..1. For several (a, b, flow) at once.
+std::vector<cv::Mat> cost_gate_n(const std::vector<cv::Mat>& a, const std::vector<cv::Mat>& b,
+                                 const std::vector<cv::Mat>& flow) {
+  std::vector<cv::Mat> improvement;
+  for (const cv::Mat& x : a) improvement.emplace_back(x.size(), CV_32F);
+  for_rows_n(rows_of(a), [&](std::size_t i, int y) {
+    const float* pa = a[i].ptr<float>(y);
+    const float* pb = b[i].ptr<float>(y);
+    const cv::Vec2f* pf = flow[i].ptr<cv::Vec2f>(y);
+    float* pi = improvement[i].ptr<float>(y);
+    for (int x = 0; x < a[i].cols; ++x)
+      pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b[i], x + pf[x][0], y + pf[x][1]));
   });
-  improvement = blurred(improvement, flow_gate::kGateSigma);
-  for_rows(a.rows, [&](int y) {
-    float* pi = improvement.ptr<float>(y);
-    for (int x = 0; x < a.cols; ++x) pi[x] = flow_gate::gate(pi[x]);
+  improvement = blurred_n(improvement, flow_gate::kGateSigma);
+  for_rows_n(rows_of(a), [&](std::size_t i, int y) {
+    float* pi = improvement[i].ptr<float>(y);
+    for (int x = 0; x < a[i].cols; ++x) pi[x] = flow_gate::gate(pi[x]);
   });
   return improvement;
 }
@@ -272,7 +320,7 @@ class FlowWarperCpu final : public FlowWarper {
         throw std::invalid_argument("flow warp: destination " + std::to_string(i) + " is not roi-sized");
     }
     // The homography warp of each view is written after the flows, and only where the flow
-    // does not re-warp the view (displace()): the same pixels with less work.
+    // does not re-warp the view (displacement_fields()): the same pixels with less work.
     stats_.clear();
     if (!settings_.flow) {
       for (std::size_t i = 0; i < frames.size(); ++i)
@@ -326,10 +374,38 @@ class FlowWarperCpu final : public FlowWarper {
         p->next[0] = p->next[1] = cv::Mat();
       }
     const Clock::time_point t2 = Clock::now();
-    for (Pair* p : active) estimate(*p);
+    estimate_all(active);
     const Clock::time_point t3 = Clock::now();
+    // Every view's homography-only parts, cut into bands of 32 rows, in one parallel loop (one
+    // wait for the threads, not one per part); then the displaced bands.
+    struct Part {
+      int view;
+      Rect rect;  // roi coordinates
+    };
+    std::vector<Part> parts;
+    std::vector<std::vector<Rect>> moved(views_.size());
+    std::vector<std::vector<cv::Mat>> fields(views_.size());
+    for (std::size_t i = 0; i < views_.size(); ++i) {
+      if (frames[i].empty() || views_[i].roi.empty()) continue;
+      displacement_fields(int(i), frames, moved[i], fields[i]);
+      for (const Rect& part : complement(views_[i].roi.width, views_[i].roi.height, moved[i]))
+        for (int y = part.y; y < part.y + part.height; y += 32)
+          parts.push_back({int(i), {part.x, y, part.width, std::min(32, part.y + part.height - y)}});
+    }
+    if (!parts.empty())
+      cv::parallel_for_(cv::Range(0, int(parts.size())), [&](const cv::Range& r) {
+        for (int k = r.start; k < r.end; ++k) {
+          const Part& part = parts[std::size_t(k)];
+          warper_->warp_part(part.view, frames[std::size_t(part.view)], warped[std::size_t(part.view)], part.rect);
+        }
+      }, double(parts.size()));
     for (std::size_t i = 0; i < views_.size(); ++i)
-      if (!frames[i].empty() && !views_[i].roi.empty()) displace(int(i), frames[i], warped[i], frames);
+      for (std::size_t k = 0; k < moved[i].size(); ++k) {
+        cv::Mat mx, my;
+        camera_maps(views_[i], moved[i][k], fields[i][k], mx, my);
+        cv::Mat out = as_mat(warped[i])(to_cv(moved[i][k]));
+        cv::remap(as_mat(frames[i]), out, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+      }
     if (profile) {
       std::fprintf(stderr, "flow warp ms: overlaps %.1f, flows %.1f (%zu tasks, slowest %.1f), estimate %.1f, warp %.1f\n",
                    ms(t0, t1), ms(t1, t2), tasks.size(),
@@ -478,20 +554,73 @@ class FlowWarperCpu final : public FlowWarper {
   }
 
   // After the flows: confidence, gating, refinement, stats and the output-resolution flows.
-  void estimate(Pair& p) {
+  // Every active pair at once: each step runs both directions of every pair in one parallel
+  // loop (one wait for the threads, not one per pair and direction); item 2k is pair k's a->b,
+  // 2k + 1 its b->a. Then each pair's stats and output-resolution flows.
+  void estimate_all(const std::vector<Pair*>& pairs) {
+    const double scale = flow_scale(settings_.quality);
+    const float tau = float(settings_.consistency_px * scale);
+    std::vector<cv::Mat> fwd, bwd, grays, prevs;
+    for (Pair* p : pairs) {
+      fwd.insert(fwd.end(), {p->ab, p->ba});
+      bwd.insert(bwd.end(), {p->ba, p->ab});
+      grays.insert(grays.end(), {p->gray[0], p->gray[1]});
+      prevs.insert(prevs.end(), {p->prev_ab, p->prev_ba});
+    }
+    const std::vector<cv::Mat> conf = forward_backward_confidence_n(fwd, bwd, std::max(tau, 0.25f));
+    // The flow counts only where it improves the match over the homography.
+    const std::vector<cv::Mat> f = to_float_n(grays);  // 2k: view a's, 2k + 1: view b's
+    std::vector<cv::Mat> trust = conf;
+    if (settings_.fallback) {
+      std::vector<cv::Mat> from, to;
+      for (std::size_t k = 0; k < pairs.size(); ++k) {
+        from.insert(from.end(), {f[2 * k], f[2 * k + 1]});
+        to.insert(to.end(), {f[2 * k + 1], f[2 * k]});
+      }
+      trust = product_n(conf, cost_gate_n(from, to, fwd));
+    }
+    // The stillness of every pair with a history (its four images in the same loops): 1 where
+    // neither view's overlap changed since the last frame, falling to 0 where either changed by a
+    // few grey levels. Local means are compared, so sensor noise is not motion.
+    std::vector<cv::Mat> still_of(pairs.size());
+    {
+      std::vector<cv::Mat> images;
+      std::vector<std::size_t> with;
+      for (std::size_t k = 0; k < pairs.size(); ++k) {
+        const Pair& p = *pairs[k];
+        if (!p.init || p.prev_gray[0].empty() || p.prev_gray[0].size() != p.gray[0].size()) continue;
+        with.push_back(k);
+        images.insert(images.end(), {p.gray[0], p.gray[1], p.prev_gray[0], p.prev_gray[1]});
+      }
+      const std::vector<cv::Mat> m = blurred_n(to_float_n(images), 2.0);
+      std::vector<int> rows;
+      for (const std::size_t k : with) {
+        still_of[k].create(pairs[k]->gray[0].size(), CV_32F);
+        rows.push_back(still_of[k].rows);
+      }
+      for_rows_n(rows, [&](std::size_t j, int y) {
+        const float *a0 = m[4 * j].ptr<float>(y), *a1 = m[4 * j + 1].ptr<float>(y);
+        const float *b0 = m[4 * j + 2].ptr<float>(y), *b1 = m[4 * j + 3].ptr<float>(y);
+        float* ps = still_of[with[j]].ptr<float>(y);
+        for (int x = 0; x < still_of[with[j]].cols; ++x) {
+          const float change = std::max(std::fabs(a0[x] - b0[x]), std::fabs(a1[x] - b1[x]));
+          const float c = std::max(0.f, change - 1.f) / 2.f;
+          ps[x] = std::exp(-c * c);
+        }
+      });
+    }
+    std::vector<cv::Mat> stills;
+    for (std::size_t k = 0; k < pairs.size(); ++k) stills.insert(stills.end(), {still_of[k], still_of[k]});
+    const std::vector<cv::Mat> refined = refine_n(fwd, trust, prevs, stills);
+    for (std::size_t k = 0; k < pairs.size(); ++k)
+      finish_estimate(*pairs[k], conf[2 * k], f[2 * k], f[2 * k + 1], refined[2 * k], refined[2 * k + 1]);
+  }
+
+  // One pair's stats, gate decision and output-resolution flows, after estimate_all's loops.
+  void finish_estimate(Pair& p, const cv::Mat& conf_ab, const cv::Mat& fa, const cv::Mat& fb, const cv::Mat& flow_ab,
+                       const cv::Mat& flow_ba) {
     cv::Mat* gray = p.gray;
     const double scale = flow_scale(settings_.quality);
-    const bool init = p.init;
-    const cv::Mat prev_ab = p.prev_ab, prev_ba = p.prev_ba;
-    const cv::Mat ab = p.ab, ba = p.ba;
-
-    const float tau = float(settings_.consistency_px * scale);
-    const cv::Mat conf_ab = forward_backward_confidence(ab, ba, std::max(tau, 0.25f));
-    const cv::Mat conf_ba = forward_backward_confidence(ba, ab, std::max(tau, 0.25f));
-    // The flow counts only where it improves the match over the homography.
-    const cv::Mat fa = to_float(gray[0]), fb = to_float(gray[1]);
-    const cv::Mat trust_ab = settings_.fallback ? product(conf_ab, cost_gate(fa, fb, ab)) : conf_ab;
-    const cv::Mat trust_ba = settings_.fallback ? product(conf_ba, cost_gate(fb, fa, ba)) : conf_ba;
     cv::Mat both = p.side[0].valid & p.side[1].valid;
     FlowPairStats st;
     st.view_a = p.a;
@@ -500,9 +629,8 @@ class FlowWarperCpu final : public FlowWarper {
     const int n_valid = cv::countNonZero(both);
     st.confident_fraction = n_valid ? cv::countNonZero((conf_ab > 0.5) & both) / double(n_valid) : 0.0;
 
-    const cv::Mat still = init ? stillness(gray, p.prev_gray) : cv::Mat();
-    p.flow_ab = refine(ab, trust_ab, prev_ab, still);
-    p.flow_ba = refine(ba, trust_ba, prev_ba, still);
+    p.flow_ab = flow_ab;
+    p.flow_ba = flow_ba;
     p.prev_gray[0] = gray[0];
     p.prev_gray[1] = gray[1];
     p.history = true;
@@ -541,22 +669,28 @@ class FlowWarperCpu final : public FlowWarper {
   // smoothed, then blended with the previous frame's where neither view changed: there the
   // scene is static and so is the right flow, so estimation jitter is averaged away; where
   // the content moved, the new flow is taken at once.
-  cv::Mat refine(const cv::Mat& flow, const cv::Mat& conf, const cv::Mat& prev, const cv::Mat& stillness) const {
-    cv::Mat out(flow.size(), CV_32FC2);
-    for_rows(flow.rows, [&](int y) {
-      const cv::Vec2f* pf = flow.ptr<cv::Vec2f>(y);
-      const float* pc = conf.ptr<float>(y);
-      cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
-      for (int x = 0; x < flow.cols; ++x) po[x] = pf[x] * pc[x];
+  // For several (flow, conf, prev, stillness) at once.
+  std::vector<cv::Mat> refine_n(const std::vector<cv::Mat>& flow, const std::vector<cv::Mat>& conf,
+                                const std::vector<cv::Mat>& prev, const std::vector<cv::Mat>& stillness) const {
+    std::vector<cv::Mat> out;
+    for (const cv::Mat& f : flow) out.emplace_back(f.size(), CV_32FC2);
+    for_rows_n(rows_of(flow), [&](std::size_t i, int y) {
+      const cv::Vec2f* pf = flow[i].ptr<cv::Vec2f>(y);
+      const float* pc = conf[i].ptr<float>(y);
+      cv::Vec2f* po = out[i].ptr<cv::Vec2f>(y);
+      for (int x = 0; x < flow[i].cols; ++x) po[x] = pf[x] * pc[x];
     });
-    out = blurred(out, 1.5);
+    out = blurred_n(out, 1.5);
     const float s = float(settings_.temporal_smoothing);
-    if (prev.empty() || stillness.empty() || s <= 0.f) return out;
-    for_rows(out.rows, [&](int y) {
-      const cv::Vec2f* pp = prev.ptr<cv::Vec2f>(y);
-      const float* ps = stillness.ptr<float>(y);
-      cv::Vec2f* po = out.ptr<cv::Vec2f>(y);
-      for (int x = 0; x < out.cols; ++x) {
+    if (s <= 0.f) return out;
+    std::vector<int> rows;  // the flows with a previous one and a stillness to blend with
+    for (std::size_t i = 0; i < out.size(); ++i)
+      rows.push_back(prev[i].empty() || stillness[i].empty() ? 0 : out[i].rows);
+    for_rows_n(rows, [&](std::size_t i, int y) {
+      const cv::Vec2f* pp = prev[i].ptr<cv::Vec2f>(y);
+      const float* ps = stillness[i].ptr<float>(y);
+      cv::Vec2f* po = out[i].ptr<cv::Vec2f>(y);
+      for (int x = 0; x < out[i].cols; ++x) {
         const float keep = s * ps[x];
         po[x] = keep * pp[x] + (1.f - keep) * po[x];
       }
@@ -564,35 +698,11 @@ class FlowWarperCpu final : public FlowWarper {
     return out;
   }
 
-  // 1 where neither view's overlap changed since the last frame, falling to 0 where either
-  // changed by a few grey levels. Local means are compared, so sensor noise is not motion.
-  static cv::Mat stillness(const cv::Mat gray[2], const cv::Mat prev[2]) {
-    if (prev[0].empty() || prev[0].size() != gray[0].size()) return cv::Mat();
-    cv::Mat a[2], b[2];
-    for (int k = 0; k < 2; ++k) {
-      a[k] = blurred(to_float(gray[k]), 2.0);
-      b[k] = blurred(to_float(prev[k]), 2.0);
-    }
-    cv::Mat still(gray[0].size(), CV_32F);
-    for_rows(still.rows, [&](int y) {
-      const float *a0 = a[0].ptr<float>(y), *b0 = b[0].ptr<float>(y);
-      const float *a1 = a[1].ptr<float>(y), *b1 = b[1].ptr<float>(y);
-      float* ps = still.ptr<float>(y);
-      for (int x = 0; x < still.cols; ++x) {
-        const float change = std::max(std::fabs(a0[x] - b0[x]), std::fabs(a1[x] - b1[x]));
-        const float c = std::max(0.f, change - 1.f) / 2.f;
-        ps[x] = std::exp(-c * c);
-      }
-    });
-    return still;
-  }
-
-  // Warps view v: moved by the weighted flow toward each neighbour it overlaps, band by band,
-  // and by the homography alone elsewhere.
-  void displace(int v, const ImageView& frame, const ImageView& dst, const std::vector<ImageView>& frames) {
+  // View v's bands (roi coordinates) that the flow moves, and their displacement fields; the
+  // rest of the view is the homography's (warp() warps both).
+  void displacement_fields(int v, const std::vector<ImageView>& frames, std::vector<Rect>& moved,
+                           std::vector<cv::Mat>& fields) {
     const ViewPlacement& view = views_[v];
-    std::vector<Rect> moved;  // roi coordinates
-    std::vector<cv::Mat> fields;
     for (const Rect& band : bands_[v]) {
       cv::Mat d(band.height, band.width, CV_32FC2);
       in_strips(d.rows, [&](int y0, int y1) { d.rowRange(y0, y1).setTo(cv::Scalar::all(0)); });
@@ -624,14 +734,6 @@ class FlowWarperCpu final : public FlowWarper {
       if (*std::max_element(row_max.begin(), row_max.end()) < kNegligiblePx) continue;
       moved.push_back(shifted(band, -view.roi.x, -view.roi.y));
       fields.push_back(d);
-    }
-    for (const Rect& part : complement(view.roi.width, view.roi.height, moved))
-      warper_->warp_part(v, frame, dst, part);
-    for (std::size_t k = 0; k < moved.size(); ++k) {
-      cv::Mat mx, my;
-      camera_maps(view, moved[k], fields[k], mx, my);
-      cv::Mat out = as_mat(dst)(to_cv(moved[k]));
-      cv::remap(as_mat(frame), out, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
     }
   }
 

@@ -72,6 +72,17 @@ void WarperCpu::warp_part(int index, const ImageView& src, const ImageView& dst,
   cv::remap(s, d, m.xy(r), m.frac(r), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
 }
 
+void WarperCpu::warp_part_to(int index, const ImageView& src, const Rect& part, uint8_t* dst, std::size_t pitch) {
+  if (src.on_device) throw std::invalid_argument("CPU warper got device memory");
+  const Maps& m = maps_.at(static_cast<std::size_t>(index));
+  if (m.xy.empty() || part.empty()) return;
+  const cv::Rect r(part.x, part.y, part.width, part.height);
+  if ((r & cv::Rect(0, 0, m.xy.cols, m.xy.rows)) != r) throw std::invalid_argument("warp part outside the view");
+  cv::Mat s(src.height, src.width, CV_8UC4, src.data, src.pitch);
+  cv::Mat d(part.height, part.width, CV_8UC4, dst, pitch);
+  cv::remap(s, d, m.xy(r), m.frac(r), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
+}
+
 std::unique_ptr<Warper> Warper::create(Backend backend) {
   switch (resolve_backend(backend, /*stage_has_cuda=*/true)) {
 #ifdef STITCH_HAVE_CUDA

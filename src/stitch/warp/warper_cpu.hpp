@@ -18,6 +18,9 @@ class WarperCpu final : public Warper {
   // Only the pixels of `part` (roi coordinates) of the full roi-sized `dst`: the same values
   // warp() gives there.
   void warp_part(int index, const ImageView& src, const ImageView& dst, const Rect& part);
+  // The pixels of `part` (roi coordinates) written to `dst` (part-sized, e.g. a window of the
+  // output): the same values warp() gives there.
+  void warp_part_to(int index, const ImageView& src, const Rect& part, uint8_t* dst, std::size_t pitch);
   Backend backend() const override { return Backend::Cpu; }
 
  private:
