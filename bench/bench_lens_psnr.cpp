@@ -15,6 +15,8 @@
 //                          [--supersample 2] [--dense 0]
 // --supersample N: render each camera N x N supersampled (default 2; 4 aliases less).
 // --dense 0: the calibrator's photometric refit off (the baseline before it).
+// --photometric 1 [--photometric-blur 1.0]: the direct photometric refit after it (off by default;
+// CalibrationOptions::photometric_refit).
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -95,13 +97,16 @@ int main(int argc, char** argv) {
   int seeds = 1;
   std::string which = "radtan,fisheye";
   int supersample = 2;
-  bool dense = true;
+  bool dense = true, photometric = false;
+  double photometric_blur = 1.0;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--photo") photos.push_back(v);
     else if (k == "--seeds") seeds = std::stoi(v);
     else if (k == "--cases") which = v;
     else if (k == "--supersample") supersample = std::stoi(v);
+    else if (k == "--photometric") photometric = v != "0";
+    else if (k == "--photometric-blur") photometric_blur = std::stod(v);
     else if (k == "--dense") dense = v != "0";  // 0: the calibrator's photometric refit off (the baseline before it)
     else {
       std::fprintf(stderr, "unknown option %s\n", k.c_str());
@@ -109,7 +114,7 @@ int main(int argc, char** argv) {
     }
   }
   if (photos.empty()) {
-    std::fprintf(stderr, "usage: %s --photo a.jpg [--photo b.jpg] [--seeds 2] [--cases radtan,fisheye] [--supersample 2] [--dense 0]\n", argv[0]);
+    std::fprintf(stderr, "usage: %s --photo a.jpg [--photo b.jpg] [--seeds 2] [--cases radtan,fisheye] [--supersample 2] [--dense 0] [--photometric 1] [--photometric-blur 1]\n", argv[0]);
     return 2;
   }
   std::vector<Case> cases;
@@ -170,6 +175,8 @@ int main(int argc, char** argv) {
           const auto t0 = std::chrono::steady_clock::now();
           CalibrationOptions co;
           co.dense_lens_matches = dense;
+          co.photometric_refit = photometric;
+          co.photometric_blur_sigma = photometric_blur;
           const CalibrationResult r = calibrate_from_rig(rough, views, co);
           secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
           const Rig est = testdata::aligned_to_truth(r.rig, truth);

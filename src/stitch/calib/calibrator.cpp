@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -16,6 +17,7 @@
 #include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/calib/dense_matches.hpp"
 #include "stitch/calib/fisheye_guess.hpp"
+#include "stitch/calib/photometric_refine.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/lens.hpp"
@@ -1507,6 +1509,27 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       if (rot2.ok) rot = std::move(rot2);
     }
     if (rot.ok && estimating && !any_rays && o.dense_lens_matches) rot = refine_on_dense_matches(rot, rough, pairs, sets);
+    if (rot.ok && estimating && !any_rays && o.dense_lens_matches && o.photometric_refit) {
+      // The overlaps' brightness itself, no located points (photometric_refine.hpp).
+      std::vector<std::pair<int, int>> links;
+      for (const auto& p : pairs)
+        if (p.ok && !p.rays) links.emplace_back(p.a, p.b);
+      std::vector<std::vector<cv::Mat>> gray;
+      const std::size_t take = std::min<std::size_t>(sets.size(), 3);
+      for (std::size_t k = 0; k < take; ++k) {
+        gray.emplace_back();
+        for (const auto& v : sets[k * sets.size() / take]) gray.back().push_back(to_gray(v));
+      }
+      std::vector<bool> free_lens(n);
+      for (int i = 0; i < n; ++i) free_lens[i] = rough.cameras[i].lens.estimate;
+      Rig refit = rot.rig;
+      PhotometricRefineOptions po;
+      po.blur_sigma = o.photometric_blur_sigma;
+      const PhotometricRefineResult pr = photometric_refine(refit, links, gray, free_lens, po);
+      const double before = residuals(rot.rig, pairs, true, true).rms_px;
+      const double after = residuals(refit, pairs, true, true).rms_px;
+      if (pr.ok && (!(before > 0) || after <= 1.2 * before + 0.05)) rot.rig = refit;
+    }
     res.warnings.insert(res.warnings.end(), rot.warnings.begin(), rot.warnings.end());
     if (rot.ok && estimating)
       for (int i = 0; i < n; ++i) {
