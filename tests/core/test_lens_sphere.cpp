@@ -404,7 +404,7 @@ TEST(CircularFisheyes, FoundAndCalibratedFromTheImagesAlone) {
 }
 
 // Users connect a 360 ring's pads in any order (branch lens-radtan): the ring order comes from
-// the images (which pairs share features, on which side), not from the pad order. Rings of 3-6
+// the images (which pairs share features, on which side), not from the pad order. Rings of 3-8
 // circular fisheyes rendered from the real photo, their pads shuffled (mirror orders, camera 0
 // moved, neighbours swapped), calibrated with no rig file: every pair of views meets within a
 // pixel on the canvas, and the warning says the pads were reordered. Before, a shuffled ring
@@ -419,7 +419,8 @@ TEST(CircularFisheyes, RingOrderFoundFromTheImagesWhenPadsAreShuffled) {
     std::vector<int> pads;  // pad i shows the true ring's camera pads[i]
   };
   const Case cases[] = {{4, 190, {0, 2, 1, 3}}, {4, 190, {0, 3, 2, 1}}, {3, 200, {0, 2, 1}},
-                        {5, 185, {3, 0, 4, 1, 2}}, {6, 190, {0, 3, 1, 5, 2, 4}}};
+                        {5, 185, {3, 0, 4, 1, 2}}, {6, 190, {0, 3, 1, 5, 2, 4}},
+                        {8, 185, {0, 5, 2, 7, 4, 1, 6, 3}}};
   double worst = 0;
   for (const Case& cs : cases) {
     const Rig ring = testdata::fisheye_ring(cs.cams, 320, cs.fov);
