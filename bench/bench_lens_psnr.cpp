@@ -15,6 +15,10 @@
 //                          [--supersample 2] [--dense 0]
 // --supersample N: render each camera N x N supersampled (default 2; 4 aliases less).
 // --dense 0: the calibrator's photometric refit off (the baseline before it).
+// --frames N: calibrate on N frame sets (a stream): the whole rig panned by 5 degrees of yaw and
+// 1.5 of pitch per frame over the photo (the first set is the one composed and scored).
+// --photometric 1 [--photometric-blur 1.0]: the direct photometric refit after it (off by default;
+// CalibrationOptions::photometric_refit).
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -95,13 +99,18 @@ int main(int argc, char** argv) {
   int seeds = 1;
   std::string which = "radtan,fisheye";
   int supersample = 2;
-  bool dense = true;
+  bool dense = true, photometric = false;
+  int stream_frames = 1;
+  double photometric_blur = 1.0;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--photo") photos.push_back(v);
     else if (k == "--seeds") seeds = std::stoi(v);
     else if (k == "--cases") which = v;
     else if (k == "--supersample") supersample = std::stoi(v);
+    else if (k == "--photometric") photometric = v != "0";
+    else if (k == "--frames") stream_frames = std::max(1, std::stoi(v));
+    else if (k == "--photometric-blur") photometric_blur = std::stod(v);
     else if (k == "--dense") dense = v != "0";  // 0: the calibrator's photometric refit off (the baseline before it)
     else {
       std::fprintf(stderr, "unknown option %s\n", k.c_str());
@@ -109,7 +118,7 @@ int main(int argc, char** argv) {
     }
   }
   if (photos.empty()) {
-    std::fprintf(stderr, "usage: %s --photo a.jpg [--photo b.jpg] [--seeds 2] [--cases radtan,fisheye] [--supersample 2] [--dense 0]\n", argv[0]);
+    std::fprintf(stderr, "usage: %s --photo a.jpg [--photo b.jpg] [--seeds 2] [--cases radtan,fisheye] [--supersample 2] [--dense 0] [--photometric 1] [--photometric-blur 1]\n", argv[0]);
     return 2;
   }
   std::vector<Case> cases;
@@ -170,7 +179,24 @@ int main(int argc, char** argv) {
           const auto t0 = std::chrono::steady_clock::now();
           CalibrationOptions co;
           co.dense_lens_matches = dense;
-          const CalibrationResult r = calibrate_from_rig(rough, views, co);
+          co.photometric_refit = photometric;
+          co.photometric_blur_sigma = photometric_blur;
+          std::vector<std::vector<cv::Mat>> more;
+          std::vector<std::vector<ImageView>> sets{views};
+          for (int f = 1; f < stream_frames; ++f) {
+            const Eigen::Matrix3d turn = (Eigen::AngleAxisd(5.0 * f * CV_PI / 180, Eigen::Vector3d::UnitY()) *
+                                          Eigen::AngleAxisd(1.5 * f * CV_PI / 180, Eigen::Vector3d::UnitX()))
+                                             .toRotationMatrix();
+            more.emplace_back();
+            sets.emplace_back();
+            for (const auto& c : truth.cameras) {
+              Camera t = c;
+              t.set_R(turn * c.R());
+              more.back().push_back(testdata::render_camera_from_equirect(photo, t, supersample));
+            }
+            for (auto& m : more.back()) sets.back().push_back(as_view(m));
+          }
+          const CalibrationResult r = calibrate_from_rig(rough, sets, co);
           secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
           const Rig est = testdata::aligned_to_truth(r.rig, truth);
           qc = quality_of(est, frames, gt, mask, cs.views);

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -16,6 +17,7 @@
 #include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/calib/dense_matches.hpp"
 #include "stitch/calib/fisheye_guess.hpp"
+#include "stitch/calib/photometric_refine.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/lens.hpp"
@@ -1507,6 +1509,27 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       if (rot2.ok) rot = std::move(rot2);
     }
     if (rot.ok && estimating && !any_rays && o.dense_lens_matches) rot = refine_on_dense_matches(rot, rough, pairs, sets);
+    if (rot.ok && estimating && !any_rays && o.dense_lens_matches && o.photometric_refit) {
+      // The overlaps' brightness itself, no located points (photometric_refine.hpp).
+      std::vector<std::pair<int, int>> links;
+      for (const auto& p : pairs)
+        if (p.ok && !p.rays) links.emplace_back(p.a, p.b);
+      std::vector<std::vector<cv::Mat>> gray;
+      const std::size_t take = std::min<std::size_t>(sets.size(), 3);
+      for (std::size_t k = 0; k < take; ++k) {
+        gray.emplace_back();
+        for (const auto& v : sets[k * sets.size() / take]) gray.back().push_back(to_gray(v));
+      }
+      std::vector<bool> free_lens(n);
+      for (int i = 0; i < n; ++i) free_lens[i] = rough.cameras[i].lens.estimate;
+      Rig refit = rot.rig;
+      PhotometricRefineOptions po;
+      po.blur_sigma = o.photometric_blur_sigma;
+      const PhotometricRefineResult pr = photometric_refine(refit, links, gray, free_lens, po);
+      const double before = residuals(rot.rig, pairs, true, true).rms_px;
+      const double after = residuals(refit, pairs, true, true).rms_px;
+      if (pr.ok && (!(before > 0) || after <= 1.2 * before + 0.05)) rot.rig = refit;
+    }
     res.warnings.insert(res.warnings.end(), rot.warnings.begin(), rot.warnings.end());
     if (rot.ok && estimating)
       for (int i = 0; i < n; ++i) {
@@ -1629,6 +1652,84 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
 // least kLensEvidenceMinPx) before images alone are taken as evidence of distortion.
 constexpr double kLensEvidenceRatio = 0.7, kLensEvidenceMinPx = 0.2;
 
+// The ring order of N >= 3 circular fisheyes from their images: users connect pads in any order.
+// For every pair, the ratio-test matches (pooled over the frame sets) whose rays, through the
+// rough rig's lenses, agree with b one ring step after a, and those that agree with b one step
+// before a: prefiltered loosely around that rotation (a guessed field of view moves the overlap
+// by up to ~15 degrees, as a common yaw), then counted under the best rotation of a RANSAC over
+// 2-ray rotations, as in match_pair_rays. The ring is the cyclic order, camera 0 first, whose
+// steps gather the most such matches (N <= 8: at most 5040 orders); ties keep pad order.
+// slots[camera] = its place around the ring; empty for N < 3 or when no pair matches.
+struct RingOrder {
+  std::vector<int> slots;
+  bool reordered = false;
+};
+static RingOrder ring_order(const FeatureSets& feats, const Rig& rough, const CalibrationOptions& o) {
+  RingOrder out;
+  const int n = int(rough.cameras.size());
+  if (n < 3 || n > 8) return out;
+  constexpr double kTolRad = 0.45, kThrRad = 0.12;
+  const double cos_tol = std::cos(kTolRad), cos_thr = std::cos(kThrRad);
+  // score[a][b]: matches that agree with b one step after a around the ring.
+  std::vector<std::vector<int>> score(n, std::vector<int>(n, 0));
+  auto R_of = [&](int cam, double yaw_deg) {
+    Camera c = rough.cameras[cam];
+    c.yaw_deg = yaw_deg;
+    return c.R();
+  };
+  const double step = 360.0 / n;
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      const Camera &A = rough.cameras[a], &B = rough.cameras[b];
+      std::vector<Eigen::Vector3d> ua, ub;
+      for (const auto& f : feats)
+        for (const auto& mt : match(f[a], f[b], o.features)) {
+          const cv::Point2f qa = f[a].keypoints[mt.queryIdx].pt, qb = f[b].keypoints[mt.trainIdx].pt;
+          Eigen::Vector3d ra, rb;
+          if (!lens_sees(A, qa.x, qa.y) || !lens_sees(B, qb.x, qb.y)) continue;
+          if (!lens_unproject(A, {qa.x, qa.y}, ra) || !lens_unproject(B, {qb.x, qb.y}, rb)) continue;
+          ua.push_back(ra);
+          ub.push_back(rb);
+        }
+      for (const int dir : {+1, -1}) {
+        const Eigen::Matrix3d Q0 = R_of(b, dir * step).transpose() * R_of(a, 0);  // a's frame -> b's frame
+        std::vector<int> cand;
+        for (int k = 0; k < int(ua.size()); ++k)
+          if ((Q0 * ua[k]).dot(ub[k]) >= cos_tol) cand.push_back(k);
+        if (cand.size() < 3) continue;
+        auto count = [&](const Eigen::Matrix3d& Q) {
+          int c = 0;
+          for (int k : cand) c += (Q * ua[k]).dot(ub[k]) >= cos_thr;
+          return c;
+        };
+        std::mt19937 rng(12345);
+        std::uniform_int_distribution<int> pick(0, int(cand.size()) - 1);
+        int best = count(Q0);
+        for (int it = 0; it < 300; ++it) {
+          const int i = cand[pick(rng)], j = cand[pick(rng)];
+          if (ua[i].cross(ua[j]).norm() < 0.05 || ub[i].cross(ub[j]).norm() < 0.05) continue;
+          best = std::max(best, count(kabsch(ua, ub, {i, j})));
+        }
+        (dir > 0 ? score[a][b] : score[b][a]) = best;
+      }
+    }
+  std::vector<int> order(n), best_order;
+  std::iota(order.begin(), order.end(), 0);
+  long best_total = -1;
+  do {
+    long total = 0;
+    for (int k = 0; k < n; ++k) total += score[order[k]][order[(k + 1) % n]];
+    if (total > best_total) best_total = total, best_order = order;
+  } while (std::next_permutation(order.begin() + 1, order.end()));
+  if (best_total <= 0) return out;
+  out.slots.assign(n, 0);
+  for (int k = 0; k < n; ++k) {
+    out.slots[best_order[k]] = k;
+    out.reordered |= best_order[k] != k;
+  }
+  return out;
+}
+
 // Frames that all show an image circle are circular fisheyes (a 360 camera): calibrated from the
 // rough rig circular_fisheye_rig guesses, over a few fields of view (the circle gives the focal
 // length only with one), keeping the fit the held-out matches like best. nullopt: not such frames.
@@ -1637,8 +1738,15 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
   std::optional<CalibrationResult> best;
   double best_error = std::numeric_limits<double>::infinity(), best_fov = 0;
   std::string last_error;
+  // A ring's order around the camera, from the images (pads in any order).
+  RingOrder ring;
+  if (sets[0].size() >= 3) {
+    const std::optional<Rig> guess = circular_fisheye_rig(sets[0], 195.0);
+    if (!guess) return std::nullopt;
+    ring = ring_order(detect_all(sets, int(sets[0].size()), o), *guess, o);
+  }
   for (const double fov : {195.0, 185.0, 210.0, 225.0}) {
-    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov);
+    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov, ring.slots);
     if (!rough) return std::nullopt;
     rough->reference = reference >= 0 && reference < int(rough->cameras.size()) ? reference : 0;
     try {
@@ -1666,9 +1774,16 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
                    (last_error.empty() ? std::string() : " (" + last_error + ")") +
                    ": give a rig-file with their \"lens\"");
   const int n = int(sets[0].size());
+  std::string ring_note;
+  if (ring.reordered) {
+    std::vector<int> order(n);
+    for (int i = 0; i < n; ++i) order[ring.slots[i]] = i;
+    ring_note = " whose pads are not in ring order: the images put them around in the order";
+    for (int i = 0; i < n; ++i) ring_note += (i ? ", " : " ") + std::to_string(order[i]);
+  }
   best->warnings.push_back("every camera shows an image circle: calibrated as " +
                            (n == 2 ? std::string("two circular fisheyes back to back") :
-                                     "a ring of " + std::to_string(n) + " circular fisheyes") +
+                                     "a ring of " + std::to_string(n) + " circular fisheyes" + ring_note) +
                            " (field of view first guessed " + std::to_string(int(best_fov)) +
                            " degrees; focal lengths and lenses estimated; held-out error " + std::to_string(best_error) +
                            " px); give a rig-file to set them");

@@ -49,6 +49,12 @@ struct CalibrationOptions {
   // corners. Wide-lens (ray-matched) pairs too, through their lenses (branch lens-dual): a
   // back-to-back ring's keypoints carry a bias that reads as k1.
   bool dense_lens_matches = true;
+  // After the dense refit of a radtan (not ray-matched) rig: fit rotations, focal lengths and
+  // k1 / k2 directly to the overlaps' brightness (photometric_refine.hpp). Measured and left OFF
+  // (BENCHMARKS.md, "Ring order ... direct photometric refit"): its optimum moves with the
+  // smoothing and the texture as much as the dense matches' does (worst PSNR gap -1.63 dB vs -1.16).
+  bool photometric_refit = false;
+  double photometric_blur_sigma = 1.0;
   int max_features = 4000;         // per image and overlap
   double feature_megapixels = 1.0; // larger frames are downscaled for detection
   // Planar canvases: which camera model (see CameraModel). Non-planar rigs: always rotation.

@@ -53,8 +53,10 @@ std::optional<LensCircle> find_image_circle(const ImageView& frame) {
   return c;
 }
 
-std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, double fov_deg) {
+std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, double fov_deg,
+                                        const std::vector<int>& slots) {
   if (frames.size() < 2 || !(fov_deg > 90 && fov_deg < 360)) return std::nullopt;
+  if (!slots.empty() && slots.size() != frames.size()) return std::nullopt;
   Rig rig;
   rig.projection = "spherical";
   rig.reference = 0;
@@ -71,7 +73,7 @@ std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, do
     c.lens.model = Lens::Model::Fisheye;
     c.lens.circle = circle;
     c.lens.estimate = true;
-    c.yaw_deg = 360.0 * i / n;  // two: back to back; more: evenly around
+    c.yaw_deg = 360.0 * (slots.empty() ? i : slots[i]) / n;  // two: back to back; more: evenly around
     if (c.yaw_deg > 180.0) c.yaw_deg -= 360.0;
     rig.cameras.push_back(c);
   }

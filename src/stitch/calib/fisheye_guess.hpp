@@ -19,7 +19,9 @@ std::optional<LensCircle> find_image_circle(const ImageView& frame);
 // A rough rig for frames that all show an image circle (nullopt otherwise): fisheye lenses
 // whose coefficients are to be estimated, focal length from the circle and a guessed field of
 // view (equidistant: radius = f * fov / 2), two cameras back to back or N evenly around,
-// spherical canvas.
-std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, double fov_deg);
+// spherical canvas. `slots`: camera i's place around the ring (yaw 360 * slots[i] / N; pads come
+// in any order, see calibrator.cpp ring_slots); empty: pad order.
+std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, double fov_deg,
+                                        const std::vector<int>& slots = {});
 
 }  // namespace stitch
