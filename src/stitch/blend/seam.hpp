@@ -42,6 +42,9 @@ struct SeamSettings {
   // object shows twice. 0: off (the default: on the rendered parallax rigs 64 cut the ghost ratio
   // a little and raised flicker by up to 18 points, BENCHMARKS.md). Needs mix_radius > 0.
   float crossing_weight = 0.f;
+  // The temporal hold of the view choice (seam_math.hpp view_switch_cost): a cut that gives a pixel
+  // of full disagreement the other view than last frame costs label_hold more. 0: off. Needs mix_radius > 0.
+  float label_hold = 0.f;
 };
 
 class SeamFinder {
@@ -74,7 +77,7 @@ class SeamFinder {
     return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
             settings_.hold, settings_.clearance_weight, settings_.clearance_radius,
             settings_.mix_radius, settings_.agree_level, settings_.disagree_level, settings_.crossing_weight,
-            settings_.centre_weight};
+            settings_.centre_weight, settings_.label_hold};
   }
 
   SeamSettings settings_;
@@ -82,7 +85,7 @@ class SeamFinder {
   int width_ = 0, height_ = 0;
   std::vector<Pair> pairs_;
   std::vector<std::vector<uint8_t>> luma_, previous_luma_;  // per view, roi-sized
-  std::vector<uint8_t> labels_, mix_;
+  std::vector<uint8_t> labels_, mix_, previous_labels_;  // previous_labels_: last find()'s labels
   uint64_t nearest_mask_ = ~uint64_t(0);
   std::vector<uint8_t> nearest_;
 };
