@@ -541,8 +541,12 @@ TEST(Seam, HoldsEachDisagreementsViewFromFrameToFrame) {
     }
     return double(switched) / std::max<std::size_t>(1, disagreeing);
   };
-  const double free = switched_share(0.f), held = switched_share(SeamSettings{}.label_hold > 0 ? SeamSettings{}.label_hold : 4.f);
-  std::printf("disagreeing pixels that switch view from one frame to the next: %.2f%% without the hold, %.2f%% with it\n",
-              100 * free, 100 * held);
-  EXPECT_LT(held, 0.5 * free);
+  ASSERT_GT(SeamSettings{}.label_hold, 0.f);  // on by default (BENCHMARKS.md: flicker on the parallax rigs)
+  const double free = switched_share(0.f), held = switched_share(SeamSettings{}.label_hold),
+               strong = switched_share(4 * SeamSettings{}.label_hold);
+  std::printf("disagreeing pixels that switch view from one frame to the next: %.2f%% without the hold, %.2f%% "
+              "with the default, %.2f%% with 4x the default\n",
+              100 * free, 100 * held, 100 * strong);
+  EXPECT_LT(held, 0.6 * free);
+  EXPECT_LT(strong, 0.3 * free);
 }

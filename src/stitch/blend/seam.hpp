@@ -43,8 +43,12 @@ struct SeamSettings {
   // a little and raised flicker by up to 18 points, BENCHMARKS.md). Needs mix_radius > 0.
   float crossing_weight = 0.f;
   // The temporal hold of the view choice (seam_math.hpp view_switch_cost): a cut that gives a pixel
-  // of full disagreement the other view than last frame costs label_hold more. 0: off. Needs mix_radius > 0.
-  float label_hold = 0.f;
+  // of full disagreement the other view than last frame costs label_hold more (per row of the seam,
+  // so a whole object's row switched costs ~its width x label_hold). 0: off. Needs mix_radius > 0.
+  // 4 (the default): static-pixel flicker on the rendered parallax rigs +17% -> +3% worst seed of
+  // `near`, +11% -> +7% on `close`, +13% -> +10% on `wide-near`; ghost ratio within -0.05..+0.04
+  // (BENCHMARKS.md "Parallax: the view choice held over time").
+  float label_hold = 4.f;
 };
 
 class SeamFinder {
