@@ -91,8 +91,7 @@ __device__ __forceinline__ bool blank(const int* counts, int view) {  // view 0:
 
 // The pair's mix levels (max into the mix map) and, from them, the crossing cost (as SeamFinder::cut).
 __global__ void mix_along_kernel(SeamPairGeometry p, const int* across, const float* centre, sm::Weights w,
-                                 const int* counts, float* cost, uint8_t* mix, int label_width, uint8_t* levels,
-                                 const uint8_t* previous_mix) {
+                                 const int* counts, float* cost, uint8_t* mix, int label_width, uint8_t* levels) {
   const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
   if (bx >= p.box_w || by >= p.box_h) return;
   const float ce = centre[size_t(by) * p.box_w + bx];
@@ -108,8 +107,7 @@ __global__ void mix_along_kernel(SeamPairGeometry p, const int* across, const fl
   const int level = blank(counts, 0) || blank(counts, 1) ? 255 : sm::mix_level(w, sum);
   uint8_t& m = mix[size_t(p.box_y + by) * label_width + p.box_x + bx];
   m = uint8_t(max(int(m), level));  // pairs run one after another: no race
-  if (levels)
-    levels[size_t(row) * cols + col] = sm::held_level(level, previous_mix[size_t(p.box_y + by) * label_width + p.box_x + bx]);
+  if (levels) levels[size_t(row) * cols + col] = uint8_t(level);
   if (w.crossing > 0.f) {
     float& v = cost[size_t(row) * cols + col];
     v = sm::crossing_cost(w, v, ce, level);
@@ -326,16 +324,15 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
 
 void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
                      const stitch::seam::Weights& weights, const int* counts, float* cost, uint8_t* mix,
-                     int label_width, uint8_t* levels, const uint8_t* previous_labels, const uint8_t* previous_mix,
-                     cudaStream_t stream) {
+                     int label_width, uint8_t* levels, const uint8_t* previous_labels, cudaStream_t stream) {
   if (weights.mix_radius <= 0) return;
   const int rows = pair.vertical ? pair.box_h : pair.box_w, cols = pair.vertical ? pair.box_w : pair.box_h;
-  const bool holding = weights.label_hold > 0.f && levels && previous_labels && previous_mix;
+  const bool holding = weights.label_hold > 0.f && levels && previous_labels;
   clearance_across_kernel<<<grid_for(cols, rows), kBlock, 0, stream>>>(diff, rows, cols, weights.mix_radius, across);
   check_launch("seam mix across kernel");
   mix_along_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, across, centre, weights, counts,
                                                                             cost, mix, label_width,
-                                                                            holding ? levels : nullptr, previous_mix);
+                                                                            holding ? levels : nullptr);
   check_launch("seam mix_along_kernel");
   if (!holding) return;
   constexpr int kWarps = 8;  // rows per block

@@ -512,9 +512,7 @@ TEST(Seam, CrossesAnObjectAndItsCopyAtTheOverlapsBorderWhenItCannotGoAround) {
 // and its parallax copy (30 px apart) move across the overlap, 10 px a frame. Where the views
 // disagree, a pixel that showed one view last frame keeps showing it unless the cut must change
 // it: without the hold the cut moves through the object and its copy from frame to frame (static
-// background beside them toggles between the two copies: flicker), with it fewer pixels switch.
-// (Seam.HoldsStillUntilSomethingCrossesIt checks the other side: something new on the seam is cut
-// around, not held.)
+// background beside them toggles between the two copies: flicker), with it far fewer pixels switch.
 TEST(Seam, HoldsEachDisagreementsViewFromFrameToFrame) {
   const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
   const cv::Mat object = photo(cv::Rect(420, 260, 90, 110));
@@ -549,6 +547,6 @@ TEST(Seam, HoldsEachDisagreementsViewFromFrameToFrame) {
   std::printf("disagreeing pixels that switch view from one frame to the next: %.2f%% without the hold, %.2f%% "
               "with the default, %.2f%% with 4x the default\n",
               100 * free, 100 * held, 100 * strong);
-  EXPECT_LT(held, 0.95 * free);  // only what disagreed last frame too is held (the object's new edge is not)
-  EXPECT_LT(strong, 0.5 * free);
+  EXPECT_LT(held, 0.6 * free);
+  EXPECT_LT(strong, 0.3 * free);
 }

@@ -33,7 +33,6 @@ void SeamFinder::prepare(const std::vector<ViewPlacement>& views, int width, int
   nearest_mask_ = ~uint64_t(0);
   luma_.assign(views.size(), {});
   previous_labels_.clear();
-  previous_mix_.clear();
   previous_luma_.assign(views.size(), {});
   std::vector<cv::Mat> weight(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) weight[i] = position_weight_map(views[i]);
@@ -103,7 +102,6 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
   // labels_ = nearest_ and a zeroed mix map, by rows on OpenCV's threads (full-frame byte maps:
   // a serial copy and fill were ~3 ms per 3x1080p canvas, a serial section on every core count)
   std::swap(labels_, previous_labels_);  // last frame's, for the view-switch cost
-  std::swap(mix_, previous_mix_);
   labels_.resize(nearest_.size());
   if (settings_.mix_radius > 0)
     mix_.resize(std::size_t(width_) * height_);
@@ -212,8 +210,7 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
   const bool blank_a = seam::view_blank(dark_a, dark_b, cells), blank_b = seam::view_blank(dark_b, dark_a, cells);
   const bool clearance = w.clearance_radius > 0 && w.clearance > 0.f, mixing = w.mix_radius > 0;
   std::vector<int> diff, across;
-  const bool holding = mixing && w.label_hold > 0.f && has_previous && previous_labels_.size() == labels_.size() &&
-                       previous_mix_.size() == labels_.size();
+  const bool holding = mixing && w.label_hold > 0.f && has_previous && previous_labels_.size() == labels_.size();
   std::vector<uint8_t> levels(holding ? costs.size() : 0);  // this pair's mix levels, for the view-switch cost
   if (clearance || mixing) {
     diff.assign(costs.size(), 0);
@@ -261,9 +258,7 @@ void SeamFinder::cut(Pair& p, const std::vector<ImageView>& warped) {
         const int level = blank_a || blank_b ? 255 : seam::mix_level(w, sum);
         uint8_t& m = mix_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
         m = uint8_t(std::max(int(m), level));
-        if (holding)  // held where the views disagreed last frame too (seam_math.hpp held_level)
-          levels[std::size_t(r) * cols + c] =
-              seam::held_level(level, previous_mix_[std::size_t(p.box.y + by) * width_ + p.box.x + bx]);
+        if (holding) levels[std::size_t(r) * cols + c] = uint8_t(level);
         float& v = costs[std::size_t(r) * cols + c];
         v = seam::crossing_cost(w, v, p.centre_cost[std::size_t(by) * p.box.width + bx], level);
       }

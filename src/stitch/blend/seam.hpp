@@ -89,7 +89,7 @@ class SeamFinder {
   int width_ = 0, height_ = 0;
   std::vector<Pair> pairs_;
   std::vector<std::vector<uint8_t>> luma_, previous_luma_;  // per view, roi-sized
-  std::vector<uint8_t> labels_, mix_, previous_labels_, previous_mix_;  // previous_*: last find()'s
+  std::vector<uint8_t> labels_, mix_, previous_labels_;  // previous_labels_: last find()'s labels
   uint64_t nearest_mask_ = ~uint64_t(0);
   std::vector<uint8_t> nearest_;
 };

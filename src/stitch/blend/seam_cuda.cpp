@@ -26,7 +26,7 @@ struct SeamFinderCuda::State {
   std::vector<DeviceBuffer> luma, previous_luma;
   std::vector<bool> has_luma;
   DeviceBuffer labels, nearest, mix;  // mix: the consensus blend's levels (mix_radius > 0)
-  DeviceBuffer previous_labels, previous_mix;  // last find()'s labels and mix levels (label_hold > 0)
+  DeviceBuffer previous_labels;       // last find()'s labels (label_hold > 0)
   bool has_labels = false;            // a find() since prepare()
   DeviceBuffer jobs;                   // the DP jobs of the cut pairs, uploaded when they change
   std::vector<stitch_cuda::SeamDpJob> host_jobs, uploaded_jobs;
@@ -82,10 +82,7 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
   }
   s_->has_luma.assign(views.size(), false);
   s_->labels.resize(std::size_t(width) * height);
-  if (s_->planner.settings().label_hold > 0.f) {
-    s_->previous_labels.resize(std::size_t(width) * height);
-    s_->previous_mix.resize(std::size_t(width) * height);
-  }
+  if (s_->planner.settings().label_hold > 0.f) s_->previous_labels.resize(std::size_t(width) * height);
   s_->has_labels = false;
   if (s_->planner.settings().mix_radius > 0) s_->mix.resize(std::size_t(width) * height);
   s_->nearest.resize(std::size_t(width) * height);
@@ -128,9 +125,6 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
                         settings.hold, settings.clearance_weight, settings.clearance_radius,
                         settings.mix_radius, settings.agree_level, settings.disagree_level, settings.crossing_weight,
                         settings.centre_weight, settings.label_hold};
-  if (holding)  // last frame's mix levels (SeamFinder::find's swap), before the map is cleared
-    STITCH_CUDA(cudaMemcpyAsync(s.previous_mix.data(), s.mix.data(), std::size_t(s.width) * s.height,
-                                cudaMemcpyDeviceToDevice, st));
   if (w.mix_radius > 0) STITCH_CUDA(cudaMemsetAsync(s.mix.data(), 0, std::size_t(s.width) * s.height, st));
   // Costs of every cut pair, then all their DP sweeps in one launch, then the labels pair by pair
   // (in the CPU's order: boxes of different pairs may overlap).
@@ -154,8 +148,7 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
                                  reinterpret_cast<int*>(p.across.data()), reinterpret_cast<const float*>(p.centre.data()),
                                  w, reinterpret_cast<const int*>(p.counts.data()), reinterpret_cast<float*>(p.cost.data()),
                                  s.mix.data(), s.width, p.levels.size() ? p.levels.data() : nullptr,
-                                 holding && p.has_previous ? s.previous_labels.data() : nullptr,
-                                 holding && p.has_previous ? s.previous_mix.data() : nullptr, st);
+                                 holding && p.has_previous ? s.previous_labels.data() : nullptr, st);
     s.host_jobs.push_back({reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
                            p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
                            reinterpret_cast<int8_t*>(p.steps.data()), reinterpret_cast<int*>(p.path.data()),

@@ -122,11 +122,6 @@ STITCH_HD float crossing_cost(const Weights& w, float cost, float centre, int m)
 // over the cells before p labelled b last frame and the cells from p on labelled a (integers:
 // exact on both backends, whatever the order). A disagreement blob (a near object and its
 // parallax copy) keeps the view it had while it persists, instead of the cut moving through it.
-// The level a cell is held with: where the views disagree now and disagreed last frame (the mix
-// map, max over pairs), the lesser; 0 where the disagreement is new (an object that moved onto the
-// seam is cut around, not held).
-STITCH_HD uint8_t held_level(int level, int previous_mix) { return uint8_t(level < previous_mix ? level : previous_mix); }
-
 STITCH_HD float view_switch_cost(const Weights& w, float cost, int switched) {
   if (w.label_hold <= 0.f || switched <= 0 || cost == kOutside) return cost;
   return add(cost, mul(w.label_hold, div(float(switched), 255.f)));
