@@ -44,11 +44,12 @@ struct SeamSettings {
   float crossing_weight = 0.f;
   // The temporal hold of the view choice (seam_math.hpp view_switch_cost): a cut that gives a pixel
   // of full disagreement the other view than last frame costs label_hold more (per row of the seam,
-  // so a whole object's row switched costs ~its width x label_hold). 0: off. Needs mix_radius > 0.
-  // 4 (the default): static-pixel flicker on the rendered parallax rigs +17% -> +3% worst seed of
-  // `near`, +11% -> +7% on `close`, +13% -> +10% on `wide-near`; ghost ratio within -0.05..+0.04
-  // (BENCHMARKS.md "Parallax: the view choice held over time").
-  float label_hold = 4.f;
+  // so a whole object's row switched costs ~its width x label_hold). 0: off (the default). At 4 it
+  // cut the static-pixel flicker on the rendered parallax rigs (worst +17% -> +10%) but holds the
+  // cut through an object that moves onto the seam (Seam.HoldsStillUntilSomethingCrossesIt fails)
+  // and moved the ghost ratio -0.05..+0.04; holding only last frame's disagreement keeps that test
+  // but loses the flicker gain (BENCHMARKS.md "Parallax: the view choice held over time").
+  float label_hold = 0.f;
 };
 
 class SeamFinder {
