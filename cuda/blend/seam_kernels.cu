@@ -91,22 +91,71 @@ __device__ __forceinline__ bool blank(const int* counts, int view) {  // view 0:
 
 // The pair's mix levels (max into the mix map) and, from them, the crossing cost (as SeamFinder::cut).
 __global__ void mix_along_kernel(SeamPairGeometry p, const int* across, const float* centre, sm::Weights w,
-                                 const int* counts, float* cost, uint8_t* mix, int label_width) {
+                                 const int* counts, float* cost, uint8_t* mix, int label_width, uint8_t* levels) {
   const int bx = blockIdx.x * blockDim.x + threadIdx.x, by = blockIdx.y * blockDim.y + threadIdx.y;
   if (bx >= p.box_w || by >= p.box_h) return;
   const float ce = centre[size_t(by) * p.box_w + bx];
-  if (ce < 0.f) return;
   const int row = p.vertical ? by : bx, col = p.vertical ? bx : by;
   const int rows = p.vertical ? p.box_h : p.box_w, cols = p.vertical ? p.box_w : p.box_h;
+  if (ce < 0.f) {
+    if (levels) levels[size_t(row) * cols + col] = 0;
+    return;
+  }
   int sum = 0;
   for (int k = max(0, row - w.mix_radius); k <= min(rows - 1, row + w.mix_radius); ++k)
     sum += across[size_t(k) * cols + col];
   const int level = blank(counts, 0) || blank(counts, 1) ? 255 : sm::mix_level(w, sum);
   uint8_t& m = mix[size_t(p.box_y + by) * label_width + p.box_x + bx];
   m = uint8_t(max(int(m), level));  // pairs run one after another: no race
+  if (levels) levels[size_t(row) * cols + col] = uint8_t(level);
   if (w.crossing > 0.f) {
     float& v = cost[size_t(row) * cols + col];
     v = sm::crossing_cost(w, v, ce, level);
+  }
+}
+
+// The view-switch cost (seam_math.hpp view_switch_cost, as SeamFinder::cut): a warp per row of the
+// seam's frame; for every seam point c, the sum of the pair's levels over the cells before c that
+// showed view b last frame and the cells from c on that showed view a. Integer warp scans: the
+// same sums as the CPU's running totals.
+__global__ void view_switch_kernel(SeamPairGeometry p, const uint8_t* levels, const uint8_t* previous_labels,
+                                   int label_width, sm::Weights w, float* cost) {
+  const int rows = p.vertical ? p.box_h : p.box_w, cols = p.vertical ? p.box_w : p.box_h;
+  const int r = blockIdx.x * (blockDim.x >> 5) + (threadIdx.x >> 5), lane = threadIdx.x & 31;
+  if (r >= rows) return;  // whole warps leave together
+  auto split = [&](int c, int& to_a, int& to_b) {  // the cell's level, by the view it showed last frame
+    to_a = to_b = 0;
+    if (c >= cols) return;
+    const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
+    const int level = levels[size_t(r) * cols + c];
+    const uint8_t l = previous_labels[size_t(p.box_y + by) * label_width + p.box_x + bx];
+    if (l == p.a) to_a = level;
+    if (l == p.b) to_b = level;
+  };
+  int total_a = 0;
+  for (int base = 0; base < cols; base += 32) {
+    int to_a, to_b;
+    split(base + lane, to_a, to_b);
+    total_a += to_a;
+  }
+  for (int o = 16; o > 0; o >>= 1) total_a += __shfl_xor_sync(0xffffffffu, total_a, o);
+  int carry_a = 0, carry_b = 0;  // sums over the columns before this chunk
+  for (int base = 0; base < cols; base += 32) {
+    int to_a, to_b;
+    split(base + lane, to_a, to_b);
+    int scan_a = to_a, scan_b = to_b;  // inclusive scans across the chunk
+    for (int o = 1; o < 32; o <<= 1) {
+      const int ua = __shfl_up_sync(0xffffffffu, scan_a, o), ub = __shfl_up_sync(0xffffffffu, scan_b, o);
+      if (lane >= o) scan_a += ua, scan_b += ub;
+    }
+    const int c = base + lane;
+    if (c < cols) {
+      const int before_b = carry_b + scan_b - to_b, after_a = total_a - (carry_a + scan_a - to_a);
+      float& v = cost[size_t(r) * cols + c];
+      v = sm::view_switch_cost(w, v, before_b + after_a);
+    }
+    carry_a += __shfl_sync(0xffffffffu, scan_a, 31);
+    carry_b += __shfl_sync(0xffffffffu, scan_b, 31);
   }
 }
 
@@ -275,14 +324,21 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
 
 void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
                      const stitch::seam::Weights& weights, const int* counts, float* cost, uint8_t* mix,
-                     int label_width, cudaStream_t stream) {
+                     int label_width, uint8_t* levels, const uint8_t* previous_labels, cudaStream_t stream) {
   if (weights.mix_radius <= 0) return;
   const int rows = pair.vertical ? pair.box_h : pair.box_w, cols = pair.vertical ? pair.box_w : pair.box_h;
+  const bool holding = weights.label_hold > 0.f && levels && previous_labels;
   clearance_across_kernel<<<grid_for(cols, rows), kBlock, 0, stream>>>(diff, rows, cols, weights.mix_radius, across);
   check_launch("seam mix across kernel");
   mix_along_kernel<<<grid_for(pair.box_w, pair.box_h), kBlock, 0, stream>>>(pair, across, centre, weights, counts,
-                                                                            cost, mix, label_width);
+                                                                            cost, mix, label_width,
+                                                                            holding ? levels : nullptr);
   check_launch("seam mix_along_kernel");
+  if (!holding) return;
+  constexpr int kWarps = 8;  // rows per block
+  view_switch_kernel<<<(rows + kWarps - 1) / kWarps, 32 * kWarps, 0, stream>>>(pair, levels, previous_labels,
+                                                                             label_width, weights, cost);
+  check_launch("seam view_switch_kernel");
 }
 
 // Kernels asking for more than 48 KB of dynamic shared memory must say so once per device; the

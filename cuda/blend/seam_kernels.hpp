@@ -31,10 +31,12 @@ void launch_seam_cost(const SeamPairGeometry& pair, const DeviceImage& view_a, c
 // + 1)^2 window of diff, the sums launch_seam_cost left when weights.mix_radius > 0; across:
 // scratch), written as the max with what `mix` (label_width wide, zeroed per frame) holds; 255
 // over the whole overlap when a view is blank (counts). The pair's own level then turns its cost
-// into stitch::seam::crossing_cost: run it between launch_seam_cost and launch_seam_dp.
+// into stitch::seam::crossing_cost: run it between launch_seam_cost and launch_seam_dp. With
+// weights.label_hold > 0, levels (rows x cols bytes, scratch) and previous_labels (last frame's
+// label map, label_width wide; nullptr: none yet), the cost then gains stitch::seam::view_switch_cost.
 void launch_seam_mix(const SeamPairGeometry& pair, const int* diff, int* across, const float* centre,
                      const stitch::seam::Weights& weights, const int* counts, float* cost, uint8_t* mix,
-                     int label_width, cudaStream_t stream);
+                     int label_width, uint8_t* levels, const uint8_t* previous_labels, cudaStream_t stream);
 // One pair's dynamic programming: the least-energy path through cost (rows x cols);
 // previous == nullptr: no pull; steps: rows x cols scratch; path: rows.
 struct SeamDpJob {

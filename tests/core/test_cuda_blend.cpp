@@ -116,7 +116,12 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
   clear.clearance_weight = 4.f;
   SeamSettings no_mix;  // multiband's: no consensus-blend mix map
   no_mix.mix_radius = 0;
-  for (const SeamSettings& settings : {SeamSettings{}, clear, no_mix}) {
+  SeamSettings held, free;  // the view-switch cost on (strong) and off, whatever the default
+  held.label_hold = 16.f;
+  free.label_hold = 0.f;
+  // (settings, near objects moving across the overlaps)
+  for (const auto& [settings, objects] : std::vector<std::pair<SeamSettings, bool>>{
+           {SeamSettings{}, false}, {clear, false}, {no_mix, false}, {held, true}, {free, true}}) {
   SeamFinder cpu(settings);
   SeamFinderCuda gpu(settings);
   cpu.prepare(views, g.width, g.height);
@@ -131,6 +136,13 @@ TEST(CudaSeams, SameCutsAsTheCpuFrameAfterFrame) {
       const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 2.0 * frame, 0, 1, 0);
       cv::warpAffine(s.frames[i], f, shift, s.frames[i].size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
       rng.fill(noise, cv::RNG::UNIFORM, 0, 8);
+      if (objects) {
+        // near objects only one view shows, moving across the views' right sides: disagreement
+        // whose view the hold keeps from frame to frame
+        const int x = f.cols - 170 + 12 * frame;
+        cv::rectangle(f, cv::Rect(x, f.rows / 3, 90, 120), i % 2 ? cv::Scalar(255, 0, 255, 255) : cv::Scalar(0, 200, 0, 255),
+                      cv::FILLED);
+      }
       if (frame == 4 && i == 1) f.setTo(cv::Scalar(0, 0, 0, 255));
       frames.push_back(f + noise);
     }

@@ -601,3 +601,45 @@ TEST(Seam, ConsensusComposeEqualsWarpFuseSeamsMixAcrossDropouts) {
   }
   EXPECT_GT(mixed, 1000u);  // the consensus mix did act
 }
+
+// The temporal hold of the consensus blend's view choice (SeamSettings::label_hold): a near object
+// and its parallax copy (30 px apart) move across the overlap, 10 px a frame. Where the views
+// disagree, a pixel that showed one view last frame keeps showing it unless the cut must change
+// it: without the hold the cut moves through the object and its copy from frame to frame (static
+// background beside them toggles between the two copies: flicker), with it far fewer pixels switch.
+TEST(Seam, HoldsEachDisagreementsViewFromFrameToFrame) {
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  const cv::Mat object = photo(cv::Rect(420, 260, 90, 110));
+  auto switched_share = [&](float hold) {
+    SeamSettings settings;
+    settings.label_hold = hold;
+    SeamFinder finder(settings);
+    SeamScene s(294);
+    finder.prepare(s.views, s.geometry.width, s.geometry.height);
+    cv::RNG rng(21);
+    std::vector<uint8_t> last;
+    std::size_t switched = 0, disagreeing = 0;
+    for (int t = 0; t < 9; ++t) {
+      SeamScene frame(294);
+      cv::Mat cam0 = frame.cam0.clone(), cam1 = frame.cam1.clone();
+      const int x = 215 + 10 * t;  // canvas x of the object in view 0; view 1 shows it 30 px further right
+      object.copyTo(cam0(cv::Rect(x, 90, 90, 110)));
+      object.copyTo(cam1(cv::Rect(x + 30 - 200, 90, 90, 110)));
+      cv::Mat f0 = with_noise(cam0, rng), f1 = with_noise(cam1, rng);
+      const std::vector<uint8_t> labels = finder.find({as_view(f0), as_view(f1)});
+      const std::vector<uint8_t>& mix = finder.mix();
+      if (!last.empty())
+        for (std::size_t k = 0; k < labels.size(); ++k)
+          if (mix[k] == 255) disagreeing++, switched += labels[k] != last[k];
+      last = labels;
+    }
+    return double(switched) / std::max<std::size_t>(1, disagreeing);
+  };
+  // off by default (BENCHMARKS.md "Parallax: the view choice held over time"); the option must hold
+  const double free = switched_share(0.f), held = switched_share(4.f), strong = switched_share(16.f);
+  std::printf("disagreeing pixels that switch view from one frame to the next: %.2f%% without the hold, %.2f%% "
+              "with label_hold 4, %.2f%% with 16\n",
+              100 * free, 100 * held, 100 * strong);
+  EXPECT_LT(held, 0.6 * free);
+  EXPECT_LT(strong, 0.3 * free);
+}

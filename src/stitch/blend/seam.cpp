@@ -110,6 +110,7 @@ void SeamFinder::prepare(const std::vector<ViewPlacement>& views, int width, int
   pairs_.clear();
   nearest_mask_ = ~uint64_t(0);
   luma_.assign(views.size(), {});
+  previous_labels_.clear();
   previous_luma_.assign(views.size(), {});
   std::vector<cv::Mat> weight(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) weight[i] = position_weight_map(views[i]);
@@ -214,6 +215,9 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
     nearest_mask_ = mask;
     labels_fresh_ = false;
   }
+  // Last frame's labels, for the view-switch cost (only when the hold is on: a full-frame copy).
+  if (settings_.label_hold > 0.f && settings_.mix_radius > 0 && !labels_.empty()) previous_labels_ = labels_;
+  else previous_labels_.clear();
   const bool mix_on = settings_.mix_radius > 0;
   if (!mix_on) mix_.clear();
   if (!labels_fresh_ || labels_.size() != nearest_.size() || (mix_on && mix_.size() != std::size_t(width_) * height_)) {
@@ -277,6 +281,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
   };
   const seam::Weights w = weights();
   const bool clearance = w.clearance_radius > 0 && w.clearance > 0.f, mixing = w.mix_radius > 0;
+  const bool holding = mixing && w.label_hold > 0.f && previous_labels_.size() == labels_.size();
   std::vector<int> rows(cut.size());
   for (std::size_t k = 0; k < cut.size(); ++k) {
     Pair& p = pairs_[std::size_t(cut[k])];
@@ -291,6 +296,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
       p.diff.resize(cells);
       p.across.resize(cells);
     }
+    p.levels.resize(holding ? cells : 0);
   }
   // Window sums of the differences across the seam, one row (integers: exact in any order).
   auto across_row = [&](Pair& p, int r, int R) {
@@ -388,8 +394,31 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
         const int level = p.blank_a || p.blank_b ? 255 : seam::mix_level(w, sum);
         uint8_t& m = mix_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
         m = uint8_t(std::max(int(m), level));
+        if (holding) p.levels[std::size_t(r) * cols + c] = uint8_t(level);
         float& v = p.costs[std::size_t(r) * cols + c];
         v = seam::crossing_cost(w, v, p.centre_cost[std::size_t(by) * p.box.width + bx], level);
+      }
+    });
+  }
+  if (holding) {  // the view-switch cost of every seam point: per row, sums before and after it
+    for_item_rows(rows, [&](int k, int r) {
+      Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
+      if (int(p.previous_path.size()) != rows_of(p)) return;  // no last frame for this pair
+      const int cols = cols_of(p);
+      auto last = [&](int c) {
+        const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
+        return previous_labels_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
+      };
+      int after_a = 0;  // sum of levels from column c on that showed view a last frame
+      for (int c = 0; c < cols; ++c)
+        if (last(c) == p.a) after_a += p.levels[std::size_t(r) * cols + c];
+      int before_b = 0;  // sum of levels before column c that showed view b last frame
+      for (int c = 0; c < cols; ++c) {
+        float& v = p.costs[std::size_t(r) * cols + c];
+        v = seam::view_switch_cost(w, v, before_b + after_a);
+        const int level = p.levels[std::size_t(r) * cols + c], l = last(c);
+        if (l == p.b) before_b += level;
+        if (l == p.a) after_a -= level;
       }
     });
   }

@@ -42,6 +42,14 @@ struct SeamSettings {
   // object shows twice. 0: off (the default: on the rendered parallax rigs 64 cut the ghost ratio
   // a little and raised flicker by up to 18 points, BENCHMARKS.md). Needs mix_radius > 0.
   float crossing_weight = 0.f;
+  // The temporal hold of the view choice (seam_math.hpp view_switch_cost): a cut that gives a pixel
+  // of full disagreement the other view than last frame costs label_hold more (per row of the seam,
+  // so a whole object's row switched costs ~its width x label_hold). 0: off (the default). At 4 it
+  // cut the static-pixel flicker on the rendered parallax rigs (worst +17% -> +10%) but holds the
+  // cut through an object that moves onto the seam (Seam.HoldsStillUntilSomethingCrossesIt fails)
+  // and moved the ghost ratio -0.05..+0.04; holding only last frame's disagreement keeps that test
+  // but loses the flicker gain (BENCHMARKS.md "Parallax: the view choice held over time").
+  float label_hold = 0.f;
 };
 
 class SeamFinder {
@@ -65,6 +73,7 @@ class SeamFinder {
     // seam, the DP's steps, the dark-pixel counts per row, and whether a view is blank here.
     std::vector<float> costs;
     std::vector<int> diff, across, row_cells, row_dark_a, row_dark_b;
+    std::vector<uint8_t> levels;  // the mix levels, for the view-switch cost (label_hold > 0)
     std::vector<int8_t> step;
     bool blank_a = false, blank_b = false;
   };
@@ -82,7 +91,7 @@ class SeamFinder {
     return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
             settings_.hold, settings_.clearance_weight, settings_.clearance_radius,
             settings_.mix_radius, settings_.agree_level, settings_.disagree_level, settings_.crossing_weight,
-            settings_.centre_weight};
+            settings_.centre_weight, settings_.label_hold};
   }
 
   SeamSettings settings_;
@@ -90,7 +99,7 @@ class SeamFinder {
   int width_ = 0, height_ = 0;
   std::vector<Pair> pairs_;
   std::vector<std::vector<uint8_t>> luma_, previous_luma_;  // per view, roi-sized
-  std::vector<uint8_t> labels_, mix_;
+  std::vector<uint8_t> labels_, mix_, previous_labels_;  // previous_labels_: last find()'s labels
   uint64_t nearest_mask_ = ~uint64_t(0);
   std::vector<uint8_t> nearest_;
   // Per view, disjoint rectangles (roi coordinates) holding every pixel whose luma a cut reads

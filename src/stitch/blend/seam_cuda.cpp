@@ -18,6 +18,7 @@ struct SeamFinderCuda::State {
     stitch_cuda::SeamPairGeometry geometry;
     int rows = 0, cols = 0;
     DeviceBuffer centre, cost, steps, path, previous, diff, across, edge;  // diff, across: window sums
+    DeviceBuffer levels;  // the pair's own mix levels (the view-switch cost, label_hold > 0)
     DeviceBuffer counts;  // the overlap's pixels, and the dark ones of a and b (a blank view loses the overlap)
     bool has_previous = false, cut = false;
   };
@@ -25,6 +26,8 @@ struct SeamFinderCuda::State {
   std::vector<DeviceBuffer> luma, previous_luma;
   std::vector<bool> has_luma;
   DeviceBuffer labels, nearest, mix;  // mix: the consensus blend's levels (mix_radius > 0)
+  DeviceBuffer previous_labels;       // last find()'s labels (label_hold > 0)
+  bool has_labels = false;            // a find() since prepare()
   DeviceBuffer jobs;                   // the DP jobs of the cut pairs, uploaded when they change
   std::vector<stitch_cuda::SeamDpJob> host_jobs, uploaded_jobs;
   uint64_t nearest_mask = ~uint64_t(0);
@@ -63,6 +66,7 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
     ps.diff.resize(cells * sizeof(int));
     ps.across.resize(cells * sizeof(int));
     ps.steps.resize(cells);
+    if (s_->planner.settings().label_hold > 0.f) ps.levels.resize(cells);
     ps.edge.resize((2 * std::size_t(ps.cols) + 2) * sizeof(float));
     ps.path.resize(ps.rows * sizeof(int));
     ps.previous.resize(ps.rows * sizeof(int));
@@ -78,6 +82,8 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
   }
   s_->has_luma.assign(views.size(), false);
   s_->labels.resize(std::size_t(width) * height);
+  if (s_->planner.settings().label_hold > 0.f) s_->previous_labels.resize(std::size_t(width) * height);
+  s_->has_labels = false;
   if (s_->planner.settings().mix_radius > 0) s_->mix.resize(std::size_t(width) * height);
   s_->nearest.resize(std::size_t(width) * height);
   s_->nearest_mask = ~uint64_t(0);
@@ -108,13 +114,17 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
     STITCH_CUDA(cudaStreamSynchronize(st));  // `nearest` is a host temporary
     s.nearest_mask = mask;
   }
+  const SeamSettings& settings = s.planner.settings();
+  const bool holding = settings.label_hold > 0.f && settings.mix_radius > 0 && s.has_labels;
+  if (holding)  // last frame's labels, for the view-switch cost (as SeamFinder::find's swap)
+    STITCH_CUDA(cudaMemcpyAsync(s.previous_labels.data(), s.labels.data(), std::size_t(s.width) * s.height,
+                                cudaMemcpyDeviceToDevice, st));
   STITCH_CUDA(cudaMemcpyAsync(s.labels.data(), s.nearest.data(), std::size_t(s.width) * s.height,
                               cudaMemcpyDeviceToDevice, st));
-  const SeamSettings& settings = s.planner.settings();
   const seam::Weights w{settings.difference_weight, settings.edge_weight, settings.motion_weight, settings.stability,
                         settings.hold, settings.clearance_weight, settings.clearance_radius,
                         settings.mix_radius, settings.agree_level, settings.disagree_level, settings.crossing_weight,
-                        settings.centre_weight};
+                        settings.centre_weight, settings.label_hold};
   if (w.mix_radius > 0) STITCH_CUDA(cudaMemsetAsync(s.mix.data(), 0, std::size_t(s.width) * s.height, st));
   // Costs of every cut pair, then all their DP sweeps in one launch, then the labels pair by pair
   // (in the CPU's order: boxes of different pairs may overlap).
@@ -137,7 +147,8 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
     stitch_cuda::launch_seam_mix(p.geometry, reinterpret_cast<const int*>(p.diff.data()),
                                  reinterpret_cast<int*>(p.across.data()), reinterpret_cast<const float*>(p.centre.data()),
                                  w, reinterpret_cast<const int*>(p.counts.data()), reinterpret_cast<float*>(p.cost.data()),
-                                 s.mix.data(), s.width, st);
+                                 s.mix.data(), s.width, p.levels.size() ? p.levels.data() : nullptr,
+                                 holding && p.has_previous ? s.previous_labels.data() : nullptr, st);
     s.host_jobs.push_back({reinterpret_cast<const float*>(p.cost.data()), p.rows, p.cols,
                            p.has_previous ? reinterpret_cast<const int*>(p.previous.data()) : nullptr,
                            reinterpret_cast<int8_t*>(p.steps.data()), reinterpret_cast<int*>(p.path.data()),
@@ -166,6 +177,7 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
     STITCH_CUDA(cudaMemcpyAsync(p.previous.data(), p.path.data(), p.rows * sizeof(int), cudaMemcpyDeviceToDevice, st));
     p.has_previous = true;
   }
+  s.has_labels = true;
   if (!stream) s.stream.sync();
   return s.labels.data();
 }

@@ -19,6 +19,8 @@ struct Weights {  // SeamSettings, for the kernels
   float crossing;        // cost of a seam point where the views disagree (mix 255) at the overlap's border;
                          // twice that at its middle (crossing_cost); 0: the per-pixel cost only
   float centre_max;      // the centre cost at the overlap's border (SeamSettings::centre_weight)
+  float label_hold = 0.f;  // per pixel of full disagreement whose view the cut would change from last
+                           // frame's (view_switch_cost); 0: off
 };
 
 
@@ -112,6 +114,17 @@ STITCH_HD float crossing_cost(const Weights& w, float cost, float centre, int m)
   if (blob <= cost) return cost;  // never cheaper than the per-pixel cost: what only one view shows stays dear
   if (m >= 255) return blob;
   return add(mul(cost, div(float(255 - m), 255.f)), mul(blob, div(float(m), 255.f)));
+}
+
+// The temporal hold of the consensus blend's view choice: a seam point at column p of a row gives
+// the row's cells c < p to view a and the others to b; each cell where the views disagree (level
+// m > 0) that showed the other view last frame counts m / 255. `switched` = that row's sum of m
+// over the cells before p labelled b last frame and the cells from p on labelled a (integers:
+// exact on both backends, whatever the order). A disagreement blob (a near object and its
+// parallax copy) keeps the view it had while it persists, instead of the cut moving through it.
+STITCH_HD float view_switch_cost(const Weights& w, float cost, int switched) {
+  if (w.label_hold <= 0.f || switched <= 0 || cost == kOutside) return cost;
+  return add(cost, mul(w.label_hold, div(float(switched), 255.f)));
 }
 
 // A view that shows nothing in an overlap (an all-black or missing-signal camera: luma at or
