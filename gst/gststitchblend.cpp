@@ -282,8 +282,34 @@ static void gst_stitch_blend_set_context(GstElement* element, GstContext* contex
   GST_ELEMENT_CLASS(gst_stitch_blend_parent_class)->set_context(element, context);
 }
 
+/* stitchcalib asks what panorama will come out, to shrink the canvas to it: output-width/-height,
+ * else the size downstream fixes (a capsfilter), else 0 (the canvas's). */
+static gboolean answer_output_size(GstStitchBlend* self, GstQuery* query) {
+  GST_OBJECT_LOCK(self);
+  gint w = self->state->settings.output_width, h = self->state->settings.output_height;
+  const gint crop = int(self->state->settings.crop);
+  GST_OBJECT_UNLOCK(self);
+  if (w <= 0 && h <= 0) {
+    GstCaps* peer = gst_pad_peer_query_caps(GST_BASE_TRANSFORM_SRC_PAD(self), NULL);
+    for (guint i = 0; peer && !gst_caps_is_any(peer) && i < gst_caps_get_size(peer); ++i) {
+      const GstStructure* st = gst_caps_get_structure(peer, i);
+      gint cw = 0, ch = 0;
+      if (gst_structure_get_int(st, "width", &cw) && gst_structure_get_int(st, "height", &ch)) {
+        w = cw;
+        h = ch;
+        break;
+      }
+    }
+    if (peer) gst_caps_unref(peer);
+  }
+  return stitch_output_size_query_answer(query, MAX(w, 0), MAX(h, 0), crop);
+}
+
 static gboolean gst_stitch_blend_query(GstBaseTransform* trans, GstPadDirection direction, GstQuery* query) {
   if (GST_STITCH_BLEND(trans)->state->cuda.handle_query(GST_ELEMENT(trans), query)) return TRUE;
+  if (direction == GST_PAD_SINK && GST_QUERY_TYPE(query) == GST_QUERY_CUSTOM &&
+      answer_output_size(GST_STITCH_BLEND(trans), query))
+    return TRUE;
   return GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->query(trans, direction, query);
 }
 

@@ -411,3 +411,33 @@ gboolean stitch_check_frame_size(const char* what, gint64 width, gint64 height, 
   }
   return TRUE;
 }
+
+GstQuery* stitch_output_size_query_new(void) {
+  return gst_query_new_custom(GST_QUERY_CUSTOM, gst_structure_new_empty(STITCH_OUTPUT_SIZE_QUERY));
+}
+
+static GstStructure* output_size_structure(GstQuery* query, gboolean writable) {
+  if (GST_QUERY_TYPE(query) != GST_QUERY_CUSTOM) return NULL;
+  const GstStructure* s = gst_query_get_structure(query);
+  if (!s || !gst_structure_has_name(s, STITCH_OUTPUT_SIZE_QUERY)) return NULL;
+  return writable ? gst_query_writable_structure(query) : (GstStructure*)s;
+}
+
+gboolean stitch_output_size_query_answer(GstQuery* query, gint width, gint height, gint crop) {
+  GstStructure* s = output_size_structure(query, TRUE);
+  if (!s) return FALSE;
+  gst_structure_set(s, "width", G_TYPE_INT, width, "height", G_TYPE_INT, height, "crop", G_TYPE_INT, crop, NULL);
+  return TRUE;
+}
+
+gboolean stitch_output_size_query_parse(GstQuery* query, gint* width, gint* height, gint* crop) {
+  const GstStructure* s = output_size_structure(query, FALSE);
+  gint w = 0, h = 0, c = 0;
+  if (!s || !gst_structure_get_int(s, "width", &w) || !gst_structure_get_int(s, "height", &h) ||
+      !gst_structure_get_int(s, "crop", &c))
+    return FALSE;
+  *width = w;
+  *height = h;
+  *crop = c;
+  return TRUE;
+}

@@ -174,6 +174,16 @@ gboolean stitch_bundle_require_camera_views(GstElement* element, GstBuffer* buff
  * which the element attaches anew. */
 gboolean stitch_meta_survives_new_views(GstMeta* meta);
 
+/* The panorama stitchblend will output, asked by stitchcalib downstream through the stages
+ * between (a custom query, not serialized: queues and base transforms pass it on). stitchblend
+ * answers with its output-width/-height, or else the size its downstream fixes (a capsfilter),
+ * 0 for a side left free, and its crop mode (0 none, 1 auto). */
+#define STITCH_OUTPUT_SIZE_QUERY "stitch-output-size"
+GstQuery* stitch_output_size_query_new(void);
+gboolean stitch_output_size_query_answer(GstQuery* query, gint width, gint height, gint crop);
+/* TRUE when `query` was answered; the fields are left untouched otherwise. */
+gboolean stitch_output_size_query_parse(GstQuery* query, gint* width, gint* height, gint* crop);
+
 /* Size limits, checked before anything is allocated. */
 #define STITCH_MAX_FRAME_SIDE 32767 /* video caps' width/height range, as in STITCH_BUNDLE_FIELDS */
 

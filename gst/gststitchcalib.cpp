@@ -211,6 +211,8 @@ struct CalibState {
   TimeOffsets offsets, saved_offsets;
   std::shared_ptr<const stitch::Rig> saved_rig;
   double saved_at_s = -1, now_s = 0;  // running time (s) of the last write, of the last bundle
+  /* the panorama stitchblend will output (STITCH_OUTPUT_SIZE_QUERY), asked before a first calibration */
+  gint output_width = 0, output_height = 0, output_crop = 0;
 
   void forget_saved() {
     offsets = saved_offsets = TimeOffsets();
@@ -502,6 +504,22 @@ static void note_drop(GstStitchCalib* self, GstBuffer* buf) {
   }
 }
 
+/* Before a calibration from scratch: what panorama stitchblend downstream will output, so
+ * that the canvas is made at that size (none answering: the canvas's own size). */
+static void ask_output_size(GstStitchCalib* self) {
+  CalibState* st = self->state;
+  GstQuery* q = stitch_output_size_query_new();
+  gint w = 0, h = 0, crop = 0;
+  if (gst_pad_peer_query(GST_BASE_TRANSFORM_SRC_PAD(self), q) && stitch_output_size_query_parse(q, &w, &h, &crop)) {
+    if (w != st->output_width || h != st->output_height)
+      GST_INFO_OBJECT(self, "stitchblend outputs %dx%d (0: the canvas's): the canvas is made no larger", w, h);
+    st->output_width = w;
+    st->output_height = h;
+    st->output_crop = crop;
+  }
+  gst_query_unref(q);
+}
+
 static void snapshot_settings(CalibState* st) {
   stitch::SessionConfig config;
   {
@@ -511,6 +529,9 @@ static void snapshot_settings(CalibState* st) {
   }
   st->save_path = config.save_file;
   config.save_file.clear();  // saved by save_rig, with the time offsets
+  config.output_width = st->output_width;
+  config.output_height = st->output_height;
+  config.output_crop = st->output_crop == 1 ? stitch::CropMode::Auto : stitch::CropMode::None;
   st->session.set_config(config);
 }
 
@@ -536,6 +557,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     st->offsets.estimated_mask = bundle->estimated_mask;
     st->offsets.ns.assign(bundle->time_offsets_ns, bundle->time_offsets_ns + MIN(bundle->n_views, guint(STITCH_MAX_VIEWS)));
   }
+  if (!st->session.current()) ask_output_size(self);
   snapshot_settings(st);
   if (st->recalibrate_requested.exchange(false)) st->session.request_recalibration();
 

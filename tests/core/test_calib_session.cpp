@@ -7,6 +7,7 @@
 #include "stitch/calib/calib_session.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
+#include "lens_rig.hpp"
 #include "test_data.hpp"
 
 using namespace stitch;
@@ -122,6 +123,50 @@ TEST(CanvasHelpers, OddCanvasIsPaddedAndFitKeepsTheMappingInside) {
       EXPECT_GE(p.y(), -0.5);
       EXPECT_LE(p.y(), 599.5);
     }
+}
+
+// The panorama downstream shows the canvas smaller: the canvas is scaled to it, so the stages
+// work at the output's size. Planar with a crop, 360 (which must keep closing), never enlarged.
+TEST(CanvasHelpers, CanvasShrunkToTheOutputItIsShownAt) {
+  Rig rig = testdata::shifted_rig(2, 640, 480, 400);
+  make_canvas_even(rig);
+  const int w0 = rig.canvas_width, h0 = rig.canvas_height;
+  Rig same = rig;
+  EXPECT_EQ(shrink_canvas_to_output(same, 0, 0, CropMode::None), 1.0);
+  EXPECT_EQ(shrink_canvas_to_output(same, 2 * w0, 0, CropMode::None), 1.0) << "never enlarged";
+  EXPECT_EQ(same.canvas_width, w0);
+  for (CropMode crop : {CropMode::None, CropMode::Auto}) {
+    Rig r = rig;
+    const OutputGeometry before = plan_output(r, 400, 0, crop);
+    const double s = shrink_canvas_to_output(r, 400, 0, crop);
+    EXPECT_LT(s, 0.7);
+    EXPECT_EQ(r.canvas_width % 2, 0);
+    EXPECT_EQ(r.canvas_height % 2, 0);
+    EXPECT_NEAR(r.canvas_height, h0 * s, 2.0);
+    // The same output, now 1:1 (to a pixel's rounding) with the canvas.
+    const OutputGeometry after = plan_output(r, 400, 0, crop);
+    EXPECT_EQ(after.width, before.width);
+    EXPECT_NEAR(after.height, before.height, 2);
+    EXPECT_NEAR(after.canvas_to_output(0, 0), 1.0, 0.01);
+    // Each camera lands where it did, in output pixels.
+    for (std::size_t c = 0; c < 2; ++c) {
+      const auto p0 = camera_canvas_corners(rig.cameras[c]), p1 = camera_canvas_corners(r.cameras[c]);
+      for (std::size_t k = 0; k < p0.size(); ++k) {
+        const Eigen::Vector3d o0 = before.canvas_to_output * Eigen::Vector3d(p0[k].x(), p0[k].y(), 1);
+        const Eigen::Vector3d o1 = after.canvas_to_output * Eigen::Vector3d(p1[k].x(), p1[k].y(), 1);
+        EXPECT_NEAR(o0.x(), o1.x(), 2.0);
+        EXPECT_NEAR(o0.y(), o1.y(), 2.0);
+      }
+    }
+  }
+  // A full sphere shown at half size: half the canvas, still closing at the wrap, still 2:1.
+  Rig sphere = testdata::dual_fisheye_rig(240, 200);
+  ASSERT_TRUE(sphere.canvas_wrap);
+  const int sw = sphere.canvas_width;
+  EXPECT_NEAR(shrink_canvas_to_output(sphere, sw / 2, sw / 4, CropMode::None), 0.5, 1e-9);
+  EXPECT_EQ(sphere.canvas_width, sw / 2);
+  EXPECT_NEAR(sphere.canvas_height, sw / 4, 1);  // even
+  EXPECT_TRUE(sphere.canvas_wrap);
 }
 
 // ---- the session -----------------------------------------------------------------------------

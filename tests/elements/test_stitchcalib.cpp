@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "gst_helpers.hpp"
+#include "image_compare.hpp"
 #include "stitch/rig/rig.hpp"
 #include "test_data.hpp"
 
@@ -87,6 +88,53 @@ TEST(StitchCalib, RigFileIsRefinedSavedAndAnnounced) {
   EXPECT_LT(corner_error_vs_shift(out, 1, 400), 1.0);
   EXPECT_LT(corner_error_vs_shift(out, 2, 800), 1.0);
   EXPECT_NEAR(r.frames[0].cols, 1440, 4);
+}
+
+// stitchblend shows the panorama at half the canvas's size: stitchcalib, asking it through the
+// stages between (a queue, stitchcolor, stitchflowwarp), makes the canvas that size, so the flow
+// warp and the blend work at the output's size; the saved canvas is the panorama's; and the
+// panorama is the one the direct warp (flow off) makes at that size.
+TEST(StitchCalib, CanvasMadeAtTheSizeStitchblendOutputs) {
+  const std::string rig = write_file("rough3s.json", rough_rig(3));
+  const std::string saved = testdata::temp_dir() + "/saved3s.json";
+  const std::string inputs = gsttest::appsrc_inputs(3);
+  gsttest::RunResult full, by_property, by_caps, direct;
+  const std::string head = "stitchsync name=s ! stitchcalib name=c rig-file=" + rig;
+  gsttest::run_pipeline(head + " ! stitchblend ! appsink name=out sync=false" + inputs, crops(), 2, full);
+  ASSERT_TRUE(full.errors.empty()) << full.errors[0];
+  int full_w = 0;
+  gst_structure_get_int(calib_message(full), "canvas-width", &full_w);
+  ASSERT_GT(full_w, 1000);
+  const int half = full_w / 4 * 2;
+  gsttest::run_pipeline(head + " save-file=" + saved + " ! queue ! stitchcolor ! stitchflowwarp flow=true ! stitchblend output-width=" +
+                            std::to_string(half) + " ! appsink name=out sync=false" + inputs,
+                        crops(), 3, by_property);
+  ASSERT_TRUE(by_property.errors.empty()) << by_property.errors[0];
+  const GstStructure* m = calib_message(by_property);
+  ASSERT_NE(m, nullptr);
+  int w = 0, h = 0;
+  gst_structure_get_int(m, "canvas-width", &w);
+  gst_structure_get_int(m, "canvas-height", &h);
+  EXPECT_NEAR(w, half, 2);
+  ASSERT_EQ(by_property.frames.size(), 3u);
+  EXPECT_EQ(by_property.frames[0].cols, half);
+  EXPECT_EQ(by_property.frames[0].rows, h);
+  EXPECT_EQ(rig_load(saved).canvas_width, w);
+  // A capsfilter that fixes the size does the same.
+  gsttest::run_pipeline(head + " ! stitchflowwarp flow=true ! stitchblend ! video/x-raw,width=" + std::to_string(half) +
+                            ",height=" + std::to_string(h) + " ! appsink name=out sync=false" + inputs,
+                        crops(), 2, by_caps);
+  ASSERT_TRUE(by_caps.errors.empty()) << by_caps.errors[0];
+  int cw = 0;
+  gst_structure_get_int(calib_message(by_caps), "canvas-width", &cw);
+  EXPECT_EQ(cw, w);
+  ASSERT_EQ(by_caps.frames.size(), 2u);
+  // Flow off, the blend warps the cameras straight to the output: the same picture.
+  gsttest::run_pipeline(head + " ! stitchblend output-width=" + std::to_string(half) + " ! appsink name=out sync=false" + inputs,
+                        crops(), 2, direct);
+  ASSERT_EQ(direct.frames.size(), 2u);
+  ASSERT_EQ(direct.frames[1].size(), by_caps.frames[1].size());
+  EXPECT_GT(testdata::psnr_rgb(direct.frames[1], by_caps.frames[1]), 35.0);
 }
 
 TEST(StitchCalib, LoadFileIsUsedAsIs) {

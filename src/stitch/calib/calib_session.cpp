@@ -168,6 +168,20 @@ void fit_canvas(Rig& rig, int width, int height) {
   if (wrap && std::abs(2 * kPi * rig.canvas_scale - width) <= 0.5) rig.canvas_wrap = true;
 }
 
+double shrink_canvas_to_output(Rig& rig, int output_width, int output_height, CropMode crop) {
+  if ((output_width <= 0 && output_height <= 0) || rig.canvas_width <= 0 || rig.canvas_height <= 0) return 1;
+  const double s = plan_output(rig, output_width, output_height, crop).canvas_to_output(0, 0);
+  const int w = std::max(2, 2 * int(std::ceil(rig.canvas_width * s * 0.5)));
+  if (!(s > 0) || w >= rig.canvas_width) return 1;
+  // The width sets the scale (a 360-degree canvas is 2 pi * canvas_scale wide, to the pixel).
+  const double sw = double(w) / rig.canvas_width;
+  const int h = std::max(2, 2 * int(std::ceil(rig.canvas_height * sw * 0.5)));
+  const bool wrap = rig.canvas_wrap;
+  transform_canvas(rig, sw, 0, 0, w, h);
+  if (wrap && std::abs(2 * kPi * rig.canvas_scale - w) <= 0.5) rig.canvas_wrap = true;
+  return sw;
+}
+
 // ---- jobs ------------------------------------------------------------------------------------
 
 const char* job_kind_name(JobKind k) {
@@ -314,8 +328,12 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
   }
   if (cancelled()) return o;
   Rig& rig = o.result->rig;
-  if (job.fit_width > 0 && job.fit_height > 0) fit_canvas(rig, job.fit_width, job.fit_height);
-  else make_canvas_even(rig);
+  if (job.fit_width > 0 && job.fit_height > 0) {
+    fit_canvas(rig, job.fit_width, job.fit_height);
+  } else {
+    shrink_canvas_to_output(rig, job.config.output_width, job.config.output_height, job.config.output_crop);
+    make_canvas_even(rig);
+  }
   const bool heldout = !job.holdout_sets.empty();
   const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
   o.residual_source = heldout ? "held-out" : "calibration frames";

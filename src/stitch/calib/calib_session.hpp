@@ -18,6 +18,7 @@
 #include "stitch/calib/calibrator.hpp"
 #include "stitch/image.hpp"
 #include "stitch/rig/rig.hpp"
+#include "stitch/warp/geometry.hpp"
 
 namespace stitch {
 
@@ -52,6 +53,13 @@ bool make_canvas_even(Rig& rig);
 // Fits the whole canvas into width x height (uniform scale, centred): a recalibration keeps the
 // panorama size (stitchblend keeps it too), so the saved canvas stays the video's size.
 void fit_canvas(Rig& rig, int width, int height);
+// The panorama downstream (stitchblend's output-width/-height or the size a capsfilter fixes,
+// and its crop): when it shows the canvas smaller, the canvas itself is scaled down to it, so
+// that the stages between (colour, flow warp, seams, multiband) work at the size that is
+// output rather than at the cameras' full resolution, and the saved canvas is the output's
+// size. Returns the scale applied (1: unchanged; never enlarged). A 360-degree canvas keeps
+// closing exactly at the wrap.
+double shrink_canvas_to_output(Rig& rig, int output_width, int output_height, CropMode crop);
 
 // ---- jobs (run by a worker) ------------------------------------------------------------------
 
@@ -71,6 +79,10 @@ struct SessionConfig {
   double qos_interval_s = 1;           // QoS messages for dropped bundles at most this often
   double load_misfit_px = 4;           // a loaded calibration worse than this warns
   bool resize_is_error = false;        // on-resize=error
+  // The panorama stitchblend makes (0: the canvas's size): a first calibration's canvas is
+  // shrunk to it (shrink_canvas_to_output).
+  int output_width = 0, output_height = 0;
+  CropMode output_crop = CropMode::None;
 };
 
 enum class JobKind { First, Pooled, Recalibration, DriftCheck, LoadCheck };
