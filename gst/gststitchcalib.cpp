@@ -60,6 +60,13 @@
  * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
  * stitchblend outputs them, and fitted into the current panorama on recalibration).
  *
+ * Before a calibration from scratch, stitchcalib asks downstream (a custom query that queues,
+ * stitchcolor and stitchflowwarp pass on) what panorama stitchblend will output: its
+ * output-width/-height, or the size a capsfilter after it fixes. When that shows the canvas
+ * smaller, the canvas is made at that size, so that the stages between (colour, the flow warp,
+ * seams, multiband) work at the size that is output (a 6 x 4K ring shown at 7680x3840 is
+ * warped at 7680 columns, not at the cameras' 14400). It is never enlarged.
+ *
  * Calibration runs in a worker thread that holds no lock of the element: results are picked up
  * by the streaming thread, messages are posted outside every lock, properties never wait for a
  * calibration, and a state change to READY (or a flush) releases the streaming thread and
