@@ -466,6 +466,21 @@ Eigen::Matrix3d kabsch(const std::vector<Eigen::Vector3d>& a, const std::vector<
   return nearest_rotation(M);
 }
 
+// Every match of views a and b over the frame sets, as camera-frame rays through the lenses
+// of A and B (matches a lens does not see are skipped): fn(ray_a, ray_b, keypoint_a, keypoint_b).
+template <typename Fn>
+void for_each_matched_ray(const FeatureSets& feats, int a, int b, const CalibrationOptions& o, const Camera& A,
+                          const Camera& B, Fn&& fn) {
+  for (const auto& f : feats)
+    for (const auto& mt : match(f[a], f[b], o.features)) {
+      const cv::KeyPoint &ka = f[a].keypoints[mt.queryIdx], &kb = f[b].keypoints[mt.trainIdx];
+      Eigen::Vector3d ra, rb;
+      if (!lens_sees(A, ka.pt.x, ka.pt.y) || !lens_sees(B, kb.pt.x, kb.pt.y)) continue;
+      if (!lens_unproject(A, {ka.pt.x, ka.pt.y}, ra) || !lens_unproject(B, {kb.pt.x, kb.pt.y}, rb)) continue;
+      fn(ra, rb, ka, kb);
+    }
+}
+
 // Matches of a pair of wide-lens cameras on unit rays (issue 15, dual fisheye): raw keypoints
 // -> rays through `rig`'s lenses; the ones the rig's rotations put within `tolerance_rad` are
 // kept, then a RANSAC over 2-ray rotations (Kabsch, angular threshold `thr_rad`) picks the
@@ -484,20 +499,16 @@ PairData match_pair_rays(const FeatureSets& feats, int a, int b, const Calibrati
   std::vector<double> size;
   const double cos_tol = std::cos(tolerance_rad);
   int matched = 0;
-  for (const auto& f : feats)
-    for (const auto& mt : match(f[a], f[b], o.features)) {
-      const cv::Point2f qa = f[a].keypoints[mt.queryIdx].pt, qb = f[b].keypoints[mt.trainIdx].pt;
-      Eigen::Vector3d ra, rb;
-      if (!lens_sees(A, qa.x, qa.y) || !lens_sees(B, qb.x, qb.y)) continue;
-      if (!lens_unproject(A, {qa.x, qa.y}, ra) || !lens_unproject(B, {qb.x, qb.y}, rb)) continue;
-      ++matched;
-      if ((Q0 * ra).dot(rb) < cos_tol) continue;  // not where the rough rig puts it
-      ua.push_back(ra);
-      ub.push_back(rb);
-      raw_a.emplace_back(qa.x, qa.y);
-      raw_b.emplace_back(qb.x, qb.y);
-      size.push_back(0.5 * (f[a].keypoints[mt.queryIdx].size + f[b].keypoints[mt.trainIdx].size));
-    }
+  for_each_matched_ray(feats, a, b, o, A, B,
+                       [&](const Eigen::Vector3d& ra, const Eigen::Vector3d& rb, const cv::KeyPoint& ka, const cv::KeyPoint& kb) {
+                         ++matched;
+                         if ((Q0 * ra).dot(rb) < cos_tol) return;  // not where the rough rig puts it
+                         ua.push_back(ra);
+                         ub.push_back(rb);
+                         raw_a.emplace_back(ka.pt.x, ka.pt.y);
+                         raw_b.emplace_back(kb.pt.x, kb.pt.y);
+                         size.push_back(0.5 * (ka.size + kb.size));
+                       });
   p.matches = matched;
   const int n = int(ua.size());
   if (n < 8) {
@@ -1682,15 +1693,11 @@ static RingOrder ring_order(const FeatureSets& feats, const Rig& rough, const Ca
     for (int b = a + 1; b < n; ++b) {
       const Camera &A = rough.cameras[a], &B = rough.cameras[b];
       std::vector<Eigen::Vector3d> ua, ub;
-      for (const auto& f : feats)
-        for (const auto& mt : match(f[a], f[b], o.features)) {
-          const cv::Point2f qa = f[a].keypoints[mt.queryIdx].pt, qb = f[b].keypoints[mt.trainIdx].pt;
-          Eigen::Vector3d ra, rb;
-          if (!lens_sees(A, qa.x, qa.y) || !lens_sees(B, qb.x, qb.y)) continue;
-          if (!lens_unproject(A, {qa.x, qa.y}, ra) || !lens_unproject(B, {qb.x, qb.y}, rb)) continue;
-          ua.push_back(ra);
-          ub.push_back(rb);
-        }
+      for_each_matched_ray(feats, a, b, o, A, B,
+                           [&](const Eigen::Vector3d& ra, const Eigen::Vector3d& rb, const cv::KeyPoint&, const cv::KeyPoint&) {
+                             ua.push_back(ra);
+                             ub.push_back(rb);
+                           });
       for (const int dir : {+1, -1}) {
         const Eigen::Matrix3d Q0 = R_of(b, dir * step).transpose() * R_of(a, 0);  // a's frame -> b's frame
         std::vector<int> cand;
