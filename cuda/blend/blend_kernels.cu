@@ -167,7 +167,31 @@ ComposeParams params_of(int n, const ViewGeometry* views, const DeviceImage* ima
   return p;
 }
 
+// One mipmap step: the rounded mean of each 2x2 block (the last row/column repeated at odd
+// sizes), as stitch::halve_frame computes it.
+__global__ void halve_kernel(DeviceImage src, DeviceImage dst) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= dst.width || y >= dst.height) return;
+  const uchar4* r0 = reinterpret_cast<const uchar4*>(src.data + size_t(min(2 * y, src.height - 1)) * src.pitch);
+  const uchar4* r1 = reinterpret_cast<const uchar4*>(src.data + size_t(min(2 * y + 1, src.height - 1)) * src.pitch);
+  const int a = 2 * x, b = min(2 * x + 1, src.width - 1);
+  const uchar4 p = r0[a], q = r0[b], r = r1[a], t = r1[b];
+  uchar4 o;
+  o.x = (unsigned(p.x) + q.x + r.x + t.x + 2) >> 2;
+  o.y = (unsigned(p.y) + q.y + r.y + t.y + 2) >> 2;
+  o.z = (unsigned(p.z) + q.z + r.z + t.z + 2) >> 2;
+  o.w = (unsigned(p.w) + q.w + r.w + t.w + 2) >> 2;
+  reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch)[x] = o;
+}
+
 }  // namespace
+
+void launch_halve(const DeviceImage& src, const DeviceImage& dst, cudaStream_t stream) {
+  if (dst.width <= 0 || dst.height <= 0) return;
+  const dim3 block(32, 8), grid((dst.width + 31) / 32, (dst.height + 7) / 8);
+  halve_kernel<<<grid, block, 0, stream>>>(src, dst);
+  check_launch("halve kernel");
+}
 
 void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream) {
   if (dst.width <= 0 || dst.height <= 0) return;

@@ -30,6 +30,9 @@ struct ViewGeometry {
 };
 
 // dst (roi-sized) = camera frame `src` sampled where output pixel roi + (x, y) maps to.
+// dst ((w + 1) / 2 x (h + 1) / 2): src averaged over 2x2 blocks (stitch::halve_frame's bytes).
+// Rows of uchar4: both pitches multiples of 4.
+void launch_halve(const DeviceImage& src, const DeviceImage& dst, cudaStream_t stream);
 void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream);
 
 // Position-weighted mean of views already warped into their rois; warped[i].data == nullptr

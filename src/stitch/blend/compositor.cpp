@@ -273,6 +273,7 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   }
   blend_mode_ = settings.blend;
   views_ = place_views(rig, geometry_);
+  if (input == CompositorInput::CameraFrames) prefilter_sparse_views(views_);
   input_ = input;
   scratch_.assign(views_.size(), {});
   canvas_.clear();
@@ -454,29 +455,20 @@ void Compositor::compose(const std::vector<ImageView>& frames, const ImageView& 
   draw_debug(present, out);
 }
 
-void Compositor::compose_views(const std::vector<ImageView>& frames, const ImageView& out) {
+void Compositor::compose_views(const std::vector<ImageView>& camera_frames, const ImageView& out) {
   if (input_ == CompositorInput::Prewarped) {
-    compose_prewarped(frames, out);
+    compose_prewarped(camera_frames, out);
     return;
   }
   BlendProfile profile;
+  check_frame_sizes(views_, camera_frames);
+  // Sparsely sampled views read a reduced copy (prefilter_sparse_views); CUDA reduces on the device.
+  const std::vector<ImageView>& frames = cuda_ ? camera_frames : reducer_.reduce(views_, camera_frames);
   std::vector<ImageView> warped(frames.size());
   for (std::size_t i = 0; i < frames.size(); ++i) {
-    if (cuda_ && !frames[i].empty() &&
-        (frames[i].width != views_[i].camera_width || frames[i].height != views_[i].camera_height))
-      throw std::invalid_argument("frame " + std::to_string(i) + " is " + std::to_string(frames[i].width) + "x" +
-                                  std::to_string(frames[i].height) + ", the rig expects " +
-                                  std::to_string(views_[i].camera_width) + "x" +
-                                  std::to_string(views_[i].camera_height));
     if (cuda_) continue;
     const ViewPlacement& v = views_[i];
     if (frames[i].empty() || v.roi.empty()) continue;
-    if (frames[i].width != v.camera_width || frames[i].height != v.camera_height)
-      throw std::invalid_argument("frame " + std::to_string(i) + " is " +
-                                  std::to_string(frames[i].width) + "x" +
-                                  std::to_string(frames[i].height) + ", the rig expects " +
-                                  std::to_string(v.camera_width) + "x" +
-                                  std::to_string(v.camera_height));
     ImageView dst;
     dst.data = scratch_[i].data();
     dst.width = v.roi.width;

@@ -76,6 +76,7 @@ class Compositor {
   std::vector<ViewPlacement> blend_views_;     // where the blender finds each view
   OutputGeometry blend_geometry_;              // what the blender fills: output, or canvas
   std::vector<std::vector<uint8_t>> scratch_;  // warped rectangles, reused every frame
+  FrameReducer reducer_;  // the frames of views with a level (prefilter_sparse_views), CPU
   bool resample_ = false;                      // pre-warped input: the output crops/scales the canvas
   std::vector<uint8_t> canvas_;                // CPU path: the canvas fused before crop/scale
   unsigned debug_ = 0;

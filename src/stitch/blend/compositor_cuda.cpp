@@ -79,8 +79,12 @@ struct CudaComposer::State {
     return true;
   }
 
+  // Per view: how many times its frame is halved (ViewPlacement::level), and the halved copies.
+  std::vector<int> levels;
+  std::vector<std::vector<DeviceBuffer>> reduced;
   stitch_cuda::DeviceImage on_device(const ImageView& v, std::size_t slot) {
-    return device_image_of(v, inputs[slot], stream.get());
+    return reduce_on_device(device_image_of(v, inputs[slot], stream.get()), slot < levels.size() ? levels[slot] : 0,
+                            reduced[slot], stream.get());
   }
   stitch_cuda::DeviceImage target(const ImageView& out) {
     if (out.width != out_w || out.height != out_h) throw std::invalid_argument("output size differs from prepare()");
@@ -139,7 +143,12 @@ void CudaComposer::prepare(const std::vector<ViewPlacement>& views, int out_widt
     s_->seam->prepare(views, out_width, out_height);
   }
   s_->views.clear();
-  for (const auto& v : views) s_->views.push_back(to_device_geometry(v));
+  s_->levels.clear();
+  for (const auto& v : views) {
+    s_->views.push_back(to_device_geometry(v));
+    s_->levels.push_back(v.level);
+  }
+  s_->reduced.resize(views.size());
   s_->inputs.resize(views.size());
   s_->out_w = out_width;
   s_->out_h = out_height;

@@ -1,5 +1,7 @@
 // ViewPlacement -> the kernels' plain ViewGeometry.
 #pragma once
+#include <vector>
+
 #include "../../../cuda/blend/blend_kernels.hpp"
 #include "stitch/cuda/cuda_util.hpp"
 #include "stitch/image.hpp"
@@ -51,6 +53,24 @@ inline stitch_cuda::DeviceImage device_image_of(const ImageView& v, DeviceBuffer
   d.pitch = pitch;
   d.width = v.width;
   d.height = v.height;
+  return d;
+}
+
+// `d` halved `level` times on `stream` (stitch_cuda::launch_halve, halve_frame's bytes) into
+// `scratch` (one buffer per level, grown once); `d` itself at level 0.
+inline stitch_cuda::DeviceImage reduce_on_device(stitch_cuda::DeviceImage d, int level, std::vector<DeviceBuffer>& scratch,
+                                                 cudaStream_t stream) {
+  if (level > 0 && scratch.size() < std::size_t(level)) scratch.resize(std::size_t(level));
+  for (int l = 0; l < level; ++l) {
+    stitch_cuda::DeviceImage h;
+    h.width = (d.width + 1) / 2;
+    h.height = (d.height + 1) / 2;
+    h.pitch = std::size_t(h.width) * 4;
+    scratch[std::size_t(l)].resize(h.pitch * std::size_t(h.height));
+    h.data = scratch[std::size_t(l)].data();
+    stitch_cuda::launch_halve(d, h, stream);
+    d = h;
+  }
   return d;
 }
 

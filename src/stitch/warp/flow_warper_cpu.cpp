@@ -285,6 +285,7 @@ class FlowWarperCpu final : public FlowWarper {
 
   void prepare(const std::vector<ViewPlacement>& views, int out_width, int out_height) override {
     views_ = views;
+    prefilter_sparse_views(views_);
     out_w_ = out_width;
     out_h_ = out_height;
     warper_->prepare(views_);
@@ -304,21 +305,19 @@ class FlowWarperCpu final : public FlowWarper {
     }
   }
 
-  void warp(const std::vector<ImageView>& frames, const std::vector<ImageView>& warped) override {
-    if (frames.size() != views_.size() || warped.size() != views_.size())
+  void warp(const std::vector<ImageView>& camera_frames, const std::vector<ImageView>& warped) override {
+    if (camera_frames.size() != views_.size() || warped.size() != views_.size())
       throw std::invalid_argument("flow warp: view count differs from prepare()");
-    for (std::size_t i = 0; i < frames.size(); ++i) {
-      if (frames[i].empty() || views_[i].roi.empty()) continue;
-      if (frames[i].on_device || warped[i].on_device)
+    check_frame_sizes(views_, camera_frames);
+    for (std::size_t i = 0; i < camera_frames.size(); ++i) {
+      if (camera_frames[i].empty() || views_[i].roi.empty()) continue;
+      if (camera_frames[i].on_device || warped[i].on_device)
         throw std::invalid_argument("CPU flow warper got device memory");
-      if (frames[i].width != views_[i].camera_width || frames[i].height != views_[i].camera_height)
-        throw std::invalid_argument("frame " + std::to_string(i) + " is " + std::to_string(frames[i].width) +
-                                    "x" + std::to_string(frames[i].height) + ", the rig expects " +
-                                    std::to_string(views_[i].camera_width) + "x" +
-                                    std::to_string(views_[i].camera_height));
       if (warped[i].width != views_[i].roi.width || warped[i].height != views_[i].roi.height)
         throw std::invalid_argument("flow warp: destination " + std::to_string(i) + " is not roi-sized");
     }
+    // Sparsely sampled views read a reduced copy (prefilter_sparse_views).
+    const std::vector<ImageView>& frames = reducer_.reduce(views_, camera_frames);
     // The homography warp of each view is written after the flows, and only where the flow
     // does not re-warp the view (displacement_fields()): the same pixels with less work.
     stats_.clear();
@@ -740,6 +739,7 @@ class FlowWarperCpu final : public FlowWarper {
   std::unique_ptr<WarperCpu> warper_;
   FlowWarpSettings settings_;
   std::vector<ViewPlacement> views_;
+  FrameReducer reducer_;
   int out_w_ = 0, out_h_ = 0;
   std::vector<Pair> pairs_;
   std::vector<std::vector<Rect>> bands_;  // per view: output rects its flow moves

@@ -35,6 +35,7 @@ class FlowWarperCuda final : public FlowWarper {
   void prepare(const std::vector<ViewPlacement>& views, int, int) override {
     if (views.size() > std::size_t(stitch_cuda::kMaxViews)) throw std::invalid_argument("at most 16 views on the GPU");
     views_ = views;
+    prefilter_sparse_views(views_);
     geometry_.clear();
     for (const auto& v : views_) geometry_.push_back(to_device_geometry(v));
     inputs_.resize(views_.size());
@@ -58,17 +59,15 @@ class FlowWarperCuda final : public FlowWarper {
       throw std::invalid_argument("flow warp: view count differs from prepare()");
     const std::size_t n = views_.size();
     std::vector<stitch_cuda::DeviceImage> src(n), dst(n);
+    check_frame_sizes(views_, frames);
     stream_.enter();  // the frames and the pooled outputs may still be in use by other stages
+    reduced_.resize(n);
     for (std::size_t i = 0; i < n; ++i) {
       if (frames[i].empty() || views_[i].roi.empty()) continue;
-      if (frames[i].width != views_[i].camera_width || frames[i].height != views_[i].camera_height)
-        throw std::invalid_argument("frame " + std::to_string(i) + " is " + std::to_string(frames[i].width) + "x" +
-                                    std::to_string(frames[i].height) + ", the rig expects " +
-                                    std::to_string(views_[i].camera_width) + "x" +
-                                    std::to_string(views_[i].camera_height));
       if (warped[i].width != views_[i].roi.width || warped[i].height != views_[i].roi.height)
         throw std::invalid_argument("flow warp: destination " + std::to_string(i) + " is not roi-sized");
-      src[i] = device_image_of(frames[i], inputs_[i], stream_.get());
+      src[i] = reduce_on_device(device_image_of(frames[i], inputs_[i], stream_.get()), views_[i].level, reduced_[i],
+                                stream_.get());
       dst[i] = device_output(warped[i], i);
     }
 
@@ -290,6 +289,7 @@ class FlowWarperCuda final : public FlowWarper {
   std::unique_ptr<CudaDenseFlow> flow_;
   FlowWarpSettings settings_;
   std::vector<ViewPlacement> views_;
+  std::vector<std::vector<DeviceBuffer>> reduced_;  // per view, its frame halved per level
   std::vector<stitch_cuda::ViewGeometry> geometry_;
   std::vector<FlowPairPlan> plans_;
   std::vector<FlowPairDevice> pairs_;  // host copy of the descriptors

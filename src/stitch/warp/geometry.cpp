@@ -3,6 +3,8 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/blend/blender.hpp"
@@ -117,6 +119,8 @@ std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out
     ViewPlacement v;
     v.camera_width = cam.width;
     v.camera_height = cam.height;
+    v.frame_width = cam.width;
+    v.frame_height = cam.height;
     v.lens = lens_params(cam);
     if (rig.planar()) {
       const Eigen::Matrix3d cam_to_out = A * cam.homography.value();
@@ -162,6 +166,107 @@ std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out
     views.push_back(v);
   }
   return views;
+}
+
+namespace {
+
+// Camera pixels between neighbouring output pixels over the view: the median, on a grid of the
+// view, of the square root of the area one output pixel covers (the Jacobian's determinant).
+// The median, not the smallest: a spherical canvas oversamples towards the poles.
+double typical_spacing(const ViewPlacement& v) {
+  constexpr int kGrid = 9;
+  std::vector<double> spacing;
+  for (int gy = 0; gy < kGrid; ++gy)
+    for (int gx = 0; gx < kGrid; ++gx) {
+      const double x = v.roi.x + (v.roi.width - 1) * (gx + 0.5) / kGrid;
+      const double y = v.roi.y + (v.roi.height - 1) * (gy + 0.5) / kGrid;
+      double u0, w0, u1, w1, u2, w2;
+      if (!view_to_camera(v, x, y, u0, w0) || !view_to_camera(v, x + 1, y, u1, w1) || !view_to_camera(v, x, y + 1, u2, w2))
+        continue;
+      if (u0 < 0 || w0 < 0 || u0 > v.camera_width - 1 || w0 > v.camera_height - 1) continue;  // sees nothing here
+      const double area = std::abs((u1 - u0) * (w2 - w0) - (w1 - w0) * (u2 - u0));
+      if (std::isfinite(area)) spacing.push_back(std::sqrt(area));
+    }
+  if (spacing.empty()) return 0;
+  std::nth_element(spacing.begin(), spacing.begin() + spacing.size() / 2, spacing.end());
+  return spacing[spacing.size() / 2];
+}
+
+}  // namespace
+
+void prefilter_sparse_views(std::vector<ViewPlacement>& views) {
+  constexpr int kMaxLevel = 4;
+  for (ViewPlacement& v : views) {
+    if (v.roi.empty() || v.level > 0) continue;
+    const double spacing = typical_spacing(v);
+    if (!(spacing > 1.0)) continue;
+    // Level L once the spacing reaches 1.32 * 2^L (measured on rendered rings and trios,
+    // BENCHMARKS.md): the reduced frame is then read 1.32-2.64 px apart. Bilinear reads 2 px
+    // apart are already a 2x2 mean, so a spacing of 2 keeps the full frame.
+    const int level = std::clamp(int(std::floor(std::log2(spacing / 1.32))), 0, kMaxLevel);
+    for (int l = 0; l < level; ++l) {
+      // reduced pixel = (pixel + 0.5) / 2 - 0.5, after the lens when there is one
+      if (v.has_lens()) {
+        auto& L = v.lens;
+        L.fx *= 0.5, L.fy *= 0.5, L.cx = (L.cx + 0.5) * 0.5 - 0.5, L.cy = (L.cy + 0.5) * 0.5 - 0.5;
+        if (L.circle_r > 0) L.circle_cx = (L.circle_cx + 0.5) * 0.5 - 0.5, L.circle_cy = (L.circle_cy + 0.5) * 0.5 - 0.5, L.circle_r *= 0.5;
+      } else {
+        Eigen::Matrix3d S;
+        S << 0.5, 0, -0.25, 0, 0.5, -0.25, 0, 0, 1;
+        v.output_to_camera = S * v.output_to_camera;
+      }
+      v.camera_width = (v.camera_width + 1) / 2;
+      v.camera_height = (v.camera_height + 1) / 2;
+    }
+    v.level = level;
+  }
+}
+
+void halve_frame(const ImageView& src, const ImageView& dst) {
+  for (int y = 0; y < dst.height; ++y) {
+    const uint8_t* r0 = src.data + std::size_t(std::min(2 * y, src.height - 1)) * src.pitch;
+    const uint8_t* r1 = src.data + std::size_t(std::min(2 * y + 1, src.height - 1)) * src.pitch;
+    uint8_t* o = dst.data + std::size_t(y) * dst.pitch;
+    for (int x = 0; x < dst.width; ++x) {
+      const int a = 8 * x, b = 4 * std::min(2 * x + 1, src.width - 1);
+      for (int c = 0; c < 4; ++c) o[4 * x + c] = uint8_t((r0[a + c] + r0[b + c] + r1[a + c] + r1[b + c] + 2) >> 2);
+    }
+  }
+}
+
+const std::vector<ImageView>& FrameReducer::reduce(const std::vector<ViewPlacement>& views,
+                                                  const std::vector<ImageView>& frames) {
+  out_ = frames;
+  levels_.resize(frames.size());
+  cv::parallel_for_(cv::Range(0, int(std::min(frames.size(), views.size()))), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i) {
+      const ViewPlacement& v = views[std::size_t(i)];
+      ImageView src = frames[std::size_t(i)];
+      if (src.empty() || v.level == 0 || v.roi.empty()) continue;
+      auto& levels = levels_[std::size_t(i)];
+      levels.resize(std::size_t(v.level));
+      for (int l = 0; l < v.level; ++l) {
+        ImageView dst;
+        dst.width = (src.width + 1) / 2;
+        dst.height = (src.height + 1) / 2;
+        dst.pitch = std::size_t(dst.width) * 4;
+        levels[std::size_t(l)].resize(dst.pitch * std::size_t(dst.height));
+        dst.data = levels[std::size_t(l)].data();
+        halve_frame(src, dst);
+        src = dst;
+      }
+      out_[std::size_t(i)] = src;
+    }
+  });
+  return out_;
+}
+
+void check_frame_sizes(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& frames) {
+  for (std::size_t i = 0; i < frames.size() && i < views.size(); ++i)
+    if (!frames[i].empty() && (frames[i].width != views[i].frame_width || frames[i].height != views[i].frame_height))
+      throw std::invalid_argument("frame " + std::to_string(i) + " is " + std::to_string(frames[i].width) + "x" +
+                                  std::to_string(frames[i].height) + ", the rig expects " +
+                                  std::to_string(views[i].frame_width) + "x" + std::to_string(views[i].frame_height));
 }
 
 }  // namespace stitch

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "stitch/rig/projection_math.hpp"
+#include "stitch/image.hpp"
 #include "stitch/rig/rig.hpp"
 
 namespace stitch {
@@ -42,6 +43,12 @@ struct ViewPlacement {
   // K^-1 (output -> ideal pixel); non-planar: R^T), and the lens gives the raw pixel.
   stitch_projection::LensParams<double> lens{};
   bool has_lens() const { return stitch_projection::has_lens(lens); }
+  // An output smaller than the camera shows it sampled sparsely: the frame is then read from a
+  // copy averaged over 2x2 pixels `level` times (halve_frame), as a mipmap is, so that fine
+  // detail does not alias. camera_width/height and the mapping are the reduced frame's;
+  // frame_width/height the camera's own (what the frames arrive at).
+  int level = 0;
+  int frame_width = 0, frame_height = 0;
 };
 
 // Camera pixel (u, v) of output pixel (x, y); false behind the camera (or the canvas plane).
@@ -86,5 +93,28 @@ inline OutputGeometry canvas_geometry(const Rig& rig) { return plan_output(rig, 
 Rect largest_covered_rect(const Rig& rig);
 
 std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out);
+
+// Sets each view's level (ViewPlacement::level) from how far apart the output samples the
+// camera (the nearest power of two of the smallest spacing over the view), and maps the view
+// onto the reduced frame. Views sampled about 1:1 or denser keep level 0.
+void prefilter_sparse_views(std::vector<ViewPlacement>& views);
+
+// One level down: dst ((w + 1) / 2 x (h + 1) / 2) = the rounded mean of each 2x2 block of src
+// (the last row/column repeated at odd sizes). The CUDA kernel computes the same bytes.
+void halve_frame(const ImageView& src, const ImageView& dst);
+
+// The frames the views read: each frame halved `level` times (halve_frame) where its view has
+// a level, the frame itself elsewhere. Owns the reduced copies, reused every frame.
+class FrameReducer {
+ public:
+  const std::vector<ImageView>& reduce(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& frames);
+
+ private:
+  std::vector<std::vector<std::vector<uint8_t>>> levels_;  // per view, per level
+  std::vector<ImageView> out_;
+};
+
+// An exception naming frame i when its size is not the camera's (frame_width x frame_height).
+void check_frame_sizes(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& frames);
 
 }  // namespace stitch
