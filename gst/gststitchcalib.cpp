@@ -32,12 +32,16 @@
  *
  * - Frames are picked by quality: a bundle with a dark, torn (a broken keyframe: two pictures
  *   in one), blurred or featureless view is not calibrated on (a rig-file's rough geometry
- *   needs no features, only no dark or torn view).
+ *   needs no features, only no dark or torn view). A "tear" that stays at one row for 3 s is
+ *   the picture's own (a newspaper's rules, a still image), not a broken keyframe.
  * - The first usable bundle is calibrated at once (the stream waits for it: nothing can be
  *   output before). Then `calibration-frames` good bundles, the best of each stretch of
  *   `calibration-window` seconds, are pooled into a new calibration, judged against the first
  *   on held-out bundles of the same window by independent matches: it replaces the first only
- *   when it aligns them clearly better, so the geometry never flips between equals.
+ *   when it aligns them clearly better, so the geometry never flips between equals. It keeps the
+ *   camera model and projection the first calibration chose when `camera-model` and
+ *   `projection` are left to auto (so do recalibrations): the panorama's layout does not change
+ *   mid-stream. `model` in the message says which model is installed.
  * - `recalibrate` (action signal), `recalibrate-interval` (running time) and the optional drift
  *   watch (`drift-threshold`: a check every 5 s, two bad checks in a row recalibrate) open such a
  *   window again; the result must beat the current calibration on held-out frames, or it is
@@ -342,6 +346,7 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
       G_TYPE_INT, rig.canvas_width, "canvas-height", G_TYPE_INT, rig.canvas_height, "warnings", G_TYPE_INT,
       r.warnings, "projection", G_TYPE_STRING, rig.projection.c_str(), "canvas-wrap", G_TYPE_BOOLEAN,
       gboolean(rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_px, NULL);
+  if (!r.model.empty()) gst_structure_set(s, "model", G_TYPE_STRING, r.model.c_str(), NULL);
   GValue cams = double_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
   return s;

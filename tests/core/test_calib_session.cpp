@@ -267,6 +267,76 @@ TEST(CalibSession, CorruptFirstFrameIsSkipped) {
   EXPECT_TRUE(s.current());
 }
 
+// Later calibrations of the same cameras keep the model and projection the first one chose (the
+// user left both to auto): a held-out comparison in canvas pixels across projections favoured a
+// stretched plane over a cylinder on a real clip and flipped the panorama mid-stream. The
+// installed model goes on the bus ("model").
+TEST(CalibSession, PooledCalibrationKeepsTheFirstOnesModelAndProjection) {
+  SessionConfig c;
+  c.calibration_frames = 2;
+  c.calibration_window_s = 0.3;
+  CalibSession s;
+  s.set_config(c);
+  const auto frames = crops(2);
+  const auto first = feed(s, 0, frames);
+  ASSERT_TRUE(s.current());
+  const SessionEvent* in = find(first, SessionEvent::Type::Installed);
+  ASSERT_NE(in, nullptr);
+  ASSERT_FALSE(in->report.model.empty());
+  std::shared_ptr<CalibJob> pooled;
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {640, 480}};
+  for (int f = 1; f < 30 && !pooled; ++f) {
+    fr.time_s = f / 30.0;
+    pooled = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+    s.bundle_passed();
+  }
+  ASSERT_TRUE(pooled);
+  EXPECT_EQ(pooled->kind, JobKind::Pooled);
+  EXPECT_STREQ(camera_model_name(pooled->config.options.model), in->report.model.c_str());
+  ASSERT_TRUE(pooled->config.projection.has_value());
+  EXPECT_EQ(*pooled->config.projection, s.current()->projection_kind());
+  // A choice the user made is the user's: not replaced.
+  c.options.model = CameraModel::Rotation;
+  c.projection = Projection::Cylindrical;
+  CalibSession t;
+  t.set_config(c);
+  feed(t, 0, frames);
+  ASSERT_TRUE(t.current());
+  std::shared_ptr<CalibJob> job;
+  for (int f = 1; f < 30 && !job; ++f) {
+    fr.time_s = f / 30.0;
+    job = t.on_frame(fr, t.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+    t.bundle_passed();
+  }
+  ASSERT_TRUE(job);
+  EXPECT_EQ(job->config.options.model, CameraModel::Rotation);
+  EXPECT_EQ(*job->config.projection, Projection::Cylindrical);
+}
+
+// A broken keyframe (two pictures glued at a row) is not calibrated on; the same "tear" at the
+// same row for over 3 s is the picture's own (a newspaper's rules and text lines, a still) and
+// no longer holds calibration up.
+TEST(CalibSession, ATearThatStaysAtOneRowIsThePictureNotABrokenFrame) {
+  CalibSession s;
+  s.set_config(quick());
+  std::vector<cv::Mat> frames = crops(2, 200);
+  photo()(cv::Rect(900, 700, 640, 160)).copyTo(frames[1](cv::Rect(0, 320, 640, 160)));
+  ASSERT_EQ(assess_frame(view_of(frames[1])).verdict, FrameVerdict::Corrupt);
+  std::vector<SessionEvent> early;
+  for (int f = 0; f < 45; ++f)  // 1.5 s, a GOP
+    for (const auto& e : feed(s, f, frames)) early.push_back(e);
+  EXPECT_FALSE(s.current()) << "calibrated on a torn frame";
+  const SessionEvent* p = find(early, SessionEvent::Type::Pending);
+  ASSERT_NE(p, nullptr);
+  EXPECT_NE(p->text.find("camera 1 is corrupt"), std::string::npos) << p->text;
+  std::string last;
+  for (int f = 45; f < 150 && !s.current(); ++f)
+    for (const auto& e : feed(s, f, frames))
+      if (e.type == SessionEvent::Type::Pending) last = e.text;
+  EXPECT_TRUE(s.current()) << "a tear that never moves held calibration up: " << last;
+}
+
 // The pooled calibration over the window is judged on held-out frames against the first one;
 // a worse candidate is never swapped in.
 TEST(CalibSession, WorseCalibrationIsNeverSwappedIn) {

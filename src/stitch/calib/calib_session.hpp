@@ -34,6 +34,7 @@ struct FrameQuality {
   double sharpness = 0;   // variance of the Laplacian (downscaled to ~320 px wide)
   int corners = 0;        // FAST corners on the same image
   double tear = 0;        // strongest row discontinuity against its neighbourhood (corrupt frames)
+  double tear_row = 0;    // where it is, as a fraction of the height
   double score() const;   // larger is better (for picking among good frames)
   std::string describe() const;  // "dark (mean luma 3)", ...
 };
@@ -148,6 +149,7 @@ struct CalibReport {        // one installed (or rejected) calibration, for the 
   RigResiduals residuals;    // independent, see residual_source
   std::string residual_source;
   double previous_px = -1;   // the calibration it replaced (or kept), same frames
+  std::string model;         // "rotation" or "homography" (planar canvases); empty: a loaded file
 };
 
 struct SessionEvent {
@@ -218,6 +220,17 @@ class CalibSession {
   double first_frame_at_ = -1;
   // geometry
   std::shared_ptr<const Rig> current_;
+  // How the installed calibration was estimated (unset: loaded from a file). Later calibrations
+  // of the same cameras keep it when the user left the choice to auto: the panorama's model and
+  // projection never flip mid-stream on a marginal held-out verdict.
+  std::optional<CameraModel> installed_model_;
+  // Per camera: the row of the last "torn" verdict, and since when the checks find it there.
+  struct Tear {
+    double row = 0;
+    double since_s = -1;  // running time; -1: the last check found no tear
+  };
+  std::vector<Tear> tears_;
+  static constexpr double kTearIsContentAfterS = 3.0;
   std::optional<Rig> rough_;
   std::string rough_from_;
   std::vector<std::array<int, 2>> rough_sizes_;  // the view sizes rough_ was adapted to
