@@ -68,6 +68,27 @@ const SessionEvent* find(const std::vector<SessionEvent>& e, SessionEvent::Type 
   return nullptr;
 }
 
+// Two pooled frame sets over 0.3 s after the first calibration.
+SessionConfig pooling() {
+  SessionConfig c;
+  c.calibration_frames = 2;
+  c.calibration_window_s = 0.3;
+  return c;
+}
+
+// Feeds frames 1, 2, ... (no job run) until the session hands out a job; null after 30.
+std::shared_ptr<CalibJob> next_job(CalibSession& s, const std::vector<cv::Mat>& frames) {
+  CalibSession::Frame fr;
+  for (const auto& m : frames) fr.sizes.push_back({m.cols, m.rows});
+  for (int f = 1; f < 30; ++f) {
+    fr.time_s = f / 30.0;
+    auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+    s.bundle_passed();
+    if (job) return job;
+  }
+  return nullptr;
+}
+
 SessionConfig quick() {
   SessionConfig c;
   c.calibration_frames = 1;  // no pooled refinement unless a test asks
@@ -272,9 +293,7 @@ TEST(CalibSession, CorruptFirstFrameIsSkipped) {
 // stretched plane over a cylinder on a real clip and flipped the panorama mid-stream. The
 // installed model goes on the bus ("model").
 TEST(CalibSession, PooledCalibrationKeepsTheFirstOnesModelAndProjection) {
-  SessionConfig c;
-  c.calibration_frames = 2;
-  c.calibration_window_s = 0.3;
+  SessionConfig c = pooling();
   CalibSession s;
   s.set_config(c);
   const auto frames = crops(2);
@@ -283,14 +302,7 @@ TEST(CalibSession, PooledCalibrationKeepsTheFirstOnesModelAndProjection) {
   const SessionEvent* in = find(first, SessionEvent::Type::Installed);
   ASSERT_NE(in, nullptr);
   ASSERT_FALSE(in->report.model.empty());
-  std::shared_ptr<CalibJob> pooled;
-  CalibSession::Frame fr;
-  fr.sizes = {{640, 480}, {640, 480}};
-  for (int f = 1; f < 30 && !pooled; ++f) {
-    fr.time_s = f / 30.0;
-    pooled = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
-    s.bundle_passed();
-  }
+  const std::shared_ptr<CalibJob> pooled = next_job(s, frames);
   ASSERT_TRUE(pooled);
   EXPECT_EQ(pooled->kind, JobKind::Pooled);
   EXPECT_STREQ(camera_model_name(pooled->config.options.model), in->report.model.c_str());
@@ -303,12 +315,7 @@ TEST(CalibSession, PooledCalibrationKeepsTheFirstOnesModelAndProjection) {
   t.set_config(c);
   feed(t, 0, frames);
   ASSERT_TRUE(t.current());
-  std::shared_ptr<CalibJob> job;
-  for (int f = 1; f < 30 && !job; ++f) {
-    fr.time_s = f / 30.0;
-    job = t.on_frame(fr, t.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
-    t.bundle_passed();
-  }
+  const std::shared_ptr<CalibJob> job = next_job(t, frames);
   ASSERT_TRUE(job);
   EXPECT_EQ(job->config.options.model, CameraModel::Rotation);
   EXPECT_EQ(*job->config.projection, Projection::Cylindrical);
@@ -340,11 +347,8 @@ TEST(CalibSession, ATearThatStaysAtOneRowIsThePictureNotABrokenFrame) {
 // The pooled calibration over the window is judged on held-out frames against the first one;
 // a worse candidate is never swapped in.
 TEST(CalibSession, WorseCalibrationIsNeverSwappedIn) {
-  SessionConfig c;
-  c.calibration_frames = 2;
-  c.calibration_window_s = 0.3;
   CalibSession s;
-  s.set_config(c);
+  s.set_config(pooling());
   const auto frames = crops(2);
   feed(s, 0, frames);
   ASSERT_TRUE(s.current());
