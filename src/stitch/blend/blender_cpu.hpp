@@ -32,9 +32,6 @@ class BlenderCpu final : public Blender {
 
   // Normalised Q14 weights of each view (roi-sized, CV_16U) for a set of present views.
   const std::vector<cv::Mat>& weights_for(uint64_t present_mask);
-  // Only output rows [first, end) are fused from now on (the rest left as they are): a canvas
-  // that is cropped/scaled afterwards needs only the rows the output reads. prepare() resets it
-  // to every row.
   // Per output row, runs of pixels by what the fuse does there: one view has the whole weight
   // (view >= 0: the pixel is that view's, copied), several views share it (kMixed: the weighted
   // sum), or none covers it (kUncovered: opaque black). Per set of present views, like the weights.
@@ -50,6 +47,9 @@ class BlenderCpu final : public Blender {
   static constexpr int kCoreBand = 32;
   using Cores = std::vector<std::vector<std::pair<int, int>>>;
   void set_cores(Cores cores) { cores_ = std::move(cores); }
+  // Only output rows [first, end) are fused from now on (the rest left as they are): a canvas
+  // that is cropped/scaled afterwards needs only the rows the output reads. prepare() resets it
+  // to every row.
   void set_rows(int first, int end) {
     row_first_ = std::clamp(first, 0, out_h_);
     row_end_ = std::clamp(end, row_first_, out_h_);

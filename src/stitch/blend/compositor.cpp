@@ -1,6 +1,7 @@
 #include "stitch/blend/compositor.hpp"
 
 #include "stitch/blend/blender_cpu.hpp"
+#include "stitch/parallel.hpp"
 #include "stitch/warp/warper_cpu.hpp"
 
 #include <algorithm>
@@ -481,9 +482,10 @@ void Compositor::compose_views(const std::vector<ImageView>& camera_frames, cons
     // per view); a band's pixels are the ones the whole view's warp gives (WarperCpu::warp_part).
     auto* cpu = dynamic_cast<WarperCpu*>(warper_.get());
     constexpr int kBand = BlenderCpu::kCoreBand;
-    std::vector<int> first_band{0};
+    std::vector<int> bands(frames.size(), 0);  // per view
+    int all_bands = 0;
     for (std::size_t i = 0; i < frames.size(); ++i)
-      first_band.push_back(first_band.back() + (warped[i].empty() ? 0 : (warped[i].height + kBand - 1) / kBand));
+      all_bands += bands[i] = warped[i].empty() ? 0 : (warped[i].height + kBand - 1) / kBand;
     // With the weighted mean (and the consensus blend), the part of a band where the view has the
     // whole weight on every row is warped straight into the output (its core): the fuse would
     // only copy it there from the view's rectangle. Never within 2 px of a seam pair's box, whose
@@ -527,31 +529,26 @@ void Compositor::compose_views(const std::vector<ImageView>& camera_frames, cons
         }
       }
     }
-    if (cpu && first_band.back() > 0) {
-      cv::parallel_for_(cv::Range(0, first_band.back()), [&](const cv::Range& bands) {
-        std::size_t i = std::size_t(std::upper_bound(first_band.begin(), first_band.end(), bands.start) - first_band.begin()) - 1;
-        for (int t = bands.start; t < bands.end; ++t) {
-          while (t >= first_band[i + 1]) ++i;
-          const int y0 = (t - first_band[i]) * kBand, rows = std::min(kBand, warped[i].height - y0);
-          const int w = warped[i].width;
-          const Rect& r = views_[i].roi;
-          const std::pair<int, int> core = cores[i].empty() ? std::make_pair(0, 0) : cores[i][std::size_t(t - first_band[i])];
-          if (core.second <= core.first) {
-            cpu->warp_part(int(i), frames[i], warped[i], {0, y0, w, rows});
-            continue;
-          }
-          const int a = core.first - r.x, b = core.second - r.x;  // roi columns of the core
-          if (a > 0) cpu->warp_part(int(i), frames[i], warped[i], {0, y0, a, rows});
-          if (b < w) cpu->warp_part(int(i), frames[i], warped[i], {b, y0, w - b, rows});
-          uint8_t* o = out.row(r.y + y0) + 4 * std::size_t(core.first);
-          cpu->warp_part_to(int(i), frames[i], {a, y0, b - a, rows}, o, out.pitch);
-          for (int y = 0; y < rows; ++y) {  // the panorama is opaque
-            uint8_t* p = o + std::size_t(y) * out.pitch;
-            for (int x = 0; x < b - a; ++x) p[4 * x + 3] = 255;
-          }
+    if (cpu && all_bands > 0) {
+      parallel_for_parts(bands, [&](std::size_t i, int band) {
+        const int y0 = band * kBand, rows = std::min(kBand, warped[i].height - y0);
+        const int w = warped[i].width;
+        const Rect& r = views_[i].roi;
+        const std::pair<int, int> core = cores[i].empty() ? std::make_pair(0, 0) : cores[i][std::size_t(band)];
+        if (core.second <= core.first) {
+          cpu->warp_part(int(i), frames[i], warped[i], {0, y0, w, rows});
+          return;
         }
-      }, double(first_band.back()));
-      weighted = dynamic_cast<BlenderCpu*>(blender_.get());
+        const int a = core.first - r.x, b = core.second - r.x;  // roi columns of the core
+        if (a > 0) cpu->warp_part(int(i), frames[i], warped[i], {0, y0, a, rows});
+        if (b < w) cpu->warp_part(int(i), frames[i], warped[i], {b, y0, w - b, rows});
+        uint8_t* o = out.row(r.y + y0) + 4 * std::size_t(core.first);
+        cpu->warp_part_to(int(i), frames[i], {a, y0, b - a, rows}, o, out.pitch);
+        for (int y = 0; y < rows; ++y) {  // the panorama is opaque
+          uint8_t* p = o + std::size_t(y) * out.pitch;
+          for (int x = 0; x < b - a; ++x) p[4 * x + 3] = 255;
+        }
+      }, double(all_bands));
       if (weighted) weighted->set_cores(std::move(cores));
     } else {
       for (std::size_t i = 0; i < frames.size(); ++i)

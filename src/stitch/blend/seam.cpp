@@ -1,4 +1,5 @@
 #include "stitch/blend/seam.hpp"
+#include "stitch/parallel.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -20,22 +21,6 @@ template <class F>
 void for_rows(int rows, const F& f) {
   cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& r) {
     for (int y = r.start; y < r.end; ++y) f(y);
-  });
-}
-
-// f(item, row) for rows [0, rows[item]) of every item, all in one parallel loop (one wait for
-// the threads instead of one per item); each (item, row) is computed as in a plain loop.
-template <class F>
-void for_item_rows(const std::vector<int>& rows, const F& f) {
-  std::vector<int> start(rows.size() + 1, 0);
-  for (std::size_t i = 0; i < rows.size(); ++i) start[i + 1] = start[i] + rows[i];
-  if (start.back() == 0) return;
-  cv::parallel_for_(cv::Range(0, start.back()), [&](const cv::Range& r) {
-    std::size_t i = std::size_t(std::upper_bound(start.begin(), start.end(), r.start) - start.begin()) - 1;
-    for (int k = r.start; k < r.end; ++k) {
-      while (k >= start[i + 1]) ++i;
-      f(int(i), k - start[i]);
-    }
   });
 }
 
@@ -201,7 +186,7 @@ const std::vector<uint8_t>& SeamFinder::find(const std::vector<ImageView>& warpe
       luma_rows.push_back(q.height);
     }
   }
-  for_item_rows(luma_rows, [&](int t, int y) {
+  parallel_for_parts(luma_rows, [&](int t, int y) {
     const int i = luma_tasks[std::size_t(t)].first;
     const Rect& q = luma_tasks[std::size_t(t)].second;
     const uint8_t* p = warped[std::size_t(i)].row(q.y + y) + 4 * q.x;
@@ -315,7 +300,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
   // dark pixels of each view counted per row (a blank view loses the overlap), the views' colour
   // differences and their sums across the seam (one read of the two views' pixels for all three).
   const int first_radius = clearance ? w.clearance_radius : w.mix_radius;
-  for_item_rows(rows, [&](int k, int r) {
+  parallel_for_parts(rows, [&](int k, int r) {
     Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
     const int cols = cols_of(p);
     const Rect &ra = views_[p.a].roi, &rb = views_[p.b].roi;
@@ -363,13 +348,13 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
   // after pair, in order (a later pair sees the labels an earlier one set, as before).
   auto write_rows = [&](const auto& f) {
     if (boxes_disjoint_) {
-      for_item_rows(rows, f);
+      parallel_for_parts(rows, f);
       return;
     }
     for (std::size_t k = 0; k < cut.size(); ++k) for_rows(rows[k], [&](int r) { f(int(k), r); });
   };
   if (clearance) {
-    for_item_rows(rows, [&](int k, int r) {
+    parallel_for_parts(rows, [&](int k, int r) {
       Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
       const int cols = cols_of(p), R = w.clearance_radius, n = rows[std::size_t(k)];
       for (int c = 0; c < cols; ++c) {
@@ -380,7 +365,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
         v = seam::add(v, seam::clearance_cost(w, sum));
       }
     });
-    if (mixing) for_item_rows(rows, [&](int k, int r) { across_row(pairs_[std::size_t(cut[std::size_t(k)])], r, w.mix_radius); });
+    if (mixing) parallel_for_parts(rows, [&](int k, int r) { across_row(pairs_[std::size_t(cut[std::size_t(k)])], r, w.mix_radius); });
   }
   if (mixing) {  // the consensus blend's mix level of every overlap pixel (max over pairs)
     write_rows([&](int k, int r) {  // each (r, c) is its own output pixel: no two rows write one byte
@@ -401,7 +386,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
     });
   }
   if (holding) {  // the view-switch cost of every seam point: per row, sums before and after it
-    for_item_rows(rows, [&](int k, int r) {
+    parallel_for_parts(rows, [&](int k, int r) {
       Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
       if (int(p.previous_path.size()) != rows_of(p)) return;  // no last frame for this pair
       const int cols = cols_of(p);

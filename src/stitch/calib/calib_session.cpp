@@ -180,9 +180,7 @@ double shrink_canvas_to_output(Rig& rig, int output_width, int output_height, Cr
   // The width sets the scale (a 360-degree canvas is 2 pi * canvas_scale wide, to the pixel).
   const double sw = double(w) / rig.canvas_width;
   const int h = std::max(2, 2 * int(std::ceil(rig.canvas_height * sw * 0.5)));
-  const bool wrap = rig.canvas_wrap;
-  transform_canvas(rig, sw, 0, 0, w, h);
-  if (wrap && std::abs(2 * kPi * rig.canvas_scale - w) <= 0.5) rig.canvas_wrap = true;
+  transform_canvas(rig, sw, 0, 0, w, h);  // keeps a 360-degree canvas wrapping: w = sw * width
   return sw;
 }
 
@@ -502,8 +500,8 @@ bool CalibSession::load_rough() {
 }
 
 namespace {
-void fill_report(CalibReport& rep, const CalibrationResult* result, bool estimated) {
-  if (estimated) rep.model = camera_model_name(result->model);
+void fill_report(CalibReport& rep, const CalibrationResult* result) {
+  if (rep.source != "file") rep.model = camera_model_name(result->model);  // a loaded file: not estimated
   rep.refined_cameras = result->refined_cameras;
   rep.warnings = int(result->warnings.size());
   rep.ba_rms_px = result->ba_rms_after_px;
@@ -525,9 +523,8 @@ void CalibSession::install(CalibReport rep, CalibrationResult* result) {
   current_ = std::make_shared<const Rig>(result->rig);
   rep.rig = current_;
   rep.version = ++version_;
-  const bool estimated = rep.source != "file";
-  fill_report(rep, result, estimated);
-  if (estimated) installed_model_ = result->model;
+  fill_report(rep, result);
+  if (!rep.model.empty()) installed_model_ = result->model;
   else installed_model_.reset();
   ever_installed_ = true;
   panorama_w_ = current_->canvas_width;
@@ -774,7 +771,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
         if (cur >= 0) baseline_px_ = cur;
         rep.rig = std::make_shared<const Rig>(o.result->rig);
         rep.version = version_;
-        fill_report(rep, &*o.result, true);
+        fill_report(rep, &*o.result);
         SessionEvent e = make_event(SessionEvent::Type::Rejected, "");
         e.report = rep;
         events_.push_back(e);

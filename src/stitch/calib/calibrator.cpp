@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -466,6 +465,33 @@ Eigen::Matrix3d kabsch(const std::vector<Eigen::Vector3d>& a, const std::vector<
   return nearest_rotation(M);
 }
 
+// A rotation taking rays ua[k] to ub[k], for k in `candidates`: a RANSAC over 2-ray rotations
+// (Kabsch; pairs of rays ~3 degrees apart or more) from `start`: the largest set of candidates
+// within cos_thr of one rotation (start's own set unless a sample beats it).
+std::vector<int> ray_rotation_inliers(const std::vector<Eigen::Vector3d>& ua, const std::vector<Eigen::Vector3d>& ub,
+                                      const std::vector<int>& candidates, const Eigen::Matrix3d& start, double cos_thr,
+                                      int iterations) {
+  auto inliers_of = [&](const Eigen::Matrix3d& Q, std::vector<int>& in) {
+    in.clear();
+    for (int k : candidates)
+      if ((Q * ua[std::size_t(k)]).dot(ub[std::size_t(k)]) >= cos_thr) in.push_back(k);
+  };
+  std::vector<int> best, in;
+  inliers_of(start, best);
+  if (candidates.empty()) return best;
+  std::mt19937 rng(12345);
+  std::uniform_int_distribution<int> pick(0, int(candidates.size()) - 1);
+  for (int it = 0; it < iterations; ++it) {
+    const int i = candidates[std::size_t(pick(rng))], j = candidates[std::size_t(pick(rng))];
+    if (ua[std::size_t(i)].cross(ua[std::size_t(j)]).norm() < 0.05 || ub[std::size_t(i)].cross(ub[std::size_t(j)]).norm() < 0.05)
+      continue;
+    const Eigen::Matrix3d Qs = kabsch(ua, ub, {i, j});
+    inliers_of(Qs, in);
+    if (in.size() > best.size()) best = in;
+  }
+  return best;
+}
+
 // Every match of views a and b over the frame sets, as camera-frame rays through the lenses
 // of A and B (matches a lens does not see are skipped): fn(ray_a, ray_b, keypoint_a, keypoint_b).
 template <typename Fn>
@@ -517,27 +543,11 @@ PairData match_pair_rays(const FeatureSets& feats, int a, int b, const Calibrati
     return p;
   }
   const double cos_thr = std::cos(thr_rad);
-  auto inliers_of = [&](const Eigen::Matrix3d& Q, std::vector<int>& in) {
-    in.clear();
-    for (int k = 0; k < n; ++k)
-      if ((Q * ua[k]).dot(ub[k]) >= cos_thr) in.push_back(k);
-  };
-  std::mt19937 rng(12345);
-  std::uniform_int_distribution<int> pick(0, n - 1);
-  std::vector<int> best, in;
-  Eigen::Matrix3d Q = Q0;
-  inliers_of(Q0, best);
-  for (int it = 0; it < 1000; ++it) {
-    const int i = pick(rng), j = pick(rng);
-    if (ua[i].cross(ua[j]).norm() < 0.05 || ub[i].cross(ub[j]).norm() < 0.05) continue;  // ~3 degrees apart
-    const Eigen::Matrix3d Qs = kabsch(ua, ub, {i, j});
-    inliers_of(Qs, in);
-    if (in.size() > best.size()) best = in, Q = Qs;
-  }
-  for (int round = 0; round < 3 && best.size() >= 3; ++round) {
-    Q = kabsch(ua, ub, best);
-    inliers_of(Q, best);
-  }
+  std::vector<int> all(static_cast<std::size_t>(n));
+  std::iota(all.begin(), all.end(), 0);
+  std::vector<int> best = ray_rotation_inliers(ua, ub, all, Q0, cos_thr, 1000);
+  for (int round = 0; round < 3 && best.size() >= 3; ++round)
+    best = ray_rotation_inliers(ua, ub, all, kabsch(ua, ub, best), cos_thr, 0);
   p.inliers = int(best.size());
   int kept = 0;
   for (int k : best) {
@@ -1725,20 +1735,7 @@ static RingOrder ring_order(const FeatureSets& feats, const Rig& rough, const Ca
         for (int k = 0; k < int(ua.size()); ++k)
           if ((Q0 * ua[k]).dot(ub[k]) >= cos_tol) cand.push_back(k);
         if (cand.size() < 3) continue;
-        auto count = [&](const Eigen::Matrix3d& Q) {
-          int c = 0;
-          for (int k : cand) c += (Q * ua[k]).dot(ub[k]) >= cos_thr;
-          return c;
-        };
-        std::mt19937 rng(12345);
-        std::uniform_int_distribution<int> pick(0, int(cand.size()) - 1);
-        int best = count(Q0);
-        for (int it = 0; it < 300; ++it) {
-          const int i = cand[pick(rng)], j = cand[pick(rng)];
-          if (ua[i].cross(ua[j]).norm() < 0.05 || ub[i].cross(ub[j]).norm() < 0.05) continue;
-          best = std::max(best, count(kabsch(ua, ub, {i, j})));
-        }
-        (dir > 0 ? score[a][b] : score[b][a]) = best;
+        (dir > 0 ? score[a][b] : score[b][a]) = int(ray_rotation_inliers(ua, ub, cand, Q0, cos_thr, 300).size());
       }
     }
   std::vector<int> order(n), best_order;

@@ -4,6 +4,7 @@
 
 #include "stitch/color/color.hpp"
 #include "stitch/cv_interop.hpp"
+#include "stitch/parallel.hpp"
 
 #ifdef STITCH_HAVE_CUDA
 #include "stitch/cuda/stages_cuda.hpp"
@@ -74,18 +75,16 @@ class ColorOpsCpu final : public ColorOps {
       const ColorSampling::Pair& g = sampling_.pairs[k];
       if (request.pairs && !views[g.a].empty() && !views[g.b].empty()) active.push_back(int(k));
     }
-    std::vector<int> first{0};  // active pair j's chunks are [first[j], first[j + 1])
-    for (const int k : active) first.push_back(first.back() + chunk_count(sampling_.pairs[std::size_t(k)].count()));
+    std::vector<int> chunks, first{0};  // active pair j's chunks are [first[j], first[j + 1])
+    for (const int k : active) {
+      chunks.push_back(chunk_count(sampling_.pairs[std::size_t(k)].count()));
+      first.push_back(first.back() + chunks.back());
+    }
     // f(j, chunk, i0, i1): chunk (global index) of active pair j, its samples [i0, i1)
     auto for_chunks = [&](const auto& f) {
-      if (first.back() == 0) return;
-      cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
-        std::size_t j = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
-        for (int c = r.start; c < r.end; ++c) {
-          while (c >= first[j + 1]) ++j;
-          const int local = c - first[j], n = sampling_.pairs[std::size_t(active[j])].count();
-          f(j, c, local * kChunk, std::min(n, (local + 1) * kChunk));
-        }
+      parallel_for_parts(chunks, [&](std::size_t j, int local) {
+        const int n = sampling_.pairs[std::size_t(active[j])].count();
+        f(j, first[j] + local, local * kChunk, std::min(n, (local + 1) * kChunk));
       });
     };
     std::vector<PairStats> part(std::size_t(first.back()));
@@ -267,7 +266,7 @@ class ColorOpsCpu final : public ColorOps {
       bool matrix;
     };
     std::vector<Job> jobs;
-    std::vector<int> first_band{0};
+    std::vector<int> bands;  // per job
     for (std::size_t i = 0; i < views.size(); ++i) {
       if (views[i].empty()) continue;
       const Eigen::Matrix3d& M = matrices[i];
@@ -278,16 +277,16 @@ class ColorOpsCpu final : public ColorOps {
       for (int c = 0; c < 3; ++c)
         for (int k = 0; k < 3; ++k) T(c, k) = float(M(k, c));
       jobs.push_back({as_mat(views[i]), T, matrix});
-      first_band.push_back(first_band.back() + (jobs.back().img.rows + kBand - 1) / kBand);
+      bands.push_back((jobs.back().img.rows + kBand - 1) / kBand);
     }
     if (jobs.empty()) return;
-    cv::parallel_for_(cv::Range(0, first_band.back()), [&](const cv::Range& bands) {
+    int all_bands = 0;
+    for (const int b : bands) all_bands += b;
+    parallel_for_parts(bands, [&](std::size_t j, int t) {
       static thread_local cv::Mat input;
-      std::size_t j = std::size_t(std::upper_bound(first_band.begin(), first_band.end(), bands.start) - first_band.begin()) - 1;
-      for (int t = bands.start; t < bands.end; ++t) {
-        while (t >= first_band[j + 1]) ++j;
+      {
         const Job& job = jobs[j];
-        const int y0 = (t - first_band[j]) * kBand;
+        const int y0 = t * kBand;
         cv::Mat band = job.img.rowRange(y0, std::min(job.img.rows, y0 + kBand));
         if (job.matrix) {
           if (knee < 255) band.copyTo(input);
@@ -316,7 +315,7 @@ class ColorOpsCpu final : public ColorOps {
           }
         }
       }
-    }, double(first_band.back()));
+    }, double(all_bands));
   }
 
   void gather(const ImageView& view, const std::vector<int32_t>& xy,

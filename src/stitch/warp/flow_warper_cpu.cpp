@@ -8,6 +8,7 @@
 
 #include "stitch/blend/blender_cpu.hpp"
 #include "stitch/warp/flow_gate_math.hpp"
+#include "stitch/parallel.hpp"
 #include "stitch/warp/flow_pairs.hpp"
 #include "stitch/warp/flow_warper.hpp"
 #include "stitch/warp/warper_cpu.hpp"
@@ -58,34 +59,10 @@ void in_strips(int n, const F& f) {
 // in_strips over several images in one parallel loop (one wait for the threads): f(image, y0, y1).
 template <class F>
 void in_strips_n(const std::vector<int>& ns, const F& f) {
-  std::vector<int> strips(ns.size()), first{0};
-  for (std::size_t i = 0; i < ns.size(); ++i) {
-    strips[i] = std::max(1, std::min(ns[i] / 8, 4 * cv::getNumThreads()));
-    first.push_back(first.back() + strips[i]);
-  }
-  if (first.back() == 0) return;
-  cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
-    std::size_t i = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
-    for (int k = r.start; k < r.end; ++k) {
-      while (k >= first[i + 1]) ++i;
-      const int s = k - first[i], n = ns[i];
-      f(i, int(int64_t(n) * s / strips[i]), int(int64_t(n) * (s + 1) / strips[i]));
-    }
-  });
-}
-
-// for_rows over several images in one parallel loop: f(image, y).
-template <class F>
-void for_rows_n(const std::vector<int>& ns, const F& f) {
-  std::vector<int> first{0};
-  for (const int n : ns) first.push_back(first.back() + n);
-  if (first.back() == 0) return;
-  cv::parallel_for_(cv::Range(0, first.back()), [&](const cv::Range& r) {
-    std::size_t i = std::size_t(std::upper_bound(first.begin(), first.end(), r.start) - first.begin()) - 1;
-    for (int k = r.start; k < r.end; ++k) {
-      while (k >= first[i + 1]) ++i;
-      f(i, k - first[i]);
-    }
+  std::vector<int> strips(ns.size());
+  for (std::size_t i = 0; i < ns.size(); ++i) strips[i] = std::max(1, std::min(ns[i] / 8, 4 * cv::getNumThreads()));
+  parallel_for_parts(strips, [&](std::size_t i, int s) {
+    f(i, int(int64_t(ns[i]) * s / strips[i]), int(int64_t(ns[i]) * (s + 1) / strips[i]));
   });
 }
 
@@ -165,7 +142,7 @@ std::vector<cv::Mat> forward_backward_confidence_n(const std::vector<cv::Mat>& f
                                                    float tau) {
   std::vector<cv::Mat> map, back(fwd.size()), conf;
   for (const cv::Mat& f : fwd) map.emplace_back(f.size(), CV_32FC2), conf.emplace_back(f.size(), CV_32F);
-  for_rows_n(rows_of(fwd), [&](std::size_t i, int y) {
+  parallel_for_parts(rows_of(fwd), [&](std::size_t i, int y) {
     const cv::Vec2f* pf = fwd[i].ptr<cv::Vec2f>(y);
     cv::Vec2f* pm = map[i].ptr<cv::Vec2f>(y);
     for (int x = 0; x < fwd[i].cols; ++x) pm[x] = cv::Vec2f(x + pf[x][0], y + pf[x][1]);
@@ -173,7 +150,7 @@ std::vector<cv::Mat> forward_backward_confidence_n(const std::vector<cv::Mat>& f
   for (std::size_t i = 0; i < fwd.size(); ++i)
     cv::remap(bwd[i], back[i], map[i], cv::noArray(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   const float inv = 1.f / (tau * tau);
-  for_rows_n(rows_of(fwd), [&](std::size_t i, int y) {
+  parallel_for_parts(rows_of(fwd), [&](std::size_t i, int y) {
     const cv::Vec2f* pf = fwd[i].ptr<cv::Vec2f>(y);
     const cv::Vec2f* pb = back[i].ptr<cv::Vec2f>(y);
     float* pc = conf[i].ptr<float>(y);
@@ -202,7 +179,7 @@ std::vector<cv::Mat> cost_gate_n(const std::vector<cv::Mat>& a, const std::vecto
                                  const std::vector<cv::Mat>& flow) {
   std::vector<cv::Mat> improvement;
   for (const cv::Mat& x : a) improvement.emplace_back(x.size(), CV_32F);
-  for_rows_n(rows_of(a), [&](std::size_t i, int y) {
+  parallel_for_parts(rows_of(a), [&](std::size_t i, int y) {
     const float* pa = a[i].ptr<float>(y);
     const float* pb = b[i].ptr<float>(y);
     const cv::Vec2f* pf = flow[i].ptr<cv::Vec2f>(y);
@@ -211,7 +188,7 @@ std::vector<cv::Mat> cost_gate_n(const std::vector<cv::Mat>& a, const std::vecto
       pi[x] = std::fabs(pa[x] - pb[x]) - std::fabs(pa[x] - sample(b[i], x + pf[x][0], y + pf[x][1]));
   });
   improvement = blurred_n(improvement, flow_gate::kGateSigma);
-  for_rows_n(rows_of(a), [&](std::size_t i, int y) {
+  parallel_for_parts(rows_of(a), [&](std::size_t i, int y) {
     float* pi = improvement[i].ptr<float>(y);
     for (int x = 0; x < a[i].cols; ++x) pi[x] = flow_gate::gate(pi[x]);
   });
@@ -597,7 +574,7 @@ class FlowWarperCpu final : public FlowWarper {
         still_of[k].create(pairs[k]->gray[0].size(), CV_32F);
         rows.push_back(still_of[k].rows);
       }
-      for_rows_n(rows, [&](std::size_t j, int y) {
+      parallel_for_parts(rows, [&](std::size_t j, int y) {
         const float *a0 = m[4 * j].ptr<float>(y), *a1 = m[4 * j + 1].ptr<float>(y);
         const float *b0 = m[4 * j + 2].ptr<float>(y), *b1 = m[4 * j + 3].ptr<float>(y);
         float* ps = still_of[with[j]].ptr<float>(y);
@@ -673,7 +650,7 @@ class FlowWarperCpu final : public FlowWarper {
                                 const std::vector<cv::Mat>& prev, const std::vector<cv::Mat>& stillness) const {
     std::vector<cv::Mat> out;
     for (const cv::Mat& f : flow) out.emplace_back(f.size(), CV_32FC2);
-    for_rows_n(rows_of(flow), [&](std::size_t i, int y) {
+    parallel_for_parts(rows_of(flow), [&](std::size_t i, int y) {
       const cv::Vec2f* pf = flow[i].ptr<cv::Vec2f>(y);
       const float* pc = conf[i].ptr<float>(y);
       cv::Vec2f* po = out[i].ptr<cv::Vec2f>(y);
@@ -685,7 +662,7 @@ class FlowWarperCpu final : public FlowWarper {
     std::vector<int> rows;  // the flows with a previous one and a stillness to blend with
     for (std::size_t i = 0; i < out.size(); ++i)
       rows.push_back(prev[i].empty() || stillness[i].empty() ? 0 : out[i].rows);
-    for_rows_n(rows, [&](std::size_t i, int y) {
+    parallel_for_parts(rows, [&](std::size_t i, int y) {
       const cv::Vec2f* pp = prev[i].ptr<cv::Vec2f>(y);
       const float* ps = stillness[i].ptr<float>(y);
       cv::Vec2f* po = out[i].ptr<cv::Vec2f>(y);

@@ -206,10 +206,12 @@ void prefilter_sparse_views(std::vector<ViewPlacement>& views) {
     const int level = std::clamp(int(std::floor(std::log2(spacing / 1.32))), 0, kMaxLevel);
     for (int l = 0; l < level; ++l) {
       // reduced pixel = (pixel + 0.5) / 2 - 0.5, after the lens when there is one
+      auto half = [](double& p) { p = (p + 0.5) * 0.5 - 0.5; };
       if (v.has_lens()) {
         auto& L = v.lens;
-        L.fx *= 0.5, L.fy *= 0.5, L.cx = (L.cx + 0.5) * 0.5 - 0.5, L.cy = (L.cy + 0.5) * 0.5 - 0.5;
-        if (L.circle_r > 0) L.circle_cx = (L.circle_cx + 0.5) * 0.5 - 0.5, L.circle_cy = (L.circle_cy + 0.5) * 0.5 - 0.5, L.circle_r *= 0.5;
+        L.fx *= 0.5, L.fy *= 0.5;
+        half(L.cx), half(L.cy);
+        if (L.circle_r > 0) half(L.circle_cx), half(L.circle_cy), L.circle_r *= 0.5;
       } else {
         Eigen::Matrix3d S;
         S << 0.5, 0, -0.25, 0, 0.5, -0.25, 0, 0, 1;
@@ -236,6 +238,8 @@ void halve_frame(const ImageView& src, const ImageView& dst) {
 
 const std::vector<ImageView>& FrameReducer::reduce(const std::vector<ViewPlacement>& views,
                                                   const std::vector<ImageView>& frames) {
+  // Most outputs read every view 1:1 or denser: no copy, no parallel region per frame.
+  if (std::none_of(views.begin(), views.end(), [](const ViewPlacement& v) { return v.level > 0; })) return frames;
   out_ = frames;
   levels_.resize(frames.size());
   cv::parallel_for_(cv::Range(0, int(std::min(frames.size(), views.size()))), [&](const cv::Range& r) {

@@ -94,9 +94,9 @@ Rect largest_covered_rect(const Rig& rig);
 
 std::vector<ViewPlacement> place_views(const Rig& rig, const OutputGeometry& out);
 
-// Sets each view's level (ViewPlacement::level) from how far apart the output samples the
-// camera (the nearest power of two of the smallest spacing over the view), and maps the view
-// onto the reduced frame. Views sampled about 1:1 or denser keep level 0.
+// Sets each view's level (ViewPlacement::level) from how far apart the output reads the camera
+// (the median spacing over the view: level L from 1.32 * 2^L camera pixels) and maps the view
+// onto the reduced frame. Views read up to ~2.6 px apart keep level 0.
 void prefilter_sparse_views(std::vector<ViewPlacement>& views);
 
 // One level down: dst ((w + 1) / 2 x (h + 1) / 2) = the rounded mean of each 2x2 block of src
