@@ -81,6 +81,10 @@ TEST(StitchCalib, RigFileIsRefinedSavedAndAnnounced) {
   gst_structure_get_int(m, "canvas-width", &canvas_w);
   EXPECT_EQ(refined, 2);
   EXPECT_STREQ(gst_structure_get_string(m, "source"), "rig");
+  // Which camera model was installed (later calibrations keep it when left to auto).
+  const char* model = gst_structure_get_string(m, "model");
+  ASSERT_NE(model, nullptr) << "no model on the bus";
+  EXPECT_TRUE(g_str_equal(model, "rotation") || g_str_equal(model, "homography")) << model;
   Rig out = rig_load(saved);
   ASSERT_TRUE(out.calibrated());
   EXPECT_EQ(out.canvas_width, canvas_w);
@@ -146,6 +150,7 @@ TEST(StitchCalib, LoadFileIsUsedAsIs) {
   ASSERT_TRUE(r.errors.empty()) << r.errors[0];
   const GstStructure* m = calib_message(r);
   ASSERT_NE(m, nullptr);
+  EXPECT_FALSE(gst_structure_has_field(m, "model")) << "a loaded file was not estimated with a model";
   EXPECT_STREQ(gst_structure_get_string(m, "source"), "file");
   ASSERT_FALSE(r.frames.empty());
   EXPECT_EQ(r.frames[0].cols, 1040);
