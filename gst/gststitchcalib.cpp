@@ -51,7 +51,10 @@
  *   (`reason`, naming the cameras that hold it up, and `waited-s`) is posted at most once a
  *   second, and QoS messages are rate-limited (the first drop, at most one a second, and the
  *   total before the first bundle passes). After `calibration-timeout` seconds of running time
- *   it stops with an error; a stream that ends before any calibration is an error.
+ *   it stops with an error; a stream that ends before any calibration is an error. With non-live
+ *   inputs (files), a bundle that lacks a camera which has not started yet is held 200 ms before
+ *   it is dropped (10 s of wall time at most), so the cameras that started do not run ahead and
+ *   end before a late one joins.
  * - A `load-file` is checked against the images once: a warning names the cameras it does not
  *   fit.
  *
@@ -224,6 +227,9 @@ struct CalibState {
   double saved_at_s = -1, now_s = 0;  // running time (s) of the last write, of the last bundle
   /* the panorama stitchblend will output (STITCH_OUTPUT_SIZE_QUERY), asked before a first calibration */
   gint output_width = 0, output_height = 0, output_crop = 0;
+  /* bundles held while a first calibration waits for a late camera (streaming thread only) */
+  stitch::LateCameraHold late_hold;
+  int upstream_live = -1;  /* -1: not asked yet */
 
   void forget_saved() {
     offsets = saved_offsets = TimeOffsets();
@@ -493,6 +499,34 @@ static gboolean wait_for_worker(CalibState* st) {
   return TRUE;
 }
 
+/* Whether the cameras upstream are live (a latency query, asked once per start). */
+static bool upstream_is_live(GstStitchCalib* self) {
+  CalibState* st = self->state;
+  if (st->upstream_live < 0) {
+    GstQuery* q = gst_query_new_latency();
+    gboolean live = FALSE;
+    if (gst_pad_peer_query(GST_BASE_TRANSFORM_SINK_PAD(self), q)) gst_query_parse_latency(q, &live, nullptr, nullptr);
+    gst_query_unref(q);
+    st->upstream_live = live ? 1 : 0;
+  }
+  return st->upstream_live == 1;
+}
+
+/* Holds a bundle that a first calibration cannot use for lack of a camera (LateCameraHold),
+ * so that non-live cameras do not run ahead of it. FALSE: flushing or stopping. */
+static gboolean hold_for_late_camera(GstStitchCalib* self, const stitch::CalibSession::Frame& frame) {
+  CalibState* st = self->state;
+  const gint64 hold_us = st->late_hold.wait_us(st->session.waits_for_a_camera(frame), upstream_is_live(self));
+  if (hold_us <= 0) return TRUE;
+  GST_DEBUG_OBJECT(self, "holding a bundle without every camera for %" G_GINT64_FORMAT " ms (non-live inputs)", hold_us / 1000);
+  const gint64 until = g_get_monotonic_time() + hold_us;
+  while (g_get_monotonic_time() < until) {
+    if (st->unblock.load()) return FALSE;
+    g_usleep(10000);
+  }
+  return TRUE;
+}
+
 static double running_time_s(GstStitchCalib* self, GstBuffer* buf) {
   GstBaseTransform* trans = GST_BASE_TRANSFORM(self);
   const GstClockTime pts = GST_BUFFER_PTS(buf);
@@ -603,6 +637,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   const bool all_missing = n_views > 0 && n_views < 64 && (frame.missing_mask & ((guint64(1) << n_views) - 1)) ==
                                                               (guint64(1) << n_views) - 1;
   if (!rig || (all_missing && !st->passed_any)) {
+    if (!rig && !hold_for_late_camera(self, frame)) return GST_FLOW_FLUSHING;
     note_drop(self, buf);
     st->session.bundle_dropped();
     post_events(self);
@@ -654,6 +689,8 @@ static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
   st->started_us = g_get_monotonic_time();
   st->passed_any = false;
   st->unblock = false;
+  st->late_hold.reset();
+  st->upstream_live = -1;
   return TRUE;
 }
 

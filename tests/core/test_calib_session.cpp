@@ -580,3 +580,42 @@ TEST(CalibSession, CompleteLoadFileDoesNotWaitForMissingViews) {
   EXPECT_EQ(s.version(), version);
   EXPECT_TRUE(s.current());
 }
+
+// A first calibration from the images waits for a camera that has not started: its bundles are
+// held (non-live inputs only), for 200 ms each and 10 s in all, so the others do not run ahead.
+// A complete load-file, a calibration in place, live inputs, or every view missing: no hold.
+TEST(CalibSession, BundlesWithoutALateCameraAreHeldBeforeTheFirstCalibrationOnly) {
+  CalibSession s;
+  s.set_config(quick());
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {640, 480}, {320, 240}};
+  fr.missing_mask = 1u << 2;
+  s.on_frame(fr, {});
+  EXPECT_TRUE(s.waits_for_a_camera(fr));
+  CalibSession::Frame none_yet = fr;
+  none_yet.missing_mask = 7;  // a live aggregator's first timeout: nobody has started
+  EXPECT_FALSE(s.waits_for_a_camera(none_yet));
+  LateCameraHold hold;
+  EXPECT_EQ(hold.wait_us(true, true), 0) << "live cameras are never held";
+  std::int64_t total = 0;
+  int held = 0;
+  while (const std::int64_t w = hold.wait_us(s.waits_for_a_camera(fr), false)) total += w, ++held;
+  EXPECT_EQ(total, LateCameraHold::kBudgetUs);
+  EXPECT_EQ(held, int(LateCameraHold::kBudgetUs / LateCameraHold::kSliceUs));
+  // calibrated: nothing waits
+  fr.sizes[2] = {640, 480};
+  fr.missing_mask = 0;
+  const std::vector<cv::Mat> frames = crops(3);
+  for (int f = 1; f < 10 && !s.current(); ++f) feed(s, f, frames);
+  ASSERT_TRUE(s.current());
+  fr.missing_mask = 1u << 2;
+  EXPECT_FALSE(s.waits_for_a_camera(fr));
+  // a load-file is complete without it
+  const std::string path = testdata::temp_dir() + "/late_rig.json";
+  rig_save(testdata::shifted_rig(3, 640, 480, 400), path);
+  SessionConfig c = quick();
+  c.load_file = path;
+  CalibSession loaded;
+  loaded.set_config(c);
+  EXPECT_FALSE(loaded.waits_for_a_camera(fr));
+}

@@ -1,9 +1,12 @@
 // stitchcalib in real pipelines fed with crops of a real photo: rig-file refinement, load/save,
 // messages, recalibration, and every bad-input path named in the issue.
+#include <gst/app/gstappsink.h>
+#include <gst/app/gstappsrc.h>
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
 #include <fstream>
+#include <thread>
 #include <opencv2/imgproc.hpp>
 
 #include "gst_helpers.hpp"
@@ -536,4 +539,70 @@ TEST(StitchCalibBadInput, GrazingRigIsAClearError) {
   gsttest::RunResult r;
   gsttest::run_pipeline(chain("rig-file=" + rig, 2), crops(2), 2, r);
   EXPECT_TRUE(r.error_contains("degenerate")) << (r.errors.empty() ? "no error" : r.errors[0]);
+}
+
+// A non-live camera that starts late in wall time (a file on a slow disk, a decoder that takes
+// a while): stitchsync stands in for it after dropout-timeout, and the two others would run
+// ahead as fast as they decode while the first calibration, which needs every camera, drops
+// their bundles (~5 s of their video here, ~11 s on the office clip). stitchcalib holds those
+// bundles instead (back-pressure), so the panorama starts near the beginning of the others'.
+TEST(StitchCalib, NonLiveCameraStartingLateCostsTheOthersLittleVideo) {
+  gsttest::init();
+  const std::string rig = write_file("rough3late.json", rough_rig(3));
+  const std::vector<cv::Mat> views = crops();
+  GError* err = nullptr;
+  GstElement* pipe = gst_parse_launch(("stitchsync name=s ! stitchcalib rig-file=" + rig +
+                                       " ! stitchblend ! appsink name=out sync=false" + gsttest::appsrc_inputs(3)).c_str(),
+                                      &err);
+  ASSERT_NE(pipe, nullptr) << (err ? err->message : "");
+  constexpr int kFrames = 300;
+  std::vector<std::thread> cameras;
+  std::vector<GstElement*> srcs;
+  for (int i = 0; i < 3; ++i) {
+    GstElement* a = gst_bin_get_by_name(GST_BIN(pipe), ("a" + std::to_string(i)).c_str());
+    GstCaps* caps = gst_caps_new_simple("video/x-raw", "format", G_TYPE_STRING, "RGBA", "width", G_TYPE_INT,
+                                        views[i].cols, "height", G_TYPE_INT, views[i].rows, "framerate",
+                                        GST_TYPE_FRACTION, 30, 1, NULL);
+    g_object_set(a, "caps", caps, "format", GST_FORMAT_TIME, "block", TRUE, "max-bytes",
+                 guint64(2 * views[i].total() * 4), NULL);
+    gst_caps_unref(caps);
+    srcs.push_back(a);
+  }
+  GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  for (int i = 0; i < 3; ++i)
+    cameras.emplace_back([&, i]() {
+      if (i == 2) g_usleep(2 * G_USEC_PER_SEC);  // camera 2 starts 2 s late, from its first frame
+      for (int f = 0; f < kFrames; ++f) {
+        GstBuffer* b = gst_buffer_new_allocate(nullptr, views[i].total() * 4, nullptr);
+        gst_buffer_fill(b, 0, views[i].data, views[i].total() * 4);
+        GST_BUFFER_PTS(b) = gst_util_uint64_scale(f, GST_SECOND, 30);
+        GST_BUFFER_DURATION(b) = gst_util_uint64_scale(1, GST_SECOND, 30);
+        if (gst_app_src_push_buffer(GST_APP_SRC(srcs[i]), b) != GST_FLOW_OK) return;
+        g_usleep(10000);  // decoding at about 100 frames a second
+      }
+      gst_app_src_end_of_stream(GST_APP_SRC(srcs[i]));
+    });
+  GstClockTime first_pts = GST_CLOCK_TIME_NONE;
+  int panoramas = 0;
+  const gint64 deadline = g_get_monotonic_time() + 90 * G_TIME_SPAN_SECOND;
+  while (g_get_monotonic_time() < deadline) {
+    GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 50 * GST_MSECOND);
+    if (s) {
+      if (!panoramas++) first_pts = GST_BUFFER_PTS(gst_sample_get_buffer(s));
+      gst_sample_unref(s);
+    } else if (gst_app_sink_is_eos(GST_APP_SINK(sink))) {
+      break;
+    }
+  }
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  for (auto& t : cameras) t.join();
+  for (auto* a : srcs) gst_object_unref(a);
+  gst_object_unref(sink);
+  gst_object_unref(pipe);
+  ASSERT_GT(panoramas, 0);
+  std::printf("camera 2 started 2 s late: first panorama at %.2f s of the others' video, %d panoramas of %d\n",
+              double(first_pts) / GST_SECOND, panoramas, kFrames);
+  EXPECT_LT(double(first_pts) / GST_SECOND, 1.5);
+  EXPECT_GT(panoramas, kFrames - 60);
 }

@@ -608,6 +608,13 @@ std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bo
   return problem;
 }
 
+bool CalibSession::waits_for_a_camera(const Frame& frame) const {
+  const std::size_t n = frame.sizes.size();
+  const std::uint64_t all = n >= 64 ? ~std::uint64_t(0) : (std::uint64_t(1) << n) - 1;
+  return !current_ && !failed_ && config_.load_file.empty() && frame.missing_mask != 0 &&
+         (frame.missing_mask & all) != all;
+}
+
 bool CalibSession::wants_pixels(const Frame& frame) {
   if (failed_) return false;
   if (!current_ || (!sizes_.empty() && frame.sizes != sizes_))

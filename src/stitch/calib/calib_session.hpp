@@ -6,6 +6,7 @@
 // session hands out (run_calib_job, in a worker thread); the session never blocks.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cstdint>
@@ -160,6 +161,28 @@ struct SessionEvent {
   std::uint64_t processed = 0, dropped = 0;  // Qos (totals)
 };
 
+// A first calibration from the images needs every camera. In a non-live pipeline the cameras
+// that have started decode as fast as they can while stitchsync stands in for a late one, and
+// every bundle without it is dropped: a file camera that started 2 s late in wall time cost ~11 s
+// of the others' video. Holding each such bundle a while (back-pressure on stitchsync) keeps the
+// others at about one frame per slice until it comes; the wall-time budget bounds what a camera
+// that never comes costs. Live cameras run at their own pace: never held.
+class LateCameraHold {
+ public:
+  static constexpr std::int64_t kSliceUs = 200000, kBudgetUs = 10000000;
+  // Microseconds to hold this bundle (0: none), counted against the budget.
+  std::int64_t wait_us(bool waits_for_a_camera, bool live) {
+    if (!waits_for_a_camera || live || spent_us_ >= kBudgetUs) return 0;
+    const std::int64_t w = std::min(kSliceUs, kBudgetUs - spent_us_);
+    spent_us_ += w;
+    return w;
+  }
+  void reset() { spent_us_ = 0; }
+
+ private:
+  std::int64_t spent_us_ = 0;
+};
+
 class CalibSession {
  public:
   struct Frame {
@@ -187,6 +210,9 @@ class CalibSession {
   void reset();
 
   std::shared_ptr<const Rig> current() const { return current_; }
+  // The first calibration, from the images, waits for a camera this bundle lacks (some views
+  // present, none loaded from a file): see LateCameraHold.
+  bool waits_for_a_camera(const Frame& frame) const;
   std::uint64_t version() const { return version_; }
   bool job_in_flight() const { return job_in_flight_; }
   bool failed() const { return failed_; }  // a fatal error was reported

@@ -1700,8 +1700,48 @@ constexpr double kLensEvidenceRatio = 0.7, kLensEvidenceMinPx = 0.2;
 // before a: prefiltered loosely around that rotation (a guessed field of view moves the overlap
 // by up to ~15 degrees, as a common yaw), then counted under the best rotation of a RANSAC over
 // 2-ray rotations, as in match_pair_rays. The ring is the cyclic order, camera 0 first, whose
-// steps gather the most such matches (N <= 8: at most 5040 orders); ties keep pad order.
+// steps gather the most such matches: the heaviest Hamiltonian cycle, found exactly by dynamic
+// programming over subsets (Held-Karp, N <= 16: 2^15 x 16 x 16 steps); ties keep pad order.
 // slots[camera] = its place around the ring; empty for N < 3 or when no pair matches.
+constexpr int kMaxOrderedRing = 16;
+
+// The cyclic order (camera 0 first) with the largest sum of score[order[k]][order[k + 1]]:
+// best[mask][j] is the heaviest path from 0 through the cameras in mask (bits for 1..n-1)
+// ending at j. Exact, O(2^(n-1) n^2).
+static std::vector<int> heaviest_ring(const std::vector<std::vector<int>>& score) {
+  const int n = int(score.size()), m = n - 1, full = (1 << m) - 1;
+  constexpr long kNone = std::numeric_limits<long>::min();
+  std::vector<long> best(std::size_t(full + 1) * m, kNone);
+  std::vector<int8_t> from(best.size(), -1);
+  auto at = [&](int mask, int j) { return std::size_t(mask) * m + j; };  // j: camera j + 1
+  for (int j = 0; j < m; ++j) best[at(1 << j, j)] = score[0][j + 1];
+  for (int mask = 1; mask <= full; ++mask)
+    for (int j = 0; j < m; ++j) {
+      const long here = best[at(mask, j)];
+      if (here == kNone) continue;
+      for (int k = 0; k < m; ++k) {
+        if (mask & (1 << k)) continue;
+        const int next = mask | (1 << k);
+        const long total = here + score[j + 1][k + 1];
+        if (total > best[at(next, k)]) best[at(next, k)] = total, from[at(next, k)] = int8_t(j);
+      }
+    }
+  int last = 0;
+  long top = kNone;
+  for (int j = 0; j < m; ++j) {
+    const long total = best[at(full, j)] + score[j + 1][0];
+    if (total > top) top = total, last = j;
+  }
+  std::vector<int> order(n, 0);
+  for (int mask = full, j = last, k = n - 1; k >= 1; --k) {
+    order[k] = j + 1;
+    const int prev = from[at(mask, j)];
+    mask &= ~(1 << j);
+    j = prev;
+  }
+  return order;
+}
+
 struct RingOrder {
   std::vector<int> slots;
   bool reordered = false;
@@ -1709,7 +1749,7 @@ struct RingOrder {
 static RingOrder ring_order(const FeatureSets& feats, const Rig& rough, const CalibrationOptions& o) {
   RingOrder out;
   const int n = int(rough.cameras.size());
-  if (n < 3 || n > 8) return out;
+  if (n < 3 || n > kMaxOrderedRing) return out;
   constexpr double kTolRad = 0.45, kThrRad = 0.12;
   const double cos_tol = std::cos(kTolRad), cos_thr = std::cos(kThrRad);
   // score[a][b]: matches that agree with b one step after a around the ring.
@@ -1738,15 +1778,13 @@ static RingOrder ring_order(const FeatureSets& feats, const Rig& rough, const Ca
         (dir > 0 ? score[a][b] : score[b][a]) = int(ray_rotation_inliers(ua, ub, cand, Q0, cos_thr, 300).size());
       }
     }
-  std::vector<int> order(n), best_order;
-  std::iota(order.begin(), order.end(), 0);
-  long best_total = -1;
-  do {
-    long total = 0;
-    for (int k = 0; k < n; ++k) total += score[order[k]][order[(k + 1) % n]];
-    if (total > best_total) best_total = total, best_order = order;
-  } while (std::next_permutation(order.begin() + 1, order.end()));
-  if (best_total <= 0) return out;
+  const std::vector<int> best_order = heaviest_ring(score);
+  long best_total = 0, pad_total = 0;
+  for (int k = 0; k < n; ++k) {
+    best_total += score[best_order[k]][best_order[(k + 1) % n]];
+    pad_total += score[k][(k + 1) % n];
+  }
+  if (best_total <= pad_total) return out;  // pad order, as good as any (or nothing matched)
   out.slots.assign(n, 0);
   for (int k = 0; k < n; ++k) {
     out.slots[best_order[k]] = k;
