@@ -55,6 +55,11 @@
  *   inputs (files), a bundle that lacks a camera which has not started yet is held 200 ms before
  *   it is dropped (10 s of wall time at most), so the cameras that started do not run ahead and
  *   end before a late one joins.
+ * - A camera that has delivered no frame, or only dark ones, for `leave-out-after` seconds of
+ *   running time (4 s) before the first calibration is left out of it: the others (two at least)
+ *   are calibrated and stitched, its view is marked missing, a warning and the message's
+ *   `left-out` (camera indices) name it, and save-file is not written. When it shows a picture
+ *   it joins, with a calibration from scratch.
  * - A `load-file` is checked against the images once: a warning names the cameras it does not
  *   fit.
  *
@@ -147,6 +152,7 @@ enum {
   PROP_CALIBRATION_WINDOW,
   PROP_CALIBRATION_TIMEOUT,
   PROP_DRIFT_THRESHOLD,
+  PROP_LEAVE_OUT_AFTER,
 };
 
 typedef enum { ON_RESIZE_RECALIBRATE = 0, ON_RESIZE_ERROR = 1 } OnResize;
@@ -163,6 +169,7 @@ static guint signals[LAST_SIGNAL];
 #define DEFAULT_CALIBRATION_WINDOW 2.0
 #define DEFAULT_CALIBRATION_TIMEOUT 30.0
 #define DEFAULT_DRIFT_THRESHOLD 0.0
+#define DEFAULT_LEAVE_OUT_AFTER 4.0
 #define PROJECTION_UNSET -1
 
 /* One calibration job in a worker thread. The worker owns its inputs and this channel (shared):
@@ -355,6 +362,19 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
   if (!r.model.empty()) gst_structure_set(s, "model", G_TYPE_STRING, r.model.c_str(), NULL);
   GValue cams = double_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
+  if (stitch::any_left_out(rig)) {
+    /* the cameras calibrated without (no frame, or a dark one): their views are missing */
+    GValue left_out = G_VALUE_INIT;
+    gst_value_array_init(&left_out, 1);
+    for (std::size_t i = 0; i < rig.cameras.size(); ++i) {
+      if (!rig.cameras[i].left_out) continue;
+      GValue item = G_VALUE_INIT;
+      g_value_init(&item, G_TYPE_INT);
+      g_value_set_int(&item, int(i));
+      gst_value_array_append_and_take_value(&left_out, &item);
+    }
+    gst_structure_take_value(s, "left-out", &left_out);
+  }
   return s;
 }
 
@@ -364,6 +384,7 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
 static void save_rig(GstStitchCalib* self, const std::shared_ptr<const stitch::Rig>& rig, double now_s) {
   CalibState* st = self->state;
   if (st->save_path.empty() || !rig) return;
+  if (stitch::any_left_out(*rig)) return;  /* the session said so when it installed it */
   try {
     if (st->offsets.present) {
       stitch::Rig out = *rig;
@@ -644,6 +665,12 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     return GST_BASE_TRANSFORM_FLOW_DROPPED;
   }
   gst_buffer_add_stitch_rig_meta(buf, rig, st->session.version());
+  if (stitch::any_left_out(*rig)) {
+    /* a camera calibrated without (never delivered, or dark): downstream, its view is missing */
+    GstStitchBundleMeta* writable = gst_buffer_get_stitch_bundle_meta(buf);
+    for (std::size_t i = 0; writable && i < rig->cameras.size() && i < 64; ++i)
+      if (rig->cameras[i].left_out) writable->missing_mask |= guint64(1) << i;
+  }
   st->passed_any = true;
   st->session.bundle_passed();
   post_events(self);
@@ -771,6 +798,7 @@ static void gst_stitch_calib_set_property(GObject* object, guint prop_id, const 
     case PROP_CALIBRATION_WINDOW: c.calibration_window_s = g_value_get_double(value); break;
     case PROP_CALIBRATION_TIMEOUT: c.calibration_timeout_s = g_value_get_double(value); break;
     case PROP_DRIFT_THRESHOLD: c.drift_threshold_px = g_value_get_double(value); break;
+    case PROP_LEAVE_OUT_AFTER: c.leave_out_after_s = g_value_get_double(value); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -801,6 +829,7 @@ static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue
     case PROP_CALIBRATION_WINDOW: g_value_set_double(value, c.calibration_window_s); break;
     case PROP_CALIBRATION_TIMEOUT: g_value_set_double(value, c.calibration_timeout_s); break;
     case PROP_DRIFT_THRESHOLD: g_value_set_double(value, c.drift_threshold_px); break;
+    case PROP_LEAVE_OUT_AFTER: g_value_set_double(value, c.leave_out_after_s); break;
     default: G_OBJECT_WARN_INVALID_PROPERTY_ID(object, prop_id, pspec);
   }
 }
@@ -874,6 +903,13 @@ static void gst_stitch_calib_class_init(GstStitchCalibClass* klass) {
                           "Keep trying to calibrate for this many seconds of running time, posting "
                           "stitchcalib-pending messages, then stop with an error (0 = keep trying); a stream "
                           "that ends uncalibrated is an error", 0, G_MAXDOUBLE, DEFAULT_CALIBRATION_TIMEOUT, live));
+  g_object_class_install_property(gobject_class, PROP_LEAVE_OUT_AFTER,
+      g_param_spec_double("leave-out-after", "Leave out after",
+                          "Before the first calibration, a camera that has delivered no frame, or only dark "
+                          "ones, for this many seconds of running time is left out: the others are calibrated "
+                          "and stitched, a warning and the message's left-out name it, and it joins with a new "
+                          "calibration once it shows a picture (0 = wait for every camera)",
+                          0, 3600, DEFAULT_LEAVE_OUT_AFTER, live));
   g_object_class_install_property(gobject_class, PROP_DRIFT_THRESHOLD,
       g_param_spec_double("drift-threshold", "Drift threshold",
                           "Drift watch: every 5 s, measure the alignment on a fresh frame; two checks in a row "

@@ -212,11 +212,14 @@ TEST(CalibSession, CalibratesOnTheFirstGoodBundleAndReportsResiduals) {
   EXPECT_EQ(s.current()->canvas_height % 2, 0);
 }
 
-// A camera dark for its first 5 s: no attempt on those frames, rate-limited pending messages
-// naming the right camera, rate-limited QoS, then a calibration. Not fatal.
+// A camera dark for its first 5 s, with leaving out turned off: no attempt on those frames,
+// rate-limited pending messages naming the right camera, rate-limited QoS, then a calibration.
+// Not fatal.
 TEST(CalibSession, DarkCameraForFiveSecondsIsNotFatal) {
   CalibSession s;
-  s.set_config(quick());
+  SessionConfig c = quick();
+  c.leave_out_after_s = 0;
+  s.set_config(c);
   auto good = crops(3);
   auto dark = good;
   dark[1] = black();
@@ -240,6 +243,95 @@ TEST(CalibSession, DarkCameraForFiveSecondsIsNotFatal) {
   const SessionEvent* q = find(e, SessionEvent::Type::Qos);
   ASSERT_NE(q, nullptr);
   EXPECT_EQ(q->dropped, 150u);
+}
+
+// The default: a camera dark for 4 s of running time is left out, the other two are calibrated
+// and stitched (its view is on no canvas), and it joins with a calibration from scratch once it
+// shows a picture. Both steps are announced, naming the camera.
+TEST(CalibSession, DarkCameraIsLeftOutAndJoinsWhenItShowsAPicture) {
+  CalibSession s;
+  s.set_config(quick());
+  const auto good = crops(3);
+  auto dark = good;
+  dark[2] = black();
+  std::vector<SessionEvent> events;
+  int f = 0;
+  for (; f < 200 && !s.current(); ++f)
+    for (auto& e : feed(s, f, dark)) events.push_back(e);
+  ASSERT_TRUE(s.current()) << "the two cameras with a picture were never stitched";
+  EXPECT_NEAR(f / 30.0, SessionConfig().leave_out_after_s, 0.2);
+  EXPECT_EQ(count(events, SessionEvent::Type::Error), 0);
+  const Rig& rig = *s.current();
+  ASSERT_EQ(rig.cameras.size(), 3u);
+  EXPECT_TRUE(rig.cameras[2].left_out);
+  EXPECT_FALSE(rig.cameras[0].left_out);
+  EXPECT_FALSE(rig.cameras[1].left_out);
+  EXPECT_TRUE(camera_canvas_outline(rig, 2).empty());
+  EXPECT_FALSE(camera_canvas_outline(rig, 1).empty());
+  bool named = false;
+  for (const auto& e : events)
+    if (e.type == SessionEvent::Type::Warning && e.text.find("camera 2 delivered no picture") != std::string::npos)
+      named = true;
+  EXPECT_TRUE(named);
+  EXPECT_THROW(rig_to_json_string(rig), RigError) << "a rig without a camera is never saved as if whole";
+  // Still dark: nothing changes. Then it shows a picture: calibrated again, with all three.
+  const auto version = s.version();
+  for (int k = 0; k < 30; ++k, ++f) feed(s, f, dark);
+  EXPECT_EQ(s.version(), version);
+  events.clear();
+  for (int k = 0; k < 60 && (!s.current() || any_left_out(*s.current())); ++k, ++f)
+    for (auto& e : feed(s, f, good)) events.push_back(e);
+  ASSERT_TRUE(s.current());
+  EXPECT_FALSE(any_left_out(*s.current()));
+  EXPECT_FALSE(camera_canvas_outline(*s.current(), 2).empty());
+  const SessionEvent* w = find(events, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("camera 2 delivers a picture now"), std::string::npos) << w->text;
+}
+
+// A camera that never delivers a frame (stitchsync marks it missing, at a placeholder size) is
+// left out the same way; when it starts at its real size, the calibration is made again with it,
+// not reported as a resolution change.
+TEST(CalibSession, CameraThatNeverDeliversIsLeftOutAndJoinsWhenItStarts) {
+  CalibSession s;
+  s.set_config(quick());
+  const auto frames = crops(3);
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {640, 480}, {320, 240}};
+  fr.missing_mask = 1u << 2;
+  std::vector<SessionEvent> events;
+  const cv::Mat placeholder(240, 320, CV_8UC4, cv::Scalar(0, 0, 0, 255));
+  const std::vector<cv::Mat> with_placeholder = {frames[0], frames[1], placeholder};
+  auto step = [&](int f, const std::vector<cv::Mat>& m) {
+    fr.time_s = f / 30.0;
+    auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(m) : std::vector<ImageView>());
+    if (job) {
+      std::atomic<bool> cancel{false};
+      s.on_outcome(run_calib_job(*job, cancel));
+    }
+    for (auto& e : s.take_events()) events.push_back(e);
+  };
+  int f = 0;
+  for (; f < 200 && !s.current(); ++f) step(f, with_placeholder);
+  ASSERT_TRUE(s.current()) << "never stitched without the dead camera";
+  EXPECT_NEAR(f / 30.0, SessionConfig().leave_out_after_s, 0.2);
+  EXPECT_TRUE(s.current()->cameras[2].left_out);
+  EXPECT_FALSE(s.current()->cameras[1].left_out);
+  EXPECT_EQ(count(events, SessionEvent::Type::Error), 0);
+  // The two calibrated cameras are 400 px apart, as rendered.
+  const Rig& rig = *s.current();
+  const auto c0 = camera_canvas_corners(rig.cameras[0]), c1 = camera_canvas_corners(rig.cameras[1]);
+  EXPECT_NEAR(c1[0].x() - c0[0].x(), 400, 3);
+  events.clear();
+  fr.sizes[2] = {640, 480};
+  fr.missing_mask = 0;
+  for (int k = 0; k < 30 && (!s.current() || any_left_out(*s.current())); ++k, ++f) step(f, frames);
+  ASSERT_TRUE(s.current());
+  EXPECT_FALSE(any_left_out(*s.current()));
+  for (const auto& e : events) EXPECT_EQ(e.text.find("resolution changed"), std::string::npos) << e.text;
+  const SessionEvent* w = find(events, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("camera 2 delivers a picture now"), std::string::npos) << w->text;
 }
 
 TEST(CalibSession, GivesUpAfterTheTimeoutNamingTheCamera) {

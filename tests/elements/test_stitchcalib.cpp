@@ -4,6 +4,8 @@
 #include <gst/app/gstappsrc.h>
 #include <gtest/gtest.h>
 
+#include <atomic>
+
 #include <Eigen/Dense>
 #include <fstream>
 #include <thread>
@@ -605,4 +607,121 @@ TEST(StitchCalib, NonLiveCameraStartingLateCostsTheOthersLittleVideo) {
               double(first_pts) / GST_SECOND, panoramas, kFrames);
   EXPECT_LT(double(first_pts) / GST_SECOND, 1.5);
   EXPECT_GT(panoramas, kFrames - 60);
+}
+
+// A camera that shows only black (a lens cap, a dead sensor) is left out after 4 s: the others are
+// calibrated and stitched, with a warning naming it; once it shows a picture it joins, with a
+// calibration from scratch and a second warning. Before, no panorama came out at all.
+TEST(StitchCalib, DarkCameraIsLeftOutThenJoins) {
+  const std::vector<cv::Mat> good = crops();
+  const cv::Mat black(good[2].size(), CV_8UC4, cv::Scalar(0, 0, 0, 255));
+  constexpr int kFrames = 300, kDarkUntil = 180;
+  gsttest::RunResult r;
+  gsttest::run_pipeline_frames(chain("", 3),
+                               [&](int f) {
+                                 std::vector<cv::Mat> v = good;
+                                 if (f < kDarkUntil) v[2] = black;
+                                 return v;
+                               },
+                               kFrames, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  EXPECT_TRUE(r.warning_contains("camera 2 delivered no picture"));
+  EXPECT_TRUE(r.warning_contains("camera 2 delivers a picture now"));
+  ASSERT_FALSE(r.frames.empty());
+  // Stitched from 4 s on (120 frames), the dark camera's 2 s included.
+  EXPECT_GT(int(r.frames.size()), kFrames - 120 - 30);
+  // The first calibration leaves camera 2 out (and says so), the last one has all three.
+  const GstStructure* first = calib_message(r);
+  ASSERT_NE(first, nullptr);
+  const GValue* left_out = gst_structure_get_value(first, "left-out");
+  ASSERT_NE(left_out, nullptr);
+  ASSERT_EQ(gst_value_array_get_size(left_out), 1u);
+  EXPECT_EQ(g_value_get_int(gst_value_array_get_value(left_out, 0)), 2);
+  const GstStructure* last_calib = nullptr;
+  for (int k = 0; calib_message(r, k); ++k) last_calib = calib_message(r, k);
+  EXPECT_NE(last_calib, first);
+  EXPECT_FALSE(gst_structure_has_field(last_calib, "left-out"));
+  const cv::Mat& last = r.frames.back();
+  std::printf("dark camera 2 for %d frames: %zu panoramas of %d, first %dx%d, last %dx%d\n", kDarkUntil,
+              r.frames.size(), kFrames, r.frames.front().cols, r.frames.front().rows, last.cols, last.rows);
+}
+
+// A file camera that never delivers a frame (a dead input that never ends): after the late-camera
+// hold, the others are stitched without it from 4 s of their running time, with a warning naming it.
+// Before, no panorama came out at all.
+TEST(StitchCalib, CameraThatNeverDeliversIsLeftOut) {
+  gsttest::init();
+  const std::vector<cv::Mat> views = crops();
+  GError* err = nullptr;
+  GstElement* pipe = gst_parse_launch(
+      ("stitchsync name=s ! stitchcalib ! stitchblend ! appsink name=out sync=false" + gsttest::appsrc_inputs(3)).c_str(),
+      &err);
+  ASSERT_NE(pipe, nullptr) << (err ? err->message : "");
+  constexpr int kFrames = 240;
+  std::vector<GstElement*> srcs;
+  for (int i = 0; i < 3; ++i) {
+    GstElement* a = gst_bin_get_by_name(GST_BIN(pipe), ("a" + std::to_string(i)).c_str());
+    GstCaps* caps = gst_caps_new_simple("video/x-raw", "format", G_TYPE_STRING, "RGBA", "width", G_TYPE_INT,
+                                        views[i].cols, "height", G_TYPE_INT, views[i].rows, "framerate",
+                                        GST_TYPE_FRACTION, 30, 1, NULL);
+    g_object_set(a, "caps", caps, "format", GST_FORMAT_TIME, "block", TRUE, "max-bytes",
+                 guint64(2 * views[i].total() * 4), NULL);
+    gst_caps_unref(caps);
+    srcs.push_back(a);
+  }
+  GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
+  GstBus* bus = gst_element_get_bus(pipe);
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  std::atomic<int> finished{0};
+  std::vector<std::thread> cameras;
+  for (int i = 0; i < 2; ++i)
+    cameras.emplace_back([&, i]() {
+      for (int f = 0; f < kFrames; ++f) {
+        GstBuffer* b = gst_buffer_new_allocate(nullptr, views[i].total() * 4, nullptr);
+        gst_buffer_fill(b, 0, views[i].data, views[i].total() * 4);
+        GST_BUFFER_PTS(b) = gst_util_uint64_scale(f, GST_SECOND, 30);
+        GST_BUFFER_DURATION(b) = gst_util_uint64_scale(1, GST_SECOND, 30);
+        if (gst_app_src_push_buffer(GST_APP_SRC(srcs[i]), b) != GST_FLOW_OK) break;
+      }
+      gst_app_src_end_of_stream(GST_APP_SRC(srcs[i]));
+      ++finished;
+    });
+  int panoramas = 0;
+  bool named = false, ended_camera2 = false;
+  std::string error;
+  const gint64 deadline = g_get_monotonic_time() + 90 * G_TIME_SPAN_SECOND;
+  while (g_get_monotonic_time() < deadline && error.empty()) {
+    if (GstSample* s = gst_app_sink_try_pull_sample(GST_APP_SINK(sink), 50 * GST_MSECOND)) {
+      ++panoramas;
+      gst_sample_unref(s);
+    } else if (gst_app_sink_is_eos(GST_APP_SINK(sink))) {
+      break;
+    }
+    if (finished == 2 && !ended_camera2) {  // the dead camera's source ends last
+      gst_app_src_end_of_stream(GST_APP_SRC(srcs[2]));
+      ended_camera2 = true;
+    }
+    while (GstMessage* m = gst_bus_pop(bus)) {
+      GError* e = nullptr;
+      if (GST_MESSAGE_TYPE(m) == GST_MESSAGE_WARNING) {
+        gst_message_parse_warning(m, &e, nullptr);
+        named = named || std::string(e->message).find("camera 2 delivered no picture") != std::string::npos;
+      } else if (GST_MESSAGE_TYPE(m) == GST_MESSAGE_ERROR) {
+        gst_message_parse_error(m, &e, nullptr);
+        error = e->message;
+      }
+      if (e) g_error_free(e);
+      gst_message_unref(m);
+    }
+  }
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  for (auto& t : cameras) t.join();
+  for (auto* a : srcs) gst_object_unref(a);
+  gst_object_unref(sink);
+  gst_object_unref(bus);
+  gst_object_unref(pipe);
+  std::printf("camera 2 never delivered: %d panoramas of %d\n", panoramas, kFrames);
+  EXPECT_TRUE(error.empty()) << error;
+  EXPECT_TRUE(named);
+  EXPECT_GT(panoramas, kFrames - 120 - 30);
 }

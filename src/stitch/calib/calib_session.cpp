@@ -211,6 +211,62 @@ FrameSet FrameSet::copy_of(const std::vector<ImageView>& views) {
 
 namespace {
 
+bool bit(std::uint64_t mask, std::size_t i) { return i < 64 && (mask >> i & 1); }
+
+std::string camera_list(std::uint64_t mask, std::size_t n) {
+  std::string who;
+  for (std::size_t i = 0; i < n; ++i)
+    if (bit(mask, i)) who += (who.empty() ? "camera " : ", ") + std::to_string(i);
+  return who;
+}
+
+// The cameras not in `left_out` (and the reference's index among them; 0 when it is left out).
+template <class T>
+std::vector<T> kept_items(const std::vector<T>& all, std::uint64_t left_out) {
+  std::vector<T> kept;
+  for (std::size_t i = 0; i < all.size(); ++i)
+    if (!bit(left_out, i)) kept.push_back(all[i]);
+  return kept;
+}
+int kept_index(int full, std::uint64_t left_out) {
+  if (full < 0 || bit(left_out, std::size_t(full))) return full < 0 ? full : 0;
+  int k = 0;
+  for (int i = 0; i < full; ++i) k += !bit(left_out, std::size_t(i));
+  return k;
+}
+std::vector<int> full_indices(std::size_t n, std::uint64_t left_out) {
+  std::vector<int> idx;
+  for (std::size_t i = 0; i < n; ++i)
+    if (!bit(left_out, i)) idx.push_back(int(i));
+  return idx;
+}
+
+// A calibration of the kept cameras as one of every camera: a placeholder for each left-out
+// one (its frame size, on no canvas), indices and residuals renumbered.
+void with_left_out_cameras(Rig& rig, RigResiduals& residuals, std::uint64_t left_out,
+                           const std::vector<std::array<int, 2>>& sizes) {
+  const std::vector<int> idx = full_indices(sizes.size(), left_out);
+  if (idx.size() != rig.cameras.size()) return;
+  std::vector<Camera> cams(sizes.size());
+  for (std::size_t i = 0; i < sizes.size(); ++i) {
+    Camera& c = cams[i];
+    c.width = sizes[i][0];
+    c.height = sizes[i][1];
+    c.fx = c.fy = std::max(1, std::max(c.width, c.height));
+    c.cx = 0.5 * (c.width - 1);
+    c.cy = 0.5 * (c.height - 1);
+    if (rig.planar()) c.homography = Eigen::Matrix3d::Identity();
+    c.left_out = true;
+  }
+  for (std::size_t k = 0; k < idx.size(); ++k) cams[std::size_t(idx[k])] = rig.cameras[k];
+  rig.cameras = std::move(cams);
+  rig.reference = idx[std::size_t(std::clamp(rig.reference, 0, int(idx.size()) - 1))];
+  std::vector<double> camera_px(sizes.size(), -1);
+  for (std::size_t k = 0; k < idx.size() && k < residuals.camera_px.size(); ++k) camera_px[std::size_t(idx[k])] = residuals.camera_px[k];
+  residuals.camera_px = camera_px;
+  for (auto& p : residuals.pairs) p.a = idx[std::size_t(p.a)], p.b = idx[std::size_t(p.b)];
+}
+
 bool boxes_overlap(const Rig& rig, int a, int b) {
   if (rig.canvas_wrap) return true;  // across the wrap: let the matches decide
   double box[2][4];
@@ -342,6 +398,7 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
   o.candidate = measure_residuals(rig, judge, &cancel);
   if (cancelled()) return o;
   if (job.kind != JobKind::First && job.current) o.current = measure_residuals(*job.current, judge, &cancel);
+  if (job.left_out) with_left_out_cameras(rig, o.candidate, job.left_out, job.sizes);
   cancelled();
   return o;
 }
@@ -402,9 +459,16 @@ bool CalibSession::handle_sizes(const Frame& frame) {
   if (frame.sizes.size() != sizes_.size()) {
     what = std::to_string(sizes_.size()) + " -> " + std::to_string(frame.sizes.size()) + " cameras";
   } else {
-    bool any = false;
-    for (std::size_t i = 0; i < sizes_.size(); ++i) any = any || differs(i);
+    bool any = false, only_left_out = true;
+    for (std::size_t i = 0; i < sizes_.size(); ++i)
+      if (differs(i)) any = true, only_left_out = only_left_out && bit(left_out_, i);
     if (!any) return true;
+    if (only_left_out) {
+      // a left-out camera's placeholder size: it has started
+      warn(camera_list(left_out_ & ~frame.missing_mask, sizes_.size()) + " delivers a picture now: calibrating again with it");
+      forget_calibration();
+      return true;
+    }
     for (std::size_t i = 0; i < sizes_.size(); ++i)
       if (differs(i))
         what += (what.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " " + size_text(sizes_[i]) +
@@ -415,9 +479,16 @@ bool CalibSession::handle_sizes(const Frame& frame) {
     return false;
   }
   warn("Input resolution changed mid-stream (" + what + "); recalibrating");
+  forget_calibration();
+  return true;
+}
+
+void CalibSession::forget_calibration() {
   // From scratch (the rough rig or the images), never from the old geometry: it was made for
   // other cameras. Jobs in flight are forgotten; the version keeps counting.
   current_.reset();
+  left_out_ = 0;
+  absent_since_.clear();
   rough_.reset();
   sizes_.clear();
   panorama_w_ = panorama_h_ = 0;
@@ -429,7 +500,6 @@ bool CalibSession::handle_sizes(const Frame& frame) {
   first_frame_at_ = now_;
   next_attempt_at_ = now_;
   last_pending_at_ = -1e9;
-  return true;
 }
 
 bool CalibSession::load_file(uint64_t missing) {
@@ -531,7 +601,9 @@ void CalibSession::install(CalibReport rep, CalibrationResult* result) {
   panorama_h_ = current_->canvas_height;
   last_calibration_at_ = now_;
   if (rep.residuals.median_px >= 0) baseline_px_ = rep.residuals.median_px;
-  if (!config_.save_file.empty()) {
+  if (!config_.save_file.empty() && any_left_out(*current_)) {
+    warn("save-file: not written while a camera is left out of the calibration");
+  } else if (!config_.save_file.empty()) {
     try {
       rig_save(*current_, config_.save_file);
     } catch (const std::exception& e) {
@@ -583,11 +655,13 @@ std::shared_ptr<CalibJob> CalibSession::make_job(JobKind kind) {
   return job;
 }
 
-std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score) {
+std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score,
+                                         std::uint64_t skip) {
   std::string problem;
   double worst = 1e300;
   tears_.resize(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
+    if (bit(skip, i)) continue;
     FrameQuality q = assess_frame(views[i]);
     // A broken keyframe lasts until the next keyframe (a GOP, 1-2 s); a "tear" at the same row
     // for longer is the picture's own (the column rules and text lines of a newspaper, a still).
@@ -615,10 +689,41 @@ bool CalibSession::waits_for_a_camera(const Frame& frame) const {
          (frame.missing_mask & all) != all;
 }
 
+std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::vector<ImageView>& views) {
+  const std::size_t n = frame.sizes.size();
+  if (n > 64 || config_.leave_out_after_s <= 0) return 0;
+  absent_since_.resize(n, -1);
+  std::uint64_t absent = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const bool gone = bit(frame.missing_mask, i) ||
+                      (views.size() == n && assess_frame(views[i]).verdict == FrameVerdict::Dark);
+    if (!gone) {
+      absent_since_[i] = -1;
+      continue;
+    }
+    if (absent_since_[i] < 0) absent_since_[i] = now_;
+    absent |= std::uint64_t(1) << i;
+  }
+  if (!absent || n - std::size_t(__builtin_popcountll(absent)) < 2) return 0;
+  for (std::size_t i = 0; i < n; ++i)
+    if (bit(absent, i) && now_ - absent_since_[i] < config_.leave_out_after_s) return 0;
+  return absent;
+}
+
 bool CalibSession::wants_pixels(const Frame& frame) {
   if (failed_) return false;
-  if (!current_ || (!sizes_.empty() && frame.sizes != sizes_))
-    return frame.missing_mask == 0 && config_.load_file.empty() && !job_in_flight_;
+  if (!current_ || (!sizes_.empty() && frame.sizes != sizes_)) {
+    if (!config_.load_file.empty() || job_in_flight_) return false;
+    if (frame.missing_mask == 0) return true;
+    // the cameras that have delivered, once the missing ones may be left out
+    for (std::size_t i = 0; i < frame.sizes.size(); ++i)
+      if (bit(frame.missing_mask, i) &&
+          (i >= absent_since_.size() || absent_since_[i] < 0 || now_ - absent_since_[i] < config_.leave_out_after_s))
+        return false;
+    return config_.leave_out_after_s > 0;
+  }
+  // a left-out camera that sends frames again: is it back (not dark)?
+  if (left_out_) return (left_out_ & ~frame.missing_mask) != 0 && now_ - last_rejoin_check_ >= 0.5;
   if (frame.missing_mask) return false;
   if (window_open_ || load_check_due_ || recalibrate_requested_) return true;
   if (config_.recalibrate_interval_s > 0 && now_ + 0.5 >= last_calibration_at_ + config_.recalibrate_interval_s) return true;
@@ -637,11 +742,10 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       load_file(frame.missing_mask);
       return nullptr;
     }
-    if (frame.missing_mask) {
-      std::string who;
-      for (std::size_t i = 0; i < frame.sizes.size() && i < 64; ++i)
-        if (frame.missing_mask >> i & 1) who += (who.empty() ? "camera " : ", ") + std::to_string(i);
-      pending(who + " has not delivered a frame yet");
+    // A camera missing (or dark) for leave_out_after_s is left out: the others go on.
+    const std::uint64_t leave = cameras_to_leave_out(frame, have_pixels ? views : std::vector<ImageView>());
+    if (frame.missing_mask & ~leave) {
+      pending(camera_list(frame.missing_mask & ~leave, frame.sizes.size()) + " has not delivered a frame yet");
       return nullptr;
     }
     if (!load_rough()) return nullptr;
@@ -655,20 +759,43 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     // images alone need them in every camera.
     const std::string problem = rough_ && config_.options.refinement == Refinement::None
                                     ? std::string()
-                                    : bundle_problem(views, !rough_.has_value(), nullptr);
+                                    : bundle_problem(views, !rough_.has_value(), nullptr, leave);
     if (!problem.empty()) {
       pending(problem);
       return nullptr;
     }
     auto job = make_job(JobKind::First);
     if (have_pixels) {
-      job->calib_sets.push_back(FrameSet::copy_of(views));
+      job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));
     } else {
       std::vector<cv::Mat> grey;  // refine=none: the frames are not read
-      for (const auto& sz : frame.sizes) grey.push_back(cv::Mat(sz[1], sz[0], CV_8UC4, cv::Scalar(0, 0, 0, 255)));
+      for (const auto& sz : kept_items(frame.sizes, leave)) grey.push_back(cv::Mat(sz[1], sz[0], CV_8UC4, cv::Scalar(0, 0, 0, 255)));
       job->calib_sets.push_back({grey});
     }
+    if (leave) {
+      job->left_out = leave;
+      job->sizes = frame.sizes;
+      job->config.reference = kept_index(config_.reference, leave);
+      if (job->rough) {
+        job->rough->cameras = kept_items(job->rough->cameras, leave);
+        job->rough->reference = kept_index(job->rough->reference, leave);
+      }
+    }
     return job;
+  }
+  if (left_out_) {
+    // Calibrated without some cameras: nothing is pooled or recalibrated until they are back.
+    // One that delivers a picture again (not dark) brings a calibration from scratch with it.
+    const std::uint64_t back = left_out_ & ~frame.missing_mask;
+    if (!back || !have_pixels) return nullptr;
+    last_rejoin_check_ = now_;
+    for (std::size_t i = 0; i < views.size(); ++i)
+      if (bit(back, i) && assess_frame(views[i]).verdict == FrameVerdict::Dark) return nullptr;
+    warn(camera_list(back, views.size()) + " delivers a picture now: calibrating again with it");
+    forget_calibration();
+    sizes_ = frame.sizes;
+    first_frame_at_ = now_;
+    return nullptr;
   }
   if (frame.missing_mask) return nullptr;
   // Triggers of a recalibration window.
@@ -748,9 +875,16 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       rep.source = rough_ ? "rig" : "images";
       rep.residuals = o.candidate;
       rep.residual_source = o.residual_source;
+      left_out_ = 0;
+      for (std::size_t i = 0; i < r.rig.cameras.size() && i < 64; ++i)
+        if (r.rig.cameras[i].left_out) left_out_ |= std::uint64_t(1) << i;
+      if (left_out_)
+        warn(camera_list(left_out_, r.rig.cameras.size()) + " delivered no picture (no frame, or a dark one) for " +
+             fmt(config_.leave_out_after_s) + " s: calibrated and stitched without it; it joins with a calibration " +
+             "from scratch once it delivers");
       install(rep, &r);
       // Pool better frames (refine=none reads none: nothing to gain).
-      if (config_.calibration_frames > 1 && !(rough_ && config_.options.refinement == Refinement::None))
+      if (!left_out_ && config_.calibration_frames > 1 && !(rough_ && config_.options.refinement == Refinement::None))
         start_window(JobKind::Pooled);
       next_drift_check_at_ = now_ + config_.drift_check_interval_s;
       return;

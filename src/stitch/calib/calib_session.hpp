@@ -85,6 +85,10 @@ struct SessionConfig {
   // shrunk to it (shrink_canvas_to_output).
   int output_width = 0, output_height = 0;
   CropMode output_crop = CropMode::None;
+  // A camera that has not delivered a frame, or shows a dark picture, this long (running time)
+  // before the first calibration is left out of it: the others are calibrated and stitched, and
+  // it joins with a calibration from scratch once it delivers. 0: wait for every camera.
+  double leave_out_after_s = 4.0;
 };
 
 enum class JobKind { First, Pooled, Recalibration, DriftCheck, LoadCheck };
@@ -105,6 +109,10 @@ struct CalibJob {
   std::shared_ptr<const Rig> current;       // the calibration to beat (or to check)
   std::vector<FrameSet> calib_sets, holdout_sets;
   int fit_width = 0, fit_height = 0;        // > 0: fit the new canvas into this panorama size
+  // Cameras calibrated without (their frames are not in calib_sets, nor in `rough`): the result
+  // holds a left-out placeholder for each (Camera::left_out), sized from `sizes` (every camera's).
+  std::uint64_t left_out = 0;
+  std::vector<std::array<int, 2>> sizes;
 };
 
 struct PairResidual {
@@ -236,7 +244,14 @@ class CalibSession {
   void install(CalibReport report, CalibrationResult* result);
   void start_window(JobKind kind);
   std::shared_ptr<CalibJob> make_job(JobKind kind);
-  std::string bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score);
+  // `skip`: views not judged (left out).
+  std::string bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score,
+                             std::uint64_t skip = 0);
+  // Forgets the calibration: the next bundles calibrate from scratch (resize, a camera back).
+  void forget_calibration();
+  // Before the first calibration: the cameras absent (missing, or dark when pixels are given)
+  // for leave_out_after_s; 0 when none may be left out yet (or fewer than two would remain).
+  std::uint64_t cameras_to_leave_out(const Frame& frame, const std::vector<ImageView>& views);
 
   SessionConfig config_;
   std::vector<SessionEvent> events_;
@@ -246,6 +261,11 @@ class CalibSession {
   double first_frame_at_ = -1;
   // geometry
   std::shared_ptr<const Rig> current_;
+  // Cameras left out of the installed calibration (Camera::left_out), and, before the first
+  // calibration, since when each camera has been absent (missing or dark; -1: present).
+  std::uint64_t left_out_ = 0;
+  std::vector<double> absent_since_;
+  double last_rejoin_check_ = -1e9;
   // How the installed calibration was estimated (unset: loaded from a file). Later calibrations
   // of the same cameras keep it when the user left the choice to auto: the panorama's model and
   // projection never flip mid-stream on a marginal held-out verdict.

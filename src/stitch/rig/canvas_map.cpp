@@ -200,6 +200,7 @@ std::vector<Eigen::Vector2d> cube_cells_box(const CubeCoverage& g, const std::ve
 }
 
 std::vector<Eigen::Vector2d> camera_canvas_outline(const Rig& rig, int cam) {
+  if (rig.cameras.at(static_cast<std::size_t>(cam)).left_out) return {};
   if (rig.projection_kind() == Projection::Cubemap) {
     const CubeCoverage g = cube_coverage(rig, cam);
     return cube_cells_box(g, g.seen);

@@ -220,6 +220,12 @@ Projection projection_from_name(const std::string& name) {
   throw RigError("projection \"" + name + "\" is not supported (supported: plane, cylindrical, spherical, cubemap)");
 }
 
+bool any_left_out(const Rig& rig) {
+  for (const auto& c : rig.cameras)
+    if (c.left_out) return true;
+  return false;
+}
+
 bool Rig::calibrated() const {
   if (canvas_width <= 0 || canvas_height <= 0 || cameras.empty()) return false;
   if (!planar()) return canvas_scale > 0;
@@ -301,6 +307,9 @@ Rig rig_load(const std::string& path) {
 }
 
 std::string rig_to_json_string(const Rig& rig) {
+  for (std::size_t i = 0; i < rig.cameras.size(); ++i)
+    if (rig.cameras[i].left_out)
+      throw RigError("camera " + std::to_string(i) + " is left out of this calibration (no usable frame when it was made): not written");
   json j;
   j["format"] = "stitch-rig";
   j["version"] = 1;
@@ -429,6 +438,7 @@ void rig_layout_canvas(Rig& rig) {
   double input_area = 0;
   for (std::size_t i = 0; i < rig.cameras.size(); ++i) {
     const Camera& c = rig.cameras[i];
+    if (c.left_out) continue;
     if (!c.homography) throw RigError("camera " + std::to_string(i) + " has no homography");
     std::string problem = camera_homography_problem(c);
     if (!problem.empty())

@@ -21,6 +21,9 @@
 
 namespace stitch {
 
+struct Rig;
+bool any_left_out(const Rig& rig);  // a camera with Camera::left_out
+
 struct RigError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
@@ -56,6 +59,9 @@ struct Camera {
   // line up with camera 0's (GstPad offset semantics); absent when never measured.
   std::optional<int64_t> time_offset_ns;
   Lens lens;                                 // pinhole unless the rig says otherwise (issue 15)
+  // Not calibrated: it had no usable frame (never delivered, dark) when the rig was made, so it
+  // is on no canvas (no outline, no view) until a calibration with it. Never saved.
+  bool left_out = false;
 
   Eigen::Matrix3d K() const;
   Eigen::Matrix3d R() const;  // camera -> rig rotation

@@ -31,6 +31,7 @@ Rect largest_covered_rect(const Rig& rig) {
   cv::Mat cover(h, w, CV_8U, cv::Scalar(0));
   for (int i = 0; i < int(rig.cameras.size()); ++i) {
     const std::vector<Eigen::Vector2d> outline = camera_canvas_outline(rig, i);
+    if (outline.empty()) continue;  // left out
     // A wrapping canvas also gets the copies of the outline one period to either side.
     for (int k = rig.canvas_wrap ? -1 : 0; k <= (rig.canvas_wrap ? 1 : 0); ++k) {
       std::vector<cv::Point> poly;
