@@ -81,6 +81,9 @@ int main(int argc, char** argv) {
   const double k2 = k1 < 0 ? k1 * k1 : 0.0;
   cv::Mat bgr = cv::imread(path), photo;
   cv::cvtColor(bgr, photo, cv::COLOR_BGR2RGBA);
+  // RESIZE=1: the photo at most 2688 px wide, as stitch-bench-lens-psnr renders it.
+  if (getenv("RESIZE") && photo.cols > 2688)
+    cv::resize(photo, photo, cv::Size(2688, 2688 * photo.rows / photo.cols), 0, 0, cv::INTER_AREA);
   const Rig truth = testdata::radtan_trio(320, 240, 260, spacing, k1, k2, k1 != 0, "spherical");
   std::vector<cv::Mat> frames;
   std::vector<Feat> feats;

@@ -188,6 +188,36 @@ TEST(CalibLens, EstimatesAcrossTheRange) {
   }
 }
 
+// Alike cameras (same model and frame) with different lenses (issue 15): the dense refit's lens
+// sharing is decided on held-out matches, so a trio whose k1 differ (-0.35, -0.2, -0.3) keeps
+// one lens per camera, each within 10 %.
+TEST(CalibLens, DifferentLensesOnAlikeCamerasStaySeparate) {
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  Rig truth = true_rig(-0.35, 0.1225);
+  truth.projection = "spherical";
+  const double k1s[3] = {-0.35, -0.2, -0.3};
+  for (int i = 0; i < 3; ++i) truth.cameras[i].lens.k1 = k1s[i], truth.cameras[i].lens.k2 = k1s[i] * k1s[i];
+  std::vector<cv::Mat> frames;
+  std::vector<ImageView> views;
+  for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+  for (auto& f : frames) views.push_back(as_view(f));
+  Rig rough = rough_of(truth);
+  for (auto& c : rough.cameras) {
+    c.lens = Lens{};
+    c.lens.model = Lens::Model::Radtan;
+    c.lens.estimate = true;
+  }
+  const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+  const double err = testdata::lens_corner_error(r.rig, truth);
+  std::printf("k1 -0.35 / -0.2 / -0.3: corner error %.3f px\n", err);
+  for (std::size_t i = 0; i < r.rig.cameras.size(); ++i) {
+    std::printf("  camera %zu: k1 %+.4f (%+.2f) k2 %+.4f f %.2f\n", i, r.rig.cameras[i].lens.k1, k1s[i],
+                r.rig.cameras[i].lens.k2, r.rig.cameras[i].fx);
+    EXPECT_NEAR(r.rig.cameras[i].lens.k1, k1s[i], 0.1 * std::abs(k1s[i])) << i;
+  }
+  EXPECT_LE(err, 0.5);
+}
+
 // The true rig a little off, as the calibrator's fit is when it locates dense matches: camera 0
 // turned by `yaw_deg`, camera 2's focal length times `focal`.
 static Rig off_truth(Rig rig, double yaw_deg, double focal) {

@@ -1191,6 +1191,74 @@ namespace {
 // corner error 0.544 -> 0.486 px and the focal scale's rms error 0.109 -> 0.103 px with the
 // phase-bias correction (BENCHMARKS.md, "Radtan registration"); 0 and 4 did worse on the PSNR bench.
 constexpr double kDenseRobustScale = 1.0;
+// The smoothings the dense matches are located at and pooled over (DenseMatchOptions::blur_sigma;
+// 0.7 alone before branch radtan1: BENCHMARKS.md "Radtan PSNR on one frame").
+constexpr double kDenseBlurs[] = {0.7, 1.4};
+// Whether cameras of the same lens model and frame size should share one lens in the dense refit
+// (BundleAdjustOptions::shared_lens): a side camera of a trio sees the others in its inner half
+// only, so its own k1/k2 extrapolate to its outer corners, where the middle camera's other side
+// would pin a shared lens. Decided on the data: every 5th dense match of each pair held out, both
+// models fitted on the rest, and the shared lens kept unless the per-camera lenses explain the
+// held-out matches clearly better (rms lower by more than kShareLensMargin). False also when no two
+// estimating cameras are alike.
+constexpr double kShareLensMargin = 0.05;
+bool dense_lenses_alike(const Rig& rig) {
+  for (std::size_t i = 0; i < rig.cameras.size(); ++i)
+    for (std::size_t j = 0; j < i; ++j) {
+      const Camera &a = rig.cameras[i], &b = rig.cameras[j];
+      if (a.lens.estimate && b.lens.estimate && !a.lens.pinhole() && a.lens.model == b.lens.model &&
+          a.width == b.width && a.height == b.height)
+        return true;
+    }
+  return false;
+}
+double raw_heldout_rms(const Rig& rig, const std::vector<PairMatches>& held) {
+  double sum = 0;
+  int n = 0;
+  for (const auto& m : held) {
+    const Camera &A = rig.cameras.at(m.a), &B = rig.cameras.at(m.b);
+    const Eigen::Matrix3d Rab = B.R().transpose() * A.R();
+    for (std::size_t k = 0; k < m.ra.size(); ++k) {
+      Eigen::Vector3d ray;
+      Eigen::Vector2d q;
+      if (!lens_unproject(A, m.ra[k], ray) || !lens_project(B, Rab * ray, q)) continue;
+      const double e2 = (q - m.rb[k]).squaredNorm();
+      if (!(e2 < 1.0)) continue;  // a match neither model explains says nothing about the lens
+      sum += e2;
+      ++n;
+    }
+  }
+  return n ? std::sqrt(sum / n) : -1;
+}
+bool choose_shared_lens(const Rig& rig, const std::vector<PairMatches>& dense, const BundleAdjustOptions& bo) {
+  std::vector<PairMatches> fit, held;
+  for (const auto& m : dense) {
+    PairMatches f, h;
+    f.a = h.a = m.a;
+    f.b = h.b = m.b;
+    const bool raw = m.ra.size() == m.pa.size();
+    for (std::size_t k = 0; k < m.pa.size(); ++k) {
+      PairMatches& t = k % 5 == 2 && raw ? h : f;
+      t.pa.push_back(m.pa[k]);
+      t.pb.push_back(m.pb[k]);
+      if (k < m.weight.size()) t.weight.push_back(m.weight[k]);
+      if (raw) t.ra.push_back(m.ra[k]), t.rb.push_back(m.rb[k]);
+    }
+    fit.push_back(std::move(f));
+    if (!h.ra.empty()) held.push_back(std::move(h));
+  }
+  if (held.empty()) return false;
+  Rig per = rig, shared = rig;
+  BundleAdjustOptions o1 = bo, o2 = bo;
+  o1.shared_lens = false;
+  o2.shared_lens = true;
+  const BundleAdjustReport r1 = bundle_adjust(per, fit, o1), r2 = bundle_adjust(shared, fit, o2);
+  if (!r2.ok || !r2.lens_warning.empty()) return false;
+  if (!r1.ok || !r1.lens_warning.empty()) return true;
+  const double e1 = raw_heldout_rms(per, held), e2 = raw_heldout_rms(shared, held);
+  return e2 > 0 && e1 > 0 && e2 <= (1 + kShareLensMargin) * e1;
+}
+
 // `rays`: the ray-matched pairs (wide lenses) instead, adjusted with `base`'s options (a narrow
 // ring's shared lens and focal). `refitted`: whether the dense fit was kept.
 RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, const std::vector<PairData>& pairs,
@@ -1211,12 +1279,35 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   const std::vector<PairMatches> keypoints = training_matches(pairs);
   RotationFit rot = start;
   int accepted = 0;
+  int share = -1;  // the dense refit's lens sharing, decided on the first pass (choose_shared_lens)
   for (int pass = 0; pass < 2; ++pass) {
     DenseMatchOptions dopt;
     dopt.rays = rays;
     if (rays) dopt.max_points = 2000;
-    std::vector<PairMatches> dense = dense_matches(rot.rig, links, images, dopt);
-    if (!rays) correct_phase_bias(rot.rig, dense);  // sub-pixel peak locking, under the fit the matches came through
+    // Pooled over two smoothings of the patches (kDenseBlurs): the alignment's bias depends on
+    // the texture as it is smoothed, and two smoothings of the same overlap are partly
+    // independent evidence (as more frames are, more so). Each set's phase bias is its own.
+    const std::vector<double> blurs = rays ? std::vector<double>{dopt.blur_sigma}
+                                           : std::vector<double>(std::begin(kDenseBlurs), std::end(kDenseBlurs));
+    std::vector<PairMatches> dense;
+    for (double bl : blurs) {
+      DenseMatchOptions d2 = dopt;
+      d2.blur_sigma = bl;
+      std::vector<PairMatches> part = dense_matches(rot.rig, links, images, d2);
+      if (!rays) correct_phase_bias(rot.rig, part);  // sub-pixel peak locking, under the fit the matches came through
+      for (auto& m : part) {
+        auto it = std::find_if(dense.begin(), dense.end(), [&](const PairMatches& d) { return d.a == m.a && d.b == m.b; });
+        if (it == dense.end()) {
+          dense.push_back(std::move(m));
+          continue;
+        }
+        it->pa.insert(it->pa.end(), m.pa.begin(), m.pa.end());
+        it->pb.insert(it->pb.end(), m.pb.begin(), m.pb.end());
+        it->ra.insert(it->ra.end(), m.ra.begin(), m.ra.end());
+        it->rb.insert(it->rb.end(), m.rb.begin(), m.rb.end());
+        it->weight.insert(it->weight.end(), m.weight.begin(), m.weight.end());
+      }
+    }
     int dense_pairs = 0;
     for (const auto& k : keypoints) {
       auto it = std::find_if(dense.begin(), dense.end(), [&](const PairMatches& d) { return d.a == k.a && d.b == k.b; });
@@ -1233,6 +1324,11 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
     for (std::size_t i = 0; i < f.rig.cameras.size(); ++i) f.rig.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
     BundleAdjustOptions bo = base;
     bo.robust_scale = kDenseRobustScale;
+    // Alike estimating cameras share one lens unless held-out matches say otherwise.
+    if (!rays && !base.shared_lens && dense_lenses_alike(f.rig)) {
+      if (share < 0) share = choose_shared_lens(f.rig, dense, bo) ? 1 : 0;
+      bo.shared_lens = share == 1;
+    }
     f.ba = bundle_adjust(f.rig, dense, bo);
     if (!f.ba.ok || !f.ba.lens_warning.empty()) break;
     f.ok = true;
