@@ -278,6 +278,7 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
         const double v = std::atof(kv.c_str() + eq + 1);
         if (k == "blob_choice") seam_settings.blob_choice = v != 0;
         if (k == "blob_fill") seam_settings.blob_fill = v != 0;
+        if (k == "blob_sticky") seam_settings.blob_sticky = v != 0;
         if (k == "agree") seam_settings.agree_level = int(v);
         if (k == "disagree") seam_settings.disagree_level = int(v);
       }

@@ -530,7 +530,7 @@ void SeamFinder::blobs(const std::vector<int>& cut) {
             stack.push_back(o);
           }
       }
-      const int choice = settings_.blob_choice ? seam::blob_choice(flags, previous, vote) : 0;
+      const int choice = settings_.blob_choice ? seam::blob_choice(flags, previous, vote, settings_.blob_sticky) : 0;
       for (const int q : members) p.cell_choice[std::size_t(q)] = uint8_t(choice);
     }
     p.previous_choice = p.cell_choice;

@@ -57,6 +57,7 @@ struct SeamSettings {
   // blob_fill: inside every blob the mix level is 255 (no partial mean at the copies' edges).
   bool blob_choice = false;
   bool blob_fill = false;
+  bool blob_sticky = false;  // a blob reaching both borders keeps last frame's view (seam_math.hpp blob_choice)
 };
 
 class SeamFinder {

@@ -141,9 +141,11 @@ constexpr uint8_t kBlobHot = 1, kBlobBorderA = 2, kBlobBorderB = 4;
 // seam's vote (its pixels the seam gave a minus those it gave b). A blob that reaches into one
 // view's own side must be that view (there the object continues in that view only); one that
 // reaches both keeps the cut; a free one keeps last frame's view, or takes the seam's majority.
-STITCH_HD int blob_choice(int flags, int previous_vote, int seam_vote) {
+// `sticky`: a blob reaching both borders keeps last frame's view too (one view whole, cut only at
+// the overlap's borders) instead of the seam's cut.
+STITCH_HD int blob_choice(int flags, int previous_vote, int seam_vote, bool sticky = false) {
   const bool to_a = flags & kBlobBorderA, to_b = flags & kBlobBorderB;
-  if (to_a && to_b) return 0;
+  if (to_a && to_b) return sticky && previous_vote != 0 ? (previous_vote > 0 ? 1 : 2) : 0;
   if (to_a) return 1;
   if (to_b) return 2;
   if (previous_vote != 0) return previous_vote > 0 ? 1 : 2;
