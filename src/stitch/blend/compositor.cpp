@@ -15,7 +15,6 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 #include <stdexcept>
-#include <string>
 
 namespace stitch {
 
@@ -265,26 +264,6 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
   const bool find_seams = settings.seam != SeamMode::None;
   SeamSettings seam_settings = settings.seam_settings;
   if (settings.blend == BlendMode::Multiband) seam_settings.mix_radius = 0;
-  // TEMPORARY (experiments of branch parallax-blob; removed before merge)
-  if (const char* e = std::getenv("STITCH_SEAM_EXPERIMENT")) {
-    std::string spec(e);
-    for (std::size_t i = 0; i < spec.size();) {
-      std::size_t j = spec.find(',', i);
-      if (j == std::string::npos) j = spec.size();
-      const std::string kv = spec.substr(i, j - i);
-      const std::size_t eq = kv.find('=');
-      if (eq != std::string::npos) {
-        const std::string k = kv.substr(0, eq);
-        const double v = std::atof(kv.c_str() + eq + 1);
-        if (k == "blob_choice") seam_settings.blob_choice = v != 0;
-        if (k == "blob_fill") seam_settings.blob_fill = v != 0;
-        if (k == "blob_sticky") seam_settings.blob_sticky = v != 0;
-        if (k == "agree") seam_settings.agree_level = int(v);
-        if (k == "disagree") seam_settings.disagree_level = int(v);
-      }
-      i = j + 1;
-    }
-  }
   seam_.reset();
 #ifdef STITCH_HAVE_CUDA
   if (cuda_) cuda_->set_blend_mode(settings.blend, settings.bands, find_seams ? &seam_settings : nullptr);

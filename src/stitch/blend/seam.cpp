@@ -133,19 +133,6 @@ void SeamFinder::prepare(const std::vector<ViewPlacement>& views, int width, int
           if (wa > 0 && wb > 0)
             p.centre_cost[std::size_t(y) * p.box.width + x] = settings_.centre_weight * std::abs(wa - wb) / (wa + wb);
         }
-      // Each row's first and last overlap column in the seam's frame (the blobs' border test).
-      const int rows = p.vertical ? p.box.height : p.box.width, cols = p.vertical ? p.box.width : p.box.height;
-      p.row_lo.assign(std::size_t(rows), cols);
-      p.row_hi.assign(std::size_t(rows), -1);
-      for (int r = 0; r < rows; ++r)
-        for (int c = 0; c < cols; ++c) {
-          const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
-          if (p.centre_cost[std::size_t(by) * p.box.width + bx] < 0) continue;
-          p.row_lo[std::size_t(r)] = std::min(p.row_lo[std::size_t(r)], c);
-          p.row_hi[std::size_t(r)] = std::max(p.row_hi[std::size_t(r)], c);
-        }
-      p.cell_rows = (rows + seam::kBlobCell - 1) / seam::kBlobCell;
-      p.cell_cols = (cols + seam::kBlobCell - 1) / seam::kBlobCell;
       pairs_.push_back(std::move(p));
     }
   // Where each view's luma is read: its pairs' boxes grown by one pixel (the gradients), clipped
@@ -451,112 +438,6 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
       if (l == p.a || l == p.b) l = uint8_t(p.blank_a ? p.b : p.blank_b ? p.a : cc < p.path[std::size_t(r)] ? p.a : p.b);
     }
   });
-  if (mixing && (settings_.blob_choice || settings_.blob_fill)) blobs(cut);
-}
-
-void SeamFinder::blobs(const std::vector<int>& cut) {
-  auto rows_of = [](const Pair& p) { return p.vertical ? p.box.height : p.box.width; };
-  auto cols_of = [](const Pair& p) { return p.vertical ? p.box.width : p.box.height; };
-  constexpr int S = seam::kBlobCell;
-  // The pixel (seam frame r, c) of pair p in the output maps.
-  auto at = [&](const Pair& p, int r, int c) {
-    const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
-    return std::size_t(p.box.y + by) * width_ + p.box.x + bx;
-  };
-  std::vector<int> cell_rows(cut.size());
-  for (std::size_t k = 0; k < cut.size(); ++k) {
-    Pair& p = pairs_[std::size_t(cut[k])];
-    const std::size_t cells = std::size_t(p.cell_rows) * p.cell_cols;
-    p.cell_flags.assign(cells, 0);
-    p.cell_vote.assign(cells, 0);
-    p.cell_blob.assign(cells, -1);
-    p.cell_choice.assign(cells, 0);
-    if (p.previous_choice.size() != cells) p.previous_choice.assign(cells, 0);
-    cell_rows[k] = p.blank_a || p.blank_b ? 0 : p.cell_rows;
-  }
-  // Per cell: hot, its border flags and the seam's vote (integers: the same on any thread count).
-  parallel_for_parts(cell_rows, [&](int k, int R) {
-    Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
-    const int rows = rows_of(p), cols = cols_of(p);
-    for (int C = 0; C < p.cell_cols; ++C) {
-      int flags = 0, vote = 0;
-      for (int r = R * S; r < std::min(rows, R * S + S); ++r)
-        for (int c = C * S; c < std::min(cols, C * S + S); ++c) {
-          if (p.centre_cost[p.vertical ? std::size_t(r) * p.box.width + c : std::size_t(c) * p.box.width + r] < 0)
-            continue;
-          const std::size_t o = at(p, r, c);
-          if (!mix_[o]) continue;
-          const int l = labels_[o];
-          if (l != p.a && l != p.b) continue;
-          flags |= seam::kBlobHot;
-          if (c - p.row_lo[std::size_t(r)] < seam::kBlobBorder) flags |= seam::kBlobBorderA;
-          if (p.row_hi[std::size_t(r)] - c < seam::kBlobBorder) flags |= seam::kBlobBorderB;
-          vote += l == p.a ? 1 : -1;
-        }
-      p.cell_flags[std::size_t(R) * p.cell_cols + C] = uint8_t(flags);
-      p.cell_vote[std::size_t(R) * p.cell_cols + C] = vote;
-    }
-  });
-  // The blobs of each pair (connected hot cells, 8-neighbours) and their views.
-  for (std::size_t k = 0; k < cut.size(); ++k) {
-    Pair& p = pairs_[std::size_t(cut[k])];
-    if (!cell_rows[k]) {
-      std::fill(p.previous_choice.begin(), p.previous_choice.end(), uint8_t(0));
-      continue;
-    }
-    const int n = p.cell_rows, m = p.cell_cols;
-    std::vector<int> stack, members;
-    for (int start = 0; start < n * m; ++start) {
-      if (!(p.cell_flags[std::size_t(start)] & seam::kBlobHot) || p.cell_blob[std::size_t(start)] >= 0) continue;
-      members.clear();
-      stack.assign(1, start);
-      p.cell_blob[std::size_t(start)] = start;
-      int flags = 0, previous = 0, vote = 0;
-      while (!stack.empty()) {
-        const int q = stack.back();
-        stack.pop_back();
-        members.push_back(q);
-        flags |= p.cell_flags[std::size_t(q)];
-        previous += p.previous_choice[std::size_t(q)] == 1 ? 1 : p.previous_choice[std::size_t(q)] == 2 ? -1 : 0;
-        vote += p.cell_vote[std::size_t(q)];
-        const int R = q / m, C = q % m;
-        for (int dr = -1; dr <= 1; ++dr)
-          for (int dc = -1; dc <= 1; ++dc) {
-            const int rr = R + dr, cc = C + dc;
-            if (rr < 0 || rr >= n || cc < 0 || cc >= m) continue;
-            const int o = rr * m + cc;
-            if (!(p.cell_flags[std::size_t(o)] & seam::kBlobHot) || p.cell_blob[std::size_t(o)] >= 0) continue;
-            p.cell_blob[std::size_t(o)] = start;
-            stack.push_back(o);
-          }
-      }
-      const int choice = settings_.blob_choice ? seam::blob_choice(flags, previous, vote, settings_.blob_sticky) : 0;
-      for (const int q : members) p.cell_choice[std::size_t(q)] = uint8_t(choice);
-    }
-    p.previous_choice = p.cell_choice;
-  }
-  // Every blob pixel (level > 0, labelled a or b) takes its blob's view; with blob_fill, level 255.
-  auto write = [&](int k, int r) {
-    Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
-    if (p.blank_a || p.blank_b) return;
-    const int cols = cols_of(p), R = r / S;
-    for (int c = 0; c < cols; ++c) {
-      const std::size_t cell = std::size_t(R) * p.cell_cols + c / S;
-      if (!(p.cell_flags[cell] & seam::kBlobHot)) continue;
-      if (p.centre_cost[p.vertical ? std::size_t(r) * p.box.width + c : std::size_t(c) * p.box.width + r] < 0)
-        continue;
-      const std::size_t o = at(p, r, c);
-      uint8_t& l = labels_[o];
-      if (!mix_[o] || (l != p.a && l != p.b)) continue;
-      if (p.cell_choice[cell]) l = uint8_t(p.cell_choice[cell] == 1 ? p.a : p.b);
-      if (settings_.blob_fill) mix_[o] = 255;
-    }
-  };
-  std::vector<int> rows(cut.size());
-  for (std::size_t k = 0; k < cut.size(); ++k) rows[k] = rows_of(pairs_[std::size_t(cut[k])]);
-  if (boxes_disjoint_) parallel_for_parts(rows, write);
-  else
-    for (std::size_t k = 0; k < cut.size(); ++k) for_rows(rows[k], [&](int r) { write(int(k), r); });
 }
 
 void apply_seam_mix(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& warped,

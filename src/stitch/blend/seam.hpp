@@ -50,14 +50,12 @@ struct SeamSettings {
   // and moved the ghost ratio -0.05..+0.04; holding only last frame's disagreement keeps that test
   // but loses the flicker gain (BENCHMARKS.md "Parallax: the view choice held over time").
   float label_hold = 0.f;
-  // The per-object view choice of the consensus blend (seam_math.hpp blob_choice): every connected
-  // blob of disagreement (mix level > 0; a near object and its parallax copy) takes one view whole
-  // instead of the seam's cut: the view whose overlap border it touches, else the view it had last
-  // frame, else the one the seam gave most of it; a blob touching both borders keeps the cut.
-  // blob_fill: inside every blob the mix level is 255 (no partial mean at the copies' edges).
-  bool blob_choice = false;
-  bool blob_fill = false;
-  bool blob_sticky = false;  // a blob reaching both borders keeps last frame's view (seam_math.hpp blob_choice)
+  // Not an option: giving each connected blob of disagreement (a near object and its parallax
+  // copy) one view whole, held from frame to frame, was measured and lost (BENCHMARKS.md
+  // "Parallax: a per-object view choice"). On a ring the left view shows a near object further
+  // right than the right view does, so this cut (a before it, b after) drops a strip of the
+  // object and shows none of it twice: the object drawn stays inside its true silhouette, while
+  // one whole view's copy lies half the disparity off it (more flicker, equal ghost ratio).
 };
 
 class SeamFinder {
@@ -84,14 +82,6 @@ class SeamFinder {
     std::vector<uint8_t> levels;  // the mix levels, for the view-switch cost (label_hold > 0)
     std::vector<int8_t> step;
     bool blank_a = false, blank_b = false;
-    // The blobs (blob_choice / blob_fill): each row's first and last overlap column (seam frame),
-    // and per cell of kBlobCell x kBlobCell (seam frame): hot (a pixel of level > 0), border flags,
-    // the seam's vote (pixels of a minus pixels of b), the blob (component) and the view chosen
-    // for it this frame and last frame (0: none, 1: a, 2: b).
-    std::vector<int> row_lo, row_hi;
-    int cell_rows = 0, cell_cols = 0;
-    std::vector<uint8_t> cell_flags, cell_choice, previous_choice;
-    std::vector<int> cell_vote, cell_blob;
   };
   const std::vector<Pair>& pairs() const { return pairs_; }
   const SeamSettings& settings() const { return settings_; }
@@ -103,8 +93,6 @@ class SeamFinder {
  private:
   // The phases of find() over every cut pair at once (rows of all pairs in one parallel loop).
   void cut_all(const std::vector<int>& cut, const std::vector<ImageView>& warped);
-  // The per-object view choice and fill (blob_choice, blob_fill) after the cuts.
-  void blobs(const std::vector<int>& cut);
   seam::Weights weights() const {
     return {settings_.difference_weight, settings_.edge_weight, settings_.motion_weight, settings_.stability,
             settings_.hold, settings_.clearance_weight, settings_.clearance_radius,

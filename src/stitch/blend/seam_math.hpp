@@ -127,31 +127,6 @@ STITCH_HD float view_switch_cost(const Weights& w, float cost, int switched) {
   return add(cost, mul(w.label_hold, div(float(switched), 255.f)));
 }
 
-// The per-object view choice (SeamSettings::blob_choice): the overlap is cut into cells of
-// kBlobCell x kBlobCell pixels in the seam's frame; a cell is hot when one of its pixels has a mix
-// level > 0, and the hot cells connected side by side or corner to corner are one blob (a near
-// object and its parallax copy, which overlap along the baseline). Per cell: kBlobHot, and
-// kBlobBorderA / kBlobBorderB when a hot pixel of it lies within kBlobBorder columns of the
-// overlap's first (view a's side) or last (b's side) column in its row.
-constexpr int kBlobCell = 8;
-constexpr int kBlobBorder = 2;
-constexpr uint8_t kBlobHot = 1, kBlobBorderA = 2, kBlobBorderB = 4;
-// The view of one blob (1: a, 2: b, 0: keep the seam's cut), from its cells' flags ORed, the sum
-// of last frame's choice over its cells (+1 per cell that was a, -1 per cell that was b) and the
-// seam's vote (its pixels the seam gave a minus those it gave b). A blob that reaches into one
-// view's own side must be that view (there the object continues in that view only); one that
-// reaches both keeps the cut; a free one keeps last frame's view, or takes the seam's majority.
-// `sticky`: a blob reaching both borders keeps last frame's view too (one view whole, cut only at
-// the overlap's borders) instead of the seam's cut.
-STITCH_HD int blob_choice(int flags, int previous_vote, int seam_vote, bool sticky = false) {
-  const bool to_a = flags & kBlobBorderA, to_b = flags & kBlobBorderB;
-  if (to_a && to_b) return sticky && previous_vote != 0 ? (previous_vote > 0 ? 1 : 2) : 0;
-  if (to_a) return 1;
-  if (to_b) return 2;
-  if (previous_vote != 0) return previous_vote > 0 ? 1 : 2;
-  return seam_vote >= 0 ? 1 : 2;
-}
-
 // A view that shows nothing in an overlap (an all-black or missing-signal camera: luma at or
 // below kDark on nearly every pixel, while the other view is mostly not dark) counts as missing
 // there: the other view wins the whole overlap. `dark_*`: the pair's overlap pixels at or below
