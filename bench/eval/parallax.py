@@ -29,7 +29,11 @@ canvas, and flicker (mean
 |dY| between consecutive frames on pixels whose truth did not change).
 
 usage: parallax.py [--out DIR] [--build DIR] [--frames 20] [--seeds 1,2,3]
-                   [--rigs default|all|NAME,...] [--chains NAME,...] [--variant NAME=CHAIN|BLEND]
+                   [--rigs default|all|NAME,...] [--chains NAME,...] [--variant NAME=CHAIN|BLEND] [--floor]
+
+--floor also scores two outputs that take every pixel from one camera (no blend, no cut inside
+an overlap): the ghost ratio a blend that shows each near object whole from one view can reach
+(BENCHMARKS.md "Parallax: a per-object view choice").
 """
 import argparse
 import json
@@ -545,6 +549,32 @@ def truth_self_check(render_dir, scene, frames):
 
 # ---------------------------------------------------------------------------------------------
 
+def write_single_view(render_dir, scene, frames, out_dir, first):
+    """The metric's floor for outputs that take every pixel from one camera (no blend): each
+    camera's frame warped by its true homography (bilinear), every overlap pixel from the
+    lowest-numbered camera that sees it (first='low') or the highest ('high'). A near object then
+    comes whole from one view except where it crosses an overlap's border (cut there); nothing
+    is shown twice, so the ghost ratio of these outputs is what the metric finds in a single
+    view's copy of the object against the ring-centre truth (resampling blur, sensor noise)."""
+    os.makedirs(out_dir, exist_ok=True)
+    W, H = scene["canvas"]
+    order = list(range(len(scene["cameras"])))
+    if first == "low":
+        order.reverse()  # painted last wins
+    for t in range(frames):
+        out = np.zeros((H, W, 4), np.uint8)
+        for i in order:
+            c = scene["cameras"][i]
+            img = cv2.imread(os.path.join(render_dir, "cam%d_%04d.png" % (i, t)))
+            Hm = np.asarray(c["H"])
+            w = cv2.warpPerspective(img, Hm, (W, H), flags=cv2.INTER_LINEAR)
+            m = cv2.warpPerspective(np.full(img.shape[:2], 255, np.uint8), Hm, (W, H), flags=cv2.INTER_NEAREST)
+            m = cv2.erode((m > 0).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+            out[m, :3] = w[m]
+            out[m, 3] = 255
+        cv2.imwrite(os.path.join(out_dir, "pano_%04d.png" % t), out)
+
+
 def select_chains(chains, variants, wanted):
     """`chains` plus each --variant NAME=CHAIN[|BLEND], kept to the names in `wanted`
     (a comma-separated --chains; all when empty)."""
@@ -584,6 +614,9 @@ def main():
     ap.add_argument("--render-only", action="store_true")
     ap.add_argument("--reuse", action="store_true", help="keep rendered rigs that exist")
     ap.add_argument("--results", default="results.json", help="file name under --out (runs side by side)")
+    ap.add_argument("--floor", action="store_true",
+                    help="also score single-view outputs (single-view-low/-high: each overlap from one camera, "
+                         "no blend): the ghost ratio any output showing each object from one view gets")
     args = ap.parse_args()
     chains = select_chains(CHAINS, args.variant, args.chains)
     rig_names = list(RIGS) if args.rigs == "all" else args.rigs.split(",")
@@ -610,14 +643,19 @@ def main():
                     res[name] = dict(error="failed, see %s.log" % od)
                     continue
                 res[name] = evaluate_output(od, rd, scene, args.frames)
+            if args.floor:
+                for first in ("low", "high"):
+                    od = os.path.join(args.out, key, "single-view-" + first)
+                    write_single_view(rd, scene, args.frames, od, first)
+                    res["single-view-" + first] = evaluate_output(od, rd, scene, args.frames)
             results[key] = res
             for name, r in res.items():
                 if "error" in r:
                     print("%-14s %-24s %s" % (key, name, r["error"]), flush=True)
                     continue
-                print("%-14s %-24s ghost %.3f  distant %.3f  PSNR bg-overlap %s (15 px away: %s)  PSNR %s  "
+                print("%-14s %-24s ghost %.3f (%s points)  distant %.3f  PSNR bg-overlap %s (15 px away: %s)  PSNR %s  "
                       "flicker %s" % (
-                    key, name, r["ghost_ratio"], r["distant_ghost_ratio"],
+                    key, name, r["ghost_ratio"], r.get("object_samples", "-"), r["distant_ghost_ratio"],
                     "%.2f" % r["psnr_overlap_background"] if "psnr" in r else "-",
                     "%.2f" % r["psnr_overlap_background_far"] if "psnr" in r else "-",
                     "%.2f" % r["psnr"] if "psnr" in r else "-",

@@ -50,6 +50,12 @@ struct SeamSettings {
   // and moved the ghost ratio -0.05..+0.04; holding only last frame's disagreement keeps that test
   // but loses the flicker gain (BENCHMARKS.md "Parallax: the view choice held over time").
   float label_hold = 0.f;
+  // Not an option: giving each connected blob of disagreement (a near object and its parallax
+  // copy) one view whole, held from frame to frame, was measured and lost (BENCHMARKS.md
+  // "Parallax: a per-object view choice"). On a ring the left view shows a near object further
+  // right than the right view does, so this cut (a before it, b after) drops a strip of the
+  // object and shows none of it twice: the object drawn stays inside its true silhouette, while
+  // one whole view's copy lies half the disparity off it (more flicker, equal ghost ratio).
 };
 
 class SeamFinder {
