@@ -7,6 +7,8 @@
 #include "stitch/calib/calib_session.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
+#include "stitch/rig/overlap.hpp"
+#include "stitch/warp/geometry.hpp"
 #include "lens_rig.hpp"
 #include "test_data.hpp"
 
@@ -332,6 +334,32 @@ TEST(CalibSession, CameraThatNeverDeliversIsLeftOutAndJoinsWhenItStarts) {
   const SessionEvent* w = find(events, SessionEvent::Type::Warning);
   ASSERT_NE(w, nullptr);
   EXPECT_NE(w->text.find("camera 2 delivers a picture now"), std::string::npos) << w->text;
+}
+
+// A left-out camera is on no canvas, whatever the projection: no outline, no overlap with any
+// camera (colour samples none), no view rectangle (the flow warp and the blend skip it). On a
+// sphere with lenses the overlap came from a convex hull of the empty outline, which OpenCV
+// rejects: stitchcolor stopped with an error on the first panorama of a real clip.
+TEST(CalibSession, LeftOutCameraIsOnNoCanvas) {
+  Rig plane = testdata::shifted_rig(3, 640, 480, 400);
+  Rig sphere = testdata::dual_fisheye_rig(240, 200);
+  for (Rig* rig : {&plane, &sphere}) {
+    rig->cameras[1].left_out = true;
+    EXPECT_TRUE(any_left_out(*rig));
+    EXPECT_TRUE(camera_canvas_outline(*rig, 1).empty());
+    for (int other = 0; other < int(rig->cameras.size()); ++other) {
+      if (other == 1) continue;
+      float area = -1;
+      EXPECT_NO_THROW(EXPECT_TRUE(canvas_overlap(*rig, 1, other, &area).empty()));
+      EXPECT_EQ(area, 0.f);
+      EXPECT_NO_THROW(EXPECT_TRUE(canvas_overlap(*rig, other, 1, &area).empty()));
+    }
+    const OutputGeometry out = plan_output(*rig, 0, 0, CropMode::None);
+    const std::vector<ViewPlacement> views = place_views(*rig, out);
+    ASSERT_EQ(views.size(), rig->cameras.size());
+    EXPECT_EQ(views[1].roi.width * views[1].roi.height, 0);
+    EXPECT_GT(views[0].roi.width * views[0].roi.height, 0);
+  }
 }
 
 TEST(CalibSession, GivesUpAfterTheTimeoutNamingTheCamera) {

@@ -617,7 +617,9 @@ TEST(StitchCalib, DarkCameraIsLeftOutThenJoins) {
   const cv::Mat black(good[2].size(), CV_8UC4, cv::Scalar(0, 0, 0, 255));
   constexpr int kFrames = 300, kDarkUntil = 180;
   gsttest::RunResult r;
-  gsttest::run_pipeline_frames(chain("", 3),
+  // The whole default chain: colour and the flow warp must take a camera that is on no canvas.
+  gsttest::run_pipeline_frames("stitchsync name=s ! stitchcalib name=c ! stitchcolor ! stitchflowwarp ! stitchblend ! "
+                               "appsink name=out sync=false" + gsttest::appsrc_inputs(3),
                                [&](int f) {
                                  std::vector<cv::Mat> v = good;
                                  if (f < kDarkUntil) v[2] = black;

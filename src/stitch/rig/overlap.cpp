@@ -20,6 +20,10 @@ std::vector<cv::Point2f> canvas_overlap(const Camera& a, const Camera& b, float*
 }
 
 std::vector<cv::Point2f> canvas_overlap(const Rig& rig, int a, int b, float* area) {
+  if (rig.cameras.at(a).left_out || rig.cameras.at(b).left_out) {  // on no canvas
+    if (area) *area = 0.f;
+    return {};
+  }
   if (rig.planar() && rig.cameras.at(a).lens.pinhole() && rig.cameras.at(b).lens.pinhole() &&
       !rig.cameras[a].lens.circle && !rig.cameras[b].lens.circle)
     return canvas_overlap(rig.cameras.at(a), rig.cameras.at(b), area);
@@ -39,7 +43,7 @@ std::vector<cv::Point2f> canvas_overlap(const Rig& rig, int a, int b, float* are
   auto hull = [&](int cam, double shift) {
     std::vector<cv::Point2f> pts, h;
     for (const auto& p : camera_canvas_outline(rig, cam)) pts.emplace_back(float(p.x() + shift), float(p.y()));
-    cv::convexHull(pts, h);
+    if (pts.size() >= 3) cv::convexHull(pts, h);
     return h;
   };
   const std::vector<cv::Point2f> ha = hull(a, 0);
