@@ -39,7 +39,9 @@ void add_moments(Moments3& m, const uint8_t* x, const uint8_t* y) {
 }
 
 // Samples are reduced in chunks of this many (a fixed split: the thread count does not matter).
-constexpr int kChunk = 4096;
+// 1024, not 4096: a pair has 16384 samples at most, so 4096 gave 8 chunks on 3 cameras and left
+// half of 16 threads idle in every pass (BENCHMARKS.md, "The colour stage on 16 threads").
+constexpr int kChunk = 1024;
 int chunk_count(int n) { return std::max(1, (n + kChunk - 1) / kChunk); }
 // f(chunk, first, end) for every chunk of n samples, on OpenCV's threads.
 template <class F>
@@ -259,7 +261,7 @@ class ColorOpsCpu final : public ColorOps {
     // Every view's bands of rows in one parallel loop (one wait for the threads, not one per
     // view); each band keeps a copy of its input rows for the highlight roll-off, in a buffer the
     // thread keeps (no allocation per band).
-    constexpr int kBand = 32;
+    constexpr int kBand = 16;  // 204 bands at 3x1080p: 16 threads end within a band of each other
     struct Job {
       cv::Mat img;
       cv::Matx44f T;
