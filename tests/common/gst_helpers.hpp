@@ -39,6 +39,32 @@ inline void init() {
   }
 }
 
+// Appsrc a0..a{n-1} of `pipe` (references the caller unrefs) set up for RGBA `views` at 30 fps,
+// blocking once `max_bytes` are queued (0: two frames, so the pushing threads are paced as decoders are).
+inline std::vector<GstElement*> rgba_appsrcs(GstElement* pipe, const std::vector<cv::Mat>& views, guint64 max_bytes = 0) {
+  std::vector<GstElement*> srcs;
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    GstElement* a = gst_bin_get_by_name(GST_BIN(pipe), ("a" + std::to_string(i)).c_str());
+    GstCaps* caps = gst_caps_new_simple("video/x-raw", "format", G_TYPE_STRING, "RGBA", "width", G_TYPE_INT,
+                                        views[i].cols, "height", G_TYPE_INT, views[i].rows, "framerate",
+                                        GST_TYPE_FRACTION, 30, 1, NULL);
+    g_object_set(a, "caps", caps, "format", GST_FORMAT_TIME, "block", TRUE, "max-bytes",
+                 max_bytes ? max_bytes : guint64(2 * views[i].total() * 4), NULL);
+    gst_caps_unref(caps);
+    srcs.push_back(a);
+  }
+  return srcs;
+}
+
+// Frame f (30 fps timestamps) of `view` into appsrc `src`; false once the pipeline refuses it.
+inline bool push_frame(GstElement* src, const cv::Mat& view, int f) {
+  GstBuffer* b = gst_buffer_new_allocate(nullptr, view.total() * 4, nullptr);
+  gst_buffer_fill(b, 0, view.data, view.total() * 4);
+  GST_BUFFER_PTS(b) = gst_util_uint64_scale(f, GST_SECOND, 30);
+  GST_BUFFER_DURATION(b) = gst_util_uint64_scale(1, GST_SECOND, 30);
+  return gst_app_src_push_buffer(GST_APP_SRC(src), b) == GST_FLOW_OK;
+}
+
 // `description` must name appsrc elements a0..a{n-1} and may end in "appsink name=out".
 // Appsrc i gets frames(f)[i] (RGBA) for f = 0..count-1 at 30 fps, then EOS; `on_frame` runs
 // before each frame is pushed (signals, pacing, a bus sync handler).
@@ -55,17 +81,7 @@ inline void run_pipeline_frames(const std::string& description, const std::funct
     return;
   }
   GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
-  std::vector<GstElement*> srcs;
-  for (std::size_t i = 0; i < views.size(); ++i) {
-    GstElement* a = gst_bin_get_by_name(GST_BIN(pipe), ("a" + std::to_string(i)).c_str());
-    GstCaps* caps = gst_caps_new_simple("video/x-raw", "format", G_TYPE_STRING, "RGBA", "width", G_TYPE_INT,
-                                        views[i].cols, "height", G_TYPE_INT, views[i].rows, "framerate",
-                                        GST_TYPE_FRACTION, 30, 1, NULL);
-    g_object_set(a, "caps", caps, "format", GST_FORMAT_TIME, "block", TRUE, "max-bytes", guint64(64 << 20),
-                 NULL);
-    gst_caps_unref(caps);
-    srcs.push_back(a);
-  }
+  std::vector<GstElement*> srcs = rgba_appsrcs(pipe, views, guint64(64 << 20));
   gst_element_set_state(pipe, GST_STATE_PLAYING);
   GstBus* bus = gst_element_get_bus(pipe);
   auto drain_bus = [&](GstClockTime wait) {
@@ -100,12 +116,7 @@ inline void run_pipeline_frames(const std::string& description, const std::funct
     if (on_frame) on_frame(pipe, f);
     const std::vector<cv::Mat> now = f == 0 ? views : frames(f);
     for (std::size_t i = 0; i < srcs.size(); ++i) {
-      const cv::Mat& v = now[i];
-      GstBuffer* b = gst_buffer_new_allocate(nullptr, v.total() * 4, nullptr);
-      gst_buffer_fill(b, 0, v.data, v.total() * 4);
-      GST_BUFFER_PTS(b) = gst_util_uint64_scale(f, GST_SECOND, 30);
-      GST_BUFFER_DURATION(b) = gst_util_uint64_scale(1, GST_SECOND, 30);
-      gst_app_src_push_buffer(GST_APP_SRC(srcs[i]), b);
+      push_frame(srcs[i], now[i], f);
     }
     drain_bus(0);
   }

@@ -59,6 +59,21 @@ const Scene& scene() {
   return s;
 }
 
+// Renders `truth`'s cameras from the photo (into frames/views) and calibrates them from their
+// rough rig with radtan lenses of unknown coefficients.
+CalibrationResult calibrate_radtan_unknown(const Rig& truth, const cv::Mat& photo, std::vector<cv::Mat>& frames,
+                                           std::vector<ImageView>& views) {
+  for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+  for (auto& f : frames) views.push_back(as_view(f));
+  Rig rough = rough_of(truth);
+  for (auto& c : rough.cameras) {
+    c.lens = Lens{};
+    c.lens.model = Lens::Model::Radtan;
+    c.lens.estimate = true;
+  }
+  return calibrate_from_rig(rough, views, CalibrationOptions{});
+}
+
 }  // namespace
 
 TEST(CalibLens, KnownRadtanCoefficients) {
@@ -159,15 +174,7 @@ TEST(CalibLens, EstimatesAcrossTheRange) {
     truth.projection = "spherical";
     std::vector<cv::Mat> frames;
     std::vector<ImageView> views;
-    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
-    for (auto& f : frames) views.push_back(as_view(f));
-    Rig rough = rough_of(truth);
-    for (auto& c : rough.cameras) {
-      c.lens = Lens{};
-      c.lens.model = Lens::Model::Radtan;
-      c.lens.estimate = true;
-    }
-    const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+    const CalibrationResult r = calibrate_radtan_unknown(truth, photo, frames, views);
     const double err = testdata::lens_corner_error(r.rig, truth);
     const AlignmentReport al = measure_alignment(r.rig, views);
     double worst_k1 = 0;
@@ -199,15 +206,7 @@ TEST(CalibLens, DifferentLensesOnAlikeCamerasStaySeparate) {
   for (int i = 0; i < 3; ++i) truth.cameras[i].lens.k1 = k1s[i], truth.cameras[i].lens.k2 = k1s[i] * k1s[i];
   std::vector<cv::Mat> frames;
   std::vector<ImageView> views;
-  for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
-  for (auto& f : frames) views.push_back(as_view(f));
-  Rig rough = rough_of(truth);
-  for (auto& c : rough.cameras) {
-    c.lens = Lens{};
-    c.lens.model = Lens::Model::Radtan;
-    c.lens.estimate = true;
-  }
-  const CalibrationResult r = calibrate_from_rig(rough, views, CalibrationOptions{});
+  const CalibrationResult r = calibrate_radtan_unknown(truth, photo, frames, views);
   const double err = testdata::lens_corner_error(r.rig, truth);
   std::printf("k1 -0.35 / -0.2 / -0.3: corner error %.3f px\n", err);
   for (std::size_t i = 0; i < r.rig.cameras.size(); ++i) {

@@ -559,28 +559,14 @@ TEST(StitchCalib, NonLiveCameraStartingLateCostsTheOthersLittleVideo) {
   ASSERT_NE(pipe, nullptr) << (err ? err->message : "");
   constexpr int kFrames = 300;
   std::vector<std::thread> cameras;
-  std::vector<GstElement*> srcs;
-  for (int i = 0; i < 3; ++i) {
-    GstElement* a = gst_bin_get_by_name(GST_BIN(pipe), ("a" + std::to_string(i)).c_str());
-    GstCaps* caps = gst_caps_new_simple("video/x-raw", "format", G_TYPE_STRING, "RGBA", "width", G_TYPE_INT,
-                                        views[i].cols, "height", G_TYPE_INT, views[i].rows, "framerate",
-                                        GST_TYPE_FRACTION, 30, 1, NULL);
-    g_object_set(a, "caps", caps, "format", GST_FORMAT_TIME, "block", TRUE, "max-bytes",
-                 guint64(2 * views[i].total() * 4), NULL);
-    gst_caps_unref(caps);
-    srcs.push_back(a);
-  }
+  const std::vector<GstElement*> srcs = gsttest::rgba_appsrcs(pipe, views);
   GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
   gst_element_set_state(pipe, GST_STATE_PLAYING);
   for (int i = 0; i < 3; ++i)
     cameras.emplace_back([&, i]() {
       if (i == 2) g_usleep(2 * G_USEC_PER_SEC);  // camera 2 starts 2 s late, from its first frame
       for (int f = 0; f < kFrames; ++f) {
-        GstBuffer* b = gst_buffer_new_allocate(nullptr, views[i].total() * 4, nullptr);
-        gst_buffer_fill(b, 0, views[i].data, views[i].total() * 4);
-        GST_BUFFER_PTS(b) = gst_util_uint64_scale(f, GST_SECOND, 30);
-        GST_BUFFER_DURATION(b) = gst_util_uint64_scale(1, GST_SECOND, 30);
-        if (gst_app_src_push_buffer(GST_APP_SRC(srcs[i]), b) != GST_FLOW_OK) return;
+        if (!gsttest::push_frame(srcs[i], views[i], f)) return;
         g_usleep(10000);  // decoding at about 100 frames a second
       }
       gst_app_src_end_of_stream(GST_APP_SRC(srcs[i]));
@@ -660,17 +646,7 @@ TEST(StitchCalib, CameraThatNeverDeliversIsLeftOut) {
       &err);
   ASSERT_NE(pipe, nullptr) << (err ? err->message : "");
   constexpr int kFrames = 240;
-  std::vector<GstElement*> srcs;
-  for (int i = 0; i < 3; ++i) {
-    GstElement* a = gst_bin_get_by_name(GST_BIN(pipe), ("a" + std::to_string(i)).c_str());
-    GstCaps* caps = gst_caps_new_simple("video/x-raw", "format", G_TYPE_STRING, "RGBA", "width", G_TYPE_INT,
-                                        views[i].cols, "height", G_TYPE_INT, views[i].rows, "framerate",
-                                        GST_TYPE_FRACTION, 30, 1, NULL);
-    g_object_set(a, "caps", caps, "format", GST_FORMAT_TIME, "block", TRUE, "max-bytes",
-                 guint64(2 * views[i].total() * 4), NULL);
-    gst_caps_unref(caps);
-    srcs.push_back(a);
-  }
+  const std::vector<GstElement*> srcs = gsttest::rgba_appsrcs(pipe, views);
   GstElement* sink = gst_bin_get_by_name(GST_BIN(pipe), "out");
   GstBus* bus = gst_element_get_bus(pipe);
   gst_element_set_state(pipe, GST_STATE_PLAYING);
@@ -679,11 +655,7 @@ TEST(StitchCalib, CameraThatNeverDeliversIsLeftOut) {
   for (int i = 0; i < 2; ++i)
     cameras.emplace_back([&, i]() {
       for (int f = 0; f < kFrames; ++f) {
-        GstBuffer* b = gst_buffer_new_allocate(nullptr, views[i].total() * 4, nullptr);
-        gst_buffer_fill(b, 0, views[i].data, views[i].total() * 4);
-        GST_BUFFER_PTS(b) = gst_util_uint64_scale(f, GST_SECOND, 30);
-        GST_BUFFER_DURATION(b) = gst_util_uint64_scale(1, GST_SECOND, 30);
-        if (gst_app_src_push_buffer(GST_APP_SRC(srcs[i]), b) != GST_FLOW_OK) break;
+        if (!gsttest::push_frame(srcs[i], views[i], f)) break;
       }
       gst_app_src_end_of_stream(GST_APP_SRC(srcs[i]));
       ++finished;
