@@ -87,7 +87,8 @@
  * An input that changes resolution mid-stream (or a camera that leaves) is calibrated again
  * from scratch (the rig-file or the images, never the old geometry), with a warning naming the
  * camera and both sizes (`on-resize=recalibrate`), or stops the stream with an error
- * (`on-resize=error`). Flushes (seeks) keep the calibration: the rig has not moved.
+ * (`on-resize=error`). A camera added while playing is always calibrated in, with a warning
+ * that the number of cameras changed. Flushes (seeks) keep the calibration: the rig has not moved.
  *
  * Bundles in CUDA memory pass through untouched: only the frames the calibration policy reads
  * (quality checks and calibrations) are mapped through host memory.

@@ -362,6 +362,36 @@ TEST(CalibSession, LeftOutCameraIsOnNoCanvas) {
   }
 }
 
+// A camera added while playing (a pad requested in PLAYING) changes the bundle's view count:
+// said as such, not as a resolution change, and not an error, even with on-resize=error (which
+// still stops on a camera that leaves).
+TEST(CalibSession, CameraAddedMidStreamIsCalibratedInNotAResolutionChange) {
+  SessionConfig c = quick();
+  c.resize_is_error = true;
+  CalibSession s;
+  s.set_config(c);
+  const auto three = crops(3);
+  const std::vector<cv::Mat> two = {three[0], three[1]};
+  feed(s, 0, two);
+  ASSERT_TRUE(s.current());
+  ASSERT_EQ(s.current()->cameras.size(), 2u);
+  std::vector<SessionEvent> events;
+  for (int f = 1; f < 10 && s.current()->cameras.size() != 3; ++f)
+    for (auto& e : feed(s, f, three)) events.push_back(e);
+  EXPECT_EQ(count(events, SessionEvent::Type::Error), 0);
+  ASSERT_TRUE(s.current());
+  EXPECT_EQ(s.current()->cameras.size(), 3u);
+  const SessionEvent* w = find(events, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("number of cameras changed mid-stream (2 -> 3)"), std::string::npos) << w->text;
+  EXPECT_EQ(w->text.find("resolution"), std::string::npos) << w->text;
+  std::string error;
+  for (int f = 20; f < 30 && error.empty(); ++f)
+    for (auto& e : feed(s, f, two))
+      if (e.type == SessionEvent::Type::Error) error = e.text;
+  EXPECT_NE(error.find("number of cameras changed mid-stream (3 -> 2) and on-resize=error"), std::string::npos) << error;
+}
+
 TEST(CalibSession, GivesUpAfterTheTimeoutNamingTheCamera) {
   SessionConfig c = quick();
   c.calibration_timeout_s = 2;

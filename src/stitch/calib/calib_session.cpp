@@ -457,7 +457,17 @@ bool CalibSession::handle_sizes(const Frame& frame) {
   auto differs = [&](std::size_t i) { return frame.sizes[i] != sizes_[i] && !(i < 64 && (frame.missing_mask >> i & 1)); };
   std::string what;
   if (frame.sizes.size() != sizes_.size()) {
-    what = std::to_string(sizes_.size()) + " -> " + std::to_string(frame.sizes.size()) + " cameras";
+    // A camera added while playing is calibrated in, whatever on-resize says; one that leaves
+    // follows on-resize (its doc block).
+    const std::string change = "The number of cameras changed mid-stream (" + std::to_string(sizes_.size()) +
+                               " -> " + std::to_string(frame.sizes.size()) + ")";
+    if (config_.resize_is_error && frame.sizes.size() < sizes_.size()) {
+      fail(change + " and on-resize=error");
+      return false;
+    }
+    warn(change + "; calibrating again with every camera");
+    forget_calibration();
+    return true;
   } else {
     bool any = false, only_left_out = true;
     for (std::size_t i = 0; i < sizes_.size(); ++i)
