@@ -610,9 +610,14 @@ static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAgg
                               const std::vector<stitch::sync::InputFacts>& facts, GstClockTime now,
                               GstStitchSyncDropout mode, GstClockTime timeout, std::vector<DropoutChange>& changes) {
   guint64 left_out = 0;
+  /* a camera that never delivers is counted from the start for those there at the first bundle,
+   * from the first output it takes part in for one requested later (a pad linked while playing) */
+  const bool first = self->state->tracks_from_start;
+  self->state->tracks_from_start = false;
   for (guint id = 0; id < pads.size() && id < facts.size(); ++id) {
     if (!pads[id]) continue;
     SyncPadState& st = *pad_state(pads[id]);
+    if (st.track.since == stitch::sync::kNoTime) st.track.since = as_time(first ? self->state->started : now);
     std::string reason;
     if (stitch::sync::update_dropout(st.track, facts[id], as_time(now), as_time(self->state->started),
                                      gint64(timeout), reason))
@@ -686,6 +691,10 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
    * dropout-timeout from then is out */
   const GstClockTime waited = GstClockTime(g_get_monotonic_time() - st->first_ready_us) * 1000;
   st->started = GST_CLOCK_TIME_IS_VALID(now) ? now - MIN(now, waited) : now;
+  {
+    std::lock_guard<std::mutex> guard(st->lock);
+    st->tracks_from_start = true;
+  }
   return GST_FLOW_OK;
 }
 
@@ -803,6 +812,7 @@ static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
       ps.delivered = false;
       ps.standin = {};
       ps.standin_segment = false;
+      ps.standin_seqnum = GST_SEQNUM_INVALID;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->stop(agg);
@@ -819,6 +829,7 @@ static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
       pad_state(p)->track = {};
       pad_state(p)->standin = {};
       pad_state(p)->standin_segment = false;
+      pad_state(p)->standin_seqnum = GST_SEQNUM_INVALID;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);

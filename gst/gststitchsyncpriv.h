@@ -60,6 +60,9 @@ struct SyncPadState {
   bool delivered = false;
   stitch::sync::StandIn standin;
   bool standin_segment = false;  // a time segment was sent for the gaps
+  /* seqnum of that segment while it is stored on the pad as a sticky event (0: none): it goes
+   * when the camera's own caps come (GStreamer wants stream-start, caps, segment in this order) */
+  guint32 standin_seqnum = GST_SEQNUM_INVALID;
 
   void release() {
     gst_clear_buffer(&buffer);
@@ -89,6 +92,9 @@ struct StitchSyncState {
   /* start-up: running time of the first bundle, monotonic time the first aggregate came */
   GstClockTime started = GST_CLOCK_TIME_NONE;
   gint64 first_ready_us = -1;
+  /* the first bundle's dropout tracking is still to come: the pads then present count from
+   * `started`, those requested later from the output they first take part in */
+  bool tracks_from_start = false;
   /* time-alignment=auto (aggregate thread) */
   std::unique_ptr<stitch::sync::OffsetTracker> tracker;
   /* the cameras' audio (stitchsyncaudio's streaming threads; its own lock, taken alone or inside
@@ -113,6 +119,7 @@ struct StitchSyncState {
     pending_qos.clear();
     started = GST_CLOCK_TIME_NONE;
     first_ready_us = -1;
+    tracks_from_start = false;
     first_data_us = -1;
     if (tracker) tracker->reset();
     std::lock_guard<std::mutex> guard(audio_lock);
