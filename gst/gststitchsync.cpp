@@ -302,7 +302,7 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
 static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad, GstBuffer* buf) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
   /* our own stand-in for a silent input (gststitchsyncwatch.cpp) is no frame */
-  if (GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0) return buf;
+  const bool gap = GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0;
   if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
   GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
   if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
@@ -314,6 +314,31 @@ static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad
   if (!GST_CLOCK_TIME_IS_VALID(end_rt)) return buf;
   std::lock_guard<std::mutex> guard(self->state->lock);
   SyncPadState& last = *pad_state(pad);
+  if (last.standing_in()) {
+    /* A camera stood in for has started (its frames are in the queue, behind our gaps). The gaps
+     * still queued would hide it for their span while its frames for that span are thrown away,
+     * and GstVideoAggregator drops its frames that end before the last gap shown one per output
+     * frame ("from the past"): the output would go on without it, in step with the frames it
+     * throws away, for as long as the camera was late. So the gaps left go, and so do its frames
+     * from before the gaps shown (standin_end, see catching_up), here, all at once. */
+    if (gap) {
+      if (last.delivered) {
+        GST_DEBUG_OBJECT(pad, "the camera has started: stand-in gap at %" GST_TIME_FORMAT " dropped", GST_TIME_ARGS(start_rt));
+        gst_buffer_unref(buf);
+        return NULL;
+      }
+      return buf;
+    }
+    if (GST_CLOCK_TIME_IS_VALID(last.standin_end) && end_rt < last.standin_end) {
+      GST_LOG_OBJECT(pad, "frame ending at %" GST_TIME_FORMAT " is from before the stand-in's gaps; dropped",
+                     GST_TIME_ARGS(end_rt));
+      gst_buffer_unref(buf);
+      return NULL;
+    }
+    GST_DEBUG_OBJECT(pad, "joins with its frame at %" GST_TIME_FORMAT, GST_TIME_ARGS(start_rt));
+    last.standin_done = true;
+  }
+  if (gap) return buf;
   if (!GST_CLOCK_TIME_IS_VALID(last.newest_end) || end_rt >= last.newest_end) {
     last.newest_end = end_rt;
     last.processed++;
@@ -643,6 +668,47 @@ static void post_dropout_change(GstStitchSync* self, const DropoutChange& c) {
   gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
 }
 
+/* Non-live cameras stood in for (gststitchsyncwatch.cpp) that have started: the end of the gap
+ * shown is noted (clip drops the camera's frames from before it), a gap still waiting at the head
+ * of its queue goes, and while its frames so far were all from the past no bundle is made, so
+ * that the others' video is not used up without it while it catches up (a non-live input that
+ * delivered is waited for anyway). TRUE: hold this bundle. */
+static bool catching_up(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads) {
+  StitchSyncState* st = self->state;
+  bool hold = false;
+  for (GstVideoAggregatorPad* pad : pads) {
+    bool standing_in, delivered;
+    {
+      std::lock_guard<std::mutex> guard(st->lock);
+      standing_in = pad_state(pad)->standing_in();
+      delivered = pad_state(pad)->delivered;
+    }
+    if (!standing_in) continue;
+    GstBuffer* cur = gst_video_aggregator_pad_get_current_buffer(pad);
+    if (cur && GST_BUFFER_FLAG_IS_SET(cur, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(cur) == 0) {
+      const GstClockTime end = current_frame_end(pad);
+      std::lock_guard<std::mutex> guard(st->lock);
+      GstClockTime& shown = pad_state(pad)->standin_end;
+      if (GST_CLOCK_TIME_IS_VALID(end) && (!GST_CLOCK_TIME_IS_VALID(shown) || end > shown)) shown = end;
+    }
+    if (!delivered) continue;
+    /* (peeking clips: drops the gaps behind it, and its frames from the past) */
+    GstAggregatorPad* apad = GST_AGGREGATOR_PAD(pad);
+    while (GstBuffer* head = gst_aggregator_pad_peek_buffer(apad)) {
+      const bool gap = GST_BUFFER_FLAG_IS_SET(head, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(head) == 0;
+      gst_buffer_unref(head);
+      if (!gap) break;
+      gst_aggregator_pad_drop_buffer(apad);
+    }
+    std::lock_guard<std::mutex> guard(st->lock);
+    if (pad_state(pad)->standing_in() && !gst_aggregator_pad_is_eos(apad)) {
+      GST_LOG_OBJECT(pad, "has started; no bundle until its frames reach the output");
+      hold = true;
+    }
+  }
+  return hold;
+}
+
 /* Before the first bundle (stitch::sync::may_start): every requested pad negotiated, or
  * dropout-timeout since the first inputs were ready; never a single input. */
 static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
@@ -719,6 +785,7 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
     const GstFlowReturn ret = wait_for_inputs(self, pads, now, timeout);
     if (ret != GST_FLOW_OK) return ret;
   }
+  if (catching_up(self, pads)) return GST_AGGREGATOR_FLOW_NEED_DATA;
   /* The view count follows the pads: a pad requested or released while playing renegotiates
    * the bundle (a pad without caps yet is a missing view), it never holds the output. */
   const guint n = bundle_views(pads);
@@ -813,6 +880,8 @@ static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
       ps.standin = {};
       ps.standin_segment = false;
       ps.standin_seqnum = GST_SEQNUM_INVALID;
+      ps.standin_end = GST_CLOCK_TIME_NONE;
+      ps.standin_done = false;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->stop(agg);
@@ -830,6 +899,8 @@ static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
       pad_state(p)->standin = {};
       pad_state(p)->standin_segment = false;
       pad_state(p)->standin_seqnum = GST_SEQNUM_INVALID;
+      pad_state(p)->standin_end = GST_CLOCK_TIME_NONE;
+      pad_state(p)->standin_done = false;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);

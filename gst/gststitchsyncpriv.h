@@ -63,6 +63,13 @@ struct SyncPadState {
   /* seqnum of that segment while it is stored on the pad as a sticky event (0: none): it goes
    * when the camera's own caps come (GStreamer wants stream-start, caps, segment in this order) */
   guint32 standin_seqnum = GST_SEQNUM_INVALID;
+  /* the camera joins (clip): our gaps still queued ahead of its first frame are dropped, and so
+   * are its frames that end before the gaps already shown (standin_end, running time), at once,
+   * instead of one per output frame (GstVideoAggregator's "from the past"); done with its first
+   * frame that is shown */
+  GstClockTime standin_end = GST_CLOCK_TIME_NONE;
+  bool standin_done = false;
+  bool standing_in() const { return standin.sent_until != stitch::sync::kNoTime && !standin_done; }
 
   void release() {
     gst_clear_buffer(&buffer);

@@ -15,7 +15,7 @@
 #define GST_CAT_DEFAULT gst_stitch_sync_debug
 
 /* one gap: short, so that a camera that starts late is not held back by gaps queued far ahead */
-#define STANDIN_SPAN (250 * GST_MSECOND)
+#define STANDIN_SPAN (100 * GST_MSECOND)
 
 static void stand_in(GstStitchSync* self) {
   StitchSyncState* st = self->state;

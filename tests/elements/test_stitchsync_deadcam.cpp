@@ -6,6 +6,7 @@
 #include <gst/gst.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstring>
 #include <string>
@@ -43,6 +44,8 @@ bool view_missing(GstBuffer* buf, guint view, bool& found) {
 struct Counts {
   std::atomic<int> bundles{0}, with_view2{0};
   std::atomic<gint64> first_us{-1};
+  // pts of the newest bundle and of the first one with view 2
+  std::atomic<gint64> last_pts{-1}, view2_pts{-1};
 };
 
 GstPadProbeReturn on_bundle(GstPad*, GstPadProbeInfo* info, gpointer data) {
@@ -51,7 +54,13 @@ GstPadProbeReturn on_bundle(GstPad*, GstPadProbeInfo* info, gpointer data) {
   c->first_us.compare_exchange_strong(none, g_get_monotonic_time());
   ++c->bundles;
   bool found = false;
-  if (!view_missing(GST_PAD_PROBE_INFO_BUFFER(info), 2, found) && found) ++c->with_view2;
+  GstBuffer* buf = GST_PAD_PROBE_INFO_BUFFER(info);
+  if (!view_missing(buf, 2, found) && found) {
+    ++c->with_view2;
+    gint64 unset = -1;
+    c->view2_pts.compare_exchange_strong(unset, gint64(GST_BUFFER_PTS(buf)));
+  }
+  c->last_pts = gint64(GST_BUFFER_PTS(buf));
   return GST_PAD_PROBE_OK;
 }
 
@@ -206,10 +215,27 @@ void push_frames(GstElement* src, GstClockTime from, GstClockTime to) {
 // "GStreamer-WARNING: ... Sticky event misordering, got 'segment' before 'caps'" on stderr (our
 // segment was stored before its caps). A camera 1.5 s late, from pts 0 as a file would be:
 // either its branch is held back (a queue blocked, as a slow decoder or network would), or it is
-// an appsrc that has sent its stream-start but no caps yet.
+// an appsrc that has sent its stream-start but no caps yet. It must also be in the bundles from
+// where the output was when it came (within a stand-in gap): before, it stayed out for about as
+// long again as it had been late (3.1-4.3 s of pts here), its old frames dropped one per bundle
+// while the others' video went on without it.
 namespace {
 
 GstPadProbeReturn hold(GstPad*, GstPadProbeInfo*, gpointer) { return GST_PAD_PROBE_OK; }
+
+// the output's pts when the late camera's first frame reached stitchsync
+struct Arrival {
+  Counts* counts;
+  std::atomic<gint64> out_pts{-2};
+};
+GstPadProbeReturn on_arrival(GstPad*, GstPadProbeInfo* info, gpointer data) {
+  GstBuffer* b = GST_PAD_PROBE_INFO_BUFFER(info);
+  if (GST_BUFFER_FLAG_IS_SET(b, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(b) == 0) return GST_PAD_PROBE_OK;
+  Arrival* a = static_cast<Arrival*>(data);
+  gint64 none = -2;
+  a->out_pts.compare_exchange_strong(none, a->counts->last_pts.load());
+  return GST_PAD_PROBE_OK;
+}
 
 void late_camera_joins(bool blocked_branch) {
   g_misordered = 0;
@@ -228,6 +254,14 @@ void late_camera_joins(bool blocked_branch) {
       gst_app_src_set_caps(GST_APP_SRC(r.dead), caps);
       push_frames(r.dead, 0, 10 * GST_SECOND);
     }
+    Arrival arrival{&r.counts};
+    {
+      GstElement* s = gst_bin_get_by_name(GST_BIN(r.pipe), "s");
+      GstPad* pad = gst_element_get_static_pad(s, "sink_2");
+      gst_pad_add_probe(pad, GST_PAD_PROBE_TYPE_BUFFER, on_arrival, &arrival, nullptr);
+      gst_object_unref(pad);
+      gst_object_unref(s);
+    }
     r.start();
     r.pump(r.started_us + 1500 * G_TIME_SPAN_MILLISECOND);
     ASSERT_GT(r.counts.bundles.load(), 0) << "no panorama while the camera was late";
@@ -244,6 +278,14 @@ void late_camera_joins(bool blocked_branch) {
     ASSERT_TRUE(r.errors.empty()) << r.errors[0];
     EXPECT_TRUE(r.eos);
     EXPECT_GT(r.counts.with_view2.load(), 30) << "the camera never joined";
+    // it is in the bundles from (about) where the output was when it came: before, the gaps queued
+    // ahead of it and its frames from before them (dropped one per output frame) kept it out for
+    // as long as it had been late, while the others' video went on without it
+    ASSERT_GE(arrival.out_pts.load(), -1) << "its first frame never reached stitchsync";
+    ASSERT_GE(r.counts.view2_pts.load(), 0);
+    EXPECT_LT(double(r.counts.view2_pts - std::max<gint64>(arrival.out_pts, 0)) / GST_SECOND, 0.25)
+        << "joined at pts " << r.counts.view2_pts / 1e9 << " s, came when the output was at " << arrival.out_pts / 1e9
+        << " s";
     // the pad ends with the camera's own sticky events, in order
     GstElement* s = gst_bin_get_by_name(GST_BIN(r.pipe), "s");
     GstPad* pad = gst_element_get_static_pad(s, "sink_2");
