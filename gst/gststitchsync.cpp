@@ -20,7 +20,8 @@
  *
  * Cameras fail. One that ends (EOS), stalls (its newest frame ended more than
  * `dropout-timeout` before the output time with nothing queued after it), or never delivers
- * anything (for `dropout-timeout` after the others started) drops out without stopping the
+ * anything (for `dropout-timeout` after the others started, or after its pad was added when it
+ * was added while playing) drops out without stopping the
  * panorama: a warning names it, an element message `stitchsync-dropout` (pad, view, dropped,
  * reason) is posted, and `dropout=freeze` keeps its region on its last frame while
  * `dropout=fill` marks the view missing so that stitchblend fills the region from its
@@ -31,7 +32,9 @@
  * aggregated on the `latency` timeout, so a stalled or dead live camera is seen. A non-live input
  * that delivers nothing at all (an appsrc or file branch that never starts) is stood in for with
  * GAP events once `dropout-timeout` has passed since the first frame came in, so the others go on
- * and it joins with its first frame; non-live inputs that stall after delivering need
+ * and it joins with its first frame, where the output is when it comes (its older frames are
+ * dropped at once, and no bundle is made while it catches up); non-live inputs that stall after
+ * delivering need
  * `force-live=true` (GstAggregator waits for every non-live input that has started). A frame
  * that ends before one its input already delivered comes from the past and is dropped with a
  * QoS message (at most one per input per second, carrying the totals).
@@ -277,7 +280,13 @@ static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTempla
   }
   /* Repeating an ended input is done here, not with the pads' repeat-after-eos, which
    * would keep the output running forever once every input has ended. */
-  return GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->request_new_pad(element, templ, name, caps);
+  GstPad* pad = GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->request_new_pad(element, templ, name, caps);
+  if (pad) {
+    const GstClockTime rt = gst_element_get_current_running_time(element);
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    pad_state(pad)->requested_rt = rt;
+  }
+  return pad;
 }
 
 static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
@@ -632,7 +641,7 @@ static stitch::sync::InputFacts input_facts(GstVideoAggregatorPad* pad) {
  * base class whether a buffer is queued clips it, which takes that lock); returns the views to
  * leave out. */
 static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                              const std::vector<stitch::sync::InputFacts>& facts, GstClockTime now,
+                              const std::vector<stitch::sync::InputFacts>& facts, GstClockTime now, bool live,
                               GstStitchSyncDropout mode, GstClockTime timeout, std::vector<DropoutChange>& changes) {
   guint64 left_out = 0;
   /* a camera that never delivers is counted from the start for those there at the first bundle,
@@ -642,7 +651,13 @@ static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAgg
   for (guint id = 0; id < pads.size() && id < facts.size(); ++id) {
     if (!pads[id]) continue;
     SyncPadState& st = *pad_state(pads[id]);
-    if (st.track.since == stitch::sync::kNoTime) st.track.since = as_time(first ? self->state->started : now);
+    if (st.track.since == stitch::sync::kNoTime) {
+      /* live: the clock's running time when it was requested, where the output lags behind it */
+      GstClockTime since = first ? self->state->started : now;
+      if (!first && live && GST_CLOCK_TIME_IS_VALID(st.requested_rt) && GST_CLOCK_TIME_IS_VALID(since))
+        since = MAX(since, st.requested_rt);
+      st.track.since = as_time(since);
+    }
     std::string reason;
     if (stitch::sync::update_dropout(st.track, facts[id], as_time(now), as_time(self->state->started),
                                      gint64(timeout), reason))
@@ -816,6 +831,7 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   }
   std::vector<stitch::sync::InputFacts> facts;
   for (GstVideoAggregatorPad* pad : pads) facts.push_back(input_facts(pad));
+  const bool live = GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(agg));
   while (pads.size() < n) pads.push_back(NULL);  // a single input left: the second view is missing
   std::vector<DropoutChange> changes;
   std::vector<GstMessage*> qos;
@@ -829,7 +845,7 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
     qos.swap(st->pending_qos);
     offsets = align_inputs(self, pads, automatic, no_signal);
     applied_offsets(self, pads, n, automatic, applied, estimated);
-    const guint64 left_out = track_dropouts(self, pads, facts, now, mode, timeout, changes);
+    const guint64 left_out = track_dropouts(self, pads, facts, now, live, mode, timeout, changes);
     const gboolean ok = st->out_cuda ? bundle_in_cuda_memory(self, pads, outbuf, left_out, missing)
                                      : bundle_in_system_memory(self, pads, outbuf, left_out, missing);
     if (!ok) {

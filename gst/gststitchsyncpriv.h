@@ -42,6 +42,10 @@ struct SyncPadState {
   GstVideoInfo frame_info;
   /* dropout bookkeeping (stitch::sync::update_dropout) */
   stitch::sync::DropoutTrack track;
+  /* the element's clock running time when the pad was requested while playing (NONE before):
+   * a live output that lags behind the clock must not count the pad as silent from its own,
+   * earlier, time */
+  GstClockTime requested_rt = GST_CLOCK_TIME_NONE;
   /* end (running time) of the newest frame taken in, to drop frames from the past (QoS) */
   GstClockTime newest_end = GST_CLOCK_TIME_NONE;
   guint64 processed = 0, late = 0;
