@@ -20,7 +20,8 @@
  *
  * Cameras fail. One that ends (EOS), stalls (its newest frame ended more than
  * `dropout-timeout` before the output time with nothing queued after it), or never delivers
- * anything (for `dropout-timeout` after the others started) drops out without stopping the
+ * anything (for `dropout-timeout` after the others started, or after its pad was added when it
+ * was added while playing) drops out without stopping the
  * panorama: a warning names it, an element message `stitchsync-dropout` (pad, view, dropped,
  * reason) is posted, and `dropout=freeze` keeps its region on its last frame while
  * `dropout=fill` marks the view missing so that stitchblend fills the region from its
@@ -31,7 +32,9 @@
  * aggregated on the `latency` timeout, so a stalled or dead live camera is seen. A non-live input
  * that delivers nothing at all (an appsrc or file branch that never starts) is stood in for with
  * GAP events once `dropout-timeout` has passed since the first frame came in, so the others go on
- * and it joins with its first frame; non-live inputs that stall after delivering need
+ * and it joins with its first frame, where the output is when it comes (its older frames are
+ * dropped at once, and no bundle is made while it catches up); non-live inputs that stall after
+ * delivering need
  * `force-live=true` (GstAggregator waits for every non-live input that has started). A frame
  * that ends before one its input already delivered comes from the past and is dropped with a
  * QoS message (at most one per input per second, carrying the totals).
@@ -277,7 +280,13 @@ static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTempla
   }
   /* Repeating an ended input is done here, not with the pads' repeat-after-eos, which
    * would keep the output running forever once every input has ended. */
-  return GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->request_new_pad(element, templ, name, caps);
+  GstPad* pad = GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->request_new_pad(element, templ, name, caps);
+  if (pad) {
+    const GstClockTime rt = gst_element_get_current_running_time(element);
+    std::lock_guard<std::mutex> guard(self->state->lock);
+    pad_state(pad)->requested_rt = rt;
+  }
+  return pad;
 }
 
 static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
@@ -302,7 +311,7 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
 static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad, GstBuffer* buf) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
   /* our own stand-in for a silent input (gststitchsyncwatch.cpp) is no frame */
-  if (GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0) return buf;
+  const bool gap = GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0;
   if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
   GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
   if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
@@ -314,6 +323,31 @@ static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad
   if (!GST_CLOCK_TIME_IS_VALID(end_rt)) return buf;
   std::lock_guard<std::mutex> guard(self->state->lock);
   SyncPadState& last = *pad_state(pad);
+  if (last.standing_in()) {
+    /* A camera stood in for has started (its frames are in the queue, behind our gaps). The gaps
+     * still queued would hide it for their span while its frames for that span are thrown away,
+     * and GstVideoAggregator drops its frames that end before the last gap shown one per output
+     * frame ("from the past"): the output would go on without it, in step with the frames it
+     * throws away, for as long as the camera was late. So the gaps left go, and so do its frames
+     * from before the gaps shown (standin_end, see catching_up), here, all at once. */
+    if (gap) {
+      if (last.delivered) {
+        GST_DEBUG_OBJECT(pad, "the camera has started: stand-in gap at %" GST_TIME_FORMAT " dropped", GST_TIME_ARGS(start_rt));
+        gst_buffer_unref(buf);
+        return NULL;
+      }
+      return buf;
+    }
+    if (GST_CLOCK_TIME_IS_VALID(last.standin_end) && end_rt < last.standin_end) {
+      GST_LOG_OBJECT(pad, "frame ending at %" GST_TIME_FORMAT " is from before the stand-in's gaps; dropped",
+                     GST_TIME_ARGS(end_rt));
+      gst_buffer_unref(buf);
+      return NULL;
+    }
+    GST_DEBUG_OBJECT(pad, "joins with its frame at %" GST_TIME_FORMAT, GST_TIME_ARGS(start_rt));
+    last.standin_done = true;
+  }
+  if (gap) return buf;
   if (!GST_CLOCK_TIME_IS_VALID(last.newest_end) || end_rt >= last.newest_end) {
     last.newest_end = end_rt;
     last.processed++;
@@ -607,12 +641,23 @@ static stitch::sync::InputFacts input_facts(GstVideoAggregatorPad* pad) {
  * base class whether a buffer is queued clips it, which takes that lock); returns the views to
  * leave out. */
 static guint64 track_dropouts(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads,
-                              const std::vector<stitch::sync::InputFacts>& facts, GstClockTime now,
+                              const std::vector<stitch::sync::InputFacts>& facts, GstClockTime now, bool live,
                               GstStitchSyncDropout mode, GstClockTime timeout, std::vector<DropoutChange>& changes) {
   guint64 left_out = 0;
+  /* a camera that never delivers is counted from the start for those there at the first bundle,
+   * from the first output it takes part in for one requested later (a pad linked while playing) */
+  const bool first = self->state->tracks_from_start;
+  self->state->tracks_from_start = false;
   for (guint id = 0; id < pads.size() && id < facts.size(); ++id) {
     if (!pads[id]) continue;
     SyncPadState& st = *pad_state(pads[id]);
+    if (st.track.since == stitch::sync::kNoTime) {
+      /* live: the clock's running time when it was requested, where the output lags behind it */
+      GstClockTime since = first ? self->state->started : now;
+      if (!first && live && GST_CLOCK_TIME_IS_VALID(st.requested_rt) && GST_CLOCK_TIME_IS_VALID(since))
+        since = MAX(since, st.requested_rt);
+      st.track.since = as_time(since);
+    }
     std::string reason;
     if (stitch::sync::update_dropout(st.track, facts[id], as_time(now), as_time(self->state->started),
                                      gint64(timeout), reason))
@@ -636,6 +681,47 @@ static void post_dropout_change(GstStitchSync* self, const DropoutChange& c) {
                                       c.view, "dropped", G_TYPE_BOOLEAN, c.dropped, "reason", G_TYPE_STRING,
                                       c.reason.c_str(), NULL);
   gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), s));
+}
+
+/* Non-live cameras stood in for (gststitchsyncwatch.cpp) that have started: the end of the gap
+ * shown is noted (clip drops the camera's frames from before it), a gap still waiting at the head
+ * of its queue goes, and while its frames so far were all from the past no bundle is made, so
+ * that the others' video is not used up without it while it catches up (a non-live input that
+ * delivered is waited for anyway). TRUE: hold this bundle. */
+static bool catching_up(GstStitchSync* self, const std::vector<GstVideoAggregatorPad*>& pads) {
+  StitchSyncState* st = self->state;
+  bool hold = false;
+  for (GstVideoAggregatorPad* pad : pads) {
+    bool standing_in, delivered;
+    {
+      std::lock_guard<std::mutex> guard(st->lock);
+      standing_in = pad_state(pad)->standing_in();
+      delivered = pad_state(pad)->delivered;
+    }
+    if (!standing_in) continue;
+    GstBuffer* cur = gst_video_aggregator_pad_get_current_buffer(pad);
+    if (cur && GST_BUFFER_FLAG_IS_SET(cur, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(cur) == 0) {
+      const GstClockTime end = current_frame_end(pad);
+      std::lock_guard<std::mutex> guard(st->lock);
+      GstClockTime& shown = pad_state(pad)->standin_end;
+      if (GST_CLOCK_TIME_IS_VALID(end) && (!GST_CLOCK_TIME_IS_VALID(shown) || end > shown)) shown = end;
+    }
+    if (!delivered) continue;
+    /* (peeking clips: drops the gaps behind it, and its frames from the past) */
+    GstAggregatorPad* apad = GST_AGGREGATOR_PAD(pad);
+    while (GstBuffer* head = gst_aggregator_pad_peek_buffer(apad)) {
+      const bool gap = GST_BUFFER_FLAG_IS_SET(head, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(head) == 0;
+      gst_buffer_unref(head);
+      if (!gap) break;
+      gst_aggregator_pad_drop_buffer(apad);
+    }
+    std::lock_guard<std::mutex> guard(st->lock);
+    if (pad_state(pad)->standing_in() && !gst_aggregator_pad_is_eos(apad)) {
+      GST_LOG_OBJECT(pad, "has started; no bundle until its frames reach the output");
+      hold = true;
+    }
+  }
+  return hold;
 }
 
 /* Before the first bundle (stitch::sync::may_start): every requested pad negotiated, or
@@ -686,6 +772,10 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
    * dropout-timeout from then is out */
   const GstClockTime waited = GstClockTime(g_get_monotonic_time() - st->first_ready_us) * 1000;
   st->started = GST_CLOCK_TIME_IS_VALID(now) ? now - MIN(now, waited) : now;
+  {
+    std::lock_guard<std::mutex> guard(st->lock);
+    st->tracks_from_start = true;
+  }
   return GST_FLOW_OK;
 }
 
@@ -710,6 +800,7 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
     const GstFlowReturn ret = wait_for_inputs(self, pads, now, timeout);
     if (ret != GST_FLOW_OK) return ret;
   }
+  if (catching_up(self, pads)) return GST_AGGREGATOR_FLOW_NEED_DATA;
   /* The view count follows the pads: a pad requested or released while playing renegotiates
    * the bundle (a pad without caps yet is a missing view), it never holds the output. */
   const guint n = bundle_views(pads);
@@ -740,6 +831,7 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   }
   std::vector<stitch::sync::InputFacts> facts;
   for (GstVideoAggregatorPad* pad : pads) facts.push_back(input_facts(pad));
+  const bool live = GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(agg));
   while (pads.size() < n) pads.push_back(NULL);  // a single input left: the second view is missing
   std::vector<DropoutChange> changes;
   std::vector<GstMessage*> qos;
@@ -753,7 +845,7 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
     qos.swap(st->pending_qos);
     offsets = align_inputs(self, pads, automatic, no_signal);
     applied_offsets(self, pads, n, automatic, applied, estimated);
-    const guint64 left_out = track_dropouts(self, pads, facts, now, mode, timeout, changes);
+    const guint64 left_out = track_dropouts(self, pads, facts, now, live, mode, timeout, changes);
     const gboolean ok = st->out_cuda ? bundle_in_cuda_memory(self, pads, outbuf, left_out, missing)
                                      : bundle_in_system_memory(self, pads, outbuf, left_out, missing);
     if (!ok) {
@@ -803,6 +895,9 @@ static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
       ps.delivered = false;
       ps.standin = {};
       ps.standin_segment = false;
+      ps.standin_seqnum = GST_SEQNUM_INVALID;
+      ps.standin_end = GST_CLOCK_TIME_NONE;
+      ps.standin_done = false;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->stop(agg);
@@ -819,6 +914,9 @@ static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
       pad_state(p)->track = {};
       pad_state(p)->standin = {};
       pad_state(p)->standin_segment = false;
+      pad_state(p)->standin_seqnum = GST_SEQNUM_INVALID;
+      pad_state(p)->standin_end = GST_CLOCK_TIME_NONE;
+      pad_state(p)->standin_done = false;
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);

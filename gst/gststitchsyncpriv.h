@@ -42,6 +42,10 @@ struct SyncPadState {
   GstVideoInfo frame_info;
   /* dropout bookkeeping (stitch::sync::update_dropout) */
   stitch::sync::DropoutTrack track;
+  /* the element's clock running time when the pad was requested while playing (NONE before):
+   * a live output that lags behind the clock must not count the pad as silent from its own,
+   * earlier, time */
+  GstClockTime requested_rt = GST_CLOCK_TIME_NONE;
   /* end (running time) of the newest frame taken in, to drop frames from the past (QoS) */
   GstClockTime newest_end = GST_CLOCK_TIME_NONE;
   guint64 processed = 0, late = 0;
@@ -60,6 +64,16 @@ struct SyncPadState {
   bool delivered = false;
   stitch::sync::StandIn standin;
   bool standin_segment = false;  // a time segment was sent for the gaps
+  /* seqnum of that segment while it is stored on the pad as a sticky event (0: none): it goes
+   * when the camera's own caps come (GStreamer wants stream-start, caps, segment in this order) */
+  guint32 standin_seqnum = GST_SEQNUM_INVALID;
+  /* the camera joins (clip): our gaps still queued ahead of its first frame are dropped, and so
+   * are its frames that end before the gaps already shown (standin_end, running time), at once,
+   * instead of one per output frame (GstVideoAggregator's "from the past"); done with its first
+   * frame that is shown */
+  GstClockTime standin_end = GST_CLOCK_TIME_NONE;
+  bool standin_done = false;
+  bool standing_in() const { return standin.sent_until != stitch::sync::kNoTime && !standin_done; }
 
   void release() {
     gst_clear_buffer(&buffer);
@@ -89,6 +103,9 @@ struct StitchSyncState {
   /* start-up: running time of the first bundle, monotonic time the first aggregate came */
   GstClockTime started = GST_CLOCK_TIME_NONE;
   gint64 first_ready_us = -1;
+  /* the first bundle's dropout tracking is still to come: the pads then present count from
+   * `started`, those requested later from the output they first take part in */
+  bool tracks_from_start = false;
   /* time-alignment=auto (aggregate thread) */
   std::unique_ptr<stitch::sync::OffsetTracker> tracker;
   /* the cameras' audio (stitchsyncaudio's streaming threads; its own lock, taken alone or inside
@@ -113,6 +130,7 @@ struct StitchSyncState {
     pending_qos.clear();
     started = GST_CLOCK_TIME_NONE;
     first_ready_us = -1;
+    tracks_from_start = false;
     first_data_us = -1;
     if (tracker) tracker->reset();
     std::lock_guard<std::mutex> guard(audio_lock);

@@ -15,7 +15,7 @@
 #define GST_CAT_DEFAULT gst_stitch_sync_debug
 
 /* one gap: short, so that a camera that starts late is not held back by gaps queued far ahead */
-#define STANDIN_SPAN (250 * GST_MSECOND)
+#define STANDIN_SPAN (100 * GST_MSECOND)
 
 static void stand_in(GstStitchSync* self) {
   StitchSyncState* st = self->state;
@@ -68,7 +68,13 @@ static void stand_in(GstStitchSync* self) {
         }
         GstSegment seg;
         gst_segment_init(&seg, GST_FORMAT_TIME);
-        gst_pad_send_event(pad, gst_event_new_segment(&seg));
+        GstEvent* ev = gst_event_new_segment(&seg);
+        {
+          /* noted before it is sent: caps that come meanwhile find it (standin_caps) */
+          std::lock_guard<std::mutex> guard(st->lock);
+          pad_state(pad)->standin_seqnum = gst_event_get_seqnum(ev);
+        }
+        gst_pad_send_event(pad, ev);
       }
       /* (ours, while it is queued or in place, maps running time to itself) */
       GstClockTime ts = GST_CLOCK_TIME_NONE;
@@ -101,8 +107,39 @@ static GstPadProbeReturn arrived(GstPad* pad, GstPadProbeInfo* info, gpointer) {
   return GST_PAD_PROBE_OK;
 }
 
+/* Our stand-in segment is stored on the pad as a sticky event. The camera's own stream-start
+ * replaces ours, but its caps would come after a segment: GStreamer stores sticky events in
+ * their order (stream-start, caps, segment) and warns "Sticky event misordering, got 'segment'
+ * before 'caps'". So when its caps come (this probe runs before they are stored), our segment
+ * goes; the base class keeps using it until the camera's own segment, which follows the caps. */
+static gboolean drop_standin_segment(GstPad*, GstEvent** event, gpointer seqnum) {
+  if (GST_EVENT_TYPE(*event) == GST_EVENT_SEGMENT && gst_event_get_seqnum(*event) == GPOINTER_TO_UINT(seqnum))
+    gst_clear_event(event);
+  return TRUE;
+}
+
+static GstPadProbeReturn standin_caps(GstPad* pad, GstPadProbeInfo* info, gpointer) {
+  if (GST_EVENT_TYPE(GST_PAD_PROBE_INFO_EVENT(info)) != GST_EVENT_CAPS) return GST_PAD_PROBE_OK;
+  GstObject* parent = gst_pad_get_parent(pad);
+  if (parent && GST_IS_STITCH_SYNC(parent)) {
+    guint32 seqnum;
+    {
+      std::lock_guard<std::mutex> guard(GST_STITCH_SYNC(parent)->state->lock);
+      seqnum = pad_state(pad)->standin_seqnum;
+      pad_state(pad)->standin_seqnum = GST_SEQNUM_INVALID;
+    }
+    if (seqnum != GST_SEQNUM_INVALID) {
+      GST_DEBUG_OBJECT(pad, "the camera's caps came: the stand-in segment goes");
+      gst_pad_sticky_events_foreach(pad, drop_standin_segment, GUINT_TO_POINTER(seqnum));
+    }
+  }
+  if (parent) gst_object_unref(parent);
+  return GST_PAD_PROBE_OK;
+}
+
 void watch_arrivals(GstPad* pad) {
   gst_pad_add_probe(pad, GstPadProbeType(GST_PAD_PROBE_TYPE_BUFFER | GST_PAD_PROBE_TYPE_BUFFER_LIST), arrived, NULL, NULL);
+  gst_pad_add_probe(pad, GST_PAD_PROBE_TYPE_EVENT_DOWNSTREAM, standin_caps, NULL, NULL);
 }
 
 void watch_start(GstStitchSync* self) {

@@ -48,6 +48,32 @@ TEST(SyncPolicy, DeadCameraDropsOutAfterTheTimeoutFromTheStart) {
   EXPECT_TRUE(why.empty());
 }
 
+// A camera added while the stream runs (a pad requested and linked in PLAYING) is counted from
+// the output it first takes part in, not from the start: with the start's clock it would be
+// "out" at once.
+TEST(SyncPolicy, CameraAddedLaterIsCountedFromWhenItWasAdded) {
+  DropoutTrack t;
+  t.since = 3000 * kMs;  // added 2 s after the others started at 1 s
+  InputFacts linked;
+  linked.negotiated = true;  // caps, no frame yet
+  std::string why;
+  EXPECT_FALSE(update_dropout(t, linked, 3030 * kMs, 1000 * kMs, 500 * kMs, why)) << why;
+  EXPECT_FALSE(update_dropout(t, linked, 3400 * kMs, 1000 * kMs, 500 * kMs, why)) << why;
+  EXPECT_TRUE(update_dropout(t, linked, 3600 * kMs, 1000 * kMs, 500 * kMs, why));
+  EXPECT_EQ(why, "no frame since it was added (600 ms)");
+  // there from the start: `since` is the start, and the message says so
+  DropoutTrack s;
+  s.since = 1000 * kMs;
+  EXPECT_TRUE(update_dropout(s, linked, 1600 * kMs, 1000 * kMs, 500 * kMs, why));
+  EXPECT_EQ(why, "no frame since the start (600 ms)");
+  // without caps
+  DropoutTrack n;
+  n.since = 3000 * kMs;
+  EXPECT_FALSE(update_dropout(n, InputFacts{}, 3100 * kMs, 1000 * kMs, 500 * kMs, why));
+  EXPECT_TRUE(update_dropout(n, InputFacts{}, 3700 * kMs, 1000 * kMs, 500 * kMs, why));
+  EXPECT_EQ(why, "it never started (no caps after 700 ms)");
+}
+
 TEST(SyncPolicy, StallDropsOutButATimestampGapDoesNot) {
   DropoutTrack t;
   std::string why;

@@ -28,9 +28,13 @@ bool update_dropout(DropoutTrack& track, const InputFacts& in, int64_t now, int6
       reason = "it ended";
     } else if (track.ever_had_frame) {
       if (!in.queued) reason = "it stopped sending frames";
-    } else if (now != kNoTime && started != kNoTime && now >= started && now - started > timeout) {
-      reason = in.negotiated ? "no frame since the start (" + ms(now - started) + ")"
-                             : "it never started (no caps after " + ms(now - started) + ")";
+    } else {
+      const bool added = track.since != kNoTime && started != kNoTime && track.since > started;
+      const int64_t from = added ? track.since : started;
+      if (now != kNoTime && from != kNoTime && now >= from && now - from > timeout)
+        reason = in.negotiated ? std::string(added ? "no frame since it was added (" : "no frame since the start (") +
+                                     ms(now - from) + ")"
+                               : "it never started (no caps after " + ms(now - from) + ")";
     }
   } else if (!in.queued && stale) {
     reason = "no frame for " + ms(now - in.frame_end);

@@ -24,6 +24,10 @@ struct InputFacts {
 struct DropoutTrack {
   bool dropped = false;
   bool ever_had_frame = false;
+  // running time from which a camera that never delivered is counted: the first bundle's
+  // `started` for the cameras there from the start, the output time at which the input first
+  // took part for one added later (kNoTime: `started`)
+  int64_t since = kNoTime;
 };
 
 // Updates `track` at output running time `now`; `started` is the running time of the first
@@ -31,7 +35,8 @@ struct DropoutTrack {
 // back, with `reason` saying why it is out (empty when it is back).
 //  * an input that ended: "it ended";
 //  * an input that had frames and has none now: "it stopped sending frames";
-//  * an input that never delivered: out once `timeout` has passed since `started`;
+//  * an input that never delivered: out once `timeout` has passed since `started`, or since
+//    `track.since` for an input added after the start;
 //  * an input whose newest frame ended more than `timeout` before `now` with nothing queued
 //    after it (a stalled camera). A later frame already waiting is a gap in the timestamps
 //    (variable frame rate, a file with holes): never a dropout.
