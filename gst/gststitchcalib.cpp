@@ -52,9 +52,9 @@
  *   second, and QoS messages are rate-limited (the first drop, at most one a second, and the
  *   total before the first bundle passes). After `calibration-timeout` seconds of running time
  *   it stops with an error; a stream that ends before any calibration is an error. With non-live
- *   inputs (files), a bundle that lacks a camera which has not started yet is held 200 ms before
- *   it is dropped (10 s of wall time at most), so the cameras that started do not run ahead and
- *   end before a late one joins.
+ *   inputs (files), a bundle that lacks a camera which has not started yet is held before it is
+ *   dropped (200 ms, doubling to 1 s; 10 s of wall time in all), so the cameras that started do
+ *   not run ahead and end before a late one joins.
  * - A camera that has delivered no frame, or only dark ones, for `leave-out-after` seconds of
  *   running time (4 s) before the first calibration is left out of it: the others (two at least)
  *   are calibrated and stitched, its view is marked missing, a warning and the message's

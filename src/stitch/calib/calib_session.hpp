@@ -173,22 +173,25 @@ struct SessionEvent {
 // that have started decode as fast as they can while stitchsync stands in for a late one, and
 // every bundle without it is dropped: a file camera that started 2 s late in wall time cost ~11 s
 // of the others' video. Holding each such bundle a while (back-pressure on stitchsync) keeps the
-// others at about one frame per slice until it comes; the wall-time budget bounds what a camera
-// that never comes costs. Live cameras run at their own pace: never held.
+// others at one frame per slice until it comes; the wall-time budget bounds what a camera that
+// never comes costs. The slices grow (200 ms, doubling, 1 s at most): a camera a moment late
+// joins within 200 ms, one 8 s late costs the others 11 frames instead of 40 (each held bundle
+// is a frame of theirs that is never stitched). Live cameras run at their own pace: never held.
 class LateCameraHold {
  public:
-  static constexpr std::int64_t kSliceUs = 200000, kBudgetUs = 10000000;
+  static constexpr std::int64_t kSliceUs = 200000, kMaxSliceUs = 1000000, kBudgetUs = 10000000;
   // Microseconds to hold this bundle (0: none), counted against the budget.
   std::int64_t wait_us(bool waits_for_a_camera, bool live) {
     if (!waits_for_a_camera || live || spent_us_ >= kBudgetUs) return 0;
-    const std::int64_t w = std::min(kSliceUs, kBudgetUs - spent_us_);
+    const std::int64_t w = std::min(slice_us_, kBudgetUs - spent_us_);
     spent_us_ += w;
+    slice_us_ = std::min(kMaxSliceUs, 2 * slice_us_);
     return w;
   }
-  void reset() { spent_us_ = 0; }
+  void reset() { spent_us_ = 0, slice_us_ = kSliceUs; }
 
  private:
-  std::int64_t spent_us_ = 0;
+  std::int64_t spent_us_ = 0, slice_us_ = kSliceUs;
 };
 
 class CalibSession {
