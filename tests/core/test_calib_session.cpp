@@ -575,7 +575,7 @@ TEST(CalibSession, ResizeRecalibratesFromScratch) {
   const auto e = s.take_events();
   const SessionEvent* w = find(e, SessionEvent::Type::Warning);
   ASSERT_NE(w, nullptr);
-  EXPECT_NE(w->text.find("3 -> 2 cameras"), std::string::npos) << w->text;
+  EXPECT_NE(w->text.find("number of cameras changed mid-stream (3 -> 2)"), std::string::npos) << w->text;
 }
 
 TEST(CalibSession, DriftWatchNeedsTwoBadChecksInARow) {
