@@ -53,7 +53,10 @@ for name in want:
                     "installed" if inst else "REJECTED", s.get_value("version"), s.get_value("source"), len(black),
                     s.get_value("rms-px"), s.get_value("previous-px"), s.get_value("residual-matches"),
                     s.get_value("canvas-width"), s.get_value("canvas-height"),
-                    s.get_value("model") if s.has_field("model") else "-"))
+                    s.get_value("model") if s.has_field("model") else "-")
+                    + (" camera-px %.2f vs %.2f" % (s.get_value("alignment-camera-px"), s.get_value("previous-camera-px"))
+                       if s.has_field("alignment-camera-px") else "")
+                    + (" (%s)" % s.get_value("reason") if s.has_field("reason") else ""))
             elif msg.type == Gst.MessageType.WARNING and "judge" in msg.parse_warning()[0].message:
                 log.append("warning: " + msg.parse_warning()[0].message)
             elif msg.type == Gst.MessageType.ERROR: err = msg.parse_error()[0].message
