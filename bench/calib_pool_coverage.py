@@ -15,11 +15,17 @@ V = S + "/video/"
 STILL = S + "/images/karthik_3cam_stills/house_cam7.jpg"
 n = int(sys.argv[1]) if len(sys.argv) > 1 else 150
 def vid(clip, cam): return "filesrc location=%s%s/%s.mp4 ! decodebin ! identity eos-after=%d" % (V, clip, cam, n)
+def still(name):
+    return "filesrc location=%s/images/karthik_3cam_stills/%s.jpg ! decodebin ! imagefreeze ! identity eos-after=%d ! videoconvert" % (S, name, n)
 cases = {
     "house_still": [vid("karthik_3cam_house", "left"), vid("karthik_3cam_house", "middle"),
                     "filesrc location=%s ! decodebin ! imagefreeze ! identity eos-after=%d ! videoconvert" % (STILL, n)],
     "house_oneframe": [vid("karthik_3cam_house", "left"), vid("karthik_3cam_house", "middle"),
                        "filesrc location=%s ! decodebin ! videoconvert" % STILL],
+    "house_right_still": [vid("karthik_3cam_house", "left"), vid("karthik_3cam_house", "middle"), still("house_cam5")],
+    "house_left_still": [still("house_cam3"), vid("karthik_3cam_house", "middle"), vid("karthik_3cam_house", "right")],
+    "house_3stills": [still("house_cam3"), still("house_cam7"), still("house_cam5")],
+    "office_3stills": [still("office_cam2"), still("office_cam4"), still("office_cam6")],
     "house_3cam": [vid("karthik_3cam_house", c) for c in ("left", "middle", "right")],
     "house_left_middle": [vid("karthik_3cam_house", c) for c in ("left", "middle")],
     "limlight": [vid("limlight_2cam_apartment", c) for c in ("left", "right")],
