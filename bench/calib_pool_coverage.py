@@ -62,6 +62,8 @@ for name in want:
                     s.get_value("model") if s.has_field("model") else "-")
                     + (" camera-px %.2f vs %.2f" % (s.get_value("alignment-camera-px"), s.get_value("previous-camera-px"))
                        if s.has_field("alignment-camera-px") else "")
+                    + (" coverage %.3f vs %.3f" % (s.get_value("coverage"), s.get_value("previous-coverage"))
+                       if s.has_field("coverage") else "")
                     + (" (%s)" % s.get_value("reason") if s.has_field("reason") else ""))
             elif msg.type == Gst.MessageType.WARNING and "judge" in msg.parse_warning()[0].message:
                 log.append("warning: " + msg.parse_warning()[0].message)

@@ -41,7 +41,7 @@
  *   when it aligns them clearly better in camera pixels (a canvas fitted into the same panorama
  *   size shrinks canvas-pixel residuals with it), so the geometry never flips between equals,
  *   and only when it keeps every overlap the first aligns and the picture (no camera shrinks to
- *   less than half its share of the canvas, the covered share falls by 10 points at most,
+ *   less than 2/3 of its share of the canvas, the covered share falls by 5 points at most,
  *   unless the residual halves); `reason` in a `stitchcalib-rejected` message says why not. It keeps the
  *   camera model and projection the first calibration chose when `camera-model` and
  *   `projection` are left to auto (so do recalibrations): the panorama's layout does not change
@@ -72,7 +72,9 @@
  * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `alignment-camera-px` and
- * `previous-camera-px` (the same in camera pixels, what the judge compares), `fit-rms-px`, `inliers`, ... It is
+ * `previous-camera-px` (the same in camera pixels, what the judge compares), `coverage` and
+ * `previous-coverage` (the share of the canvas the cameras cover; pooled calibrations and
+ * recalibrations), `fit-rms-px`, `inliers`, ... It is
  * written to `save-file` when set, with the time offsets stitchsync applies (time-alignment,
  * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
  * stitchblend outputs them, and fitted into the current panorama on recalibration).
@@ -366,6 +368,8 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
       gboolean(rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_px, "alignment-camera-px", G_TYPE_DOUBLE,
       r.residuals.median_camera_px, "previous-camera-px", G_TYPE_DOUBLE, r.previous_camera_px, NULL);
   if (!r.rejected_because.empty()) gst_structure_set(s, "reason", G_TYPE_STRING, r.rejected_because.c_str(), NULL);
+  if (r.coverage >= 0)
+    gst_structure_set(s, "coverage", G_TYPE_DOUBLE, r.coverage, "previous-coverage", G_TYPE_DOUBLE, r.previous_coverage, NULL);
   if (!r.model.empty()) gst_structure_set(s, "model", G_TYPE_STRING, r.model.c_str(), NULL);
   GValue cams = double_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);

@@ -544,7 +544,7 @@ TEST(CalibSession, CandidateThatOnlyShrinksTheCanvasIsKeptOutWithAStillCamera) {
 }
 
 // The judge keeps what the current calibration has: every aligned overlap, and the picture (no
-// camera shrinks to under half its canvas share, the covered share falls by 10 points at most),
+// camera shrinks to under 2/3 of its canvas share, the covered share falls by 5 points at most),
 // unless the candidate halves the residual.
 TEST(CalibSession, JudgeRefusesACandidateThatLosesAnOverlapOrThePicture) {
   const Rig cur_rig = testdata::shifted_rig(3, 640, 480, 400);  // 1440 x 480, pairs 0-1 and 1-2
@@ -594,6 +594,14 @@ TEST(CalibSession, JudgeRefusesACandidateThatLosesAnOverlapOrThePicture) {
   const RigCoverage all_cover = rig_coverage(all_small);
   EXPECT_NEAR(all_cover.share, 0.36, 0.03);
   EXPECT_FALSE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, all_cover, cur_cover).install);
+  // Coverage: 4 points less passes, 7 points less does not.
+  RigCoverage a = cur_cover, b = cur_cover;
+  a.share -= 0.04;
+  b.share -= 0.07;
+  EXPECT_TRUE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, a, cur_cover).install);
+  const Judgement less = judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, b, cur_cover);
+  EXPECT_FALSE(less.install);
+  EXPECT_NE(less.reason.find("cover"), std::string::npos) << less.reason;
   // A pooled job reports both coverages.
   CalibSession s;
   s.set_config(pooling());

@@ -151,8 +151,8 @@ RigCoverage rig_coverage(const Rig& rig);
 //  - every overlap: a pair of cameras the current calibration aligns on held-out matches (16 or
 //    more, median under 10 camera px) keeps at least half of those matches (a candidate that
 //    pulls two cameras apart leaves nothing there to be judged by);
-//  - the picture: no camera's share of the canvas falls below half of what it is now, and the
-//    canvas covered by any camera does not fall by more than 10 points, unless the candidate
+//  - the picture: no camera's share of the canvas falls below 2/3 of what it is now, and the
+//    canvas covered by any camera does not fall by more than 5 points, unless the candidate
 //    halves the residual (the current calibration is badly off).
 struct Judgement {
   bool install = false;
@@ -190,6 +190,7 @@ struct CalibReport {        // one installed (or rejected) calibration, for the 
   double previous_px = -1;   // the calibration it replaced (or kept), same frames
   double previous_camera_px = -1;  // the same in camera pixels (RigResiduals::median_camera_px)
   std::string rejected_because;    // a rejected candidate: why (judge_candidate)
+  double coverage = -1, previous_coverage = -1;  // RigCoverage::share (pooled, recalibration)
   std::string model;         // "rotation" or "homography" (planar canvases); empty: a loaded file
 };
 
