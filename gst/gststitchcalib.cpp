@@ -38,7 +38,11 @@
  *   output before). Then `calibration-frames` good bundles, the best of each stretch of
  *   `calibration-window` seconds, are pooled into a new calibration, judged against the first
  *   on held-out bundles of the same window by independent matches: it replaces the first only
- *   when it aligns them clearly better, so the geometry never flips between equals. It keeps the
+ *   when it aligns them clearly better in camera pixels (a canvas fitted into the same panorama
+ *   size shrinks canvas-pixel residuals with it), so the geometry never flips between equals,
+ *   and only when it keeps every overlap the first aligns and the picture (no camera shrinks to
+ *   less than 2/3 of its share of the canvas, the covered share falls by 5 points at most,
+ *   unless the residual halves); `reason` in a `stitchcalib-rejected` message says why not. It keeps the
  *   camera model and projection the first calibration chose when `camera-model` and
  *   `projection` are left to auto (so do recalibrations): the panorama's layout does not change
  *   mid-stream. `model` in the message says which model is installed.
@@ -67,7 +71,10 @@
  * `source` (file, rig, images, pooled, recalibration), `canvas-width`/`-height`, `rms-px` (root
  * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
- * `previous-px` (the calibration it replaced, same frames), `fit-rms-px`, `inliers`, ... It is
+ * `previous-px` (the calibration it replaced, same frames), `alignment-camera-px` and
+ * `previous-camera-px` (the same in camera pixels, what the judge compares), `coverage` and
+ * `previous-coverage` (the share of the canvas the cameras cover; pooled calibrations and
+ * recalibrations), `fit-rms-px`, `inliers`, ... It is
  * written to `save-file` when set, with the time offsets stitchsync applies (time-alignment,
  * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
  * stitchblend outputs them, and fitted into the current panorama on recalibration).
@@ -359,7 +366,11 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
       G_TYPE_STRING, r.residual_source.c_str(), "previous-px", G_TYPE_DOUBLE, r.previous_px, "canvas-width",
       G_TYPE_INT, rig.canvas_width, "canvas-height", G_TYPE_INT, rig.canvas_height, "warnings", G_TYPE_INT,
       r.warnings, "projection", G_TYPE_STRING, rig.projection.c_str(), "canvas-wrap", G_TYPE_BOOLEAN,
-      gboolean(rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_px, NULL);
+      gboolean(rig.canvas_wrap), "ba-rms-px", G_TYPE_DOUBLE, r.ba_rms_px, "alignment-camera-px", G_TYPE_DOUBLE,
+      r.residuals.median_camera_px, "previous-camera-px", G_TYPE_DOUBLE, r.previous_camera_px, NULL);
+  if (!r.rejected_because.empty()) gst_structure_set(s, "reason", G_TYPE_STRING, r.rejected_because.c_str(), NULL);
+  if (r.coverage >= 0)
+    gst_structure_set(s, "coverage", G_TYPE_DOUBLE, r.coverage, "previous-coverage", G_TYPE_DOUBLE, r.previous_coverage, NULL);
   if (!r.model.empty()) gst_structure_set(s, "model", G_TYPE_STRING, r.model.c_str(), NULL);
   GValue cams = double_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
@@ -431,8 +442,7 @@ static gboolean post_events(GstStitchCalib* self) {
                                                                            report_structure("stitchcalib", e.report)));
         break;
       case stitch::SessionEvent::Type::Rejected: {
-        GST_INFO_OBJECT(self, "%s kept out: %.2f px against the current %.2f px", e.report.source.c_str(),
-                        e.report.residuals.median_px, e.report.previous_px);
+        GST_INFO_OBJECT(self, "%s kept out: %s", e.report.source.c_str(), e.report.rejected_because.c_str());
         gst_element_post_message(GST_ELEMENT(self),
                                  gst_message_new_element(GST_OBJECT(self), report_structure("stitchcalib-rejected", e.report)));
         break;

@@ -534,6 +534,148 @@ TEST(CalibSession, WorseCalibrationIsNeverSwappedIn) {
   EXPECT_EQ(s.version(), 1u);
 }
 
+// A still camera (a jpeg through imagefreeze, or one frame that stitchsync repeats) next to two
+// video cameras, the still showing what camera 1 shows: its frame is identical in every pooled
+// and held-out bundle. A degenerate pooled solve on the house clip spread the plane canvas
+// wider, the fit into the same panorama size shrank every view (camera 1 from 39% of the canvas
+// to 18%, black 0.33 -> 0.525), and the judge, in canvas pixels, took the shrink for a better
+// alignment (0.62 vs 0.90 px) and installed it. Here the candidate is the current calibration
+// shrunk to 45% in the same canvas: its canvas-pixel residuals fall by the same factor, its
+// camera-pixel ones do not, so it is not better (and every camera shrinks): kept out.
+TEST(CalibSession, CandidateThatOnlyShrinksTheCanvasIsKeptOutWithAStillCamera) {
+  CalibSession s;
+  s.set_config(pooling());
+  const cv::Mat still = photo()(cv::Rect(400, 200, 640, 480)).clone();
+  // Camera 0 sees the scene with a little parallax (a real scene is not a photo): the current
+  // calibration's residuals are not ~0.
+  const cv::Mat cam0 = testdata::with_parallax(crops(1)[0], 3.0);
+  auto frames_at = [&](int f) {  // two video cameras (sensor noise differs per frame) + the still
+    std::vector<cv::Mat> v = {cam0.clone(), crops(2)[1]};
+    cv::RNG rng(std::uint64_t(1000 + f));
+    for (auto& m : v) {
+      cv::Mat noise(m.size(), CV_16SC4);
+      rng.fill(noise, cv::RNG::NORMAL, 0, 2);
+      cv::Mat n16;
+      m.convertTo(n16, CV_16SC4);
+      n16 += noise;
+      n16.convertTo(m, CV_8UC4);
+      m.reshape(1, int(m.total())).col(3).setTo(255);
+    }
+    v.push_back(still);
+    return v;
+  };
+  feed(s, 0, frames_at(0));
+  ASSERT_TRUE(s.current());
+  const std::shared_ptr<const Rig> first = s.current();
+  CalibSession::Frame fr;
+  fr.sizes.assign(3, {640, 480});
+  std::shared_ptr<CalibJob> job;
+  for (int f = 1; f < 30 && !job; ++f) {
+    fr.time_s = f / 30.0;
+    const auto frames = frames_at(f);
+    job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+    s.bundle_passed();
+  }
+  ASSERT_TRUE(job);
+  ASSERT_EQ(job->kind, JobKind::Pooled);
+  ASSERT_FALSE(job->holdout_sets.empty());
+  // The still is the same picture in every set the job holds.
+  for (const auto& set : job->holdout_sets) EXPECT_EQ(cv::norm(set.images[2], still, cv::NORM_INF), 0);
+  std::atomic<bool> cancel{false};
+  CalibOutcome o = run_calib_job(*job, cancel);
+  ASSERT_TRUE(o.result);
+  Rig shrunk = *first;
+  const int w = shrunk.canvas_width, h = shrunk.canvas_height;
+  transform_canvas(shrunk, 0.45, 0.275 * w, 0.275 * h, w, h);
+  o.result->rig = shrunk;
+  o.candidate = measure_residuals(shrunk, job->holdout_sets, nullptr);
+  // In canvas pixels the shrunk one "wins" by the old rule (10% and 0.05 px better).
+  const double c = o.candidate.median_px, now = o.current.median_px;
+  ASSERT_GT(c, 0);
+  ASSERT_TRUE(c < 0.9 * now && c < now - 0.05) << c << " vs " << now;
+  s.on_outcome(o);
+  const auto events = s.take_events();
+  EXPECT_EQ(count(events, SessionEvent::Type::Installed), 0) << "a shrunk canvas was taken for a better alignment";
+  ASSERT_EQ(count(events, SessionEvent::Type::Rejected), 1);
+  EXPECT_EQ(s.version(), 1u);
+  EXPECT_EQ(s.current(), first);
+}
+
+// The judge keeps what the current calibration has: every aligned overlap, and the picture (no
+// camera shrinks to under 2/3 of its canvas share, the covered share falls by 5 points at most),
+// unless the candidate halves the residual.
+TEST(CalibSession, JudgeRefusesACandidateThatLosesAnOverlapOrThePicture) {
+  const Rig cur_rig = testdata::shifted_rig(3, 640, 480, 400);  // 1440 x 480, pairs 0-1 and 1-2
+  const RigCoverage cur_cover = rig_coverage(cur_rig);
+  ASSERT_EQ(cur_cover.camera_share.size(), 3u);
+  EXPECT_NEAR(cur_cover.camera_share[0], 640.0 / 1440, 0.02);
+  EXPECT_NEAR(cur_cover.share, 1.0, 0.01);
+  auto residuals = [](std::vector<std::array<int, 2>> pairs, double px, int matches) {
+    RigResiduals r;
+    for (const auto& ab : pairs) {
+      PairResidual p;
+      p.a = ab[0];
+      p.b = ab[1];
+      p.median_px = p.median_camera_px = px;
+      p.matches = matches;
+      r.pairs.push_back(p);
+      r.matches += matches;
+    }
+    r.median_px = r.median_camera_px = px;
+    return r;
+  };
+  const RigResiduals cur = residuals({{0, 1}, {1, 2}}, 2.0, 100);
+  // Better, same picture: installed.
+  EXPECT_TRUE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, cur_cover, cur_cover).install);
+  // Not 10% better: kept out.
+  EXPECT_FALSE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.9, 100), cur, cur_cover, cur_cover).install);
+  // Better on what is left, but camera 2 no longer overlaps camera 1 (pulled apart): kept out.
+  const Judgement lost = judge_candidate(residuals({{0, 1}}, 0.5, 100), cur, cur_cover, cur_cover);
+  EXPECT_FALSE(lost.install);
+  EXPECT_NE(lost.reason.find("overlap of cameras 1 and 2"), std::string::npos) << lost.reason;
+  // Better, but camera 1 shrinks to a third of its canvas share: kept out...
+  Rig small = cur_rig;
+  Eigen::Matrix3d S = Eigen::Matrix3d::Identity();
+  S(0, 0) = S(1, 1) = 0.55;
+  small.cameras[1].homography = Eigen::Matrix3d(*small.cameras[1].homography * S);
+  const RigCoverage small_cover = rig_coverage(small);
+  EXPECT_LT(small_cover.camera_share[1], 0.4 * cur_cover.camera_share[1]);
+  const Judgement shrunk = judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, small_cover, cur_cover);
+  EXPECT_FALSE(shrunk.install);
+  EXPECT_NE(shrunk.reason.find("camera 1 shrinks"), std::string::npos) << shrunk.reason;
+  // ...unless the current calibration is badly off (the candidate halves the residual).
+  EXPECT_TRUE(judge_candidate(residuals({{0, 1}, {1, 2}}, 0.9, 100), cur, small_cover, cur_cover).install);
+  // The whole layout shrunk in the same canvas: coverage falls, kept out.
+  Rig all_small = cur_rig;
+  transform_canvas(all_small, 0.6, 0.2 * all_small.canvas_width, 0.2 * all_small.canvas_height, all_small.canvas_width,
+                   all_small.canvas_height);
+  const RigCoverage all_cover = rig_coverage(all_small);
+  EXPECT_NEAR(all_cover.share, 0.36, 0.03);
+  EXPECT_FALSE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, all_cover, cur_cover).install);
+  // Coverage: 4 points less passes, 7 points less does not.
+  RigCoverage a = cur_cover, b = cur_cover;
+  a.share -= 0.04;
+  b.share -= 0.07;
+  EXPECT_TRUE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, a, cur_cover).install);
+  const Judgement less = judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, b, cur_cover);
+  EXPECT_FALSE(less.install);
+  EXPECT_NE(less.reason.find("cover"), std::string::npos) << less.reason;
+  // A pooled job reports both coverages.
+  CalibSession s;
+  s.set_config(pooling());
+  const auto frames = crops(2);
+  feed(s, 0, frames);
+  ASSERT_TRUE(s.current());
+  const auto job = next_job(s, frames);
+  ASSERT_TRUE(job);
+  std::atomic<bool> cancel{false};
+  const CalibOutcome o = run_calib_job(*job, cancel);
+  ASSERT_EQ(o.current_cover.camera_share.size(), 2u);
+  ASSERT_EQ(o.candidate_cover.camera_share.size(), 2u);
+  EXPECT_GT(o.current_cover.share, 0.9);
+  EXPECT_NEAR(o.candidate_cover.share, o.current_cover.share, 0.05);
+}
+
 // The rig moved (a camera shifted 40 px): the recalibration beats the old geometry on the new
 // frames and is installed, fitted into the same panorama size.
 TEST(CalibSession, BetterRecalibrationIsInstalledInTheSamePanoramaSize) {

@@ -243,6 +243,19 @@ TEST(StitchCalib, RecalibrationThatDoesNotBeatTheCurrentIsKeptOut) {
   EXPECT_EQ(count_messages(r, "stitchcalib"), 1);
   EXPECT_EQ(count_messages(r, "stitchcalib-rejected"), 1);
   EXPECT_EQ(r.frames.size(), 40u);
+  // The message says why, in the units the judge compares (camera pixels).
+  const GstStructure* rejected = nullptr;
+  for (auto* m : r.element_messages)
+    if (gst_structure_has_name(m, "stitchcalib-rejected")) rejected = m;
+  ASSERT_NE(rejected, nullptr);
+  const char* reason = gst_structure_get_string(rejected, "reason");
+  ASSERT_NE(reason, nullptr) << "stitchcalib-rejected without a reason";
+  EXPECT_NE(std::string(reason).find("not better"), std::string::npos) << reason;
+  double cam = -2, prev = -2;
+  EXPECT_TRUE(gst_structure_get_double(rejected, "alignment-camera-px", &cam));
+  EXPECT_TRUE(gst_structure_get_double(rejected, "previous-camera-px", &prev));
+  EXPECT_GE(cam, 0);
+  EXPECT_GE(prev, 0);
 }
 
 // `recalibrate` at every frame of the pooling window: requests merge into one window, nothing

@@ -118,6 +118,7 @@ struct CalibJob {
 struct PairResidual {
   int a = -1, b = -1;
   double median_px = -1;  // canvas pixels, over the held-out frames' independent matches
+  double median_camera_px = -1;  // the same in camera pixels (AlignmentReport::median_camera_px)
   int matches = 0;
 };
 
@@ -128,9 +129,37 @@ struct RigResiduals {
   std::vector<double> camera_px;  // match-weighted mean of its pairs' medians; -1: no pair measured
   double median_px = -1;          // match-weighted mean of the pair medians; -1: nothing measured
   double rms_px = -1;             // root mean square of the pair medians (match-weighted)
+  // The match-weighted mean of the pair medians in camera pixels: free of the canvas's scale,
+  // which is what a new calibration is judged by (a canvas fitted into the same panorama size
+  // shrinks every canvas-pixel residual with it).
+  double median_camera_px = -1;
   int matches = 0;
 };
 RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets, const std::atomic<bool>* cancel);
+
+// How much of the canvas each camera covers (its share of the canvas area; 0 when left out or
+// off the canvas) and all of them together, on a grid of ~160 cells across.
+struct RigCoverage {
+  std::vector<double> camera_share;
+  double share = 0;
+};
+RigCoverage rig_coverage(const Rig& rig);
+
+// Whether a new calibration (pooled, recalibration) replaces the current one, both measured on
+// the same held-out frames. It must be better by 10% and 0.05 px in camera pixels (canvas pixels
+// favour the rig whose canvas is scaled down), and must keep what the current one has:
+//  - every overlap: a pair of cameras the current calibration aligns on held-out matches (16 or
+//    more, median under 10 camera px) keeps at least half of those matches (a candidate that
+//    pulls two cameras apart leaves nothing there to be judged by);
+//  - the picture: no camera's share of the canvas falls below 2/3 of what it is now, and the
+//    canvas covered by any camera does not fall by more than 5 points, unless the candidate
+//    halves the residual (the current calibration is badly off).
+struct Judgement {
+  bool install = false;
+  std::string reason;  // why not (empty when installed)
+};
+Judgement judge_candidate(const RigResiduals& candidate, const RigResiduals& current, const RigCoverage& candidate_cover,
+                          const RigCoverage& current_cover);
 
 struct CalibOutcome {
   JobKind kind = JobKind::First;
@@ -140,6 +169,7 @@ struct CalibOutcome {
   std::string error;            // empty: success
   std::optional<CalibrationResult> result;  // the new calibration (First, Pooled, Recalibration)
   RigResiduals candidate, current;          // on the held-out frames (or the calibration's own)
+  RigCoverage candidate_cover, current_cover;  // Pooled, Recalibration
   std::string residual_source;              // "held-out" or "calibration frames"
 };
 
@@ -158,6 +188,9 @@ struct CalibReport {        // one installed (or rejected) calibration, for the 
   RigResiduals residuals;    // independent, see residual_source
   std::string residual_source;
   double previous_px = -1;   // the calibration it replaced (or kept), same frames
+  double previous_camera_px = -1;  // the same in camera pixels (RigResiduals::median_camera_px)
+  std::string rejected_because;    // a rejected candidate: why (judge_candidate)
+  double coverage = -1, previous_coverage = -1;  // RigCoverage::share (pooled, recalibration)
   std::string model;         // "rotation" or "homography" (planar canvases); empty: a loaded file
 };
 

@@ -2161,6 +2161,21 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
 }
 }  // namespace
 
+namespace {
+// Canvas pixels per camera pixel around `p` (which maps to `q`): the square root of the map's
+// local area scale; <= 0 where the neighbours do not map.
+double local_canvas_scale(const CameraCanvasMap& m, const Eigen::Vector2d& p, const Eigen::Vector2d& q, double wrap) {
+  Eigen::Vector2d qx, qy;
+  if (!m.to_canvas(p + Eigen::Vector2d(1, 0), qx) || !m.to_canvas(p + Eigen::Vector2d(0, 1), qy)) return -1;
+  Eigen::Vector2d dx = qx - q, dy = qy - q;
+  if (wrap > 0) {
+    dx.x() -= std::round(dx.x() / wrap) * wrap;
+    dy.x() -= std::round(dy.x() / wrap) * wrap;
+  }
+  return std::sqrt(std::abs(dx.x() * dy.y() - dx.y() * dy.x()));
+}
+}  // namespace
+
 AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& frames) {
   AlignmentReport rep;
   const int n = int(rig.cameras.size());
@@ -2169,7 +2184,7 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
   o.features = FeatureType::Sift;
   std::vector<Features> feats(n);
   for (int i = 0; i < n; ++i) feats[i] = detect(to_gray(frames[i]), cv::Mat(), o);
-  std::vector<double> all;
+  std::vector<double> all, all_cam;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) {
       if (overlap_box(rig, a, b).area() <= 0) continue;
@@ -2202,20 +2217,35 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
       }
       cv::Mat F = cv::findFundamentalMat(ua, ub, inl, cv::FM_RANSAC, 1.5, 0.999);
       if (F.empty()) continue;
-      std::vector<double> d;
+      std::vector<double> d, dc;
       const CameraCanvasMap ma = camera_canvas_map(rig, a), mb = camera_canvas_map(rig, b);
+      const double wrap = rig.canvas_wrap ? double(rig.canvas_width) : 0.0;
       for (std::size_t k = 0; k < pa.size(); ++k) {
         Eigen::Vector2d qa, qb;
-        if (!inl[k] || !ma.to_canvas({pa[k].x, pa[k].y}, qa) || !mb.to_canvas({pb[k].x, pb[k].y}, qb)) continue;
+        const Eigen::Vector2d xa(pa[k].x, pa[k].y), xb(pb[k].x, pb[k].y);
+        if (!inl[k] || !ma.to_canvas(xa, qa) || !mb.to_canvas(xb, qb)) continue;
         double dx = qa.x() - qb.x();
         if (rig.canvas_wrap) dx -= std::round(dx / rig.canvas_width) * rig.canvas_width;  // across the wrap
         d.push_back(std::hypot(dx, qa.y() - qb.y()));
+        const double sa = local_canvas_scale(ma, xa, qa, wrap), sb = local_canvas_scale(mb, xb, qb, wrap);
+        if (sa > 0 && sb > 0) dc.push_back(d.back() / std::sqrt(sa * sb));
       }
       if (d.size() < 8) continue;
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
       rep.pair_median_px.push_back(d[d.size() / 2]);
       all.insert(all.end(), d.begin(), d.end());
+      if (dc.empty()) {
+        rep.pair_median_camera_px.push_back(-1);
+      } else {
+        std::nth_element(dc.begin(), dc.begin() + dc.size() / 2, dc.end());
+        rep.pair_median_camera_px.push_back(dc[dc.size() / 2]);
+        all_cam.insert(all_cam.end(), dc.begin(), dc.end());
+      }
     }
+  if (!all_cam.empty()) {
+    std::nth_element(all_cam.begin(), all_cam.begin() + all_cam.size() / 2, all_cam.end());
+    rep.median_camera_px = all_cam[all_cam.size() / 2];
+  }
   if (!all.empty()) {
     std::nth_element(all.begin(), all.begin() + all.size() * 9 / 10, all.end());
     rep.p90_px = all[all.size() * 9 / 10];

@@ -137,6 +137,12 @@ struct AlignmentReport {
   double p90_px = -1;      // 90th percentile of the same distances
   int matches = 0;
   std::vector<double> pair_median_px;  // per overlapping pair (i, i+k) in discovery order
+  // The same distances divided by the canvas's local magnification at the match (canvas pixels
+  // per camera pixel, the geometric mean of the two cameras'): camera pixels, so that rigs whose
+  // canvases are scaled differently (a canvas fitted into the same panorama size) compare
+  // like for like. -1 when nothing could be matched.
+  double median_camera_px = -1;
+  std::vector<double> pair_median_camera_px;
 };
 
 // Independent check of a calibration: SIFT matches between overlapping views (outliers
