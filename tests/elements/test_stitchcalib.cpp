@@ -712,3 +712,28 @@ TEST(StitchCalib, CameraThatNeverDeliversIsLeftOut) {
   EXPECT_TRUE(named);
   EXPECT_GT(panoramas, kFrames - 120 - 30);
 }
+
+// With a rig-file, a dark camera in the middle (the reference) is left out too: the rough rig
+// places the two outer cameras, which do not overlap, on the canvas without it.
+TEST(StitchCalib, DarkReferenceCameraIsLeftOutOfARigFileCalibration) {
+  const std::string rig = write_file("rough3dark.json", rough_rig(3));
+  std::vector<cv::Mat> views = crops();
+  views[1] = cv::Mat(views[1].size(), CV_8UC4, cv::Scalar(0, 0, 0, 255));
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain("rig-file=" + rig, 3), views, 200, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  EXPECT_TRUE(r.warning_contains("camera 1 delivered no picture"));
+  EXPECT_GT(int(r.frames.size()), 200 - 120 - 10);
+  const GstStructure* m = calib_message(r);
+  ASSERT_NE(m, nullptr);
+  const GValue* left_out = gst_structure_get_value(m, "left-out");
+  ASSERT_NE(left_out, nullptr);
+  EXPECT_EQ(g_value_get_int(gst_value_array_get_value(left_out, 0)), 1);
+  // Both outer crops show: the panorama's left and right quarters are not black.
+  ASSERT_FALSE(r.frames.empty());
+  const cv::Mat& pano = r.frames.back();
+  for (const int x0 : {0, pano.cols * 3 / 4}) {
+    const cv::Scalar mean = cv::mean(pano(cv::Rect(x0, pano.rows / 4, pano.cols / 4, pano.rows / 2)));
+    EXPECT_GT(mean[0] + mean[1] + mean[2], 60) << x0 << " of " << pano.cols;
+  }
+}
