@@ -392,6 +392,22 @@ TEST(CalibSession, CameraAddedMidStreamIsCalibratedInNotAResolutionChange) {
   EXPECT_NE(error.find("number of cameras changed mid-stream (3 -> 2) and on-resize=error"), std::string::npos) << error;
 }
 
+// A dark middle camera leaves two cameras that share nothing: the failure names them by their
+// own indices (the calibration of the kept ones numbers them 0 and 1) and says who is left out.
+TEST(CalibSession, FailureWithoutALeftOutCameraNamesTheCamerasByTheirIndices) {
+  CalibSession s;
+  s.set_config(quick());
+  auto frames = crops(3);
+  frames[1] = black();
+  std::string pending;
+  for (int f = 0; f < 160 && !s.current(); ++f)
+    for (const auto& e : feed(s, f, frames))
+      if (e.type == SessionEvent::Type::Pending && e.text.find("attempt failed") != std::string::npos) pending = e.text;
+  EXPECT_FALSE(s.current());
+  EXPECT_NE(pending.find("camera 1 left out"), std::string::npos) << pending;
+  EXPECT_EQ(pending.find("camera 1 shares"), std::string::npos) << pending;
+}
+
 TEST(CalibSession, GivesUpAfterTheTimeoutNamingTheCamera) {
   SessionConfig c = quick();
   c.calibration_timeout_s = 2;

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <regex>
 #include <sstream>
 
 #include "stitch/cv_interop.hpp"
@@ -241,6 +242,20 @@ std::vector<int> full_indices(std::size_t n, std::uint64_t left_out) {
   return idx;
 }
 
+// "camera K" of a calibration of the kept cameras, as the camera's index among all of them.
+std::string renumbered(const std::string& text, const std::vector<int>& idx) {
+  static const std::regex camera_index("camera (\\d+)");
+  std::string out;
+  auto last = text.cbegin();
+  for (std::sregex_iterator m(text.cbegin(), text.cend(), camera_index), end; m != end; ++m) {
+    const std::size_t k = std::stoul((*m)[1].str());
+    out.append(last, (*m)[0].first);
+    out += "camera " + std::to_string(k < idx.size() ? idx[k] : int(k));
+    last = (*m)[0].second;
+  }
+  return out.append(last, text.cend());
+}
+
 // A calibration of the kept cameras as one of every camera: a placeholder for each left-out
 // one (its frame size, on no canvas), indices and residuals renumbered.
 void with_left_out_cameras(Rig& rig, RigResiduals& residuals, std::uint64_t left_out,
@@ -476,15 +491,30 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     o.error = "no usable frames";
     return o;
   }
+  // A job without some cameras speaks of all of them: its messages are renumbered.
+  const std::vector<int> kept = full_indices(job.sizes.size(), job.left_out);
+  const auto speak = [&](const std::string& text) {
+    if (!job.left_out) return text;
+    return renumbered(text, kept) + " (" + camera_list(job.left_out, job.sizes.size()) + " left out: no picture)";
+  };
   try {
     o.result = calibrate(job.config, job.rough, sets);
   } catch (const RigError& e) {
-    o.error = e.what();
+    o.error = speak(e.what());
     // Degenerate rough geometry cannot be repaired by other frames.
     o.fatal = job.kind == JobKind::First && job.rough.has_value();
     return o;
   }
   if (cancelled()) return o;
+  if (job.left_out) {
+    for (auto& w : o.result->warnings) w = speak(w);
+    for (auto& c : o.result->cameras)
+      if (c.camera >= 0 && std::size_t(c.camera) < kept.size()) c.camera = kept[std::size_t(c.camera)];
+    for (auto& p : o.result->pairs) {
+      if (p.camera >= 0 && std::size_t(p.camera) < kept.size()) p.camera = kept[std::size_t(p.camera)];
+      if (p.neighbour >= 0 && std::size_t(p.neighbour) < kept.size()) p.neighbour = kept[std::size_t(p.neighbour)];
+    }
+  }
   Rig& rig = o.result->rig;
   if (job.fit_width > 0 && job.fit_height > 0) {
     fit_canvas(rig, job.fit_width, job.fit_height);
