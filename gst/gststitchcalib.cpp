@@ -95,7 +95,9 @@
  * from scratch (the rig-file or the images, never the old geometry), with a warning naming the
  * camera and both sizes (`on-resize=recalibrate`), or stops the stream with an error
  * (`on-resize=error`). A camera added while playing is always calibrated in, with a warning
- * that the number of cameras changed. Flushes (seeks) keep the calibration: the rig has not moved.
+ * that the number of cameras changed. Such a calibration from scratch, and the one a left-out
+ * camera joins with, is fitted into the panorama size the stream already has (encoders and
+ * muxers cannot take a size change). Flushes (seeks) keep the calibration: the rig has not moved.
  *
  * Bundles in CUDA memory pass through untouched: only the frames the calibration policy reads
  * (quality checks and calibrations) are mapped through host memory.

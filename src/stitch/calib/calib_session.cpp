@@ -214,11 +214,17 @@ namespace {
 
 bool bit(std::uint64_t mask, std::size_t i) { return i < 64 && (mask >> i & 1); }
 
+// "camera 2", "cameras 0, 1"
 std::string camera_list(std::uint64_t mask, std::size_t n) {
   std::string who;
+  int count = 0;
   for (std::size_t i = 0; i < n; ++i)
-    if (bit(mask, i)) who += (who.empty() ? "camera " : ", ") + std::to_string(i);
-  return who;
+    if (bit(mask, i)) who += (count++ ? ", " : "") + std::to_string(i);
+  return (count > 1 ? "cameras " : "camera ") + who;
+}
+// `one` or `several` as the cameras in `mask` are one or more
+const char* agree(std::uint64_t mask, const char* one, const char* several) {
+  return (mask & (mask - 1)) ? several : one;
 }
 
 // The cameras not in `left_out` (and the reference's index among them; 0 when it is left out).
@@ -609,7 +615,9 @@ bool CalibSession::handle_sizes(const Frame& frame) {
     if (!any) return true;
     if (only_left_out) {
       // a left-out camera's placeholder size: it has started
-      warn(camera_list(left_out_ & ~frame.missing_mask, sizes_.size()) + " delivers a picture now: calibrating again with it");
+      const std::uint64_t back = left_out_ & ~frame.missing_mask;
+      warn(camera_list(back, sizes_.size()) + agree(back, " delivers", " deliver") +
+           " a picture now: calibrating again with every camera");
       forget_calibration();
       return true;
     }
@@ -635,6 +643,7 @@ void CalibSession::forget_calibration() {
   absent_since_.clear();
   rough_.reset();
   sizes_.clear();
+  if (panorama_w_ > 0 && panorama_h_ > 0) refit_w_ = panorama_w_, refit_h_ = panorama_h_;
   panorama_w_ = panorama_h_ = 0;
   window_open_ = false;
   bins_.clear();
@@ -783,6 +792,11 @@ std::shared_ptr<CalibJob> CalibSession::make_job(JobKind kind) {
   job->config = config_;
   job->rough = rough_;
   job->current = current_;
+  if (kind == JobKind::First && refit_w_ > 0) {
+    // From scratch mid-stream: new geometry, in the panorama the stream already has.
+    job->fit_width = refit_w_;
+    job->fit_height = refit_h_;
+  }
   if (kind != JobKind::First && current_) {
     // Same cameras: the panorama keeps its size (the saved canvas stays the video's size).
     job->fit_width = current_->canvas_width;
@@ -848,9 +862,14 @@ std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::
     if (absent_since_[i] < 0) absent_since_[i] = now_;
     absent |= std::uint64_t(1) << i;
   }
-  if (!absent || n - std::size_t(__builtin_popcountll(absent)) < 2) return 0;
+  leave_out_blocked_.clear();
+  if (!absent) return 0;
   for (std::size_t i = 0; i < n; ++i)
     if (bit(absent, i) && now_ - absent_since_[i] < config_.leave_out_after_s) return 0;
+  if (n - std::size_t(__builtin_popcountll(absent)) < 2) {
+    leave_out_blocked_ = " (not left out: two cameras at least must deliver a picture)";
+    return 0;
+  }
   return absent;
 }
 
@@ -889,7 +908,9 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     // A camera missing (or dark) for leave_out_after_s is left out: the others go on.
     const std::uint64_t leave = cameras_to_leave_out(frame, have_pixels ? views : std::vector<ImageView>());
     if (frame.missing_mask & ~leave) {
-      pending(camera_list(frame.missing_mask & ~leave, frame.sizes.size()) + " has not delivered a frame yet");
+      const std::uint64_t waiting = frame.missing_mask & ~leave;
+      pending(camera_list(waiting, frame.sizes.size()) + agree(waiting, " has", " have") + " not delivered a frame yet" +
+              leave_out_blocked_);
       return nullptr;
     }
     if (!load_rough()) return nullptr;
@@ -905,7 +926,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
                                     ? std::string()
                                     : bundle_problem(views, !rough_.has_value(), nullptr, leave);
     if (!problem.empty()) {
-      pending(problem);
+      pending(problem + leave_out_blocked_);
       return nullptr;
     }
     auto job = make_job(JobKind::First);
@@ -935,7 +956,8 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     last_rejoin_check_ = now_;
     for (std::size_t i = 0; i < views.size(); ++i)
       if (bit(back, i) && assess_frame(views[i]).verdict == FrameVerdict::Dark) return nullptr;
-    warn(camera_list(back, views.size()) + " delivers a picture now: calibrating again with it");
+    warn(camera_list(back, views.size()) + agree(back, " delivers", " deliver") +
+         " a picture now: calibrating again with every camera");
     forget_calibration();
     sizes_ = frame.sizes;
     first_frame_at_ = now_;
@@ -1024,8 +1046,9 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
         if (r.rig.cameras[i].left_out) left_out_ |= std::uint64_t(1) << i;
       if (left_out_)
         warn(camera_list(left_out_, r.rig.cameras.size()) + " delivered no picture (no frame, or a dark one) for " +
-             fmt(config_.leave_out_after_s) + " s: calibrated and stitched without it; it joins with a calibration " +
-             "from scratch once it delivers");
+             fmt(config_.leave_out_after_s) + " s: calibrated and stitched without " +
+             agree(left_out_, "it; it joins", "them; each joins") +
+             " with a calibration from scratch once it delivers (the panorama keeps its size)");
       install(rep, &r);
       // Pool better frames (refine=none reads none: nothing to gain).
       if (!left_out_ && config_.calibration_frames > 1 && !(rough_ && config_.options.refinement == Refinement::None))

@@ -301,6 +301,7 @@ class CalibSession {
   // calibration, since when each camera has been absent (missing or dark; -1: present).
   std::uint64_t left_out_ = 0;
   std::vector<double> absent_since_;
+  std::string leave_out_blocked_;  // why an absent camera is not left out (said while pending)
   double last_rejoin_check_ = -1e9;
   // How the installed calibration was estimated (unset: loaded from a file). Later calibrations
   // of the same cameras keep it when the user left the choice to auto: the panorama's model and
@@ -318,6 +319,9 @@ class CalibSession {
   std::vector<std::array<int, 2>> rough_sizes_;  // the view sizes rough_ was adapted to
   std::vector<std::array<int, 2>> sizes_;
   int panorama_w_ = 0, panorama_h_ = 0;  // kept over recalibrations
+  // The panorama size a calibration from scratch mid-stream (a resize, a camera added or back)
+  // is fitted into: stitchblend's output, which encoders and muxers cannot see change.
+  int refit_w_ = 0, refit_h_ = 0;
   std::uint64_t version_ = 0;
   bool ever_installed_ = false, failed_ = false;
   // first calibration
