@@ -345,13 +345,22 @@ static GstStaticPadTemplate sink_template = GST_STATIC_PAD_TEMPLATE(
 static GstStaticPadTemplate src_template = GST_STATIC_PAD_TEMPLATE(
     "src", GST_PAD_SRC, GST_PAD_ALWAYS, GST_STATIC_CAPS(STITCH_BUNDLE_TEMPLATE_CAPS));
 
-static GValue double_array(const std::vector<double>& values) {
+static void set_item(GValue* item, double v) {
+  g_value_init(item, G_TYPE_DOUBLE);
+  g_value_set_double(item, v);
+}
+static void set_item(GValue* item, int v) {
+  g_value_init(item, G_TYPE_INT);
+  g_value_set_int(item, v);
+}
+
+template <class T>
+static GValue value_array(const std::vector<T>& values) {
   GValue array = G_VALUE_INIT;
   gst_value_array_init(&array, guint(values.size()));
-  for (double v : values) {
+  for (const T v : values) {
     GValue item = G_VALUE_INIT;
-    g_value_init(&item, G_TYPE_DOUBLE);
-    g_value_set_double(&item, v);
+    set_item(&item, v);
     gst_value_array_append_and_take_value(&array, &item);
   }
   return array;
@@ -374,20 +383,14 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
   if (r.coverage >= 0)
     gst_structure_set(s, "coverage", G_TYPE_DOUBLE, r.coverage, "previous-coverage", G_TYPE_DOUBLE, r.previous_coverage, NULL);
   if (!r.model.empty()) gst_structure_set(s, "model", G_TYPE_STRING, r.model.c_str(), NULL);
-  GValue cams = double_array(r.residuals.camera_px);
+  GValue cams = value_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
-  if (stitch::any_left_out(rig)) {
-    /* the cameras calibrated without (no frame, or a dark one): their views are missing */
-    GValue left_out = G_VALUE_INIT;
-    gst_value_array_init(&left_out, 1);
-    for (std::size_t i = 0; i < rig.cameras.size(); ++i) {
-      if (!rig.cameras[i].left_out) continue;
-      GValue item = G_VALUE_INIT;
-      g_value_init(&item, G_TYPE_INT);
-      g_value_set_int(&item, int(i));
-      gst_value_array_append_and_take_value(&left_out, &item);
-    }
-    gst_structure_take_value(s, "left-out", &left_out);
+  std::vector<int> left_out;  // the cameras calibrated without (no frame, or a dark one)
+  for (std::size_t i = 0; i < rig.cameras.size(); ++i)
+    if (rig.cameras[i].left_out) left_out.push_back(int(i));
+  if (!left_out.empty()) {
+    GValue cameras = value_array(left_out);
+    gst_structure_take_value(s, "left-out", &cameras);
   }
   return s;
 }

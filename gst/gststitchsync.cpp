@@ -311,7 +311,7 @@ static void gst_stitch_sync_release_pad(GstElement* element, GstPad* pad) {
 static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad, GstBuffer* buf) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
   /* our own stand-in for a silent input (gststitchsyncwatch.cpp) is no frame */
-  const bool gap = GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0;
+  const bool gap = is_standin_gap(buf);
   if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
   GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
   if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
@@ -700,7 +700,7 @@ static bool catching_up(GstStitchSync* self, const std::vector<GstVideoAggregato
     }
     if (!standing_in) continue;
     GstBuffer* cur = gst_video_aggregator_pad_get_current_buffer(pad);
-    if (cur && GST_BUFFER_FLAG_IS_SET(cur, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(cur) == 0) {
+    if (cur && is_standin_gap(cur)) {
       const GstClockTime end = current_frame_end(pad);
       std::lock_guard<std::mutex> guard(st->lock);
       GstClockTime& shown = pad_state(pad)->standin_end;
@@ -710,7 +710,7 @@ static bool catching_up(GstStitchSync* self, const std::vector<GstVideoAggregato
     /* (peeking clips: drops the gaps behind it, and its frames from the past) */
     GstAggregatorPad* apad = GST_AGGREGATOR_PAD(pad);
     while (GstBuffer* head = gst_aggregator_pad_peek_buffer(apad)) {
-      const bool gap = GST_BUFFER_FLAG_IS_SET(head, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(head) == 0;
+      const bool gap = is_standin_gap(head);
       gst_buffer_unref(head);
       if (!gap) break;
       gst_aggregator_pad_drop_buffer(apad);
@@ -893,11 +893,7 @@ static gboolean gst_stitch_sync_stop(GstAggregator* agg) {
       ps.newest_end = GST_CLOCK_TIME_NONE;
       ps.applied_ns = 0;  // the segments go with the stop
       ps.delivered = false;
-      ps.standin = {};
-      ps.standin_segment = false;
-      ps.standin_seqnum = GST_SEQNUM_INVALID;
-      ps.standin_end = GST_CLOCK_TIME_NONE;
-      ps.standin_done = false;
+      ps.reset_standin();
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->stop(agg);
@@ -912,11 +908,7 @@ static GstFlowReturn gst_stitch_sync_flush(GstAggregator* agg) {
     for (GstVideoAggregatorPad* p : sorted.pads) {
       pad_state(p)->release();
       pad_state(p)->track = {};
-      pad_state(p)->standin = {};
-      pad_state(p)->standin_segment = false;
-      pad_state(p)->standin_seqnum = GST_SEQNUM_INVALID;
-      pad_state(p)->standin_end = GST_CLOCK_TIME_NONE;
-      pad_state(p)->standin_done = false;
+      pad_state(p)->reset_standin();
     }
   }
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->flush(agg);

@@ -31,6 +31,11 @@ GST_DEBUG_CATEGORY_EXTERN(gst_stitch_sync_debug);
 
 /* Per-input state, on the pad object itself (GstStitchSyncPad::st): it lives exactly as long as
  * the pad, so a released pad's state goes with it. Guarded by StitchSyncState::lock. */
+/* One of our stand-in gaps as GstAggregator queues it: an empty GAP buffer. */
+static inline bool is_standin_gap(GstBuffer* buf) {
+  return GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0;
+}
+
 struct SyncPadState {
   /* Last real frame, reused while a live camera is late. */
   /* system-memory bundles: the view's memory, held alive */
@@ -74,6 +79,13 @@ struct SyncPadState {
   GstClockTime standin_end = GST_CLOCK_TIME_NONE;
   bool standin_done = false;
   bool standing_in() const { return standin.sent_until != stitch::sync::kNoTime && !standin_done; }
+  void reset_standin() {
+    standin = {};
+    standin_segment = false;
+    standin_seqnum = GST_SEQNUM_INVALID;
+    standin_end = GST_CLOCK_TIME_NONE;
+    standin_done = false;
+  }
 
   void release() {
     gst_clear_buffer(&buffer);

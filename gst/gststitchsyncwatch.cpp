@@ -93,7 +93,7 @@ static void stand_in(GstStitchSync* self) {
 static GstPadProbeReturn arrived(GstPad* pad, GstPadProbeInfo* info, gpointer) {
   if (GST_PAD_PROBE_INFO_TYPE(info) & GST_PAD_PROBE_TYPE_BUFFER) {
     GstBuffer* b = GST_PAD_PROBE_INFO_BUFFER(info);
-    if (GST_BUFFER_FLAG_IS_SET(b, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(b) == 0) return GST_PAD_PROBE_OK;
+    if (is_standin_gap(b)) return GST_PAD_PROBE_OK;
   }
   GstObject* parent = gst_pad_get_parent(pad);
   if (parent && GST_IS_STITCH_SYNC(parent)) {

@@ -97,6 +97,15 @@ SessionConfig quick() {
   return c;
 }
 
+// quick(), loading a calibration of `cameras` crops 400 px apart, saved as `name`.
+SessionConfig loading(const std::string& name, int cameras) {
+  const std::string path = testdata::temp_dir() + "/" + name;
+  rig_save(testdata::shifted_rig(cameras, 640, 480, 400), path);
+  SessionConfig c = quick();
+  c.load_file = path;
+  return c;
+}
+
 }  // namespace
 
 // ---- frame quality ---------------------------------------------------------------------------
@@ -777,10 +786,7 @@ TEST(CalibSession, DriftWatchNeedsTwoBadChecksInARow) {
 }
 
 TEST(CalibSession, LoadedCalibrationThatDoesNotFitWarnsNamingTheCameras) {
-  const std::string path = testdata::temp_dir() + "/other_rig.json";
-  rig_save(testdata::shifted_rig(2, 640, 480, 400), path);
-  SessionConfig c = quick();
-  c.load_file = path;
+  const SessionConfig c = loading("other_rig.json", 2);
   CalibSession s;
   s.set_config(c);
   std::vector<SessionEvent> all;
@@ -857,10 +863,7 @@ TEST(CalibSession, RoughRigFollowsASizeChangeBeforeTheFirstCalibration) {
 // decoder) it is used at once, the missing view taking the file's size, and the camera joins it
 // when it starts: no waiting, no "resolution changed" recalibration.
 TEST(CalibSession, CompleteLoadFileDoesNotWaitForMissingViews) {
-  const std::string path = testdata::temp_dir() + "/three_rig.json";
-  rig_save(testdata::shifted_rig(3, 640, 480, 400), path);
-  SessionConfig c = quick();
-  c.load_file = path;
+  const SessionConfig c = loading("three_rig.json", 3);
   CalibSession s;
   s.set_config(c);
   CalibSession::Frame fr;
@@ -923,10 +926,7 @@ TEST(CalibSession, BundlesWithoutALateCameraAreHeldBeforeTheFirstCalibrationOnly
   fr.missing_mask = 1u << 2;
   EXPECT_FALSE(s.waits_for_a_camera(fr));
   // a load-file is complete without it
-  const std::string path = testdata::temp_dir() + "/late_rig.json";
-  rig_save(testdata::shifted_rig(3, 640, 480, 400), path);
-  SessionConfig c = quick();
-  c.load_file = path;
+  const SessionConfig c = loading("late_rig.json", 3);
   CalibSession loaded;
   loaded.set_config(c);
   EXPECT_FALSE(loaded.waits_for_a_camera(fr));

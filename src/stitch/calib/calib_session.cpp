@@ -513,13 +513,12 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
   }
   if (cancelled()) return o;
   if (job.left_out) {
+    const auto to_full = [&](int& camera) {
+      if (camera >= 0 && std::size_t(camera) < kept.size()) camera = kept[std::size_t(camera)];
+    };
     for (auto& w : o.result->warnings) w = speak(w);
-    for (auto& c : o.result->cameras)
-      if (c.camera >= 0 && std::size_t(c.camera) < kept.size()) c.camera = kept[std::size_t(c.camera)];
-    for (auto& p : o.result->pairs) {
-      if (p.camera >= 0 && std::size_t(p.camera) < kept.size()) p.camera = kept[std::size_t(p.camera)];
-      if (p.neighbour >= 0 && std::size_t(p.neighbour) < kept.size()) p.neighbour = kept[std::size_t(p.neighbour)];
-    }
+    for (auto& c : o.result->cameras) to_full(c.camera);
+    for (auto& p : o.result->pairs) to_full(p.camera), to_full(p.neighbour);
   }
   Rig& rig = o.result->rig;
   if (job.fit_width > 0 && job.fit_height > 0) {
@@ -594,7 +593,7 @@ void CalibSession::pending(const std::string& why) {
 bool CalibSession::handle_sizes(const Frame& frame) {
   if (!current_ || sizes_.empty() || sizes_ == frame.sizes) return true;
   // a missing view's size is a placeholder, not its camera's (a loaded rig keeps the file's)
-  auto differs = [&](std::size_t i) { return frame.sizes[i] != sizes_[i] && !(i < 64 && (frame.missing_mask >> i & 1)); };
+  auto differs = [&](std::size_t i) { return frame.sizes[i] != sizes_[i] && !bit(frame.missing_mask, i); };
   std::string what;
   if (frame.sizes.size() != sizes_.size()) {
     // A camera added while playing is calibrated in, whatever on-resize says; one that leaves
@@ -613,12 +612,8 @@ bool CalibSession::handle_sizes(const Frame& frame) {
     for (std::size_t i = 0; i < sizes_.size(); ++i)
       if (differs(i)) any = true, only_left_out = only_left_out && bit(left_out_, i);
     if (!any) return true;
-    if (only_left_out) {
-      // a left-out camera's placeholder size: it has started
-      const std::uint64_t back = left_out_ & ~frame.missing_mask;
-      warn(camera_list(back, sizes_.size()) + agree(back, " delivers", " deliver") +
-           " a picture now: calibrating again with every camera");
-      forget_calibration();
+    if (only_left_out) {  // a left-out camera's placeholder size: it has started
+      rejoin(left_out_ & ~frame.missing_mask, sizes_.size());
       return true;
     }
     for (std::size_t i = 0; i < sizes_.size(); ++i)
@@ -633,6 +628,12 @@ bool CalibSession::handle_sizes(const Frame& frame) {
   warn("Input resolution changed mid-stream (" + what + "); recalibrating");
   forget_calibration();
   return true;
+}
+
+void CalibSession::rejoin(std::uint64_t back, std::size_t cameras) {
+  warn(camera_list(back, cameras) + agree(back, " delivers", " deliver") +
+       " a picture now: calibrating again with every camera");
+  forget_calibration();
 }
 
 void CalibSession::forget_calibration() {
@@ -847,6 +848,11 @@ bool CalibSession::waits_for_a_camera(const Frame& frame) const {
          (frame.missing_mask & all) != all;
 }
 
+bool CalibSession::absent_long_enough(std::size_t camera) const {
+  return camera < absent_since_.size() && absent_since_[camera] >= 0 &&
+         now_ - absent_since_[camera] >= config_.leave_out_after_s;
+}
+
 std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::vector<ImageView>& views) {
   const std::size_t n = frame.sizes.size();
   if (n > 64 || config_.leave_out_after_s <= 0) return 0;
@@ -865,7 +871,7 @@ std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::
   leave_out_blocked_.clear();
   if (!absent) return 0;
   for (std::size_t i = 0; i < n; ++i)
-    if (bit(absent, i) && now_ - absent_since_[i] < config_.leave_out_after_s) return 0;
+    if (bit(absent, i) && !absent_long_enough(i)) return 0;
   if (n - std::size_t(__builtin_popcountll(absent)) < 2) {
     leave_out_blocked_ = " (not left out: two cameras at least must deliver a picture)";
     return 0;
@@ -880,9 +886,7 @@ bool CalibSession::wants_pixels(const Frame& frame) {
     if (frame.missing_mask == 0) return true;
     // the cameras that have delivered, once the missing ones may be left out
     for (std::size_t i = 0; i < frame.sizes.size(); ++i)
-      if (bit(frame.missing_mask, i) &&
-          (i >= absent_since_.size() || absent_since_[i] < 0 || now_ - absent_since_[i] < config_.leave_out_after_s))
-        return false;
+      if (bit(frame.missing_mask, i) && !absent_long_enough(i)) return false;
     return config_.leave_out_after_s > 0;
   }
   // a left-out camera that sends frames again: is it back (not dark)?
@@ -956,11 +960,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     last_rejoin_check_ = now_;
     for (std::size_t i = 0; i < views.size(); ++i)
       if (bit(back, i) && assess_frame(views[i]).verdict == FrameVerdict::Dark) return nullptr;
-    warn(camera_list(back, views.size()) + agree(back, " delivers", " deliver") +
-         " a picture now: calibrating again with every camera");
-    forget_calibration();
-    sizes_ = frame.sizes;
-    first_frame_at_ = now_;
+    rejoin(back, views.size());
     return nullptr;
   }
   if (frame.missing_mask) return nullptr;

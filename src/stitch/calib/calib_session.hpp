@@ -285,6 +285,10 @@ class CalibSession {
                              std::uint64_t skip = 0);
   // Forgets the calibration: the next bundles calibrate from scratch (resize, a camera back).
   void forget_calibration();
+  // Left-out cameras `back` deliver a picture: said, and calibrated again with every camera.
+  void rejoin(std::uint64_t back, std::size_t cameras);
+  // Before the first calibration: camera absent (missing or dark) for leave_out_after_s.
+  bool absent_long_enough(std::size_t camera) const;
   // Before the first calibration: the cameras absent (missing, or dark when pixels are given)
   // for leave_out_after_s; 0 when none may be left out yet (or fewer than two would remain).
   std::uint64_t cameras_to_leave_out(const Frame& frame, const std::vector<ImageView>& views);

@@ -2234,18 +2234,10 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
       rep.pair_median_px.push_back(d[d.size() / 2]);
       all.insert(all.end(), d.begin(), d.end());
-      if (dc.empty()) {
-        rep.pair_median_camera_px.push_back(-1);
-      } else {
-        std::nth_element(dc.begin(), dc.begin() + dc.size() / 2, dc.end());
-        rep.pair_median_camera_px.push_back(dc[dc.size() / 2]);
-        all_cam.insert(all_cam.end(), dc.begin(), dc.end());
-      }
+      rep.pair_median_camera_px.push_back(dc.empty() ? -1 : median_of(dc));
+      all_cam.insert(all_cam.end(), dc.begin(), dc.end());
     }
-  if (!all_cam.empty()) {
-    std::nth_element(all_cam.begin(), all_cam.begin() + all_cam.size() / 2, all_cam.end());
-    rep.median_camera_px = all_cam[all_cam.size() / 2];
-  }
+  if (!all_cam.empty()) rep.median_camera_px = median_of(std::move(all_cam));
   if (!all.empty()) {
     std::nth_element(all.begin(), all.begin() + all.size() * 9 / 10, all.end());
     rep.p90_px = all[all.size() * 9 / 10];

@@ -21,9 +21,6 @@
 
 namespace stitch {
 
-struct Rig;
-bool any_left_out(const Rig& rig);  // a camera with Camera::left_out
-
 struct RigError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
@@ -95,6 +92,8 @@ struct Rig {
   // its scale are set.
   bool calibrated() const;
 };
+
+bool any_left_out(const Rig& rig);  // a camera with Camera::left_out
 
 // JSON I/O. Throws RigError with a message that names the problem (and the camera index).
 Rig rig_from_json_string(const std::string& text);
