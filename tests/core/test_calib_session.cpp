@@ -417,6 +417,32 @@ TEST(CalibSession, FailureWithoutALeftOutCameraNamesTheCamerasByTheirIndices) {
   EXPECT_EQ(pending.find("camera 1 shares"), std::string::npos) << pending;
 }
 
+// Two cameras, one dark: leaving it out would leave one camera, no panorama. The session waits,
+// and says why it does not leave it out; several cameras that hold it up read as a plural.
+TEST(CalibSession, SaysWhyADarkCameraOfTwoIsNotLeftOut) {
+  CalibSession s;
+  s.set_config(quick());
+  const std::vector<cv::Mat> frames = {crops(1)[0], black()};
+  std::string last;
+  for (int f = 0; f < 180; ++f)
+    for (const auto& e : feed(s, f, frames))
+      if (e.type == SessionEvent::Type::Pending) last = e.text;
+  EXPECT_FALSE(s.current());
+  EXPECT_NE(last.find("camera 1 is dark"), std::string::npos) << last;
+  EXPECT_NE(last.find("not left out: two cameras at least must deliver a picture"), std::string::npos) << last;
+
+  CalibSession three;
+  three.set_config(quick());
+  CalibSession::Frame fr;
+  fr.sizes = {{640, 480}, {320, 240}, {320, 240}};
+  fr.missing_mask = 0b110;
+  three.on_frame(fr, {});
+  const auto events = three.take_events();
+  const SessionEvent* p = find(events, SessionEvent::Type::Pending);
+  ASSERT_NE(p, nullptr);
+  EXPECT_NE(p->text.find("cameras 1, 2 have not delivered a frame yet"), std::string::npos) << p->text;
+}
+
 TEST(CalibSession, GivesUpAfterTheTimeoutNamingTheCamera) {
   SessionConfig c = quick();
   c.calibration_timeout_s = 2;
