@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <stdexcept>
 #include <string>
 
@@ -57,7 +58,6 @@ __global__ void gather_kernel(const uint8_t* data, size_t pitch, const int32_t* 
 
 constexpr int kThreads = 256;  // every reduction kernel runs blocks of exactly this size
 constexpr int kWarps = kThreads / 32;
-constexpr int kSamplesPerBlock = 4 * kThreads;
 
 struct Rgb {
   unsigned int c[3];
@@ -103,14 +103,17 @@ __device__ __forceinline__ bool moved_since(const Rgb& p, uchar4 q, int threshol
 }
 
 // Sums v[i] over the block into totals[i] (shared), visible to every thread on return. Every
-// thread of the block must call it.
+// thread of the block must call it. A thread's sums are of at most kMaxSamplesPerThread
+// products of two 8-bit values, so a warp's sum fits 32 bits (32 x 16 x 255^2 < 2^32): the
+// shuffles move 32-bit words, the block's total is formed in 64 bits.
+constexpr int kMaxSamplesPerThread = 16;
 template <int N>
-__device__ void block_sum(unsigned long long (&v)[N], unsigned long long* totals) {
-  __shared__ unsigned long long per_warp[kWarps][N];
+__device__ void block_sum(unsigned int (&v)[N], unsigned long long* totals) {
+  __shared__ unsigned int per_warp[kWarps][N];
   const int lane = threadIdx.x & 31, warp = threadIdx.x >> 5;
 #pragma unroll
   for (int i = 0; i < N; ++i) {
-    unsigned long long x = v[i];
+    unsigned int x = v[i];
 #pragma unroll
     for (int offset = 16; offset > 0; offset >>= 1) x += __shfl_down_sync(0xffffffffu, x, offset);
     if (lane == 0) per_warp[warp][i] = x;
@@ -129,15 +132,24 @@ __device__ __forceinline__ void add_histogram(const unsigned int* block_hist, un
     if (block_hist[i]) atomicAdd(global_hist + i, block_hist[i]);
 }
 
-// Grid (sample blocks, pairs), pass 1 of the mask: in-view samples, which moved since the last
-// frame (against the stored pixels, then replaced), raw RGB sums.
-__global__ void motion_kernel(const __grid_constant__ ColorReduceArgs args) {
-  const ColorSamplePair pair = args.pairs[blockIdx.y];
-  const int begin = blockIdx.x * kSamplesPerBlock, end = min(begin + kSamplesPerBlock, pair.count);
-  if (begin >= end || !args.views[pair.a].data || !args.views[pair.b].data) return;  // whole block
+// The samples one block of a pair or view covers, [begin, end): empty when past its count.
+struct SampleRange {
+  int begin, end;
+};
+__device__ __forceinline__ SampleRange block_range(int per_block, int count) {
+  const int begin = blockIdx.x * per_block;
+  return {begin, min(begin + per_block, count)};
+}
+
+// Pass 1 of the mask, one block of pair p: in-view samples, which moved since the last frame
+// (against the stored pixels, then replaced), raw RGB sums.
+__device__ void motion_block(const ColorReduceArgs& args, int p) {
+  const ColorSamplePair pair = args.pairs[p];
+  const SampleRange r = block_range(args.motion_per_block, pair.count);
+  if (r.begin >= r.end || !args.views[pair.a].data || !args.views[pair.b].data) return;  // whole block
   // [0] in view, [1] moved now, [2, 5) sum a, [5, 8) sum b.
-  unsigned long long sums[8] = {};
-  for (int k = begin + threadIdx.x; k < end; k += blockDim.x) {
+  unsigned int sums[8] = {};
+  for (int k = r.begin + threadIdx.x; k < r.end; k += blockDim.x) {
     const int idx = pair.first + k;
     const int4 s = args.pair_samples[idx];
     Rgb a, b;
@@ -159,7 +171,7 @@ __global__ void motion_kernel(const __grid_constant__ ColorReduceArgs args) {
   }
   __shared__ unsigned long long totals[8];
   block_sum<8>(sums, totals);
-  ColorPairResult& out = args.pair_results[blockIdx.y];
+  ColorPairResult& out = args.pair_results[p];
   if (threadIdx.x == 0) {
     if (totals[0]) atomicAdd(&out.inview, totals[0]);
     if (totals[1]) atomicAdd(&out.moved_now, totals[1]);
@@ -170,25 +182,135 @@ __global__ void motion_kernel(const __grid_constant__ ColorReduceArgs args) {
   }
 }
 
-// Grid (sample blocks, pairs), pass 2: ages (restarted when most of the overlap moved at
-// once), the alignment test, and which samples go into the fit.
-__global__ void mask_kernel(const __grid_constant__ ColorReduceArgs args) {
-  const ColorSamplePair pair = args.pairs[blockIdx.y];
-  const int begin = blockIdx.x * kSamplesPerBlock, end = min(begin + kSamplesPerBlock, pair.count);
-  if (begin >= end || !args.views[pair.a].data || !args.views[pair.b].data) {
-    for (int k = begin + threadIdx.x; k < end; k += blockDim.x) args.use[pair.first + k] = 0;
-    return;  // whole block
+// stitch::corrected_level: clamp(round(sum_k p_k M(k, c))) in the CPU's order, no FMA.
+__device__ __forceinline__ int corrected_level(const Rgb& p, const double* M, int c) {
+  const double v = __dadd_rn(__dadd_rn(__dmul_rn(double(p.c[0]), M[c]), __dmul_rn(double(p.c[1]), M[3 + c])),
+                             __dmul_rn(double(p.c[2]), M[6 + c]));
+  const long long level = llround(v);
+  return int(level < 0 ? 0 : level > 255 ? 255 : level);
+}
+
+// One block of view i's balance grid: per-channel histograms under the view's matrix.
+__device__ void balance_block(const ColorReduceArgs& args, int i) {
+  const ColorFrameView& view = args.views[i];
+  const ColorSampleGrid grid = args.grids[i];
+  const SampleRange r = block_range(args.balance_per_block, grid.count);
+  if (r.begin >= r.end || !view.data) return;  // whole block
+  __shared__ unsigned int hist[3 * 256];
+  __shared__ double M[9];
+  for (int k = threadIdx.x; k < 3 * 256; k += blockDim.x) hist[k] = 0;
+  if (threadIdx.x < 9) M[threadIdx.x] = view.balance_matrix[threadIdx.x];
+  __syncthreads();
+  for (int k = r.begin + threadIdx.x; k < r.end; k += blockDim.x) {
+    const int2 s = args.grid_samples[grid.first + k];
+    Rgb p;
+    if (!load_rgb(view, s.x, s.y, p)) continue;
+#pragma unroll
+    for (int ch = 0; ch < 3; ++ch) atomicAdd(&hist[256 * ch + corrected_level(p, M, ch)], 1u);
   }
-  ColorPairResult& out = args.pair_results[blockIdx.y];
+  __syncthreads();
+  add_histogram(hist, args.balance_results + 3 * 256 * i, 3 * 256);
+}
+
+// Launch 1, grid (sample blocks, motion rows + balance rows): the mask's first pass for every
+// pair and the balance histograms, which depend on nothing else, side by side.
+__global__ void motion_balance_kernel(const __grid_constant__ ColorReduceArgs args) {
+  const int row = blockIdx.y;
+  if (row < args.motion_rows) motion_block(args, row);
+  else balance_block(args, row - args.motion_rows);
+}
+
+// Inclusive prefix sums of three rows of 256 values in shared memory, thread i doing column i
+// of every row (Hillis-Steele): the three channels' scans share their barriers.
+__device__ void inclusive_scan_3x256(unsigned long long (*v)[256]) {
+  const int i = threadIdx.x;
+  for (int offset = 1; offset < 256; offset <<= 1) {
+    unsigned long long add[3];
+#pragma unroll
+    for (int c = 0; c < 3; ++c) add[c] = i >= offset ? v[c][i - offset] : 0;
+    __syncthreads();
+#pragma unroll
+    for (int c = 0; c < 3; ++c) v[c][i] += add[c];
+    __syncthreads();
+  }
+}
+
+// Pair p's histogram-specification LUTs (stitch::histogram_specification of the matched
+// side's histogram onto the other side's), by one block of 256 threads, one per level and
+// all three channels at once, after every block of the pair added its histograms. Thread v
+// computes lut[v] directly: the CPU walks u upward as v grows, which ends at the first u < 255
+// whose reference CDF reaches v's target (255 if none); the CDF is monotonic, so a binary
+// search finds the same u. The doubles are formed exactly as on the CPU (sums of integers,
+// then one division), without fused multiply-adds, so the comparisons and the LUT are identical.
+__device__ void build_match_luts(const ColorReduceArgs& args, int p, int match) {
+  const ColorPairResult& r = args.pair_results[p];
+  const int v = threadIdx.x;
+  const unsigned int* src = match == kColorMatchAOntoB ? r.hist_a : r.hist_b;
+  const unsigned int* ref = match == kColorMatchAOntoB ? r.hist_b : r.hist_a;
+  __shared__ unsigned long long src_cum[3][256], ref_cum[3][256];
+  __shared__ double cdf_ref[3][256];
+  unsigned int src_v[3];
+#pragma unroll
+  for (int c = 0; c < 3; ++c) {
+    src_v[c] = __ldcg(src + 256 * c + v);  // other blocks' atomics: read from L2
+    src_cum[c][v] = src_v[c];
+    ref_cum[c][v] = __ldcg(ref + 256 * c + v);
+  }
+  __syncthreads();
+  inclusive_scan_3x256(src_cum);
+  inclusive_scan_3x256(ref_cum);
+#pragma unroll
+  for (int c = 0; c < 3; ++c) {
+    const unsigned long long nr = ref_cum[c][255];
+    cdf_ref[c][v] = nr ? __ddiv_rn(double(ref_cum[c][v]), double(nr)) : 0.0;
+  }
+  __syncthreads();
+  for (int c = 0; c < 3; ++c) {
+    const unsigned long long ns = src_cum[c][255], nr = ref_cum[c][255];
+    uint8_t* lut = args.match_luts + 3 * 256 * p + 256 * c;
+    if (ns == 0 || nr == 0) {
+      lut[v] = uint8_t(v);
+      continue;
+    }
+    const double below = double(src_cum[c][v] - src_v[c]);  // the CPU's running sum before level v
+    const double target = __ddiv_rn(__dadd_rn(below, __dmul_rn(0.5, double(src_v[c]))), double(ns));
+    int lo = 0, hi = 255;
+    while (lo < hi) {
+      const int mid = (lo + hi) >> 1;
+      if (cdf_ref[c][mid] >= target) hi = mid;
+      else lo = mid + 1;
+    }
+    lut[v] = uint8_t(lo);
+  }
+}
+
+// Launch 2, grid (sample blocks, pairs): pass 2 of the mask (ages, restarted when most of the
+// overlap moved at once; the alignment test; which samples go into the fit) and, for the
+// samples it lets in, the fit's sums: usable count, both sides' histograms, sum a a^T, b b^T,
+// a b^T. The block of a pair that finishes last builds the pair's matching LUTs.
+__global__ void mask_moments_kernel(const __grid_constant__ ColorReduceArgs args) {
+  const int p = blockIdx.y;
+  const ColorSamplePair pair = args.pairs[p];
+  const SampleRange r = block_range(args.mask_per_block, pair.count);
+  if (r.begin >= r.end) return;  // whole block
+  const ColorFrameView &va = args.views[pair.a], &vb = args.views[pair.b];
+  if (!va.data || !vb.data) {
+    for (int k = r.begin + threadIdx.x; k < r.end; k += blockDim.x) args.use[pair.first + k] = 0;
+    return;  // whole block; the pair has no sums to match
+  }
+  ColorPairResult& out = args.pair_results[p];
   const unsigned long long inview = out.inview, moved_now = out.moved_now;
   const bool restart = args.fresh || moved_now * 2 > inview;
   if (blockIdx.x == 0 && threadIdx.x == 0) out.global_change = (!args.fresh && restart && inview > 0) ? 1 : 0;
-  unsigned long long sums[2] = {};  // not static, misaligned
-  for (int k = begin + threadIdx.x; k < end; k += blockDim.x) {
+  __shared__ unsigned int hist_a[3 * 256], hist_b[3 * 256];
+  for (int i = threadIdx.x; i < 3 * 256; i += blockDim.x) hist_a[i] = hist_b[i] = 0;
+  __syncthreads();
+  // [0]: not yet static, [1]: misaligned, [2]: count, [3, 12): a a^T, [12, 21): b b^T, [21, 30): a b^T.
+  unsigned int sums[30] = {};
+  for (int k = r.begin + threadIdx.x; k < r.end; k += blockDim.x) {
     const int idx = pair.first + k;
     args.use[idx] = 0;
     const int4 s = args.pair_samples[idx];
-    const ColorFrameView &va = args.views[pair.a], &vb = args.views[pair.b];
     Rgb a, b;
     if (!load_rgb(va, s.x, s.y, a) || !load_rgb(vb, s.z, s.w, b)) continue;
     const int age = restart ? args.static_frames : args.moved[idx] ? 0 : min(255, int(args.age[idx]) + 1);
@@ -201,36 +323,14 @@ __global__ void mask_kernel(const __grid_constant__ ColorReduceArgs args) {
     if (!usable(a, args.dark_level, args.bright_level) || !usable(b, args.dark_level, args.bright_level)) continue;
     if (args.static_mask && (!still || !aligned)) continue;
     args.use[idx] = 1;
-  }
-  __shared__ unsigned long long totals[2];
-  block_sum<2>(sums, totals);
-  if (threadIdx.x == 0) {
-    if (totals[0]) atomicAdd(&out.moving, totals[0]);
-    if (totals[1]) atomicAdd(&out.misaligned, totals[1]);
-  }
-}
-
-// Grid (sample blocks, pairs): usable count, both sides' histograms, sum a a^T, b b^T, a b^T.
-__global__ void pair_moments_kernel(const __grid_constant__ ColorReduceArgs args) {
-  const ColorSamplePair pair = args.pairs[blockIdx.y];
-  const int begin = blockIdx.x * kSamplesPerBlock, end = min(begin + kSamplesPerBlock, pair.count);
-  if (begin >= end || !args.views[pair.a].data || !args.views[pair.b].data) return;  // whole block
-  __shared__ unsigned int hist_a[3 * 256], hist_b[3 * 256];
-  for (int i = threadIdx.x; i < 3 * 256; i += blockDim.x) hist_a[i] = hist_b[i] = 0;
-  __syncthreads();
-  // [0]: count, [1, 10): a a^T, [10, 19): b b^T, [19, 28): a b^T.
-  unsigned long long sums[28] = {};
-  for (int k = begin + threadIdx.x; k < end; k += blockDim.x) {
-    Rgb a, b;
-    if (!load_pair_sample(args, pair, k, a, b)) continue;
-    sums[0] += 1;
+    sums[2] += 1;
 #pragma unroll
-    for (int r = 0; r < 3; ++r)
+    for (int i = 0; i < 3; ++i)
 #pragma unroll
       for (int c = 0; c < 3; ++c) {
-        sums[1 + 3 * r + c] += a.c[r] * a.c[c];
-        sums[10 + 3 * r + c] += b.c[r] * b.c[c];
-        sums[19 + 3 * r + c] += a.c[r] * b.c[c];
+        sums[3 + 3 * i + c] += a.c[i] * a.c[c];
+        sums[12 + 3 * i + c] += b.c[i] * b.c[c];
+        sums[21 + 3 * i + c] += a.c[i] * b.c[c];
       }
 #pragma unroll
     for (int ch = 0; ch < 3; ++ch) {
@@ -238,126 +338,70 @@ __global__ void pair_moments_kernel(const __grid_constant__ ColorReduceArgs args
       atomicAdd(&hist_b[256 * ch + b.c[ch]], 1u);
     }
   }
-  __shared__ unsigned long long totals[28];
-  block_sum<28>(sums, totals);  // also orders the shared histograms before they are read
-  ColorPairResult& out = args.pair_results[blockIdx.y];
+  __shared__ unsigned long long totals[30];
+  block_sum<30>(sums, totals);  // also orders the shared histograms before they are read
   add_histogram(hist_a, out.hist_a, 3 * 256);
   add_histogram(hist_b, out.hist_b, 3 * 256);
-  if (threadIdx.x == 0 && totals[0]) atomicAdd(&out.count, totals[0]);
+  if (threadIdx.x == 0) {
+    if (totals[0]) atomicAdd(&out.moving, totals[0]);
+    if (totals[1]) atomicAdd(&out.misaligned, totals[1]);
+    if (totals[2]) atomicAdd(&out.count, totals[2]);
+  }
   if (threadIdx.x < 9) {
-    atomicAdd(&out.aa[threadIdx.x], totals[1 + threadIdx.x]);
-    atomicAdd(&out.bb[threadIdx.x], totals[10 + threadIdx.x]);
-    atomicAdd(&out.ab[threadIdx.x], totals[19 + threadIdx.x]);
+    atomicAdd(&out.aa[threadIdx.x], totals[3 + threadIdx.x]);
+    atomicAdd(&out.bb[threadIdx.x], totals[12 + threadIdx.x]);
+    atomicAdd(&out.ab[threadIdx.x], totals[21 + threadIdx.x]);
   }
-}
-
-// Inclusive prefix sum of 256 values in shared memory, one per thread (Hillis-Steele).
-__device__ void inclusive_scan_256(unsigned long long* v) {
-  const int i = threadIdx.x;
-  for (int offset = 1; offset < 256; offset <<= 1) {
-    const unsigned long long add = i >= offset ? v[i - offset] : 0;
-    __syncthreads();
-    v[i] += add;
-    __syncthreads();
-  }
-}
-
-// Grid (pairs, 3 channels), 256 threads (one per level): stitch::histogram_specification of
-// the matched side's histogram onto the other side's. Thread v computes lut[v] directly: the
-// CPU walks u upward as v grows, which ends at the first u < 255 whose reference CDF reaches
-// v's target (255 if none); the CDF is monotonic, so a binary search finds the same u. The
-// doubles are formed exactly as on the CPU (sums of integers, then one division), without
-// fused multiply-adds, so the comparisons and the LUT are identical.
-__global__ void match_lut_kernel(const __grid_constant__ ColorReduceArgs args) {
-  const int pair = blockIdx.x, ch = blockIdx.y, v = threadIdx.x;
-  const int match = args.pair_match[pair];
+  const int match = args.want_match ? args.pair_match[p] : kColorMatchNone;
   if (match == kColorMatchNone) return;  // whole block
-  const ColorPairResult& r = args.pair_results[pair];
-  const unsigned int* src = (match == kColorMatchAOntoB ? r.hist_a : r.hist_b) + 256 * ch;
-  const unsigned int* ref = (match == kColorMatchAOntoB ? r.hist_b : r.hist_a) + 256 * ch;
-  __shared__ unsigned long long src_cum[256], ref_cum[256];
-  __shared__ double cdf_ref[256];
-  const unsigned int src_v = src[v];
-  src_cum[v] = src_v;
-  ref_cum[v] = ref[v];
+  // The last of the pair's blocks to finish sees every histogram complete.
+  __shared__ bool last;
+  __threadfence();
   __syncthreads();
-  inclusive_scan_256(src_cum);
-  inclusive_scan_256(ref_cum);
-  const unsigned long long ns = src_cum[255], nr = ref_cum[255];
-  uint8_t* lut = args.match_luts + 3 * 256 * pair + 256 * ch;
-  if (ns == 0 || nr == 0) {  // whole block
-    lut[v] = uint8_t(v);
-    return;
+  if (threadIdx.x == 0) {
+    const unsigned int blocks = unsigned((pair.count + args.mask_per_block - 1) / args.mask_per_block);
+    last = atomicAdd(&out.blocks_done, 1u) == blocks - 1;
   }
-  cdf_ref[v] = __ddiv_rn(double(ref_cum[v]), double(nr));
   __syncthreads();
-  const double below = double(src_cum[v] - src_v);  // the CPU's running sum before level v
-  const double target = __ddiv_rn(__dadd_rn(below, __dmul_rn(0.5, double(src_v))), double(ns));
-  int lo = 0, hi = 255;
-  while (lo < hi) {
-    const int mid = (lo + hi) >> 1;
-    if (cdf_ref[mid] >= target) hi = mid;
-    else lo = mid + 1;
-  }
-  lut[v] = uint8_t(lo);
+  if (!last) return;  // whole block
+  __threadfence();
+  build_match_luts(args, p, match);
 }
 
-// Grid (sample blocks, pairs): sum s lut(s)^T over the usable samples, s the matched side.
+// Launch 3, grid (sample blocks, pairs): sum s lut(s)^T over the usable samples, s the matched side.
 __global__ void matched_moments_kernel(const __grid_constant__ ColorReduceArgs args) {
   const int match = args.pair_match[blockIdx.y];
   const ColorSamplePair pair = args.pairs[blockIdx.y];
-  const int begin = blockIdx.x * kSamplesPerBlock, end = min(begin + kSamplesPerBlock, pair.count);
-  if (match == kColorMatchNone || begin >= end || !args.views[pair.a].data || !args.views[pair.b].data)
+  const SampleRange r = block_range(args.matched_per_block, pair.count);
+  if (match == kColorMatchNone || r.begin >= r.end || !args.views[pair.a].data || !args.views[pair.b].data)
     return;  // whole block
   __shared__ uint8_t lut[3 * 256];
   for (int i = threadIdx.x; i < 3 * 256; i += blockDim.x) lut[i] = args.match_luts[3 * 256 * blockIdx.y + i];
   __syncthreads();
-  unsigned long long sums[9] = {};
-  for (int k = begin + threadIdx.x; k < end; k += blockDim.x) {
+  unsigned int sums[9] = {};
+  for (int k = r.begin + threadIdx.x; k < r.end; k += blockDim.x) {
     Rgb a, b;
     if (!load_pair_sample(args, pair, k, a, b)) continue;
     const Rgb s = match == kColorMatchAOntoB ? a : b;
 #pragma unroll
-    for (int r = 0; r < 3; ++r)
+    for (int i = 0; i < 3; ++i)
 #pragma unroll
-      for (int c = 0; c < 3; ++c) sums[3 * r + c] += s.c[r] * unsigned(lut[256 * c + s.c[c]]);
+      for (int c = 0; c < 3; ++c) sums[3 * i + c] += s.c[i] * unsigned(lut[256 * c + s.c[c]]);
   }
   __shared__ unsigned long long totals[9];
   block_sum<9>(sums, totals);
   if (threadIdx.x < 9) atomicAdd(&args.pair_results[blockIdx.y].matched[threadIdx.x], totals[threadIdx.x]);
 }
 
-// stitch::corrected_level: clamp(round(sum_k p_k M(k, c))) in the CPU's order, no FMA.
-__device__ __forceinline__ int corrected_level(const Rgb& p, const double* M, int c) {
-  const double v = __dadd_rn(__dadd_rn(__dmul_rn(double(p.c[0]), M[c]), __dmul_rn(double(p.c[1]), M[3 + c])),
-                             __dmul_rn(double(p.c[2]), M[6 + c]));
-  const long long level = llround(v);
-  return int(level < 0 ? 0 : level > 255 ? 255 : level);
-}
+int blocks_for(int samples, int per_block) { return (samples + per_block - 1) / per_block; }
 
-// Grid (sample blocks, views): per-channel histograms of the balance grid under each view's matrix.
-__global__ void balance_histogram_kernel(const __grid_constant__ ColorReduceArgs args) {
-  const ColorFrameView& view = args.views[blockIdx.y];
-  const ColorSampleGrid grid = args.grids[blockIdx.y];
-  const int begin = blockIdx.x * kSamplesPerBlock, end = min(begin + kSamplesPerBlock, grid.count);
-  if (begin >= end || !view.data) return;  // whole block
-  __shared__ unsigned int hist[3 * 256];
-  __shared__ double M[9];
-  for (int i = threadIdx.x; i < 3 * 256; i += blockDim.x) hist[i] = 0;
-  if (threadIdx.x < 9) M[threadIdx.x] = view.balance_matrix[threadIdx.x];
-  __syncthreads();
-  for (int k = begin + threadIdx.x; k < end; k += blockDim.x) {
-    const int2 s = args.grid_samples[grid.first + k];
-    Rgb p;
-    if (!load_rgb(view, s.x, s.y, p)) continue;
-#pragma unroll
-    for (int ch = 0; ch < 3; ++ch) atomicAdd(&hist[256 * ch + corrected_level(p, M, ch)], 1u);
-  }
-  __syncthreads();
-  add_histogram(hist, args.balance_results + 3 * 256 * blockIdx.y, 3 * 256);
-}
-
-int blocks_for(int samples) { return (samples + kSamplesPerBlock - 1) / kSamplesPerBlock; }
+// Samples per thread of each kernel. One spreads the latency-bound gathers over every SM; the
+// mask-and-moments kernel takes two, which halves its blocks' histogram flushes (nsys on an
+// H100, 3 x 1080p: 1, 2 and 4 all within 1.4 us; BENCHMARKS.md).
+constexpr int kMotionPerThread = 1, kBalancePerThread = 1, kMaskPerThread = 2, kMatchedPerThread = 1;
+static_assert(kMotionPerThread <= kMaxSamplesPerThread && kMaskPerThread <= kMaxSamplesPerThread &&
+                  kMatchedPerThread <= kMaxSamplesPerThread,
+              "block_sum's 32-bit warp sums");
 
 }  // namespace
 
@@ -396,26 +440,29 @@ void launch_gather(const uint8_t* data, size_t pitch, const int32_t* xy, int cou
   check_launch("gather kernel");
 }
 
-void launch_color_reduce(const ColorReduceArgs& args, cudaStream_t stream) {
+void launch_color_reduce(const ColorReduceArgs& args_in, cudaStream_t stream) {
+  ColorReduceArgs args = args_in;
+  args.motion_per_block = kMotionPerThread * kThreads;
+  args.balance_per_block = kBalancePerThread * kThreads;
+  args.mask_per_block = kMaskPerThread * kThreads;
+  args.matched_per_block = kMatchedPerThread * kThreads;
   const bool pairs = args.want_pairs && args.pair_count > 0 && args.max_pair_samples > 0;
-  if (pairs) {
-    const dim3 grid(blocks_for(args.max_pair_samples), args.pair_count);
-    motion_kernel<<<grid, kThreads, 0, stream>>>(args);
-    check_launch("color motion kernel");
-    mask_kernel<<<grid, kThreads, 0, stream>>>(args);
-    check_launch("color mask kernel");
-    pair_moments_kernel<<<grid, kThreads, 0, stream>>>(args);
-    check_launch("color pair moments kernel");
-    if (args.want_match) {
-      match_lut_kernel<<<dim3(args.pair_count, 3), 256, 0, stream>>>(args);
-      check_launch("color histogram specification kernel");
-      matched_moments_kernel<<<grid, kThreads, 0, stream>>>(args);
-      check_launch("color matched moments kernel");
-    }
+  const bool balance = args.want_balance && args.view_count > 0 && args.max_grid_samples > 0;
+  args.motion_rows = pairs ? args.pair_count : 0;
+  if (pairs || balance) {
+    const int columns = std::max(pairs ? blocks_for(args.max_pair_samples, args.motion_per_block) : 0,
+                                 balance ? blocks_for(args.max_grid_samples, args.balance_per_block) : 0);
+    motion_balance_kernel<<<dim3(columns, args.motion_rows + (balance ? args.view_count : 0)), kThreads, 0, stream>>>(args);
+    check_launch("color motion and balance kernel");
   }
-  if (args.want_balance && args.view_count > 0 && args.max_grid_samples > 0) {
-    balance_histogram_kernel<<<dim3(blocks_for(args.max_grid_samples), args.view_count), kThreads, 0, stream>>>(args);
-    check_launch("color balance histogram kernel");
+  if (!pairs) return;
+  mask_moments_kernel<<<dim3(blocks_for(args.max_pair_samples, args.mask_per_block), args.pair_count), kThreads, 0,
+                        stream>>>(args);
+  check_launch("color mask and moments kernel");
+  if (args.want_match) {
+    matched_moments_kernel<<<dim3(blocks_for(args.max_pair_samples, args.matched_per_block), args.pair_count),
+                             kThreads, 0, stream>>>(args);
+    check_launch("color matched moments kernel");
   }
 }
 

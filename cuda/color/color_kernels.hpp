@@ -65,6 +65,7 @@ struct ColorPairResult {
   unsigned long long inview, moved_now, moving, misaligned, global_change;
   unsigned long long sum_a[3], sum_b[3];
   unsigned int hist_a[3 * 256], hist_b[3 * 256];
+  unsigned int blocks_done, unused;  // the mask-and-moments blocks of the pair that finished
 };
 
 struct ColorReduceArgs {
@@ -91,12 +92,16 @@ struct ColorReduceArgs {
   ColorPairResult* pair_results;  // pair_count entries, zeroed before the launch
   unsigned int* balance_results;  // view_count x 3 x 256, zeroed before the launch
   uint8_t* match_luts;            // scratch: pair_count x 3 x 256
+  // Set by launch_color_reduce.
+  int motion_rows, motion_per_block, balance_per_block, mask_per_block, matched_per_block;
 };
 
-// Launches, in stream order: the pair moments and histograms; the histogram-specification
-// LUTs, built on the device from those histograms (256 entries per channel: one tiny kernel,
-// where building them on the host would cost a second round trip); the matched moments; the
-// balance histograms. The results are complete once the stream reaches the next operation, so
+// Three launches, in stream order: the mask's motion pass with the balance histograms beside
+// it; the rest of the mask with the pair moments and histograms, the last block of each pair
+// building its histogram-specification LUTs on the device (256 entries per channel, where
+// building them on the host would cost a second round trip); the matched moments. The
+// reductions are latency-bound gathers of a few thousand samples, so fewer launches and more
+// blocks, not bandwidth, is what makes them fast. The results are complete once the stream reaches the next operation, so
 // the caller downloads them (a few KB) and synchronises once.
 void launch_color_reduce(const ColorReduceArgs& args, cudaStream_t stream);
 

@@ -77,39 +77,59 @@ std::array<uint8_t, 256> histogram_specification(const std::array<uint32_t, 256>
   return lut;
 }
 
+namespace {
+
+// The piecewise curve's constants for one (m1, m2, lambda), computed once per curve.
+struct PiecewiseBalance {
+  bool identity = true;
+  double m1 = 0, m2 = 0, t1 = 0, t2 = 0, s = 1, g_low = 1, g_high = 1;
+
+  PiecewiseBalance(double m1_in, double m2_in, double lambda) : m1(m1_in), m2(m2_in) {
+    if (!(m2 - m1 >= 1.0) || !std::isfinite(m1) || !std::isfinite(m2)) return;
+    identity = false;
+    // Targets: m1 -> lambda and m2 -> 1 - lambda of the range (a histogram stretch), but never
+    // lifting a dark level or lowering a bright one by more than 2x ...
+    t1 = std::min(255.0 * lambda, 2.0 * m1);
+    t2 = std::max(255.0 * (1 - lambda), 255.0 - 2.0 * (255.0 - m2));
+    // ... and never stretching the mid-tones more than 2x: move the targets back toward the
+    // identity until the linear part's slope is at most 2.
+    const double span = m2 - m1, wanted = t2 - t1;
+    if (wanted > 2 * span) {
+      const double beta = span / (wanted - span);  // (1-b) span + b wanted = 2 span
+      t1 = m1 + beta * (t1 - m1);
+      t2 = m2 + beta * (t2 - m2);
+    }
+    s = (t2 - t1) / span;
+    // Gamma segments through (0, 0) and (m1, t1), and (255, 255) and (m2, t2), with the linear
+    // part's slope where they meet it.
+    if (m1 > 0 && t1 > 0) g_low = std::clamp(s * m1 / t1, 0.2, 5.0);
+    if (m2 < 255 && t2 < 255) g_high = std::clamp(s * (255 - m2) / (255 - t2), 0.2, 5.0);
+  }
+
+  double operator()(double x) const {
+    if (identity) return x;
+    if (x < m1) {
+      if (m1 <= 0 || t1 <= 0) return std::max(0.0, t1 * x / std::max(m1, 1e-9));
+      return t1 * std::pow(std::max(0.0, x) / m1, g_low);
+    }
+    if (x > m2) {
+      if (m2 >= 255 || t2 >= 255) return t2 + (x - m2) * (255.0 - t2) / std::max(255.0 - m2, 1e-9);
+      return 255 - (255 - t2) * std::pow(std::max(0.0, 255 - x) / (255 - m2), g_high);
+    }
+    return t1 + (x - m1) * s;
+  }
+};
+
+}  // namespace
+
 double piecewise_balance_value(double x, double m1, double m2, double lambda) {
-  if (!(m2 - m1 >= 1.0) || !std::isfinite(m1) || !std::isfinite(m2)) return x;
-  // Targets: m1 -> lambda and m2 -> 1 - lambda of the range (a histogram stretch), but never
-  // lifting a dark level or lowering a bright one by more than 2x ...
-  double t1 = std::min(255.0 * lambda, 2.0 * m1);
-  double t2 = std::max(255.0 * (1 - lambda), 255.0 - 2.0 * (255.0 - m2));
-  // ... and never stretching the mid-tones more than 2x: move the targets back toward the
-  // identity until the linear part's slope is at most 2.
-  const double span = m2 - m1, wanted = t2 - t1;
-  if (wanted > 2 * span) {
-    const double beta = span / (wanted - span);  // (1-b) span + b wanted = 2 span
-    t1 = m1 + beta * (t1 - m1);
-    t2 = m2 + beta * (t2 - m2);
-  }
-  const double s = (t2 - t1) / span;
-  if (x < m1) {
-    if (m1 <= 0 || t1 <= 0) return std::max(0.0, t1 * x / std::max(m1, 1e-9));
-    // Gamma segment through (0, 0) and (m1, t1) with the linear part's slope at m1.
-    const double g = std::clamp(s * m1 / t1, 0.2, 5.0);
-    return t1 * std::pow(std::max(0.0, x) / m1, g);
-  }
-  if (x > m2) {
-    if (m2 >= 255 || t2 >= 255) return t2 + (x - m2) * (255.0 - t2) / std::max(255.0 - m2, 1e-9);
-    const double g = std::clamp(s * (255 - m2) / (255 - t2), 0.2, 5.0);
-    return 255 - (255 - t2) * std::pow(std::max(0.0, 255 - x) / (255 - m2), g);
-  }
-  return t1 + (x - m1) * s;
+  return PiecewiseBalance(m1, m2, lambda)(x);
 }
 
 std::array<uint8_t, 256> piecewise_balance_curve(double m1, double m2, double lambda) {
+  const PiecewiseBalance curve(m1, m2, lambda);  // every level: its constants once, not 256 times
   std::array<uint8_t, 256> lut;
-  for (int v = 0; v < 256; ++v)
-    lut[v] = uint8_t(std::clamp(std::lround(piecewise_balance_value(v, m1, m2, lambda)), 0L, 255L));
+  for (int v = 0; v < 256; ++v) lut[v] = uint8_t(std::clamp(std::lround(curve(v)), 0L, 255L));
   return lut;
 }
 
