@@ -25,7 +25,7 @@ struct ComposeParams {
 };
 
 template <bool kCurved>
-__global__ void warp_kernel(DeviceImage src, ViewGeometry vg, int roi_x, int roi_y, DeviceImage dst) {
+__global__ void warp_kernel(DeviceImage src, ViewGeometry vg, int roi_x, int roi_y, DeviceImage dst, uint8_t* luma) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= dst.width || y >= dst.height) return;
   float u, v;
@@ -33,8 +33,9 @@ __global__ void warp_kernel(DeviceImage src, ViewGeometry vg, int roi_x, int roi
   if (view_to_camera<kCurved>(vg, float(roi_x + x), float(roi_y + y), u, v) && u > -1.f && v > -1.f && u < src.width &&
       v < src.height)
     c = sample_bilinear(src.data, src.pitch, src.width, src.height, u, v);
-  *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) =
-      make_uchar4(to_u8(c.x), to_u8(c.y), to_u8(c.z), to_u8(c.w));
+  const uchar4 out = make_uchar4(to_u8(c.x), to_u8(c.y), to_u8(c.z), to_u8(c.w));
+  *reinterpret_cast<uchar4*>(dst.data + size_t(y) * dst.pitch + size_t(x) * 4) = out;
+  if (luma) luma[size_t(y) * dst.width + x] = stitch::seam::luma(reinterpret_cast<const uint8_t*>(&out));
 }
 
 // out_c = sum_k in_k M[k][c], clamped to [0, 255].
@@ -193,11 +194,12 @@ void launch_halve(const DeviceImage& src, const DeviceImage& dst, cudaStream_t s
   check_launch("halve kernel");
 }
 
-void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream) {
+void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream,
+                 uint8_t* luma) {
   if (dst.width <= 0 || dst.height <= 0) return;
   const dim3 block(32, 8), grid((dst.width + 31) / 32, (dst.height + 7) / 8);
-  if (any_curved(&view, 1)) warp_kernel<true><<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst);
-  else warp_kernel<false><<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst);
+  if (any_curved(&view, 1)) warp_kernel<true><<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst, luma);
+  else warp_kernel<false><<<grid, block, 0, stream>>>(src, view, view.roi_x, view.roi_y, dst, luma);
   check_launch("warp kernel");
 }
 

@@ -33,7 +33,10 @@ struct ViewGeometry {
 // dst ((w + 1) / 2 x (h + 1) / 2): src averaged over 2x2 blocks (stitch::halve_frame's bytes).
 // Rows of uchar4: both pitches multiples of 4.
 void launch_halve(const DeviceImage& src, const DeviceImage& dst, cudaStream_t stream);
-void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream);
+// luma (optional, dst.width * dst.height bytes): stitch::seam::luma of every written pixel, for
+// the seam finder, in the same pass (it would read the warped view again).
+void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream,
+                 uint8_t* luma = nullptr);
 
 // Position-weighted mean of views already warped into their rois; warped[i].data == nullptr
 // leaves view i out. Uncovered pixels are opaque black. With labels and mix (out.width wide, the

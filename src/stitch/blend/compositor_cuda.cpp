@@ -173,7 +173,9 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
       w.pitch = std::size_t(g.roi_w) * 4;
       s_->warped[i].resize(w.pitch * w.height);
       w.data = s_->warped[i].data();
-      stitch_cuda::launch_warp(images[i], g, w, s_->stream.get());
+      // The seam finder's luma of the view in the same pass: find() then need not read it again.
+      uint8_t* luma = s_->seam ? s_->seam->luma_for_next_find(i) : nullptr;
+      stitch_cuda::launch_warp(images[i], g, w, s_->stream.get(), luma);
       warped[i] = s_->device_view(w);
     }
     s_->rect_fuse(warped, s_->device_view(d));

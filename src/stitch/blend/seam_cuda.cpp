@@ -25,6 +25,7 @@ struct SeamFinderCuda::State {
   std::vector<PairState> pairs;
   std::vector<DeviceBuffer> luma, previous_luma;
   std::vector<bool> has_luma;
+  std::vector<bool> luma_given;  // luma_for_next_find(i) since the last find()
   DeviceBuffer labels, nearest, mix;  // mix: the consensus blend's levels (mix_radius > 0)
   DeviceBuffer previous_labels;       // last find()'s labels (label_hold > 0)
   bool has_labels = false;            // a find() since prepare()
@@ -39,6 +40,16 @@ SeamFinderCuda::SeamFinderCuda(const SeamSettings& settings) : s_(std::make_uniq
 SeamFinderCuda::~SeamFinderCuda() = default;
 
 const std::vector<SeamFinder::Pair>& SeamFinderCuda::pairs() const { return s_->planner.pairs(); }
+
+uint8_t* SeamFinderCuda::luma_for_next_find(std::size_t i) {
+  State& s = *s_;
+  if (i >= s.luma.size()) throw std::out_of_range("seam luma: no such view");
+  if (!s.luma_given[i]) {  // this frame's luma goes where the frame before last's was
+    std::swap(s.luma[i], s.previous_luma[i]);
+    s.luma_given[i] = true;
+  }
+  return s.luma[i].data();
+}
 
 void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width, int height) {
   s_->planner.prepare(views, width, height);
@@ -81,6 +92,7 @@ void SeamFinderCuda::prepare(const std::vector<ViewPlacement>& views, int width,
     s_->previous_luma.emplace_back(px);
   }
   s_->has_luma.assign(views.size(), false);
+  s_->luma_given.assign(views.size(), false);
   s_->labels.resize(std::size_t(width) * height);
   if (s_->planner.settings().label_hold > 0.f) s_->previous_labels.resize(std::size_t(width) * height);
   s_->has_labels = false;
@@ -95,14 +107,18 @@ const uint8_t* SeamFinderCuda::find(const std::vector<ImageView>& warped, cudaSt
   const cudaStream_t st = stream ? stream : s.stream.get();
   uint64_t mask = 0;
   for (std::size_t i = 0; i < warped.size(); ++i) {
+    const bool given = s.luma_given[i];
+    s.luma_given[i] = false;
     if (warped[i].empty() || s.views[i].roi.empty()) {
       s.has_luma[i] = false;
       continue;
     }
     if (!warped[i].on_device) throw std::invalid_argument("the CUDA seam finder reads views in device memory");
     mask |= uint64_t(1) << i;
-    std::swap(s.luma[i], s.previous_luma[i]);
-    stitch_cuda::launch_seam_luma(to_device_image(warped[i]), s.luma[i].data(), st);
+    if (!given) {
+      std::swap(s.luma[i], s.previous_luma[i]);
+      stitch_cuda::launch_seam_luma(to_device_image(warped[i]), s.luma[i].data(), st);
+    }
     if (!s.has_luma[i])  // no previous frame: no motion
       STITCH_CUDA(cudaMemcpyAsync(s.previous_luma[i].data(), s.luma[i].data(),
                                   std::size_t(warped[i].width) * warped[i].height, cudaMemcpyDeviceToDevice, st));

@@ -21,6 +21,10 @@ class SeamFinderCuda {
   // finished on return; with one (where the views were written) it is only queued there, and
   // the labels and mix map are ready in that stream's order (no host synchronisation).
   const uint8_t* find(const std::vector<ImageView>& warped, cudaStream_t stream = nullptr);
+  // View i's luma buffer (roi-sized, stitch::seam::luma per pixel) for the next find(), for a
+  // producer that computes it while it writes the view (the compositor's warp), in the stream
+  // find() is then given: find() does not read the view again for it.
+  uint8_t* luma_for_next_find(std::size_t i);
   // The last paths, downloaded (for tests): one per pair of pairs(), empty when not cut.
   std::vector<std::vector<int>> paths() const;
   std::vector<uint8_t> labels() const;  // the last find()'s, downloaded
