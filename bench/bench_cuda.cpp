@@ -159,9 +159,16 @@ int main(int argc, char** argv) {
       const double warp_ms = time_ms(stream.get(), [&] {
         for (int i = 0; i < c.cameras; ++i) stitch_cuda::launch_warp(frames[i], geo[i], warped[i], stream.get());
       });
+      // The fuse as the compositor runs it: with its tiles (made once per geometry), and without.
+      DeviceBuffer tiles(stitch_cuda::fuse_tile_count(out.width, out.height));
+      stitch_cuda::launch_fuse_tiles(c.cameras, geo.data(), out.width, out.height, tiles.data(), stream.get());
       const double fuse_ms = time_ms(stream.get(), [&] {
+        stitch_cuda::launch_fuse(c.cameras, geo.data(), warped.data(), out, stream.get(), nullptr, nullptr, tiles.data());
+      });
+      const double fuse_untiled_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_fuse(c.cameras, geo.data(), warped.data(), out, stream.get());
       });
+      std::printf("  fuse without tiles: %.4f ms\n", fuse_untiled_ms);
       const double apply_ms = time_ms(stream.get(), [&] {
         for (int i = 0; i < c.cameras; ++i)
           stitch_cuda::launch_color_apply(frames[i].data, frames[i].pitch, c.width, c.height, color.data() + 9 * i,

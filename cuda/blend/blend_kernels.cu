@@ -1,5 +1,6 @@
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "../launch_check.hpp"
 #include "../common.cuh"
@@ -22,6 +23,7 @@ struct ComposeParams {
   // (the CPU: seam.hpp apply_seam_mix).
   const uint8_t* labels;
   const uint8_t* mix;
+  const uint8_t* tiles;  // fuse only (nullptr: none): launch_fuse_tiles' classes, one per block
 };
 
 template <bool kCurved>
@@ -58,10 +60,9 @@ __device__ __forceinline__ void store_mean(const DeviceImage& out, int x, int y,
   *reinterpret_cast<uchar4*>(out.data + size_t(y) * out.pitch + size_t(x) * 4) = mean_pixel(r, g, b, wsum);
 }
 
-// The weighted mean as store_mean rounds it, then the consensus blend's mix towards the labelled
-// view (seam.hpp apply_seam_mix on the CPU, the same arithmetic), in the fuse's own pass.
-__device__ __forceinline__ void store_mixed(const ComposeParams& p, int x, int y, float r, float g, float b, float wsum) {
-  uchar4 o = mean_pixel(r, g, b, wsum);
+// The weighted mean as store_mean rounds it (o), then the consensus blend's mix towards the
+// labelled view (seam.hpp apply_seam_mix on the CPU, the same arithmetic), in the fuse's own pass.
+__device__ __forceinline__ void store_mixed(const ComposeParams& p, int x, int y, uchar4 o) {
   const size_t at = size_t(y) * p.out.width + x;
   const int m = p.mix[at], l = p.labels[at];
   if (m && l < p.n && p.src[l].data) {
@@ -82,6 +83,24 @@ template <int kMode, bool kCurved>
 __global__ void blend_kernel(const ComposeParams p) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= p.out.width || y >= p.out.height) return;
+  if (kMode == 0 && p.tiles) {
+    // A tile one view covers alone: the weighted mean of one view, w c / w, rounds back to c
+    // exactly (c <= 255, a few ulps off before the rounding), so the pixel is the view's.
+    const int tile = p.tiles[blockIdx.y * gridDim.x + blockIdx.x];  // the block is the tile
+    const bool alone = tile < p.n && p.src[tile].data;
+    if (alone || tile == kFuseTileEmpty) {
+      uchar4 o = make_uchar4(0, 0, 0, 255);
+      if (alone) {
+        const ViewGeometry& vg = p.views[tile];
+        const uchar4 q =
+            *reinterpret_cast<const uchar4*>(p.src[tile].data + size_t(y - vg.roi_y) * p.src[tile].pitch + size_t(x - vg.roi_x) * 4);
+        o = make_uchar4(q.x, q.y, q.z, 255);
+      }
+      if (p.mix) store_mixed(p, x, y, o);
+      else *reinterpret_cast<uchar4*>(p.out.data + size_t(y) * p.out.pitch + size_t(x) * 4) = o;
+      return;
+    }
+  }
   float r = 0.f, g = 0.f, b = 0.f, wsum = 0.f;
   for (int i = 0; i < p.n; ++i) {
     const ViewGeometry& vg = p.views[i];
@@ -103,9 +122,38 @@ __global__ void blend_kernel(const ComposeParams p) {
     wsum += w;
   }
   if (kMode == 0 && p.mix)
-    store_mixed(p, x, y, r, g, b, wsum);
+    store_mixed(p, x, y, mean_pixel(r, g, b, wsum));
   else
     store_mean(p.out, x, y, r, g, b, wsum);
+}
+
+// One block per fuse tile: which views' position weights are positive at each pixel, the
+// tile's class from them (launch_fuse_tiles).
+template <bool kCurved>
+__global__ void fuse_tiles_kernel(const ComposeParams p, int width, int height, uint8_t* tiles) {
+  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
+  unsigned covering = 0;
+  const bool inside = x < width && y < height;
+  if (inside)
+    for (int i = 0; i < p.n; ++i) {
+      float u, v;
+      if (view_weight<kCurved>(p.views[i], x, y, u, v) > 0.f) covering |= 1u << i;
+    }
+  __shared__ unsigned first, differs;
+  if (threadIdx.x == 0 && threadIdx.y == 0) {
+    first = covering;  // the tile's first pixel is always inside the output
+    differs = 0;
+  }
+  __syncthreads();
+  if (inside && covering != first) atomicOr(&differs, 1u);
+  __syncthreads();
+  if (threadIdx.x != 0 || threadIdx.y != 0) return;
+  uint8_t cls = kFuseTileMixed;
+  if (!differs) {
+    if (first == 0) cls = kFuseTileEmpty;
+    else if ((first & (first - 1)) == 0) cls = uint8_t(__ffs(first) - 1);
+  }
+  tiles[blockIdx.y * gridDim.x + blockIdx.x] = cls;
 }
 
 struct TexComposeParams {
@@ -214,13 +262,27 @@ void launch_resample_affine(const DeviceImage& src, const float* inverse_affine,
 }
 
 void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, const DeviceImage& out,
-                 cudaStream_t stream, const uint8_t* labels, const uint8_t* mix) {
+                 cudaStream_t stream, const uint8_t* labels, const uint8_t* mix, const uint8_t* tiles) {
   ComposeParams p = params_of(n, views, warped, out);
   if (labels && mix) p.labels = labels, p.mix = mix;
+  p.tiles = tiles;
+  static_assert(kFuseTileW == 32 && kFuseTileH == 8, "the fuse's blocks are its tiles");
   const dim3 block(32, 8), grid((out.width + 31) / 32, (out.height + 7) / 8);
   if (any_curved(views, n)) blend_kernel<0, true><<<grid, block, 0, stream>>>(p);
   else blend_kernel<0, false><<<grid, block, 0, stream>>>(p);
   check_launch("fuse kernel");
+}
+
+void launch_fuse_tiles(int n, const ViewGeometry* views, int width, int height, uint8_t* tiles, cudaStream_t stream) {
+  if (width <= 0 || height <= 0) return;
+  DeviceImage none{};
+  none.width = width;
+  none.height = height;
+  const ComposeParams p = params_of(n, views, std::vector<DeviceImage>(size_t(n)).data(), none);
+  const dim3 block(kFuseTileW, kFuseTileH), grid((width + kFuseTileW - 1) / kFuseTileW, (height + kFuseTileH - 1) / kFuseTileH);
+  if (any_curved(views, n)) fuse_tiles_kernel<true><<<grid, block, 0, stream>>>(p, width, height, tiles);
+  else fuse_tiles_kernel<false><<<grid, block, 0, stream>>>(p, width, height, tiles);
+  check_launch("fuse tiles kernel");
 }
 
 void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames, const float* color,

@@ -41,8 +41,23 @@ void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceI
 // Position-weighted mean of views already warped into their rois; warped[i].data == nullptr
 // leaves view i out. Uncovered pixels are opaque black. With labels and mix (out.width wide, the
 // seam finder's): the consensus blend in the same pass (seam.hpp apply_seam_mix on the CPU).
+// tiles (optional, from launch_fuse_tiles for this geometry and output size): where a tile is
+// one view's alone, its pixels are that view's, without the per-view weights (the same bytes).
 void launch_fuse(int n, const ViewGeometry* views, const DeviceImage* warped, const DeviceImage& out,
-                 cudaStream_t stream, const uint8_t* labels = nullptr, const uint8_t* mix = nullptr);
+                 cudaStream_t stream, const uint8_t* labels = nullptr, const uint8_t* mix = nullptr,
+                 const uint8_t* tiles = nullptr);
+
+// The fuse's tiles (kFuseTileW x kFuseTileH output pixels, row-major, fuse_tile_count bytes):
+// the view whose position weight is the only positive one on every pixel of the tile, or
+// kFuseTileEmpty where no view covers any pixel of it, or kFuseTileMixed. Geometry only: made
+// once per prepare(). Most of a panorama is one camera's alone, and there the weighted mean is
+// that camera's pixel, so the fuse need not map the pixel into every view.
+constexpr int kFuseTileW = 32, kFuseTileH = 8;
+constexpr uint8_t kFuseTileMixed = 255, kFuseTileEmpty = 254;
+inline size_t fuse_tile_count(int width, int height) {
+  return size_t((width + kFuseTileW - 1) / kFuseTileW) * size_t((height + kFuseTileH - 1) / kFuseTileH);
+}
+void launch_fuse_tiles(int n, const ViewGeometry* views, int width, int height, uint8_t* tiles, cudaStream_t stream);
 
 // Warp + optional 3x3 color matrix per view + blend in one pass: every input pixel is read
 // about once and the output written once. frames[i].data == nullptr leaves camera i out;

@@ -16,6 +16,8 @@
 
 #ifdef STITCH_HAVE_CUDA
 #include <cuda_runtime_api.h>
+
+#include "stitch/cuda/view_geometry.hpp"
 #endif
 
 using namespace stitch;
@@ -169,6 +171,73 @@ TEST(Cuda, PrewarpedFuseMatchesCpu) {
                 scaled ? "cropped + scaled" : "cropped", og.width, og.height, ph, pd);
     EXPECT_GE(ph, scaled ? 40.0 : 45.0);
     EXPECT_GE(pd, scaled ? 40.0 : 45.0);
+  }
+#endif
+}
+
+// The fuse's tiles (a tile one view covers alone is copied from it) give the bytes of the
+// per-pixel weighted mean: plain, with the consensus mix, with a view missing, and on a
+// spherical canvas; and they do skip work (some tiles are one view's alone, some are mixed).
+TEST(Cuda, FuseTilesGiveTheSameBytesAsTheWeightedMean) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  for (const char* projection : {"plane", "spherical"}) {
+    SCOPED_TRACE(projection);
+    RigScene s = rig_scene();
+    if (std::string(projection) != "plane") {
+      s.rig.projection = projection;
+      s.rig.canvas_scale = 0;
+      rig_layout_canvas(s.rig);  // a curved canvas from the rotations (as a calibration leaves it)
+    }
+    Compositor cpu(Backend::Cpu);
+    cpu.prepare(s.rig, CompositorSettings{}, CompositorInput::Prewarped);
+    const std::vector<ViewPlacement>& placements = cpu.prewarped_placements();
+    auto warper = Warper::create(Backend::Cpu);
+    warper->prepare(placements);
+    std::vector<std::unique_ptr<DeviceMat>> warped;
+    std::vector<stitch_cuda::ViewGeometry> geometry;
+    std::vector<stitch_cuda::DeviceImage> images;
+    for (int i = 0; i < 3; ++i) {
+      const Rect& r = placements[std::size_t(i)].roi;
+      cv::Mat w(r.height, r.width, CV_8UC4);
+      warper->warp(i, as_view(s.frames[std::size_t(i)]), as_view(w));
+      warped.push_back(std::make_unique<DeviceMat>(w));
+      geometry.push_back(to_device_geometry(placements[std::size_t(i)]));
+      images.push_back(to_device_image(warped.back()->view()));
+    }
+    const int W = cpu.geometry().width, H = cpu.geometry().height;
+    DeviceBuffer tiles(stitch_cuda::fuse_tile_count(W, H)), labels(std::size_t(W) * H), mix(std::size_t(W) * H);
+    stitch_cuda::launch_fuse_tiles(3, geometry.data(), W, H, tiles.data(), nullptr);
+    std::vector<uint8_t> classes(stitch_cuda::fuse_tile_count(W, H));
+    ASSERT_EQ(cudaMemcpy(classes.data(), tiles.data(), classes.size(), cudaMemcpyDeviceToHost), cudaSuccess);
+    int alone = 0, mixed = 0;
+    for (uint8_t c : classes) (c < 3 ? alone : c == stitch_cuda::kFuseTileMixed ? mixed : alone) += 1;
+    EXPECT_GT(alone, int(classes.size()) / 4);
+    EXPECT_GT(mixed, 0);
+    // Labels by thirds of the width, a mix level that varies everywhere.
+    cv::Mat label_host(H, W, CV_8UC1), mix_host(H, W, CV_8UC1);
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x) {
+        label_host.at<uint8_t>(y, x) = uint8_t(std::min(2, 3 * x / W));
+        mix_host.at<uint8_t>(y, x) = uint8_t((x * 7 + y * 13) % 256);
+      }
+    ASSERT_EQ(cudaMemcpy(labels.data(), label_host.data, label_host.total(), cudaMemcpyHostToDevice), cudaSuccess);
+    ASSERT_EQ(cudaMemcpy(mix.data(), mix_host.data, mix_host.total(), cudaMemcpyHostToDevice), cudaSuccess);
+    for (int missing = -1; missing < 3; ++missing)
+      for (int consensus = 0; consensus < 2; ++consensus) {
+        SCOPED_TRACE(testing::Message() << "missing " << missing << " consensus " << consensus);
+        std::vector<stitch_cuda::DeviceImage> present = images;
+        if (missing >= 0) present[std::size_t(missing)].data = nullptr;
+        DeviceMat plain(cv::Mat(H, W, CV_8UC4, cv::Scalar::all(77))), tiled(cv::Mat(H, W, CV_8UC4, cv::Scalar::all(78)));
+        const uint8_t* l = consensus ? labels.data() : nullptr;
+        const uint8_t* m = consensus ? mix.data() : nullptr;
+        stitch_cuda::launch_fuse(3, geometry.data(), present.data(), to_device_image(plain.view()), nullptr, l, m);
+        stitch_cuda::launch_fuse(3, geometry.data(), present.data(), to_device_image(tiled.view()), nullptr, l, m,
+                                 tiles.data());
+        ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
+        const cv::Mat a = plain.download(), b = tiled.download();
+        EXPECT_EQ(cv::norm(a, b, cv::NORM_INF), 0.0);
+      }
   }
 #endif
 }

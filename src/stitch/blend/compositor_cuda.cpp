@@ -24,6 +24,17 @@ struct CudaComposer::State {
   int bands = MultibandBlender::kDefaultBands;
   std::unique_ptr<MultibandBlender> multiband;
   std::vector<DeviceBuffer> warped;
+  // The fuse's tiles (launch_fuse_tiles): made at the first fuse after prepare().
+  DeviceBuffer tiles;
+  bool tiles_made = false;
+  const uint8_t* fuse_tiles() {
+    if (!tiles_made) {
+      tiles.resize(stitch_cuda::fuse_tile_count(out_w, out_h));
+      stitch_cuda::launch_fuse_tiles(int(views.size()), views.data(), out_w, out_h, tiles.data(), stream.get());
+      tiles_made = true;
+    }
+    return tiles.data();
+  }
   // Seam finding: its settings and the finder.
   bool find_seams = false;
   SeamSettings seam_settings;
@@ -47,7 +58,7 @@ struct CudaComposer::State {
     const stitch_cuda::DeviceImage d = to_device_image(out);
     // The weighted mean and, where the views disagree, the seam's view: one pass over the output.
     stitch_cuda::launch_fuse(int(images.size()), this->views.data(), images.data(), d, stream.get(), labels,
-                             seam->mix_map());
+                             seam->mix_map(), d.width == out_w && d.height == out_h ? fuse_tiles() : nullptr);
   }
   void rect_fuse(const std::vector<ImageView>& views, const ImageView& out) {
     if (multiband)
@@ -152,6 +163,7 @@ void CudaComposer::prepare(const std::vector<ViewPlacement>& views, int out_widt
   s_->inputs.resize(views.size());
   s_->out_w = out_width;
   s_->out_h = out_height;
+  s_->tiles_made = false;
 }
 
 void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView& out, const float* color) {
@@ -206,7 +218,8 @@ void CudaComposer::fuse_resampled(const std::vector<ImageView>& views, const Ima
   if (s_->needs_rects()) {
     s_->rect_fuse(s_->device_views(images), s_->device_view(canvas));
   } else {
-    stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), canvas, s_->stream.get());
+    stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), canvas, s_->stream.get(), nullptr,
+                             nullptr, s_->fuse_tiles());
   }
   // Invert the (scale + translation) affine: dst pixel -> canvas pixel.
   const double a = canvas_to_output[0], b = canvas_to_output[1], c = canvas_to_output[2];
@@ -245,7 +258,8 @@ void CudaComposer::fuse(const std::vector<ImageView>& views, const ImageView& ou
   if (s_->needs_rects()) {
     s_->rect_fuse(s_->device_views(images), s_->device_view(d));
   } else {
-    stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), d, s_->stream.get());
+    stitch_cuda::launch_fuse(int(images.size()), s_->views.data(), images.data(), d, s_->stream.get(), nullptr, nullptr,
+                             s_->fuse_tiles());
   }
   s_->finish(out, d);
 }
