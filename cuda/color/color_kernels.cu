@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <cstdint>
 #include <stdexcept>
 #include <string>
 
@@ -11,12 +12,8 @@ namespace {
 
 // ---- Apply ----
 
-__global__ void apply_batch_kernel(const __grid_constant__ ColorApplyBatch batch, const uint8_t* lut) {
-  const ColorApplyView& view = batch.views[blockIdx.z];
-  const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
-  if (x >= view.width || y >= view.height) return;
-  uchar4* p = reinterpret_cast<uchar4*>(view.data + size_t(y) * view.pitch) + x;
-  uchar4 c = *p;
+// One pixel through a view's 3x3 (with the highlight knee) and the LUT.
+__device__ __forceinline__ uchar4 apply_pixel(uchar4 c, const ColorApplyView& view, int knee, const uint8_t* lut) {
   if (view.has_matrix) {
     const uchar4 in = c;
     const float* M = view.M;
@@ -25,7 +22,7 @@ __global__ void apply_batch_kernel(const __grid_constant__ ColorApplyBatch batch
     c.y = uint8_t(fminf(fmaxf(r * M[1] + g * M[4] + b * M[7] + 0.5f, 0.f), 255.f));
     c.z = uint8_t(fminf(fmaxf(r * M[2] + g * M[5] + b * M[8] + 0.5f, 0.f), 255.f));
     // stitch::highlight_blend: clipped highlights keep their input.
-    const int k = batch.highlight_knee, m = max(max(int(in.x), int(in.y)), int(in.z));
+    const int k = knee, m = max(max(int(in.x), int(in.y)), int(in.z));
     if (k < 255 && m > k) {
       const float w = __fdiv_rn(float(m - k), float(255 - k));
       c.x = uint8_t(__fadd_rn(__fadd_rn(float(c.x), __fmul_rn(w, float(int(in.x) - int(c.x)))), 0.5f));
@@ -38,7 +35,25 @@ __global__ void apply_batch_kernel(const __grid_constant__ ColorApplyBatch batch
     c.y = lut[256 + c.y];
     c.z = lut[512 + c.z];
   }
-  *p = c;
+  return c;
+}
+
+// kPixels consecutive pixels per thread; 4: one 16-byte load and store (rows 16-byte aligned).
+template <int kPixels>
+__global__ void apply_batch_kernel(const __grid_constant__ ColorApplyBatch batch, const uint8_t* lut) {
+  const ColorApplyView& view = batch.views[blockIdx.z];
+  const int x = (blockIdx.x * blockDim.x + threadIdx.x) * kPixels, y = blockIdx.y * blockDim.y + threadIdx.y;
+  if (x >= view.width || y >= view.height) return;
+  uchar4* p = reinterpret_cast<uchar4*>(view.data + size_t(y) * view.pitch) + x;
+  if (kPixels == 4 && x + 4 <= view.width) {
+    uint4 q = *reinterpret_cast<uint4*>(p);
+    uchar4* c = reinterpret_cast<uchar4*>(&q);
+#pragma unroll
+    for (int k = 0; k < 4; ++k) c[k] = apply_pixel(c[k], view, batch.highlight_knee, lut);
+    *reinterpret_cast<uint4*>(p) = q;
+    return;
+  }
+  for (int k = 0; k < kPixels && x + k < view.width; ++k) p[k] = apply_pixel(p[k], view, batch.highlight_knee, lut);
 }
 
 __global__ void gather_kernel(const uint8_t* data, size_t pitch, const int32_t* xy, int count, uint8_t* out) {
@@ -412,8 +427,18 @@ void launch_color_apply_batch(const ColorApplyBatch& batch, const uint8_t* lut, 
     height = batch.views[i].height > height ? batch.views[i].height : height;
   }
   if (batch.count <= 0 || batch.count > kColorApplyMaxViews || width <= 0 || height <= 0) return;
-  const dim3 block(32, 8), grid((width + 31) / 32, (height + 7) / 8, batch.count);
-  apply_batch_kernel<<<grid, block, 0, stream>>>(batch, lut);
+  // Four pixels a thread where every row starts on 16 bytes: fewer, wider memory operations
+  // and the index arithmetic once per four pixels.
+  bool aligned = true;
+  for (int i = 0; i < batch.count; ++i)
+    aligned = aligned && reinterpret_cast<uintptr_t>(batch.views[i].data) % 16 == 0 && batch.views[i].pitch % 16 == 0;
+  if (aligned) {
+    const dim3 block(32, 8), grid((width + 127) / 128, (height + 7) / 8, batch.count);
+    apply_batch_kernel<4><<<grid, block, 0, stream>>>(batch, lut);
+  } else {
+    const dim3 block(32, 8), grid((width + 31) / 32, (height + 7) / 8, batch.count);
+    apply_batch_kernel<1><<<grid, block, 0, stream>>>(batch, lut);
+  }
   check_launch("color apply kernel");
 }
 
