@@ -194,11 +194,31 @@ TEST(CanvasHelpers, CanvasShrunkToTheOutputItIsShownAt) {
   // A full sphere shown at half size: half the canvas, still closing at the wrap, still 2:1.
   Rig sphere = testdata::dual_fisheye_rig(240, 200);
   ASSERT_TRUE(sphere.canvas_wrap);
-  const int sw = sphere.canvas_width;
-  EXPECT_NEAR(shrink_canvas_to_output(sphere, sw / 2, sw / 4, CropMode::None), 0.5, 1e-9);
-  EXPECT_EQ(sphere.canvas_width, sw / 2);
-  EXPECT_NEAR(sphere.canvas_height, sw / 4, 1);  // even
+  const int sw = sphere.canvas_width, half = (sw / 2 + 3) / 4 * 4;  // 2:1 with even sides: width a multiple of 4
+  EXPECT_NEAR(shrink_canvas_to_output(sphere, sw / 2, sw / 4, CropMode::None), double(half) / sw, 1e-9);
+  EXPECT_EQ(sphere.canvas_width, half);
+  EXPECT_EQ(sphere.canvas_height, half / 2);
   EXPECT_TRUE(sphere.canvas_wrap);
+  // Any output size: still exactly 2:1 with both sides even (a 360 player reads the latitude
+  // from the height; an odd height would be padded by a row).
+  for (int out_w : {1000, 998, 642, 333}) {
+    Rig r = testdata::dual_fisheye_rig(240, 200);
+    shrink_canvas_to_output(r, out_w, 0, CropMode::None);
+    EXPECT_EQ(r.canvas_width, 2 * r.canvas_height) << out_w;
+    EXPECT_EQ(r.canvas_height % 2, 0) << out_w;
+  }
+}
+
+// A full sphere's canvas is laid out 2:1 with both sides even, whatever the lens and focal
+// length (fisheyes of 190-220 degrees gave 1210x605 and 1094x547 before: an odd height).
+TEST(CanvasHelpers, FullSphereIsTwoToOneWithEvenSides) {
+  for (int side : {240, 250, 256, 300, 333, 640})
+    for (double fov : {190.0, 200.0, 210.0, 220.0}) {
+      const Rig rig = testdata::dual_fisheye_rig(side, fov);
+      ASSERT_TRUE(rig.canvas_wrap);
+      EXPECT_EQ(rig.canvas_width, 2 * rig.canvas_height) << side << " " << fov;
+      EXPECT_EQ(rig.canvas_height % 2, 0) << side << " " << fov;
+    }
 }
 
 // ---- the session -----------------------------------------------------------------------------

@@ -176,11 +176,15 @@ void fit_canvas(Rig& rig, int width, int height) {
 double shrink_canvas_to_output(Rig& rig, int output_width, int output_height, CropMode crop) {
   if ((output_width <= 0 && output_height <= 0) || rig.canvas_width <= 0 || rig.canvas_height <= 0) return 1;
   const double s = plan_output(rig, output_width, output_height, crop).canvas_to_output(0, 0);
-  const int w = std::max(2, 2 * int(std::ceil(rig.canvas_width * s * 0.5)));
+  // A full sphere stays 2:1 with both sides even (its width a multiple of 4).
+  const bool full_sphere = rig.canvas_wrap && rig.projection_kind() == Projection::Spherical &&
+                           rig.canvas_width == 2 * rig.canvas_height;
+  const int quantum = full_sphere ? 4 : 2;
+  const int w = std::max(quantum, quantum * int(std::ceil(rig.canvas_width * s / quantum)));
   if (!(s > 0) || w >= rig.canvas_width) return 1;
   // The width sets the scale (a 360-degree canvas is 2 pi * canvas_scale wide, to the pixel).
   const double sw = double(w) / rig.canvas_width;
-  const int h = std::max(2, 2 * int(std::ceil(rig.canvas_height * sw * 0.5)));
+  const int h = full_sphere ? w / 2 : std::max(2, 2 * int(std::ceil(rig.canvas_height * sw * 0.5)));
   transform_canvas(rig, sw, 0, 0, w, h);  // keeps a 360-degree canvas wrapping: w = sw * width
   return sw;
 }
