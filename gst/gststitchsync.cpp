@@ -533,8 +533,11 @@ static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* cap
                          "property)"),
                         (NULL));
   }
+  /* the rate chosen, not a preference downstream lists first (a videorate branch of a tee) */
+  GstStructure* wanted = gst_structure_new("video/x-raw", "framerate", GST_TYPE_FRACTION, best_n, best_d, NULL);
+  caps = stitch_caps_first_holding(caps, wanted);
+  gst_structure_free(wanted);
   caps = gst_caps_make_writable(caps);
-  caps = gst_caps_truncate(caps);
   GstStructure* s = gst_caps_get_structure(caps, 0);
   gst_structure_fixate_field_nearest_int(s, "width", width);
   gst_structure_fixate_field_nearest_int(s, "height", height);
