@@ -957,3 +957,29 @@ TEST(CalibSession, BundlesWithoutALateCameraAreHeldBeforeTheFirstCalibrationOnly
   loaded.set_config(c);
   EXPECT_FALSE(loaded.waits_for_a_camera(fr));
 }
+
+// A saved calibration is used as saved (probe2): its canvas is the panorama it was written as
+// (after a recalibration, the new canvas fitted into the stream's panorama, with a margin). It
+// used to be laid out again on load, so a round trip changed the output: the office clip's
+// cylindrical calibration saved at 1066x580 came back as a 1066x560 panorama, shifted.
+TEST(CalibSession, LoadFileKeepsTheSavedCanvas) {
+  Rig rig = testdata::shifted_rig(2, 640, 480, 400);  // canvas 1040x480
+  const int margin = 12;
+  Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
+  T(0, 2) = margin;
+  T(1, 2) = margin;
+  for (auto& cam : rig.cameras) cam.homography = T * *cam.homography;
+  rig.canvas_width += 2 * margin;
+  rig.canvas_height += 2 * margin;
+  const std::string path = testdata::temp_dir() + "/saved_with_margin.json";
+  rig_save(rig, path);
+  SessionConfig c = quick();
+  c.load_file = path;
+  CalibSession s;
+  s.set_config(c);
+  feed(s, 0, crops(2));
+  ASSERT_TRUE(s.current());
+  EXPECT_EQ(s.current()->canvas_width, 1040 + 2 * margin);
+  EXPECT_EQ(s.current()->canvas_height, 480 + 2 * margin);
+  EXPECT_NEAR((*s.current()->cameras[0].homography)(1, 2), double(margin), 1e-9);
+}

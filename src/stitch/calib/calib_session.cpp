@@ -681,10 +681,16 @@ bool CalibSession::load_file(uint64_t missing) {
   }
   for (std::size_t i = 0; i < sizes_.size() && i < 64; ++i)
     if (missing >> i & 1) sizes_[i] = {rig.cameras[i].width, rig.cameras[i].height};
-  if (rig_adapt_to_sizes(rig, sizes_))
-    warn("The calibration was made for other frame sizes; it was scaled to the streams");
+  const bool adapted = rig_adapt_to_sizes(rig, sizes_);
+  if (adapted) warn("The calibration was made for other frame sizes; it was scaled to the streams");
   try {
-    rig_layout_canvas(rig);
+    // Laid out on a copy: that checks the geometry (degenerate homographies, grazing views). A
+    // calibration used at the sizes it was made for keeps its own canvas, the panorama it was
+    // saved as (a recalibration fitted into the stream's size): laid out again, a cylindrical
+    // office rig saved at 1066x580 came back as a 1066x560 panorama.
+    Rig laid = rig;
+    rig_layout_canvas(laid);
+    if (adapted) rig = std::move(laid);
   } catch (const std::exception& e) {
     fail(std::string("load-file: ") + e.what());
     return false;
