@@ -76,6 +76,14 @@ FrameQuality assess_frame(const ImageView& v) {
   if (s < 1.0) cv::resize(rgba, small, cv::Size(), s, s, cv::INTER_AREA);
   else small = rgba;
   cv::cvtColor(small, grey, cv::COLOR_RGBA2GRAY);
+  {
+    std::uint64_t h = 1469598103934665603ull;  // FNV-1a over the grey copy
+    for (int y = 0; y < grey.rows; ++y) {
+      const uint8_t* r = grey.ptr<uint8_t>(y);
+      for (int x = 0; x < grey.cols; ++x) h = (h ^ r[x]) * 1099511628211ull;
+    }
+    q.picture = h;
+  }
   cv::Scalar mean, dev;
   cv::meanStdDev(grey, mean, dev);
   q.mean_luma = mean[0];
@@ -830,11 +838,19 @@ std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bo
     FrameQuality q = assess_frame(views[i]);
     // A broken keyframe lasts until the next keyframe (a GOP, 1-2 s); a "tear" at the same row
     // for longer is the picture's own (the column rules and text lines of a newspaper, a still).
+    // The same picture again (a still: imagefreeze, a JPEG repeated) never heals by waiting, and
+    // a camera's GOP after a broken keyframe is not bit-identical (noise, motion): its tear is
+    // the picture's own at once. (Stills of a bridge and a newspaper, 1.2 s of imagefreeze each,
+    // ended with "could not calibrate ... camera 0 is corrupt (a torn picture)"; longer ones lost
+    // their first 3 s.)
     Tear& t = tears_[i];
     if (q.verdict == FrameVerdict::Corrupt) {
-      if (t.since_s < 0 || std::abs(q.tear_row - t.row) >= 0.02) t.since_s = now_;
+      const bool same_row = t.since_s >= 0 && std::abs(q.tear_row - t.row) < 0.02;
+      const bool same_picture = same_row && q.picture == t.picture;
+      if (!same_row) t.since_s = now_;
       t.row = q.tear_row;
-      if (now_ - t.since_s >= kTearIsContentAfterS) q.verdict = FrameVerdict::Good;
+      t.picture = q.picture;
+      if (same_picture || now_ - t.since_s >= kTearIsContentAfterS) q.verdict = FrameVerdict::Good;
     } else {
       t.since_s = -1;
     }

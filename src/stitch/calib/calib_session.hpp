@@ -36,6 +36,7 @@ struct FrameQuality {
   int corners = 0;        // FAST corners on the same image
   double tear = 0;        // strongest row discontinuity against its neighbourhood (corrupt frames)
   double tear_row = 0;    // where it is, as a fraction of the height
+  std::uint64_t picture = 0;  // fingerprint of the grey copy: equal for the same picture again (a still)
   double score() const;   // larger is better (for picking among good frames)
   std::string describe() const;  // "dark (mean luma 3)", ...
 };
@@ -315,6 +316,7 @@ class CalibSession {
   struct Tear {
     double row = 0;
     double since_s = -1;  // running time; -1: the last check found no tear
+    std::uint64_t picture = 0;  // FrameQuality::picture of the last torn frame
   };
   std::vector<Tear> tears_;
   static constexpr double kTearIsContentAfterS = 3.0;
