@@ -2,6 +2,8 @@
 // how long it keeps trying, what it says, and canvases that equal the panorama.
 #include <gtest/gtest.h>
 
+#include <fstream>
+
 #include <opencv2/imgproc.hpp>
 
 #include "stitch/calib/calib_session.hpp"
@@ -1010,4 +1012,28 @@ TEST(CalibSession, LoadFileKeepsTheSavedCanvas) {
   EXPECT_EQ(s.current()->canvas_width, 1040 + 2 * margin);
   EXPECT_EQ(s.current()->canvas_height, 480 + 2 * margin);
   EXPECT_NEAR((*s.current()->cameras[0].homography)(1, 2), double(margin), 1e-9);
+}
+
+// The session warns about them, naming the file and the field (rig-file and load-file).
+TEST(CalibSession, UnknownRigFieldsAreWarnedAbout) {
+  Rig rig = testdata::shifted_rig(2, 640, 480, 400);
+  std::string text = rig_to_json_string(rig);
+  const std::size_t at = text.find("\"fx\"");
+  ASSERT_NE(at, std::string::npos);
+  text.insert(at, "\"yaw\": 12, ");
+  const std::string path = testdata::temp_dir() + "/typo_rig.json";
+  {
+    std::ofstream(path) << text;
+  }
+  SessionConfig c = quick();
+  c.load_file = path;
+  CalibSession s;
+  s.set_config(c);
+  const auto events = feed(s, 0, crops(2));
+  ASSERT_TRUE(s.current());
+  const SessionEvent* w = find(events, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("typo_rig.json\": ignored a field it does not know: camera 0: \"yaw\" (did you mean \"yaw_deg\"?)"),
+            std::string::npos)
+      << w->text;
 }

@@ -664,6 +664,13 @@ void CalibSession::forget_calibration() {
   last_pending_at_ = -1e9;
 }
 
+void CalibSession::warn_unknown_fields(const std::string& property, const std::string& path, const Rig& rig) {
+  if (rig.unknown_fields.empty()) return;
+  std::string list;
+  for (const auto& f : rig.unknown_fields) list += (list.empty() ? "" : "; ") + f;
+  warn(property + " \"" + path + "\": ignored " + (rig.unknown_fields.size() > 1 ? "fields it does not know: " : "a field it does not know: ") + list);
+}
+
 bool CalibSession::load_file(uint64_t missing) {
   const SessionConfig& s = config_;
   Rig rig;
@@ -673,6 +680,7 @@ bool CalibSession::load_file(uint64_t missing) {
     fail(e.what());
     return false;
   }
+  warn_unknown_fields("load-file", s.load_file, rig);
   if (s.projection && rig.projection != projection_name(*s.projection))
     warn("load-file \"" + s.load_file + "\" holds a " + rig.projection + " calibration; projection=" +
          projection_name(*s.projection) + " applies to estimation only, the file is used as is");
@@ -728,6 +736,7 @@ bool CalibSession::load_rough() {
   }
   rough_from_ = s.rig_file;
   rough_sizes_ = sizes_;
+  warn_unknown_fields("rig-file", s.rig_file, *rough_);
   if (rough_->cameras.size() != sizes_.size()) {
     fail("rig-file \"" + s.rig_file + "\" describes " + std::to_string(rough_->cameras.size()) + " cameras but " +
          std::to_string(sizes_.size()) + " streams are connected");

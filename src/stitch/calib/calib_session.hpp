@@ -278,6 +278,7 @@ class CalibSession {
   // needs no pixels, so it is used at once, and the late cameras join it)
   bool load_file(uint64_t missing = 0);
   bool load_rough();
+  void warn_unknown_fields(const std::string& property, const std::string& path, const Rig& rig);
   void install(CalibReport report, CalibrationResult* result);
   void start_window(JobKind kind);
   std::shared_ptr<CalibJob> make_job(JobKind kind);
