@@ -841,6 +841,7 @@ std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bo
                                          std::uint64_t skip) {
   std::string problem;
   double worst = 1e300;
+  bool torn_only = true;
   tears_.resize(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
     if (bit(skip, i)) continue;
@@ -859,16 +860,18 @@ std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bo
       if (!same_row) t.since_s = now_;
       t.row = q.tear_row;
       t.picture = q.picture;
-      if (same_picture || now_ - t.since_s >= kTearIsContentAfterS) q.verdict = FrameVerdict::Good;
+      if (same_picture || accept_torn_ || now_ - t.since_s >= kTearIsContentAfterS) q.verdict = FrameVerdict::Good;
     } else {
       t.since_s = -1;
     }
     const bool bad = q.verdict == FrameVerdict::Dark || q.verdict == FrameVerdict::Corrupt ||
                      (features_needed && q.verdict != FrameVerdict::Good);
     if (bad) problem += (problem.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " is " + q.describe();
+    if (bad && q.verdict != FrameVerdict::Corrupt) torn_only = false;
     worst = std::min(worst, q.verdict == FrameVerdict::Good ? q.score() : 0.0);
   }
   if (score) *score = views.empty() ? 0 : worst;
+  torn_only_ = !problem.empty() && torn_only;
   return problem;
 }
 
@@ -930,6 +933,7 @@ bool CalibSession::wants_pixels(const Frame& frame) {
 
 std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::vector<ImageView>& views) {
   note_time(frame.time_s);
+  torn_only_ = false;
   if (failed_) return nullptr;
   if (!handle_sizes(frame)) return nullptr;
   const bool have_pixels = !views.empty() && views.size() == frame.sizes.size();

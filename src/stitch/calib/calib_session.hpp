@@ -251,6 +251,12 @@ class CalibSession {
   // The stream ended: an error when no calibration was ever made.
   void on_eos();
   void request_recalibration() { recalibrate_requested_ = true; }
+  // Whether the last bundle was kept from the first calibration by torn pictures alone (every
+  // camera delivered; each refused one was "corrupt"). At the end of a stream such a picture is
+  // the camera's last (two photos given as one-frame streams): accept_torn_pictures() then takes
+  // tears as the pictures' own for the next bundle.
+  bool last_bundle_torn_only() const { return torn_only_; }
+  void accept_torn_pictures() { accept_torn_ = true; }
   // Stop: forgets everything (and any job in flight).
   void reset();
 
@@ -320,6 +326,8 @@ class CalibSession {
     std::uint64_t picture = 0;  // FrameQuality::picture of the last torn frame
   };
   std::vector<Tear> tears_;
+  bool torn_only_ = false;    // last_bundle_torn_only()
+  bool accept_torn_ = false;  // accept_torn_pictures()
   static constexpr double kTearIsContentAfterS = 3.0;
   std::optional<Rig> rough_;
   std::string rough_from_;
