@@ -116,6 +116,9 @@ struct BlendState {
   std::vector<std::array<int, 2>> camera_sizes; /* of the rig the compositor was made for */
   GstVideoInfo out_info;
   GstBufferPool* pool = nullptr;
+  /* set_caps took a panorama size other than the compositor's (downstream renegotiated): the
+   * next bundle fits the panorama into it, so that the pool, the caps and the frame agree */
+  bool refit = false;
   bool in_cuda = false;   /* negotiated bundles in CUDA memory */
   bool out_cuda = false;  /* negotiated a panorama in CUDA memory */
   StitchCudaContext cuda;
@@ -236,9 +239,9 @@ static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDire
                                              GstCaps* caps, GstCaps* othercaps) {
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
   /* Prefer CUDA memory wherever downstream takes it, whatever order it lists it in. */
-  othercaps = gst_caps_truncate(stitch_caps_prefer_cuda(othercaps, TRUE));
-  if (direction == GST_PAD_SINK) {
-    GstStructure* out = gst_caps_get_structure(othercaps, 0);
+  othercaps = stitch_caps_prefer_cuda(othercaps, TRUE);
+  if (direction != GST_PAD_SINK) return gst_caps_fixate(gst_caps_truncate(othercaps));
+  {
     gint w = 0, h = 0;
     if (self->state->compositor && self->state->compositor->prepared()) {
       /* renegotiation: keep the geometry we already output */
@@ -256,6 +259,14 @@ static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDire
       h = self->state->settings.output_height > 0 ? self->state->settings.output_height : vh;
       GST_OBJECT_UNLOCK(self);
     }
+    /* Downstream may list a size it prefers before the range it takes (videoscale asked for
+     * 640x360): truncating first replaced the panorama's size with videoscale's preference on
+     * renegotiation, and the frames no longer matched the caps. */
+    GstStructure* ours = gst_structure_new("video/x-raw", "width", G_TYPE_INT, MAX(w, 2), "height", G_TYPE_INT,
+                                           MAX(h, 2), NULL);
+    othercaps = stitch_caps_first_holding(othercaps, ours);
+    gst_structure_free(ours);
+    GstStructure* out = gst_caps_get_structure(othercaps, 0);
     gst_structure_fixate_field_nearest_int(out, "width", MAX(w, 2));
     gst_structure_fixate_field_nearest_int(out, "height", MAX(h, 2));
     gst_structure_set(out, "pixel-aspect-ratio", GST_TYPE_FRACTION, 1, 1, NULL);
@@ -274,7 +285,18 @@ static gboolean gst_stitch_blend_set_caps(GstBaseTransform* trans, GstCaps* inca
     st->out_cuda = out_cuda;
   }
   if ((in_cuda || out_cuda) && !st->cuda.ensure(GST_ELEMENT(self))) return FALSE;
-  return gst_video_info_from_caps(&st->out_info, outcaps);
+  if (!gst_video_info_from_caps(&st->out_info, outcaps)) return FALSE;
+  /* A panorama size other than the one made (downstream renegotiated to a size it fixes): the
+   * next bundle fits the panorama into it; frames of the old size must never go out with these caps. */
+  if (st->compositor && st->compositor->prepared() &&
+      (st->compositor->geometry().width != GST_VIDEO_INFO_WIDTH(&st->out_info) ||
+       st->compositor->geometry().height != GST_VIDEO_INFO_HEIGHT(&st->out_info))) {
+    GST_INFO_OBJECT(self, "downstream renegotiated the panorama to %dx%d (it was %dx%d): fitting it in",
+                    GST_VIDEO_INFO_WIDTH(&st->out_info), GST_VIDEO_INFO_HEIGHT(&st->out_info),
+                    st->compositor->geometry().width, st->compositor->geometry().height);
+    st->refit = true;
+  }
+  return TRUE;
 }
 
 static void gst_stitch_blend_set_context(GstElement* element, GstContext* context) {
@@ -290,15 +312,23 @@ static gboolean answer_output_size(GstStitchBlend* self, GstQuery* query) {
   const gint crop = int(self->state->settings.crop);
   GST_OBJECT_UNLOCK(self);
   if (w <= 0 && h <= 0) {
+    /* a size downstream fixes: every structure it takes has that one size. A size it merely
+     * lists first (videoscale asked for 640x360 takes any size; a tee with such a branch) is a
+     * preference: the panorama is made whole and scaled there. */
     GstCaps* peer = gst_pad_peer_query_caps(GST_BASE_TRANSFORM_SRC_PAD(self), NULL);
-    for (guint i = 0; peer && !gst_caps_is_any(peer) && i < gst_caps_get_size(peer); ++i) {
+    gint fw = 0, fh = 0;
+    bool fixed = peer && !gst_caps_is_any(peer) && !gst_caps_is_empty(peer);
+    for (guint i = 0; fixed && i < gst_caps_get_size(peer); ++i) {
       const GstStructure* st = gst_caps_get_structure(peer, i);
       gint cw = 0, ch = 0;
-      if (gst_structure_get_int(st, "width", &cw) && gst_structure_get_int(st, "height", &ch)) {
-        w = cw;
-        h = ch;
-        break;
-      }
+      fixed = gst_structure_get_int(st, "width", &cw) && gst_structure_get_int(st, "height", &ch) &&
+              (i == 0 || (cw == fw && ch == fh));
+      fw = cw;
+      fh = ch;
+    }
+    if (fixed) {
+      w = fw;
+      h = fh;
     }
     if (peer) gst_caps_unref(peer);
   }
@@ -413,7 +443,9 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
   const guint memory_limit_mib = st->memory_limit_mib;
   st->settings_changed = false;
   GST_OBJECT_UNLOCK(self);
-  if (st->compositor && meta->version == st->rig_version && !settings_changed &&
+  const bool refit = st->refit;
+  st->refit = false;
+  if (st->compositor && meta->version == st->rig_version && !settings_changed && !refit &&
       st->compositor->input() == input)
     return TRUE;
 
@@ -427,6 +459,11 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
      * or changed resolution) were calibrated from scratch: their canvas is the panorama. */
     effective.output_width = st->compositor->geometry().width;
     effective.output_height = st->compositor->geometry().height;
+  }
+  if (refit) {
+    /* the size downstream renegotiated to: the panorama is fitted into it (letterboxed) */
+    effective.output_width = GST_VIDEO_INFO_WIDTH(&st->out_info);
+    effective.output_height = GST_VIDEO_INFO_HEIGHT(&st->out_info);
   }
   const bool device_memory = st->in_cuda || st->out_cuda;
   if (device_memory && settings.backend == stitch::Backend::Cpu)
@@ -503,6 +540,28 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
     return FALSE;
   }
   return TRUE;
+}
+
+/* The panorama's geometry (and size) is settled before GstBaseTransform renegotiates for the
+ * bundle: a new size set with update_src_caps is then negotiated, allocation query included,
+ * before the first panorama of that size goes out. Settled later (in prepare_output_buffer), the
+ * allocation query came with the second panorama, while a sink behind a tee and a queue had
+ * prerolled on the first and another branch (videorate) was still waiting for its second: the
+ * query could never be answered and the pipeline hung in PAUSED. */
+static GstFlowReturn gst_stitch_blend_submit_input_buffer(GstBaseTransform* trans, gboolean is_discont,
+                                                          GstBuffer* input) {
+  GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  GstStitchRigMeta* meta = gst_buffer_get_stitch_rig_meta(input);
+  if (meta && meta->rig && *meta->rig && gst_pad_has_current_caps(GST_BASE_TRANSFORM_SINK_PAD(trans))) {
+    gboolean ok = FALSE;
+    if (!stitch_guard(GST_ELEMENT(self), "stitchblend: cannot build the panorama geometry",
+                      [&]() { ok = update_geometry(self, meta, gst_buffer_get_stitch_warp_meta(input)); }) ||
+        !ok) {
+      gst_buffer_unref(input);
+      return GST_FLOW_ERROR;
+    }
+  }
+  return GST_BASE_TRANSFORM_CLASS(gst_stitch_blend_parent_class)->submit_input_buffer(trans, is_discont, input);
 }
 
 static GstFlowReturn gst_stitch_blend_prepare_output_buffer(GstBaseTransform* trans,
@@ -735,6 +794,7 @@ static void gst_stitch_blend_class_init(GstStitchBlendClass* klass) {
   trans_class->transform_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform_caps);
   trans_class->fixate_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_fixate_caps);
   trans_class->set_caps = GST_DEBUG_FUNCPTR(gst_stitch_blend_set_caps);
+  trans_class->submit_input_buffer = GST_DEBUG_FUNCPTR(gst_stitch_blend_submit_input_buffer);
   trans_class->prepare_output_buffer = GST_DEBUG_FUNCPTR(gst_stitch_blend_prepare_output_buffer);
   trans_class->transform = GST_DEBUG_FUNCPTR(gst_stitch_blend_transform);
   trans_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_blend_sink_event);

@@ -255,6 +255,10 @@ struct CalibState {
     now_s = 0;
   }
 
+  /* Before the first calibration: the last bundle, when torn pictures alone kept it from being
+   * calibrated on (streaming thread). The stream may end on it (two photos as one-frame streams). */
+  GstBuffer* last_torn = nullptr;
+  void forget_torn() { gst_clear_buffer(&last_torn); }
   void cancel_worker() {
     if (worker) worker->cancel = true;
     worker.reset();
@@ -675,11 +679,14 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
                                                               (guint64(1) << n_views) - 1;
   if (!rig || (all_missing && !st->passed_any)) {
     if (!rig && !hold_for_late_camera(self, frame)) return GST_FLOW_FLUSHING;
+    if (!rig && st->session.last_bundle_torn_only()) gst_buffer_replace(&st->last_torn, buf);
+    else st->forget_torn();
     note_drop(self, buf);
     st->session.bundle_dropped();
     post_events(self);
     return GST_BASE_TRANSFORM_FLOW_DROPPED;
   }
+  st->forget_torn();
   gst_buffer_add_stitch_rig_meta(buf, rig, st->session.version());
   if (stitch::any_left_out(*rig)) {
     /* a camera calibrated without (never delivered, or dark): downstream, its view is missing */
@@ -699,13 +706,31 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
   CalibState* st = self->state;
   switch (GST_EVENT_TYPE(event)) {
     case GST_EVENT_FLUSH_START: st->unblock = true; break;
-    case GST_EVENT_FLUSH_STOP: st->unblock = false; break;
+    case GST_EVENT_FLUSH_STOP:
+      st->unblock = false;
+      st->forget_torn();
+      break;
     case GST_EVENT_EOS:
       /* Serialized: the streaming thread owns the session here. A calibration in flight is
        * finished first (a flush or a stop still releases the wait), so that its result is
        * announced and saved. */
       snapshot_settings(st);
       if (st->worker && wait_for_worker(st)) collect_outcome(st);
+      if (!st->session.current() && !st->session.failed() && st->last_torn) {
+        /* The stream ended on torn pictures alone: no later frame can replace them (a photo, a
+         * camera's last frame), so they are taken as the pictures' own and the last bundle is
+         * calibrated on and output (two photos of a bridge as one-frame streams made no
+         * panorama: "camera 0 is corrupt (a torn picture ...)"). */
+        GstBuffer* last = gst_buffer_make_writable(st->last_torn);
+        st->last_torn = nullptr;
+        st->session.accept_torn_pictures();
+        GST_INFO_OBJECT(self, "the stream ended on torn pictures: taken as the cameras' own");
+        if (gst_stitch_calib_transform_ip(trans, last) == GST_FLOW_OK)
+          gst_pad_push(GST_BASE_TRANSFORM_SRC_PAD(trans), last);
+        else
+          gst_buffer_unref(last);
+      }
+      st->forget_torn();
       st->session.on_eos();
       post_events(self);
       save_moved_offsets(self, st->now_s, true);
@@ -743,6 +768,7 @@ static gboolean gst_stitch_calib_stop(GstBaseTransform* trans) {
   CalibState* st = GST_STITCH_CALIB(trans)->state;
   st->cancel_worker();
   st->session.reset();
+  st->forget_torn();
   return TRUE;
 }
 
@@ -853,6 +879,7 @@ static void gst_stitch_calib_get_property(GObject* object, guint prop_id, GValue
 static void gst_stitch_calib_finalize(GObject* object) {
   GstStitchCalib* self = GST_STITCH_CALIB(object);
   self->state->cancel_worker();  // the worker owns what it reads: nothing to wait for
+  self->state->forget_torn();
   delete self->state;
   G_OBJECT_CLASS(gst_stitch_calib_parent_class)->finalize(object);
 }

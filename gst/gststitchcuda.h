@@ -48,6 +48,12 @@ gboolean stitch_caps_are_cuda_memory(const GstCaps* caps);
  * `offer_cuda`, without any otherwise. */
 GstCaps* stitch_caps_prefer_cuda(GstCaps* caps, gboolean offer_cuda);
 
+/* One structure of `caps` (transfer full, non-empty) to fixate: the first whose fields hold every
+ * value of `wanted` (the size or rate the element means to output), else the first. Downstream
+ * often lists a preference before the range it takes (videoscale asked for 640x360, videorate
+ * for 10/1): truncating to the first structure would take the preference as a constraint. */
+GstCaps* stitch_caps_first_holding(GstCaps* caps, const GstStructure* wanted);
+
 /* transform_caps of the elements whose two sides share one memory: `caps` (transfer none) as
  * they are, CUDA memory first or left out (stitch_caps_prefer_cuda), intersected with `filter`. */
 GstCaps* stitch_caps_same_memory(GstCaps* caps, GstCaps* filter, gboolean offer_cuda);

@@ -282,6 +282,10 @@ static GstPad* gst_stitch_sync_request_new_pad(GstElement* element, GstPadTempla
    * would keep the output running forever once every input has ended. */
   GstPad* pad = GST_ELEMENT_CLASS(gst_stitch_sync_parent_class)->request_new_pad(element, templ, name, caps);
   if (pad) {
+    /* ...except before the first bundle: an input that ends before it (a photo, one frame then
+     * EOS, before gst_parse_launch linked the other camera) keeps that frame for it, and is
+     * repeated from there on like any ended input (wait_for_inputs turns this off). */
+    if (!GST_CLOCK_TIME_IS_VALID(self->state->started)) g_object_set(pad, "repeat-after-eos", TRUE, NULL);
     const GstClockTime rt = gst_element_get_current_running_time(element);
     std::lock_guard<std::mutex> guard(self->state->lock);
     pad_state(pad)->requested_rt = rt;
@@ -533,8 +537,11 @@ static GstCaps* gst_stitch_sync_fixate_src_caps(GstAggregator* agg, GstCaps* cap
                          "property)"),
                         (NULL));
   }
+  /* the rate chosen, not a preference downstream lists first (a videorate branch of a tee) */
+  GstStructure* wanted = gst_structure_new("video/x-raw", "framerate", GST_TYPE_FRACTION, best_n, best_d, NULL);
+  caps = stitch_caps_first_holding(caps, wanted);
+  gst_structure_free(wanted);
   caps = gst_caps_make_writable(caps);
-  caps = gst_caps_truncate(caps);
   GstStructure* s = gst_caps_get_structure(caps, 0);
   gst_structure_fixate_field_nearest_int(s, "width", width);
   gst_structure_fixate_field_nearest_int(s, "height", height);
@@ -767,7 +774,13 @@ static GstFlowReturn wait_for_inputs(GstStitchSync* self, const std::vector<GstV
   if (!load_time_offsets(self, pads)) return GST_FLOW_ERROR;
   GST_OBJECT_LOCK(self);
   st->expected.clear();
+  std::vector<GstPad*> all;
+  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) all.push_back(GST_PAD(gst_object_ref(l->data)));
   GST_OBJECT_UNLOCK(self);
+  for (GstPad* p : all) {  /* the first bundle holds every ended input's frame: stitchsync repeats it from here */
+    g_object_set(p, "repeat-after-eos", FALSE, NULL);
+    gst_object_unref(p);
+  }
   /* the others started when the first of them was ready: a camera still silent after
    * dropout-timeout from then is out */
   const GstClockTime waited = GstClockTime(g_get_monotonic_time() - st->first_ready_us) * 1000;

@@ -178,3 +178,26 @@ TEST(RigAdapt, ScalingToStreamSizeKeepsGeometry) {
   EXPECT_LT((a - b).norm(), 1e-6);
   EXPECT_NEAR(half.cameras[1].fx, 300, 1e-9);
 }
+
+// A field the loader does not know is ignored, but named (probe2: a hand-written rig with
+// `"yaw": 15` instead of "yaw_deg" loaded silently with the camera looking straight ahead).
+TEST(RigJson, UnknownFieldsAreNamedWithTheLikelyOne) {
+  const char* text = R"({ "format": "stitch-rig", "version": 1, "refrence": 1, "canvas_size": 3,
+    "cameras": [ {"width": 640, "height": 480, "fx": 600.0, "yaw_deg": -30.0},
+                 {"width": 640, "height": 480, "fx": 600.0, "yaw": 30.0, "comment": "left door"} ] })";
+  const Rig rig = rig_from_json_string(text);
+  EXPECT_EQ(rig.cameras[1].yaw_deg, 0.0);  // ignored, as before
+  std::string all;
+  for (const auto& f : rig.unknown_fields) all += f + "\n";
+  ASSERT_EQ(rig.unknown_fields.size(), 4u) << all;
+  EXPECT_NE(all.find("camera 1: \"yaw\" (did you mean \"yaw_deg\"?)"), std::string::npos) << all;
+  EXPECT_NE(all.find("\"refrence\" (did you mean \"reference\"?)"), std::string::npos) << all;
+  EXPECT_NE(all.find("camera 1: \"comment\"\n"), std::string::npos) << all;
+  EXPECT_NE(all.find("\"canvas_size\" (did you mean \"canvas\"?)"), std::string::npos) << all;
+  // What rig_save writes is all known.
+  Rig full = two_camera_rig(10);
+  full.cameras[0].t = Eigen::Vector3d(0.1, 0, 0);
+  full.cameras[1].time_offset_ns = 5;
+  rig_compute_rough_homographies(full);
+  EXPECT_TRUE(rig_from_json_string(rig_to_json_string(full)).unknown_fields.empty());
+}

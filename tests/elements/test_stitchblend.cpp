@@ -161,6 +161,41 @@ TEST(StitchBlend, DownstreamFixedSizeGetsThePanoramaFitted) {
   EXPECT_EQ(cv::norm(asked.frames[0], pano, cv::NORM_INF), 0.0);
 }
 
+// `stitchblend ! videoscale ! video/x-raw,width=640,height=360` (probe2: a new user scaling the
+// panorama down): videoscale prefers the size it is asked for but takes any. stitchblend fitted
+// the canvas to it (640x296) and then, renegotiating, let videoscale's preferred 640x360 replace
+// the panorama's caps: a GStreamer-CRITICAL (info->height <= meta->height) and "Cannot map the
+// output frame", no panorama at all. The panorama goes out whole and videoscale scales it.
+TEST(StitchBlend, VideoscaleAfterTheBlendGetsThePanorama) {
+  Scene s = scene();
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain(s, "stitchblend ! videoscale ! video/x-raw,width=640,height=360"), s.views, 3, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_EQ(r.frames.size(), 3u);
+  const cv::Mat& pano = r.frames[2];
+  ASSERT_EQ(pano.cols, 640);
+  ASSERT_EQ(pano.rows, 360);
+  cv::Mat expected;
+  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(640, 360), 0, 0, cv::INTER_AREA);
+  cv::Mat gray;
+  cv::cvtColor(pano, gray, cv::COLOR_RGBA2GRAY);
+  EXPECT_GT(cv::countNonZero(gray.row(180)), 600) << "the scene is missing";
+  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(8, 8, 624, 344)), expected(cv::Rect(8, 8, 624, 344))), 20.0);
+  // A tee whose second branch scales and decimates (videorate ! 10/1 ! videoscale ! 640x360)
+  // lists those as its preferences too: the first branch used to get a 640x296 panorama at
+  // 10 fps. It gets the whole panorama at the cameras' rate.
+  gsttest::RunResult t;
+  gsttest::run_pipeline("stitchsync name=s ! stitchcalib load-file=" + s.calib +
+                            " ! stitchblend ! tee name=t ! queue ! appsink name=out sync=false t. ! queue ! videorate ! "
+                            "video/x-raw,framerate=10/1 ! videoscale ! video/x-raw,width=640,height=360 ! fakesink" +
+                            gsttest::appsrc_inputs(2),
+                        s.views, 6, t);
+  ASSERT_TRUE(t.errors.empty()) << t.errors[0];
+  ASSERT_EQ(t.frames.size(), 6u) << "not the cameras' 30 fps";
+  EXPECT_EQ(t.frames[5].cols, 1040);
+  EXPECT_EQ(t.frames[5].rows, 480);
+}
+
 // A size that cannot be met (odd: panoramas have even sizes) fails with stitchblend's own message.
 TEST(StitchBlend, DownstreamSizeItCannotMakeIsAClearError) {
   Scene s = scene();

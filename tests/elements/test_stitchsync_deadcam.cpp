@@ -384,3 +384,66 @@ TEST(StitchSyncDeadCamera, LivePadAddedLaterIsCountedFromWhenItWasAdded) {
   EXPECT_GE(ms, 300) << dropped;
   EXPECT_LT(ms, 1200) << dropped << ": counted from the stream's start, not from when the pad was added";
 }
+
+namespace {
+GstPadProbeReturn count_views(GstPad*, GstPadProbeInfo* info, gpointer data) {
+  auto* c = static_cast<std::vector<guint64>*>(data);
+  gpointer state = nullptr;
+  while (GstMeta* m = gst_buffer_iterate_meta(GST_PAD_PROBE_INFO_BUFFER(info), &state))
+    if (g_strcmp0(g_type_name(m->info->api), "GstStitchBundleMetaAPI") == 0)
+      c->push_back(reinterpret_cast<BundleMetaView*>(m)->missing_mask);
+  return GST_PAD_PROBE_OK;
+}
+void push_one(GstElement* src) {
+  GstBuffer* b = gst_buffer_new_allocate(nullptr, 64 * 48 * 4, nullptr);
+  gst_buffer_memset(b, 0, 120, 64 * 48 * 4);
+  GST_BUFFER_PTS(b) = 0;
+  gst_app_src_push_buffer(GST_APP_SRC(src), b);
+  gst_app_src_end_of_stream(GST_APP_SRC(src));
+}
+}  // namespace
+
+// Two photos as cameras (probe2: `filesrc location=a.jpg ! decodebin ! s.sink_0 filesrc
+// location=b.jpg ! decodebin ! s.sink_1`): each is one frame, then EOS, and gst_parse_launch links
+// the second decodebin only when it has decoded. When the first had ended before that, the run
+// ended with no bundle at all (every pad there was had ended), or with the first photo missing
+// ("camera 0 has not delivered a frame yet"). The first bundle holds both photos.
+TEST(StitchSyncDeadCamera, APhotoThatEndsBeforeTheOtherIsLinkedIsInTheBundle) {
+  const std::string caps = "caps=video/x-raw,format=RGBA,width=64,height=48,framerate=0/1";
+  const std::string desc = "stitchsync name=s ! fakesink name=out sync=false appsrc name=a0 format=time " + caps +
+                           " ! s.sink_0 appsrc name=a1 format=time " + caps + " ! decodebin ! s.sink_1";
+  GError* err = nullptr;
+  GstElement* pipe = gst_parse_launch(desc.c_str(), &err);
+  ASSERT_NE(pipe, nullptr) << (err ? err->message : "");
+  GstElement* a0 = gst_bin_get_by_name(GST_BIN(pipe), "a0");
+  GstElement* a1 = gst_bin_get_by_name(GST_BIN(pipe), "a1");
+  GstElement* out = gst_bin_get_by_name(GST_BIN(pipe), "out");
+  std::vector<guint64> bundles;
+  GstPad* pad = gst_element_get_static_pad(out, "sink");
+  gst_pad_add_probe(pad, GST_PAD_PROBE_TYPE_BUFFER, count_views, &bundles, nullptr);
+  gst_object_unref(pad);
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  push_one(a0);
+  g_usleep(200000);  // the first photo has ended; the second is not decoded (nor linked) yet
+  push_one(a1);
+  GstBus* bus = gst_element_get_bus(pipe);
+  GstMessage* m = gst_bus_timed_pop_filtered(bus, 20 * GST_SECOND, GstMessageType(GST_MESSAGE_EOS | GST_MESSAGE_ERROR));
+  ASSERT_NE(m, nullptr) << "no end";
+  std::string error;
+  if (GST_MESSAGE_TYPE(m) == GST_MESSAGE_ERROR) {
+    GError* e = nullptr;
+    gst_message_parse_error(m, &e, nullptr);
+    error = e->message;
+    g_error_free(e);
+  }
+  gst_message_unref(m);
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_object_unref(bus);
+  gst_object_unref(out);
+  gst_object_unref(a0);
+  gst_object_unref(a1);
+  gst_object_unref(pipe);
+  EXPECT_TRUE(error.empty()) << error;
+  ASSERT_FALSE(bundles.empty()) << "the stream ended before the second photo came";
+  EXPECT_EQ(bundles[0], 0u) << "a photo is missing from the first bundle";
+}

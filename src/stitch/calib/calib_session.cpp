@@ -76,6 +76,14 @@ FrameQuality assess_frame(const ImageView& v) {
   if (s < 1.0) cv::resize(rgba, small, cv::Size(), s, s, cv::INTER_AREA);
   else small = rgba;
   cv::cvtColor(small, grey, cv::COLOR_RGBA2GRAY);
+  {
+    std::uint64_t h = 1469598103934665603ull;  // FNV-1a over the grey copy
+    for (int y = 0; y < grey.rows; ++y) {
+      const uint8_t* r = grey.ptr<uint8_t>(y);
+      for (int x = 0; x < grey.cols; ++x) h = (h ^ r[x]) * 1099511628211ull;
+    }
+    q.picture = h;
+  }
   cv::Scalar mean, dev;
   cv::meanStdDev(grey, mean, dev);
   q.mean_luma = mean[0];
@@ -660,6 +668,13 @@ void CalibSession::forget_calibration() {
   last_pending_at_ = -1e9;
 }
 
+void CalibSession::warn_unknown_fields(const std::string& property, const std::string& path, const Rig& rig) {
+  if (rig.unknown_fields.empty()) return;
+  std::string list;
+  for (const auto& f : rig.unknown_fields) list += (list.empty() ? "" : "; ") + f;
+  warn(property + " \"" + path + "\": ignored " + (rig.unknown_fields.size() > 1 ? "fields it does not know: " : "a field it does not know: ") + list);
+}
+
 bool CalibSession::load_file(uint64_t missing) {
   const SessionConfig& s = config_;
   Rig rig;
@@ -669,6 +684,7 @@ bool CalibSession::load_file(uint64_t missing) {
     fail(e.what());
     return false;
   }
+  warn_unknown_fields("load-file", s.load_file, rig);
   if (s.projection && rig.projection != projection_name(*s.projection))
     warn("load-file \"" + s.load_file + "\" holds a " + rig.projection + " calibration; projection=" +
          projection_name(*s.projection) + " applies to estimation only, the file is used as is");
@@ -685,10 +701,16 @@ bool CalibSession::load_file(uint64_t missing) {
   }
   for (std::size_t i = 0; i < sizes_.size() && i < 64; ++i)
     if (missing >> i & 1) sizes_[i] = {rig.cameras[i].width, rig.cameras[i].height};
-  if (rig_adapt_to_sizes(rig, sizes_))
-    warn("The calibration was made for other frame sizes; it was scaled to the streams");
+  const bool adapted = rig_adapt_to_sizes(rig, sizes_);
+  if (adapted) warn("The calibration was made for other frame sizes; it was scaled to the streams");
   try {
-    rig_layout_canvas(rig);
+    // Laid out on a copy: that checks the geometry (degenerate homographies, grazing views). A
+    // calibration used at the sizes it was made for keeps its own canvas, the panorama it was
+    // saved as (a recalibration fitted into the stream's size): laid out again, a cylindrical
+    // office rig saved at 1066x580 came back as a 1066x560 panorama.
+    Rig laid = rig;
+    rig_layout_canvas(laid);
+    if (adapted) rig = std::move(laid);
   } catch (const std::exception& e) {
     fail(std::string("load-file: ") + e.what());
     return false;
@@ -718,6 +740,7 @@ bool CalibSession::load_rough() {
   }
   rough_from_ = s.rig_file;
   rough_sizes_ = sizes_;
+  warn_unknown_fields("rig-file", s.rig_file, *rough_);
   if (rough_->cameras.size() != sizes_.size()) {
     fail("rig-file \"" + s.rig_file + "\" describes " + std::to_string(rough_->cameras.size()) + " cameras but " +
          std::to_string(sizes_.size()) + " streams are connected");
@@ -822,26 +845,37 @@ std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bo
                                          std::uint64_t skip) {
   std::string problem;
   double worst = 1e300;
+  bool torn_only = true;
   tears_.resize(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
     if (bit(skip, i)) continue;
     FrameQuality q = assess_frame(views[i]);
     // A broken keyframe lasts until the next keyframe (a GOP, 1-2 s); a "tear" at the same row
     // for longer is the picture's own (the column rules and text lines of a newspaper, a still).
+    // The same picture again (a still: imagefreeze, a JPEG repeated) never heals by waiting, and
+    // a camera's GOP after a broken keyframe is not bit-identical (noise, motion): its tear is
+    // the picture's own at once. (Stills of a bridge and a newspaper, 1.2 s of imagefreeze each,
+    // ended with "could not calibrate ... camera 0 is corrupt (a torn picture)"; longer ones lost
+    // their first 3 s.)
     Tear& t = tears_[i];
     if (q.verdict == FrameVerdict::Corrupt) {
-      if (t.since_s < 0 || std::abs(q.tear_row - t.row) >= 0.02) t.since_s = now_;
+      const bool same_row = t.since_s >= 0 && std::abs(q.tear_row - t.row) < 0.02;
+      const bool same_picture = same_row && q.picture == t.picture;
+      if (!same_row) t.since_s = now_;
       t.row = q.tear_row;
-      if (now_ - t.since_s >= kTearIsContentAfterS) q.verdict = FrameVerdict::Good;
+      t.picture = q.picture;
+      if (same_picture || accept_torn_ || now_ - t.since_s >= kTearIsContentAfterS) q.verdict = FrameVerdict::Good;
     } else {
       t.since_s = -1;
     }
     const bool bad = q.verdict == FrameVerdict::Dark || q.verdict == FrameVerdict::Corrupt ||
                      (features_needed && q.verdict != FrameVerdict::Good);
     if (bad) problem += (problem.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " is " + q.describe();
+    if (bad && q.verdict != FrameVerdict::Corrupt) torn_only = false;
     worst = std::min(worst, q.verdict == FrameVerdict::Good ? q.score() : 0.0);
   }
   if (score) *score = views.empty() ? 0 : worst;
+  torn_only_ = !problem.empty() && torn_only;
   return problem;
 }
 
@@ -903,6 +937,7 @@ bool CalibSession::wants_pixels(const Frame& frame) {
 
 std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::vector<ImageView>& views) {
   note_time(frame.time_s);
+  torn_only_ = false;
   if (failed_) return nullptr;
   if (!handle_sizes(frame)) return nullptr;
   const bool have_pixels = !views.empty() && views.size() == frame.sizes.size();

@@ -36,6 +36,7 @@ struct FrameQuality {
   int corners = 0;        // FAST corners on the same image
   double tear = 0;        // strongest row discontinuity against its neighbourhood (corrupt frames)
   double tear_row = 0;    // where it is, as a fraction of the height
+  std::uint64_t picture = 0;  // fingerprint of the grey copy: equal for the same picture again (a still)
   double score() const;   // larger is better (for picking among good frames)
   std::string describe() const;  // "dark (mean luma 3)", ...
 };
@@ -250,6 +251,12 @@ class CalibSession {
   // The stream ended: an error when no calibration was ever made.
   void on_eos();
   void request_recalibration() { recalibrate_requested_ = true; }
+  // Whether the last bundle was kept from the first calibration by torn pictures alone (every
+  // camera delivered; each refused one was "corrupt"). At the end of a stream such a picture is
+  // the camera's last (two photos given as one-frame streams): accept_torn_pictures() then takes
+  // tears as the pictures' own for the next bundle.
+  bool last_bundle_torn_only() const { return torn_only_; }
+  void accept_torn_pictures() { accept_torn_ = true; }
   // Stop: forgets everything (and any job in flight).
   void reset();
 
@@ -277,6 +284,7 @@ class CalibSession {
   // needs no pixels, so it is used at once, and the late cameras join it)
   bool load_file(uint64_t missing = 0);
   bool load_rough();
+  void warn_unknown_fields(const std::string& property, const std::string& path, const Rig& rig);
   void install(CalibReport report, CalibrationResult* result);
   void start_window(JobKind kind);
   std::shared_ptr<CalibJob> make_job(JobKind kind);
@@ -315,8 +323,11 @@ class CalibSession {
   struct Tear {
     double row = 0;
     double since_s = -1;  // running time; -1: the last check found no tear
+    std::uint64_t picture = 0;  // FrameQuality::picture of the last torn frame
   };
   std::vector<Tear> tears_;
+  bool torn_only_ = false;    // last_bundle_torn_only()
+  bool accept_torn_ = false;  // accept_torn_pictures()
   static constexpr double kTearIsContentAfterS = 3.0;
   std::optional<Rig> rough_;
   std::string rough_from_;

@@ -103,6 +103,38 @@ json lens_to_json(const Lens& l) {
 }
 // --- end lens ----------------------------------------------------------------------------------
 
+// Keys of `j` not in `known`, each named with `where` and the known key it most likely meant
+// (one that starts with it or that it starts with, or within two edits).
+void note_unknown(const json& j, std::initializer_list<const char*> known, const std::string& where,
+                  std::vector<std::string>& out) {
+  if (!j.is_object()) return;
+  const auto distance = [](const std::string& a, const std::string& b) {
+    std::vector<std::size_t> prev(b.size() + 1), cur(b.size() + 1);
+    for (std::size_t k = 0; k <= b.size(); ++k) prev[k] = k;
+    for (std::size_t i = 1; i <= a.size(); ++i) {
+      cur[0] = i;
+      for (std::size_t k = 1; k <= b.size(); ++k)
+        cur[k] = std::min({prev[k] + 1, cur[k - 1] + 1, prev[k - 1] + (a[i - 1] == b[k - 1] ? 0 : 1)});
+      std::swap(prev, cur);
+    }
+    return prev[b.size()];
+  };
+  for (auto it = j.begin(); it != j.end(); ++it) {
+    const std::string key = it.key();
+    bool found = false;
+    std::string guess;
+    for (const char* k : known) {
+      const std::string kk = k;
+      if (kk == key) found = true;
+      else if (guess.empty() && !key.empty() && (kk.rfind(key, 0) == 0 || key.rfind(kk, 0) == 0 || distance(key, kk) <= 2))
+        guess = kk;
+    }
+    if (found) continue;
+    out.push_back((where.empty() ? "" : where + ": ") + "\"" + key + "\"" +
+                  (guess.empty() ? std::string() : " (did you mean \"" + guess + "\"?)"));
+  }
+}
+
 Camera camera_from_json(const json& j, int index) {
   const std::string where = "camera " + std::to_string(index);
   if (!j.is_object()) fail(where, "must be an object");
@@ -261,6 +293,15 @@ Rig rig_from_json_string(const std::string& text) {
   if (cams->size() > kMaxCameras) fail("", "too many cameras (at most 64)");
   for (std::size_t i = 0; i < cams->size(); ++i)
     rig.cameras.push_back(camera_from_json((*cams)[i], static_cast<int>(i)));
+  note_unknown(j, {"format", "version", "projection", "reference", "canvas", "cameras", "plane_distance_m"}, "",
+               rig.unknown_fields);
+  for (std::size_t i = 0; i < cams->size(); ++i)
+    note_unknown((*cams)[i],
+                 {"width", "height", "fx", "fy", "cx", "cy", "yaw_deg", "pitch_deg", "roll_deg", "t", "homography",
+                  "time_offset_ns", "lens"},
+                 "camera " + std::to_string(i), rig.unknown_fields);
+  if (auto it = j.find("canvas"); it != j.end())
+    note_unknown(*it, {"width", "height", "scale", "origin_x", "origin_y", "wrap"}, "canvas", rig.unknown_fields);
   rig.reference = get_int(j, "reference", "", false, static_cast<int>(rig.cameras.size() / 2), 0,
                           static_cast<int>(rig.cameras.size()) - 1);
   rig.plane_distance_m = get_number(j, "plane_distance_m", "", false, 0.0);

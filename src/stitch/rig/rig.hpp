@@ -85,6 +85,9 @@ struct Rig {
   double canvas_scale = 0;
   double canvas_origin_x = 0, canvas_origin_y = 0;
   bool canvas_wrap = false;
+  // Fields of the file this loader does not know, each as `camera 1: "yaw" (did you mean
+  // "yaw_deg"?)`: ignored, but a typo must not pass silently (callers warn with these).
+  std::vector<std::string> unknown_fields;
 
   Projection projection_kind() const { return projection_from_name(projection); }
   bool planar() const { return projection == "plane"; }
