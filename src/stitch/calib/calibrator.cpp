@@ -1904,7 +1904,15 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
     if (!guess) return std::nullopt;
     ring = ring_order(detect_all(sets, int(sets[0].size()), o), *guess, o);
   }
-  for (const double fov : {195.0, 185.0, 210.0, 225.0}) {
+  // Two back to back need more than 180 degrees each; a ring of N covers the circle with lenses
+  // down to a little more than 360 / N (a ring of 4 x 150 or 6 x 120 degrees: the 195-225 guesses
+  // put their focal lengths 25-40 % off, which no fit recovers from).
+  std::vector<double> fovs = {195.0, 185.0, 210.0, 225.0};
+  const int cams = int(sets[0].size());
+  if (cams >= 3)
+    for (const double fov : {170.0, 150.0, 130.0, 115.0})
+      if (fov > 360.0 / cams + 15.0) fovs.push_back(fov);
+  for (const double fov : fovs) {
     std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov, ring.slots);
     if (!rough) return std::nullopt;
     rough->reference = reference >= 0 && reference < int(rough->cameras.size()) ? reference : 0;
@@ -1932,6 +1940,13 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
     throw RigError("the cameras show image circles (circular fisheye lenses) but no 360 rig of them fits the images" +
                    (last_error.empty() ? std::string() : " (" + last_error + ")") +
                    ": give a rig-file with their \"lens\"");
+  // The images show the circles: these are fisheyes, whatever their field of view (a ring of
+  // 6 x 130 degrees sees less than lens_warning's "rectilinear given the fisheye model" bound).
+  best->warnings.erase(std::remove_if(best->warnings.begin(), best->warnings.end(),
+                                      [](const std::string& w) {
+                                        return w.find("given the fisheye model") != std::string::npos;
+                                      }),
+                       best->warnings.end());
   const int n = int(sets[0].size());
   std::string ring_note;
   if (ring.reordered) {
@@ -1968,6 +1983,10 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     if (fisheye_error.empty()) throw;
     throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
   }
+  // Image circles that no fisheye rig fitted: the pinhole result cannot undistort them either;
+  // say so rather than hand back a panorama of discs without a word.
+  if (!fisheye_error.empty())
+    pin.warnings.push_back(fisheye_error + ": calibrated as pinhole (rectilinear) cameras instead");
   if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
   // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.
   Rig rough = pin.rig;
@@ -1988,6 +2007,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
   const double hp = pin.rotation_heldout_px, hl = lens.rotation_heldout_px;
   if (usable && hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
+    if (!fisheye_error.empty()) lens.warnings.insert(lens.warnings.begin(), pin.warnings.back());
     lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(hp) + " px pinhole, " +
                             std::to_string(hl) + " px with radtan k1/k2): the cameras get radtan lenses");
     return lens;
