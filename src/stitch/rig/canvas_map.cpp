@@ -300,11 +300,17 @@ void layout_projected_canvas(Rig& rig) {
     input_area += double(rig.cameras[i].width) * rig.cameras[i].height;
   }
   const bool wrap = std::all_of(covered.begin(), covered.end(), [](bool v) { return v; });
+  // Lenses (issue 15): a spherical canvas covered all round and pole to pole is the full sphere,
+  // kept exactly 2:1 (equirectangular: row y at latitude ((y + 0.5) / height - 0.5) pi).
+  const bool full_sphere = wrap && rig.projection_kind() == Projection::Spherical &&
+                           miny <= -0.5 * kPi * scale + 1.0 && maxy >= 0.5 * kPi * scale - 1.0;
   double cw;
   if (wrap) {
     // An even width that is exactly 360 degrees. The wrap runs through the centre of the camera
     // most opposite the reference: that view alone crosses it, and no overlap is cut in two.
-    cw = 2 * std::round(0.5 * period);
+    // The full sphere's width is a multiple of 4, so that its 2:1 height is even too (panoramas
+    // have even sizes: an odd height was padded to 1094x548, no longer 2:1 for 360 players).
+    cw = full_sphere ? 4 * std::round(0.25 * period) : 2 * std::round(0.5 * period);
     const double ratio = cw / period;
     scale *= ratio;
     miny *= ratio;
@@ -321,10 +327,6 @@ void layout_projected_canvas(Rig& rig) {
     rig.canvas_origin_x = -std::floor(minx);
   }
   double ch = std::ceil(maxy - std::floor(miny)) + 1;
-  // Lenses (issue 15): a spherical canvas covered all round and pole to pole is the full sphere,
-  // kept exactly 2:1 (equirectangular: row y at latitude ((y + 0.5) / height - 0.5) pi).
-  const bool full_sphere = wrap && rig.projection_kind() == Projection::Spherical &&
-                           miny <= -0.5 * kPi * scale + 1.0 && maxy >= 0.5 * kPi * scale - 1.0;
   if (full_sphere) {
     ch = cw / 2;
     miny = -0.5 * (ch - 1);  // origin_y = ch / 2 - 0.5 below
