@@ -1896,13 +1896,16 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
                                                                     int reference, const CalibrationOptions& o) {
   std::optional<CalibrationResult> best;
   double best_error = std::numeric_limits<double>::infinity(), best_fov = 0;
+  bool best_whole = false;  // the best fit matched every camera
   std::string last_error;
-  // A ring's order around the camera, from the images (pads in any order).
+  // A ring's order around the camera, from the images (pads in any order), read through each
+  // field-of-view guess: a guess far off the lens (195 degrees for 120-degree lenses) bends the
+  // rays enough to read a wrong order.
   RingOrder ring;
+  std::optional<FeatureSets> ring_feats;
   if (sets[0].size() >= 3) {
-    const std::optional<Rig> guess = circular_fisheye_rig(sets[0], 195.0);
-    if (!guess) return std::nullopt;
-    ring = ring_order(detect_all(sets, int(sets[0].size()), o), *guess, o);
+    if (!circular_fisheye_rig(sets[0], 195.0)) return std::nullopt;
+    ring_feats = detect_all(sets, int(sets[0].size()), o);
   }
   // Two back to back need more than 180 degrees each; a ring of N covers the circle with lenses
   // down to a little more than 360 / N (a ring of 4 x 150 or 6 x 120 degrees: the 195-225 guesses
@@ -1913,21 +1916,33 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
     for (const double fov : {170.0, 150.0, 130.0, 115.0})
       if (fov > 360.0 / cams + 15.0) fovs.push_back(fov);
   for (const double fov : fovs) {
-    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov, ring.slots);
+    RingOrder order;
+    if (ring_feats) {
+      const std::optional<Rig> guess = circular_fisheye_rig(sets[0], fov);
+      if (!guess) return std::nullopt;
+      order = ring_order(*ring_feats, *guess, o);
+    }
+    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov, order.slots);
     if (!rough) return std::nullopt;
     rough->reference = reference >= 0 && reference < int(rough->cameras.size()) ? reference : 0;
     try {
       CalibrationResult r = calibrate_from_rig(*rough, sets, o);
       const double error = r.rotation_heldout_px > 0 ? r.rotation_heldout_px : r.ba_rms_after_px;
-      if (!(error > 0) || !(error < best_error)) continue;
+      // A fit that leaves cameras unmatched measures its error on the few pairs it did match (a
+      // ring of 6 x 120 degrees read through the 210-degree guess: 4 cameras kept their rough
+      // pose at 0.68 px): any fit that matches every camera beats it.
+      const bool whole = r.refined_cameras >= cams;
+      if (!(error > 0) || (best_whole && !whole) || (whole == best_whole && !(error < best_error))) continue;
       best_error = error;
+      best_whole = whole;
       best_fov = fov;
       best = std::move(r);
+      ring = order;
     } catch (const std::exception& e) {
       last_error = e.what();
       continue;
     }
-    if (best_error < 0.7) break;  // a good fit: the guess was close enough
+    if (best_whole && best_error < 0.7) break;  // a good fit: the guess was close enough
   }
   // A fit this poor is no fisheye rig (a vignetted rectilinear camera, a spotlit scene): the
   // pinhole path gets its turn.
@@ -2216,27 +2231,58 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
         pb.push_back(feats[b].keypoints[mt.trainIdx].pt);
       }
       std::vector<uchar> inl;
-      // The epipolar test holds for ideal pixels: undistort through the rig's lenses first
-      // (the distances below map the raw keypoints through the lens-aware canvas maps).
-      std::vector<cv::Point2f> ua = pa, ub = pb;
-      if (!rig.cameras[a].lens.pinhole() || !rig.cameras[b].lens.pinhole()) {
-        std::vector<cv::Point2f> ka, kb, ra, rb;
-        const std::vector<cv::Point2f> ia = undistort_points(rig.cameras[a], pa), ib = undistort_points(rig.cameras[b], pb);
-        for (std::size_t k = 0; k < pa.size(); ++k)
-          if (std::isfinite(ia[k].x) && std::isfinite(ia[k].y) && std::isfinite(ib[k].x) && std::isfinite(ib[k].y)) {
-            ka.push_back(ia[k]);
-            kb.push_back(ib[k]);
-            ra.push_back(pa[k]);
-            rb.push_back(pb[k]);
-          }
-        if (ka.size() < 8) continue;
-        ua = std::move(ka);
-        ub = std::move(kb);
-        pa = std::move(ra);
-        pb = std::move(rb);
+      const Camera &A = rig.cameras[a], &B = rig.cameras[b];
+      if (!rig.planar() && (needs_rays(A) || needs_rays(B))) {
+        // Wide lenses on a curved canvas (a dual fisheye's overlap lies 80-100 degrees off both
+        // axes, where ideal pinhole pixels do not exist and the epipolar test below took wrong
+        // matches: the exact rig of a dual fisheye read 400-800 px misaligned). The cameras turn
+        // about one centre: inliers are the matches one rotation of the rays explains, found
+        // from the matches alone (RANSAC over 2-ray rotations), not from the rig's rotations.
+        std::vector<Eigen::Vector3d> ra, rb;
+        std::vector<cv::Point2f> ka, kb;
+        for (std::size_t k = 0; k < pa.size(); ++k) {
+          Eigen::Vector3d x, y;
+          if (!lens_sees(A, pa[k].x, pa[k].y) || !lens_sees(B, pb[k].x, pb[k].y)) continue;
+          if (!lens_unproject(A, {pa[k].x, pa[k].y}, x) || !lens_unproject(B, {pb[k].x, pb[k].y}, y)) continue;
+          ra.push_back(x.normalized());
+          rb.push_back(y.normalized());
+          ka.push_back(pa[k]);
+          kb.push_back(pb[k]);
+        }
+        if (ra.size() < 8) continue;
+        std::vector<int> all(ra.size());
+        for (std::size_t k = 0; k < all.size(); ++k) all[k] = int(k);
+        const double thr = std::cos(2.0 / std::max(1.0, std::min({A.fx, A.fy, B.fx, B.fy})));  // ~2 px
+        std::vector<int> in = ray_rotation_inliers(ra, rb, all, Eigen::Matrix3d::Identity(), thr, 1000);
+        if (in.size() >= 8) in = ray_rotation_inliers(ra, rb, all, kabsch(ra, rb, in), thr, 0);
+        if (in.size() < 8) continue;
+        inl.assign(ra.size(), 0);
+        for (int k : in) inl[std::size_t(k)] = 1;
+        pa = std::move(ka);
+        pb = std::move(kb);
+      } else {
+        // The epipolar test holds for ideal pixels: undistort through the rig's lenses first
+        // (the distances below map the raw keypoints through the lens-aware canvas maps).
+        std::vector<cv::Point2f> ua = pa, ub = pb;
+        if (!rig.cameras[a].lens.pinhole() || !rig.cameras[b].lens.pinhole()) {
+          std::vector<cv::Point2f> ka, kb, ra, rb;
+          const std::vector<cv::Point2f> ia = undistort_points(rig.cameras[a], pa), ib = undistort_points(rig.cameras[b], pb);
+          for (std::size_t k = 0; k < pa.size(); ++k)
+            if (std::isfinite(ia[k].x) && std::isfinite(ia[k].y) && std::isfinite(ib[k].x) && std::isfinite(ib[k].y)) {
+              ka.push_back(ia[k]);
+              kb.push_back(ib[k]);
+              ra.push_back(pa[k]);
+              rb.push_back(pb[k]);
+            }
+          if (ka.size() < 8) continue;
+          ua = std::move(ka);
+          ub = std::move(kb);
+          pa = std::move(ra);
+          pb = std::move(rb);
+        }
+        cv::Mat F = cv::findFundamentalMat(ua, ub, inl, cv::FM_RANSAC, 1.5, 0.999);
+        if (F.empty()) continue;
       }
-      cv::Mat F = cv::findFundamentalMat(ua, ub, inl, cv::FM_RANSAC, 1.5, 0.999);
-      if (F.empty()) continue;
       std::vector<double> d, dc;
       const CameraCanvasMap ma = camera_canvas_map(rig, a), mb = camera_canvas_map(rig, b);
       const double wrap = rig.canvas_wrap ? double(rig.canvas_width) : 0.0;
