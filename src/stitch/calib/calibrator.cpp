@@ -1521,7 +1521,8 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     res.warnings.push_back("camera " + std::to_string(i) + ": its matches lie " +
                            std::to_string(int(std::lround(narrow_spread[i] * 180 / kPi))) +
                            " degrees apart off its axis (a back-to-back overlap ring): too narrow to estimate the "
-                           "lens (" + why + "); keeping the given coefficients (give them, e.g. from an OpenCV calibration)");
+                           "lens (" + why + "); keeping the rough rig's coefficients (none given, as without a rig file: an "
+                           "ideal equidistant lens); give them, e.g. from an OpenCV calibration");
   };
   for (int i : narrow) {
     // A lens no other camera shares: its focal and k1 trade off freely.
