@@ -495,6 +495,32 @@ TEST(CircularFisheyes, NarrowLensRingsFoundFromTheImagesAlone) {
   RecordProperty("worst_seam_px", std::to_string(worst));
 }
 
+// A ring whose circles no fisheye rig fits (3 x 125 degrees: below the guesses, 5 degrees of
+// overlap a pair) is never handed back silently as pinhole cameras: either an error or a warning
+// names the image circles (branch probe360: the pinhole fallback said nothing).
+TEST(CircularFisheyes, RingNoFisheyeRigFitsIsSaid) {
+  std::string name;
+  const cv::Mat photo = equirect_photo(name);
+  ASSERT_FALSE(photo.empty());
+  const Rig truth = testdata::fisheye_ring(3, 320, 125);
+  std::vector<cv::Mat> frames;
+  std::vector<ImageView> views;
+  render_views(photo, truth, frames, views);
+  try {
+    const CalibrationResult r = calibrate_from_images(views, 0, CalibrationOptions{});
+    bool fisheye = true, said = false;
+    for (const auto& c : r.rig.cameras) fisheye &= c.lens.model == Lens::Model::Fisheye;
+    for (const auto& w : r.warnings) said |= w.find("image circle") != std::string::npos;
+    std::printf("%s: 3 x 125 deg: calibrated (%s), %s\n", name.c_str(), fisheye ? "fisheyes" : "pinhole",
+                said ? "said" : "SILENT");
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    EXPECT_TRUE(said);
+  } catch (const RigError& e) {
+    std::printf("%s: 3 x 125 deg: error: %s\n", name.c_str(), e.what());
+    EXPECT_NE(std::string(e.what()).find("image circles"), std::string::npos) << e.what();
+  }
+}
+
 // Users connect a 360 ring's pads in any order (branch lens-radtan): the ring order comes from
 // the images (which pairs share features, on which side), not from the pad order. Rings of 3-10
 // circular fisheyes rendered from the real photo, their pads shuffled (mirror orders, camera 0

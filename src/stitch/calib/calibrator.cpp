@@ -1980,6 +1980,7 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
   return best;
 }
 
+constexpr double kFisheyeFallbackPoorPx = 1.5;
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
   // Circles that no fisheye rig fits (a spotlit stage in a dark room?) fall back to the pinhole
@@ -1999,10 +2000,15 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     if (fisheye_error.empty()) throw;
     throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
   }
-  // Image circles that no fisheye rig fitted: the pinhole result cannot undistort them either;
-  // say so rather than hand back a panorama of discs without a word.
-  if (!fisheye_error.empty())
-    pin.warnings.push_back(fisheye_error + ": calibrated as pinhole (rectilinear) cameras instead");
+  // Image circles that no fisheye rig fitted, and a pinhole fit that is poor too (a fisheye ring
+  // the guesses missed: 40 px held out): say so rather than hand back a panorama of discs
+  // without a word. Vignetted rectilinear cameras fit as pinholes well: nothing to say there.
+  const double pin_heldout = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
+  if (!fisheye_error.empty() && pin_heldout > kFisheyeFallbackPoorPx)
+    pin.warnings.push_back(fisheye_error + "; calibrated as pinhole (rectilinear) cameras instead, which fit them "
+                           "poorly (held-out error " + std::to_string(pin_heldout) + " px)");
+  else
+    fisheye_error.clear();
   if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
   // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.
   Rig rough = pin.rig;
