@@ -1916,7 +1916,13 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
   if (cams >= 3)
     for (const double fov : {170.0, 150.0, 130.0, 115.0})
       if (fov > 360.0 / cams + 15.0) fovs.push_back(fov);
+  // A fit this poor is no fisheye rig (a vignetted rectilinear camera, a spotlit scene): the
+  // pinhole path gets its turn.
+  constexpr double kFisheyeFitMaxPx = 1.5;
   for (const double fov : fovs) {
+    // The narrow-lens guesses only when the usual ones found no usable fit (their cost: one
+    // calibration each).
+    if (fov < 185.0 && best_whole && best_error < kFisheyeFitMaxPx) break;
     RingOrder order;
     if (ring_feats) {
       const std::optional<Rig> guess = circular_fisheye_rig(sets[0], fov);
@@ -1945,9 +1951,6 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
     }
     if (best_whole && best_error < 0.7) break;  // a good fit: the guess was close enough
   }
-  // A fit this poor is no fisheye rig (a vignetted rectilinear camera, a spotlit scene): the
-  // pinhole path gets its turn.
-  constexpr double kFisheyeFitMaxPx = 1.5;
   if (best && !(best_error < kFisheyeFitMaxPx)) {
     last_error = "held-out error " + std::to_string(best_error) + " px";
     best.reset();
