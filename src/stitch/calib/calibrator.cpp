@@ -2012,26 +2012,64 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
                            "poorly (held-out error " + std::to_string(pin_heldout) + " px)");
   else
     fisheye_error.clear();
-  if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
-  // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.
-  Rig rough = pin.rig;
-  for (auto& c : rough.cameras) {
-    c.lens = Lens{};
-    c.lens.model = Lens::Model::Radtan;
-    c.lens.estimate = true;
+  if (!o.lens_from_evidence || o.model == CameraModel::Homography || !(pin.rotation_heldout_px > 0)) return pin;
+  // Rough rigs of a lens fit (radtan, coefficients estimated): the pinhole rotation rig; or, when
+  // homographies won (strong distortion, k1 -0.35, bends the rotation model more than a free
+  // homography: 3.3 px vs 1.5 px held out, and its focal lengths run off, ~9700 px for a true
+  // 554; branch probe360), rotations read from those homographies through a few guessed focal
+  // lengths (50-90 degrees across the reference's width).
+  std::vector<Rig> starts;
+  double hp = pin.rotation_heldout_px;
+  if (pin.model == CameraModel::Rotation) {
+    starts.push_back(pin.rig);
+  } else if (pin.rig.planar() && pin.homography_heldout_px > 0) {
+    hp = pin.homography_heldout_px;
+    const Rig& h = pin.rig;
+    const Camera& ref = h.cameras[h.reference];
+    bool all = true;
+    for (const auto& c : h.cameras) all &= bool(c.homography);
+    if (all)
+      for (const double hfov : {60.0, 45.0, 80.0}) {
+        Rig r = h;
+        r.canvas_width = r.canvas_height = 0;
+        r.canvas_scale = 0;
+        for (auto& c : r.cameras) {
+          c.fx = c.fy = 0.5 * ref.width / std::tan(0.5 * hfov * kPi / 180.0) * double(c.width) / ref.width;
+          c.cx = 0.5 * (c.width - 1);
+          c.cy = 0.5 * (c.height - 1);
+        }
+        const Eigen::Matrix3d Kr = r.cameras[h.reference].K();
+        for (std::size_t i = 0; i < r.cameras.size(); ++i) {
+          const Eigen::Matrix3d rel = ref.homography->inverse() * *h.cameras[i].homography;  // i -> reference pixels
+          r.cameras[i].set_R(nearest_rotation(Kr.inverse() * rel * r.cameras[i].K()));
+        }
+        for (auto& c : r.cameras) c.homography.reset();
+        starts.push_back(r);
+      }
   }
-  CalibrationResult lens;
-  try {
-    CalibrationOptions lo = o;
-    lo.model = CameraModel::Rotation;
-    lens = calibrate_from_rig(rough, sets, lo);
-  } catch (const std::exception&) {
-    return pin;  // no usable lens fit: the pinhole result stands
+  std::optional<CalibrationResult> best;
+  for (Rig rough : starts) {
+    for (auto& c : rough.cameras) {
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+    }
+    CalibrationResult lens;
+    try {
+      CalibrationOptions lo = o;
+      lo.model = CameraModel::Rotation;
+      lens = calibrate_from_rig(rough, sets, lo);
+    } catch (const std::exception&) {
+      continue;  // no usable lens fit from this start
+    }
+    bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
+    for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
+    if (usable && (!best || lens.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(lens);
   }
-  bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
-  for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
-  const double hp = pin.rotation_heldout_px, hl = lens.rotation_heldout_px;
-  if (usable && hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
+  if (!best) return pin;
+  CalibrationResult& lens = *best;
+  const double hl = lens.rotation_heldout_px;
+  if (hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
     if (!fisheye_error.empty()) lens.warnings.insert(lens.warnings.begin(), pin.warnings.back());
     lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(hp) + " px pinhole, " +
                             std::to_string(hl) + " px with radtan k1/k2): the cameras get radtan lenses");
