@@ -175,6 +175,16 @@ static void gst_stitch_360_sink_handle_message(GstBin* bin, GstMessage* message)
     meta.v1 = which != METADATA_V2;
     meta.v2 = which != METADATA_V1;
     negotiated_size(self, meta.source_width, meta.source_height);
+    // The metadata says "this covers the sphere": a panorama of another shape is stretched over
+    // it by every player (a 640x480 picture, a plane rig's panorama). Written anyway, said.
+    const int w = meta.source_width, h = meta.source_height;
+    const bool cubemap = meta.projection == stitch::SphericalMetadata::Projection::Cubemap;
+    if (w > 0 && h > 0 && (cubemap ? 2 * w != 3 * h : w != 2 * h))
+      GST_ELEMENT_WARNING(self, STREAM, FORMAT,
+                          ("the panorama is %dx%d, not %s: 360 players will stretch it over the whole sphere", w, h,
+                           cubemap ? "3:2 (a 3x2 cubemap)" : "2:1 (equirectangular)"),
+                          ("stitch a full-sphere rig (projection spherical, covered pole to pole), or videoscale "
+                           "to %s", cubemap ? "3:2" : "2:1"));
     std::string error;
     try {
       error = stitch::add_spherical_metadata(location, meta);

@@ -90,3 +90,39 @@ TEST(CalibLensEvidence, FisheyeModelOnARectilinearCameraWarns) {
   for (const auto& s : r.warnings) named |= s.find("camera 2") != std::string::npos && s.find("rectilinear") != std::string::npos;
   EXPECT_TRUE(named);
 }
+
+// Strong barrel distortion with default options (branch probe360): k1 -0.35 bends the rotation
+// model more than a free homography per camera, so `auto` picked homographies and the lens was
+// never tried (the probe's 3 x 640x480 rig: 1.5 px held out, no lens; a forced rotation fit ran
+// its focal lengths off to ~9700 px). The lens fit now also starts from rotations read from the
+// homographies through guessed focal lengths: the cameras get their k1, the overlaps align.
+// Undistorted cameras with default options still get no lens.
+TEST(CalibLensEvidence, StrongDistortionWithDefaultOptionsGetsALens) {
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  ASSERT_FALSE(photo.empty());
+  for (const double k1 : {-0.35, 0.0}) {
+    const double k2 = k1 != 0 ? 0.12 : 0.0;
+    const Rig truth = testdata::radtan_trio(320, 240, 277, 35.0, k1, k2, k1 != 0, "plane", 0.0);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> views;
+    for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
+    for (auto& f : frames) views.push_back(as_view(f));
+    const CalibrationResult r = calibrate_from_images(views, truth.reference, CalibrationOptions{});
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    const AlignmentReport al = measure_alignment(r.rig, views);
+    std::printf("k1 %+.2f: model %s, held-out rotation %.3f px homography %.3f px, overlaps %.3f px\n", k1,
+                r.model == CameraModel::Rotation ? "rotation" : "homography", r.rotation_heldout_px,
+                r.homography_heldout_px, al.median_px);
+    for (const auto& c : r.rig.cameras) {
+      std::printf("  %s k1 %+.4f k2 %+.4f f %.1f (true 277)\n", lens_model_name(c.lens.model), c.lens.k1, c.lens.k2, c.fx);
+      if (k1 == 0) {
+        EXPECT_TRUE(c.lens.pinhole()) << "no lens invented for undistorted cameras";
+        continue;
+      }
+      ASSERT_EQ(c.lens.model, Lens::Model::Radtan);
+      EXPECT_NEAR(c.lens.k1, k1, 0.1 * std::abs(k1));
+      EXPECT_TRUE(lens_problem(c).empty());
+    }
+    if (k1 != 0) EXPECT_LE(al.median_px, 0.5);
+  }
+}

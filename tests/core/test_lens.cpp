@@ -245,6 +245,51 @@ TEST(Lens, OpenCvYamlLoadsPinholeFisheyeAndKalibr) {
   std::filesystem::remove_all(dir);
 }
 
+// OpenCV fisheye calibrations of wide lenses fold back in the frame's corners, beyond what the
+// calibration saw (../shared's surround-view left camera: theta_d peaks at 87 degrees). The YAML
+// loader refused such files ("the fisheye coefficients fold the image"), so the documented
+// rig-file=cams.yaml failed on real data; now the lens gets an image circle that ends just
+// before the fold. A fold well inside the frame is still refused, naming the camera.
+TEST(Lens, OpenCvYamlFisheyeFoldingInTheCornersGetsAnImageCircle) {
+  const auto dir = std::filesystem::temp_directory_path() / ("stitch_lens_fold_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  auto write = [&](const std::string& name, double k1, double k3) {
+    cv::FileStorage fs((dir / name).string(), cv::FileStorage::WRITE);
+    fs << "camera_matrix" << (cv::Mat_<double>(3, 3) << 300, 0, 479.5, 0, 300, 319.5, 0, 0, 1);
+    fs << "dist_coeffs" << (cv::Mat_<double>(4, 1) << k1, 0.0, k3, 0.0);
+    fs << "resolution" << (cv::Mat_<int>(2, 1) << 960, 640);
+  };
+  write("corners.yaml", -0.02, -0.01);  // folds at 87 degrees: 375 px out, the corners 577 px
+  Rig r;
+  ASSERT_NO_THROW(r = rig_load((dir / "corners.yaml").string()));
+  ASSERT_EQ(r.cameras.size(), 1u);
+  const Camera& c = r.cameras[0];
+  EXPECT_EQ(c.lens.model, Lens::Model::Fisheye);
+  ASSERT_TRUE(c.lens.circle);
+  EXPECT_NEAR(c.lens.circle->cx, 479.5, 1e-9);
+  EXPECT_NEAR(c.lens.circle->cy, 319.5, 1e-9);
+  EXPECT_GT(c.lens.circle->radius, 340);
+  EXPECT_LT(c.lens.circle->radius, 380);
+  EXPECT_EQ(lens_problem(c), "");
+  // Inside the circle the lens unprojects and projects back (no fold).
+  for (double x = 479.5; x < 479.5 + c.lens.circle->radius - 1; x += 20) {
+    Eigen::Vector3d ray;
+    Eigen::Vector2d q;
+    ASSERT_TRUE(lens_unproject(c, {x, 319.5}, ray)) << x;
+    ASSERT_TRUE(lens_project(c, ray, q)) << x;
+    EXPECT_NEAR(q.x(), x, 1e-3);
+  }
+  write("inside.yaml", -0.3, 0.0);  // folds at 60 degrees, 210 px out: most of the frame
+  try {
+    rig_load((dir / "inside.yaml").string());
+    ADD_FAILURE() << "a fold well inside the frame must be refused";
+  } catch (const RigError& e) {
+    EXPECT_NE(std::string(e.what()).find("camera 0"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("fold"), std::string::npos) << e.what();
+  }
+  std::filesystem::remove_all(dir);
+}
+
 TEST(Lens, PtoLoadsAndFitsThePanotoolsPolynomial) {
   const std::string pto =
       "# hugin project\n"

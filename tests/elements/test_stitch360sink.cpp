@@ -92,6 +92,34 @@ std::string run(const std::string& description) {
   return error;
 }
 
+// Runs the pipeline to EOS; the texts of its warning messages.
+std::vector<std::string> warnings_of(const std::string& description) {
+  gsttest::init();
+  std::vector<std::string> out;
+  GstElement* pipe = gst_parse_launch(description.c_str(), nullptr);
+  if (!pipe) return {"parse failed"};
+  gst_element_set_state(pipe, GST_STATE_PLAYING);
+  GstBus* bus = gst_element_get_bus(pipe);
+  for (;;) {
+    GstMessage* m = gst_bus_timed_pop_filtered(
+        bus, 60 * GST_SECOND, GstMessageType(GST_MESSAGE_ERROR | GST_MESSAGE_EOS | GST_MESSAGE_WARNING));
+    if (!m) break;
+    const GstMessageType t = GST_MESSAGE_TYPE(m);
+    if (t == GST_MESSAGE_WARNING) {
+      GError* e = nullptr;
+      gst_message_parse_warning(m, &e, nullptr);
+      out.push_back(e->message);
+      g_error_free(e);
+    }
+    gst_message_unref(m);
+    if (t != GST_MESSAGE_WARNING) break;
+  }
+  gst_object_unref(bus);
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_object_unref(pipe);
+  return out;
+}
+
 bool have(const char* factory) {
   gsttest::init();
   GstElementFactory* f = gst_element_factory_find(factory);
@@ -154,6 +182,27 @@ TEST(Stitch360Sink, WritesCubemapV2Box) {
   ASSERT_EQ(cbmp->size, 8u + 4u + 8u);
   for (int k = 12; k < 20; ++k) EXPECT_EQ(d[cbmp->offset + k], 0) << "layout 0, padding 0";
   EXPECT_FALSE(find(boxes, "moov/trak/uuid")) << "V1 has no cubemap";
+  std::filesystem::remove(path);
+}
+
+// A panorama that is not 2:1 (a plane rig's, a 640x480 picture) marked as a 360 video is
+// stretched over the sphere by every player: the file is written, and a warning says why it will
+// look wrong (branch probe360: it was silent). A 2:1 one gets no warning.
+TEST(Stitch360Sink, WarnsWhenThePanoramaIsNot2To1) {
+  if (!have("x264enc") || !have("mp4mux")) GTEST_SKIP() << "x264enc or mp4mux missing";
+  const std::string path = (std::filesystem::temp_directory_path() / ("stitch360_ratio_" + std::to_string(::getpid()) + ".mp4")).string();
+  auto said = [](const std::vector<std::string>& w) {
+    for (const auto& s : w)
+      if (s.find("not 2:1") != std::string::npos && s.find("640x480") != std::string::npos) return true;
+    return false;
+  };
+  const auto bad = warnings_of("videotestsrc num-buffers=5 ! video/x-raw,width=640,height=480,format=I420 ! x264enc ! "
+                               "stitch360sink location=" + path);
+  EXPECT_TRUE(said(bad)) << (bad.empty() ? "no warning" : bad[0]);
+  EXPECT_TRUE(std::filesystem::exists(path));
+  const auto good = warnings_of("videotestsrc num-buffers=5 ! video/x-raw,width=512,height=256,format=I420 ! x264enc ! "
+                                "stitch360sink location=" + path);
+  EXPECT_TRUE(good.empty()) << good[0];
   std::filesystem::remove(path);
 }
 

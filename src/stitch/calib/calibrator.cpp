@@ -1521,7 +1521,8 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     res.warnings.push_back("camera " + std::to_string(i) + ": its matches lie " +
                            std::to_string(int(std::lround(narrow_spread[i] * 180 / kPi))) +
                            " degrees apart off its axis (a back-to-back overlap ring): too narrow to estimate the "
-                           "lens (" + why + "); keeping the given coefficients (give them, e.g. from an OpenCV calibration)");
+                           "lens (" + why + "); keeping the rough rig's coefficients (none given, as without a rig file: an "
+                           "ideal equidistant lens); give them, e.g. from an OpenCV calibration");
   };
   for (int i : narrow) {
     // A lens no other camera shares: its focal and k1 trade off freely.
@@ -1896,34 +1897,60 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
                                                                     int reference, const CalibrationOptions& o) {
   std::optional<CalibrationResult> best;
   double best_error = std::numeric_limits<double>::infinity(), best_fov = 0;
+  bool best_whole = false;  // the best fit matched every camera
   std::string last_error;
-  // A ring's order around the camera, from the images (pads in any order).
+  // A ring's order around the camera, from the images (pads in any order), read through each
+  // field-of-view guess: a guess far off the lens (195 degrees for 120-degree lenses) bends the
+  // rays enough to read a wrong order.
   RingOrder ring;
+  std::optional<FeatureSets> ring_feats;
   if (sets[0].size() >= 3) {
-    const std::optional<Rig> guess = circular_fisheye_rig(sets[0], 195.0);
-    if (!guess) return std::nullopt;
-    ring = ring_order(detect_all(sets, int(sets[0].size()), o), *guess, o);
+    if (!circular_fisheye_rig(sets[0], 195.0)) return std::nullopt;
+    ring_feats = detect_all(sets, int(sets[0].size()), o);
   }
-  for (const double fov : {195.0, 185.0, 210.0, 225.0}) {
-    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov, ring.slots);
+  // Two back to back need more than 180 degrees each; a ring of N covers the circle with lenses
+  // down to a little more than 360 / N (a ring of 4 x 150 or 6 x 120 degrees: the 195-225 guesses
+  // put their focal lengths 25-40 % off, which no fit recovers from).
+  std::vector<double> fovs = {195.0, 185.0, 210.0, 225.0};
+  const int cams = int(sets[0].size());
+  if (cams >= 3)
+    for (const double fov : {170.0, 150.0, 130.0, 115.0})
+      if (fov > 360.0 / cams + 15.0) fovs.push_back(fov);
+  // A fit this poor is no fisheye rig (a vignetted rectilinear camera, a spotlit scene): the
+  // pinhole path gets its turn.
+  constexpr double kFisheyeFitMaxPx = 1.5;
+  for (const double fov : fovs) {
+    // The narrow-lens guesses only when the usual ones found no usable fit (their cost: one
+    // calibration each).
+    if (fov < 185.0 && best_whole && best_error < kFisheyeFitMaxPx) break;
+    RingOrder order;
+    if (ring_feats) {
+      const std::optional<Rig> guess = circular_fisheye_rig(sets[0], fov);
+      if (!guess) return std::nullopt;
+      order = ring_order(*ring_feats, *guess, o);
+    }
+    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov, order.slots);
     if (!rough) return std::nullopt;
     rough->reference = reference >= 0 && reference < int(rough->cameras.size()) ? reference : 0;
     try {
       CalibrationResult r = calibrate_from_rig(*rough, sets, o);
       const double error = r.rotation_heldout_px > 0 ? r.rotation_heldout_px : r.ba_rms_after_px;
-      if (!(error > 0) || !(error < best_error)) continue;
+      // A fit that leaves cameras unmatched measures its error on the few pairs it did match (a
+      // ring of 6 x 120 degrees read through the 210-degree guess: 4 cameras kept their rough
+      // pose at 0.68 px): any fit that matches every camera beats it.
+      const bool whole = r.refined_cameras >= cams;
+      if (!(error > 0) || (best_whole && !whole) || (whole == best_whole && !(error < best_error))) continue;
       best_error = error;
+      best_whole = whole;
       best_fov = fov;
       best = std::move(r);
+      ring = order;
     } catch (const std::exception& e) {
       last_error = e.what();
       continue;
     }
-    if (best_error < 0.7) break;  // a good fit: the guess was close enough
+    if (best_whole && best_error < 0.7) break;  // a good fit: the guess was close enough
   }
-  // A fit this poor is no fisheye rig (a vignetted rectilinear camera, a spotlit scene): the
-  // pinhole path gets its turn.
-  constexpr double kFisheyeFitMaxPx = 1.5;
   if (best && !(best_error < kFisheyeFitMaxPx)) {
     last_error = "held-out error " + std::to_string(best_error) + " px";
     best.reset();
@@ -1932,6 +1959,13 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
     throw RigError("the cameras show image circles (circular fisheye lenses) but no 360 rig of them fits the images" +
                    (last_error.empty() ? std::string() : " (" + last_error + ")") +
                    ": give a rig-file with their \"lens\"");
+  // The images show the circles: these are fisheyes, whatever their field of view (a ring of
+  // 6 x 130 degrees sees less than lens_warning's "rectilinear given the fisheye model" bound).
+  best->warnings.erase(std::remove_if(best->warnings.begin(), best->warnings.end(),
+                                      [](const std::string& w) {
+                                        return w.find("given the fisheye model") != std::string::npos;
+                                      }),
+                       best->warnings.end());
   const int n = int(sets[0].size());
   std::string ring_note;
   if (ring.reordered) {
@@ -1949,6 +1983,7 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
   return best;
 }
 
+constexpr double kFisheyeFallbackPoorPx = 1.5;
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
   // Circles that no fisheye rig fits (a spotlit stage in a dark room?) fall back to the pinhole
@@ -1968,26 +2003,74 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     if (fisheye_error.empty()) throw;
     throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
   }
-  if (!o.lens_from_evidence || pin.model != CameraModel::Rotation || !(pin.rotation_heldout_px > 0)) return pin;
-  // The pinhole rotation rig as the rough rig of a lens fit: radtan, coefficients estimated.
-  Rig rough = pin.rig;
-  for (auto& c : rough.cameras) {
-    c.lens = Lens{};
-    c.lens.model = Lens::Model::Radtan;
-    c.lens.estimate = true;
+  // Image circles that no fisheye rig fitted, and a pinhole fit that is poor too (a fisheye ring
+  // the guesses missed: 40 px held out): say so rather than hand back a panorama of discs
+  // without a word. Vignetted rectilinear cameras fit as pinholes well: nothing to say there.
+  const double pin_heldout = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
+  if (!fisheye_error.empty() && pin_heldout > kFisheyeFallbackPoorPx)
+    pin.warnings.push_back(fisheye_error + "; calibrated as pinhole (rectilinear) cameras instead, which fit them "
+                           "poorly (held-out error " + std::to_string(pin_heldout) + " px)");
+  else
+    fisheye_error.clear();
+  if (!o.lens_from_evidence || o.model == CameraModel::Homography || !(pin.rotation_heldout_px > 0)) return pin;
+  // Rough rigs of a lens fit (radtan, coefficients estimated): the pinhole rotation rig; or, when
+  // homographies won (strong distortion, k1 -0.35, bends the rotation model more than a free
+  // homography: 3.3 px vs 1.5 px held out, and its focal lengths run off, ~9700 px for a true
+  // 554; branch probe360), rotations read from those homographies through a few guessed focal
+  // lengths (50-90 degrees across the reference's width).
+  std::vector<Rig> starts;
+  double hp = pin.rotation_heldout_px;
+  if (pin.model == CameraModel::Rotation) {
+    starts.push_back(pin.rig);
+  } else if (pin.rig.planar() && pin.homography_heldout_px > 0) {
+    hp = pin.homography_heldout_px;
+    const Rig& h = pin.rig;
+    const Camera& ref = h.cameras[h.reference];
+    bool all = true;
+    for (const auto& c : h.cameras) all &= bool(c.homography);
+    if (all)
+      for (const double hfov : {60.0, 45.0, 80.0}) {
+        Rig r = h;
+        r.canvas_width = r.canvas_height = 0;
+        r.canvas_scale = 0;
+        for (auto& c : r.cameras) {
+          c.fx = c.fy = 0.5 * ref.width / std::tan(0.5 * hfov * kPi / 180.0) * double(c.width) / ref.width;
+          c.cx = 0.5 * (c.width - 1);
+          c.cy = 0.5 * (c.height - 1);
+        }
+        const Eigen::Matrix3d Kr = r.cameras[h.reference].K();
+        for (std::size_t i = 0; i < r.cameras.size(); ++i) {
+          const Eigen::Matrix3d rel = ref.homography->inverse() * *h.cameras[i].homography;  // i -> reference pixels
+          r.cameras[i].set_R(nearest_rotation(Kr.inverse() * rel * r.cameras[i].K()));
+        }
+        for (auto& c : r.cameras) c.homography.reset();
+        starts.push_back(r);
+      }
   }
-  CalibrationResult lens;
-  try {
-    CalibrationOptions lo = o;
-    lo.model = CameraModel::Rotation;
-    lens = calibrate_from_rig(rough, sets, lo);
-  } catch (const std::exception&) {
-    return pin;  // no usable lens fit: the pinhole result stands
+  std::optional<CalibrationResult> best;
+  for (Rig rough : starts) {
+    for (auto& c : rough.cameras) {
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+    }
+    CalibrationResult lens;
+    try {
+      CalibrationOptions lo = o;
+      lo.model = CameraModel::Rotation;
+      lens = calibrate_from_rig(rough, sets, lo);
+    } catch (const std::exception&) {
+      continue;  // no usable lens fit from this start
+    }
+    bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
+    for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
+    if (usable && (!best || lens.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(lens);
   }
-  bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
-  for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
-  const double hp = pin.rotation_heldout_px, hl = lens.rotation_heldout_px;
-  if (usable && hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
+  if (!best) return pin;
+  CalibrationResult& lens = *best;
+  const double hl = lens.rotation_heldout_px;
+  if (hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
+    if (!fisheye_error.empty()) lens.warnings.insert(lens.warnings.begin(), pin.warnings.back());
     lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(hp) + " px pinhole, " +
                             std::to_string(hl) + " px with radtan k1/k2): the cameras get radtan lenses");
     return lens;
@@ -2196,27 +2279,58 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
         pb.push_back(feats[b].keypoints[mt.trainIdx].pt);
       }
       std::vector<uchar> inl;
-      // The epipolar test holds for ideal pixels: undistort through the rig's lenses first
-      // (the distances below map the raw keypoints through the lens-aware canvas maps).
-      std::vector<cv::Point2f> ua = pa, ub = pb;
-      if (!rig.cameras[a].lens.pinhole() || !rig.cameras[b].lens.pinhole()) {
-        std::vector<cv::Point2f> ka, kb, ra, rb;
-        const std::vector<cv::Point2f> ia = undistort_points(rig.cameras[a], pa), ib = undistort_points(rig.cameras[b], pb);
-        for (std::size_t k = 0; k < pa.size(); ++k)
-          if (std::isfinite(ia[k].x) && std::isfinite(ia[k].y) && std::isfinite(ib[k].x) && std::isfinite(ib[k].y)) {
-            ka.push_back(ia[k]);
-            kb.push_back(ib[k]);
-            ra.push_back(pa[k]);
-            rb.push_back(pb[k]);
-          }
-        if (ka.size() < 8) continue;
-        ua = std::move(ka);
-        ub = std::move(kb);
-        pa = std::move(ra);
-        pb = std::move(rb);
+      const Camera &A = rig.cameras[a], &B = rig.cameras[b];
+      if (!rig.planar() && (needs_rays(A) || needs_rays(B))) {
+        // Wide lenses on a curved canvas (a dual fisheye's overlap lies 80-100 degrees off both
+        // axes, where ideal pinhole pixels do not exist and the epipolar test below took wrong
+        // matches: the exact rig of a dual fisheye read 400-800 px misaligned). The cameras turn
+        // about one centre: inliers are the matches one rotation of the rays explains, found
+        // from the matches alone (RANSAC over 2-ray rotations), not from the rig's rotations.
+        std::vector<Eigen::Vector3d> ra, rb;
+        std::vector<cv::Point2f> ka, kb;
+        for (std::size_t k = 0; k < pa.size(); ++k) {
+          Eigen::Vector3d x, y;
+          if (!lens_sees(A, pa[k].x, pa[k].y) || !lens_sees(B, pb[k].x, pb[k].y)) continue;
+          if (!lens_unproject(A, {pa[k].x, pa[k].y}, x) || !lens_unproject(B, {pb[k].x, pb[k].y}, y)) continue;
+          ra.push_back(x.normalized());
+          rb.push_back(y.normalized());
+          ka.push_back(pa[k]);
+          kb.push_back(pb[k]);
+        }
+        if (ra.size() < 8) continue;
+        std::vector<int> all(ra.size());
+        for (std::size_t k = 0; k < all.size(); ++k) all[k] = int(k);
+        const double thr = std::cos(2.0 / std::max(1.0, std::min({A.fx, A.fy, B.fx, B.fy})));  // ~2 px
+        std::vector<int> in = ray_rotation_inliers(ra, rb, all, Eigen::Matrix3d::Identity(), thr, 1000);
+        if (in.size() >= 8) in = ray_rotation_inliers(ra, rb, all, kabsch(ra, rb, in), thr, 0);
+        if (in.size() < 8) continue;
+        inl.assign(ra.size(), 0);
+        for (int k : in) inl[std::size_t(k)] = 1;
+        pa = std::move(ka);
+        pb = std::move(kb);
+      } else {
+        // The epipolar test holds for ideal pixels: undistort through the rig's lenses first
+        // (the distances below map the raw keypoints through the lens-aware canvas maps).
+        std::vector<cv::Point2f> ua = pa, ub = pb;
+        if (!rig.cameras[a].lens.pinhole() || !rig.cameras[b].lens.pinhole()) {
+          std::vector<cv::Point2f> ka, kb, ra, rb;
+          const std::vector<cv::Point2f> ia = undistort_points(rig.cameras[a], pa), ib = undistort_points(rig.cameras[b], pb);
+          for (std::size_t k = 0; k < pa.size(); ++k)
+            if (std::isfinite(ia[k].x) && std::isfinite(ia[k].y) && std::isfinite(ib[k].x) && std::isfinite(ib[k].y)) {
+              ka.push_back(ia[k]);
+              kb.push_back(ib[k]);
+              ra.push_back(pa[k]);
+              rb.push_back(pb[k]);
+            }
+          if (ka.size() < 8) continue;
+          ua = std::move(ka);
+          ub = std::move(kb);
+          pa = std::move(ra);
+          pb = std::move(rb);
+        }
+        cv::Mat F = cv::findFundamentalMat(ua, ub, inl, cv::FM_RANSAC, 1.5, 0.999);
+        if (F.empty()) continue;
       }
-      cv::Mat F = cv::findFundamentalMat(ua, ub, inl, cv::FM_RANSAC, 1.5, 0.999);
-      if (F.empty()) continue;
       std::vector<double> d, dc;
       const CameraCanvasMap ma = camera_canvas_map(rig, a), mb = camera_canvas_map(rig, b);
       const double wrap = rig.canvas_wrap ? double(rig.canvas_width) : 0.0;

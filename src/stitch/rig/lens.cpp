@@ -260,6 +260,29 @@ std::string lens_problem(const Camera& c) {
   return {};
 }
 
+bool lens_cap_at_fold(Camera& c, double min_share) {
+  const Lens& l = c.lens;
+  if (l.circle || l.pinhole() || !(c.fx > 0) || !(c.fy > 0) || lens_problem(c).empty()) return false;
+  double rd;  // the normalised raw radius where the distortion stops growing
+  if (l.model == Lens::Model::Radtan) {
+    const double lim = radtan_limit(l);
+    if (lim >= kNoLimit) return false;
+    rd = std::sqrt(lim) * (1 + lim * (l.k1 + lim * (l.k2 + lim * l.k3)));
+  } else {
+    const double lim = fisheye_limit(l);
+    if (!(lim < kPi)) return false;
+    rd = fisheye_theta_d(l, lim);
+  }
+  const double radius = 0.99 * rd * std::min(c.fx, c.fy);
+  if (!(radius >= min_share * 0.5 * std::min(c.width, c.height))) return false;
+  c.lens.circle = LensCircle{c.cx, c.cy, radius};
+  if (!lens_problem(c).empty()) {
+    c.lens.circle.reset();
+    return false;
+  }
+  return true;
+}
+
 double lens_far_radius(const Camera& c) {
   double far = 0;
   const double xs[2] = {-0.5, c.width - 0.5}, ys[2] = {-0.5, c.height - 0.5};

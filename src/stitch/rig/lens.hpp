@@ -46,6 +46,13 @@ double lens_far_radius(const Camera& c);
 // the image, an image circle outside the frame, a negative radius).
 std::string lens_problem(const Camera& c);
 
+// A calibration's polynomial holds only where the calibration saw its target: OpenCV fisheye and
+// radtan fits of wide lenses often fold back in the frame's (black or unused) corners. When the
+// lens has no image circle and folds inside the frame, but only beyond `min_share` of the shorter
+// half side, give it an image circle centred on the principal point that ends just before the
+// fold (pixels beyond carry no weight) and return true; false (camera unchanged) otherwise.
+bool lens_cap_at_fold(Camera& c, double min_share = 0.8);
+
 // Empty when nothing looks odd; else a warning (not an error: the lens is usable): a fisheye
 // whose frame sees less than `kFisheyeMinDiagonalFovDeg` across its diagonal is most likely a
 // rectilinear image given the fisheye model (its focal length in pixels is that of a normal lens:

@@ -83,6 +83,11 @@ Camera camera_from_node(const cv::FileNode& n, const std::string& where, Eigen::
     for (int r = 0; r < 3; ++r)
       for (int k = 0; k < 3; ++k) (*T_rot)(r, k) = T[4 * r + k];
   }
+  // OpenCV's fits of wide lenses often fold back in the frame's black corners, outside what the
+  // calibration saw (the surround-view set's left camera at 87 degrees): an image circle ends
+  // the lens just before the fold rather than refusing the file. A fold well inside the frame
+  // is still refused below.
+  lens_cap_at_fold(c);
   const std::string problem = lens_problem(c);
   if (!problem.empty()) throw RigError(where + ": " + problem);
   return c;
