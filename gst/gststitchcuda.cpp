@@ -65,14 +65,8 @@ GstCaps* stitch_caps_prefer_cuda(GstCaps* caps, gboolean offer_cuda) {
 GstCaps* stitch_caps_first_holding(GstCaps* caps, const GstStructure* wanted) {
   if (gst_caps_is_any(caps) || gst_caps_get_size(caps) <= 1) return gst_caps_truncate(caps);
   for (guint i = 0; i < gst_caps_get_size(caps); ++i) {
-    const GstStructure* s = gst_caps_get_structure(caps, i);
-    bool holds = true;
-    for (gint f = 0; holds && f < gst_structure_n_fields(wanted); ++f) {
-      const gchar* name = gst_structure_nth_field_name(wanted, guint(f));
-      const GValue* theirs = gst_structure_get_value(s, name);
-      holds = !theirs || gst_value_intersect(NULL, theirs, gst_structure_get_value(wanted, name));
-    }
-    if (holds) {
+    /* fields `wanted` does not name are free: a structure holds it when the named ones intersect */
+    if (gst_structure_can_intersect(gst_caps_get_structure(caps, i), wanted)) {
       GstCaps* one = gst_caps_copy_nth(caps, i);
       gst_caps_unref(caps);
       return one;

@@ -29,13 +29,13 @@ GST_DEBUG_CATEGORY_EXTERN(gst_stitch_sync_debug);
 /* at most one QoS message per input per second (each carries the running totals) */
 #define QOS_INTERVAL GST_SECOND
 
-/* Per-input state, on the pad object itself (GstStitchSyncPad::st): it lives exactly as long as
- * the pad, so a released pad's state goes with it. Guarded by StitchSyncState::lock. */
 /* One of our stand-in gaps as GstAggregator queues it: an empty GAP buffer. */
 static inline bool is_standin_gap(GstBuffer* buf) {
   return GST_BUFFER_FLAG_IS_SET(buf, GST_BUFFER_FLAG_GAP) && gst_buffer_get_size(buf) == 0;
 }
 
+/* Per-input state, on the pad object itself (GstStitchSyncPad::st): it lives exactly as long as
+ * the pad, so a released pad's state goes with it. Guarded by StitchSyncState::lock. */
 struct SyncPadState {
   /* Last real frame, reused while a live camera is late. */
   /* system-memory bundles: the view's memory, held alive */

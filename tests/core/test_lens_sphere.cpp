@@ -347,6 +347,18 @@ TEST(LensLines, RadtanRigKeepsTheGroundTruthsEdges) {
   EXPECT_GT(b_off, 2 * b_on);
 }
 
+// A ring calibrated from the images: every camera a fisheye, and the worst seam against the truth
+// between ring neighbours (px).
+static double ring_worst_seam(const Rig& calibrated, const Rig& truth, const std::string& what) {
+  const int cams = int(truth.cameras.size());
+  double err = 0;
+  for (int i = 0; i < cams; ++i) {
+    EXPECT_EQ(calibrated.cameras[i].lens.model, Lens::Model::Fisheye) << what << " camera " << i;
+    err = std::max(err, worst_seam_px(calibrated, truth, i, (i + 1) % cams, nullptr));
+  }
+  return err;
+}
+
 // No rig file at all (issue 15: 360 without a hand-written rig): frames that show an image circle
 // on black are taken as circular fisheyes, two back to back or N in a ring, and calibrated from
 // that guess over a few fields of view. The circle is found within 3 % of the lens's, the seams
@@ -386,11 +398,7 @@ TEST(CircularFisheyes, FoundAndCalibratedFromTheImagesAlone) {
     }
     EXPECT_TRUE(said);
     EXPECT_FALSE(reordered) << "pads in ring order are kept in it";
-    double err = 0;
-    for (int i = 0; i < cs.cams; ++i) {
-      EXPECT_EQ(r.rig.cameras[i].lens.model, Lens::Model::Fisheye);
-      err = std::max(err, worst_seam_px(r.rig, truth, i, (i + 1) % cs.cams, nullptr));
-    }
+    const double err = ring_worst_seam(r.rig, truth, std::to_string(cs.cams) + " x " + std::to_string(cs.fov));
     std::printf("%s: %d circular fisheyes of %.0f deg, no rig file: worst seam error %.3f px\n", name.c_str(), cs.cams,
                 cs.fov, err);
     for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
@@ -514,11 +522,7 @@ TEST(CircularFisheyes, NarrowLensRingsFoundFromTheImagesAlone) {
     EXPECT_TRUE(said) << cs.cams << " x " << cs.fov;
     EXPECT_EQ(r.rig.projection, "spherical") << cs.cams << " x " << cs.fov;
     EXPECT_TRUE(r.rig.canvas_wrap) << cs.cams << " x " << cs.fov;
-    double err = 0;
-    for (int i = 0; i < cs.cams; ++i) {
-      EXPECT_EQ(r.rig.cameras[i].lens.model, Lens::Model::Fisheye) << cs.cams << " x " << cs.fov << " camera " << i;
-      err = std::max(err, worst_seam_px(r.rig, truth, i, (i + 1) % cs.cams, nullptr));
-    }
+    const double err = ring_worst_seam(r.rig, truth, std::to_string(cs.cams) + " x " + std::to_string(cs.fov));
     std::printf("%s: ring of %d circular fisheyes of %.0f deg, no rig file: worst seam error %.3f px\n", name.c_str(),
                 cs.cams, cs.fov, err);
     for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());

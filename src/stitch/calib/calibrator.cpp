@@ -1903,11 +1903,12 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
   // field-of-view guess: a guess far off the lens (195 degrees for 120-degree lenses) bends the
   // rays enough to read a wrong order.
   RingOrder ring;
+  if (sets[0].size() < 2) return std::nullopt;
+  // The circles once (a rim fit per frame), the rough rigs of every guess from them.
+  const std::optional<std::vector<LensCircle>> circles = find_image_circles(sets[0]);
+  if (!circles) return std::nullopt;
   std::optional<FeatureSets> ring_feats;
-  if (sets[0].size() >= 3) {
-    if (!circular_fisheye_rig(sets[0], 195.0)) return std::nullopt;
-    ring_feats = detect_all(sets, int(sets[0].size()), o);
-  }
+  if (sets[0].size() >= 3) ring_feats = detect_all(sets, int(sets[0].size()), o);
   // Two back to back need more than 180 degrees each; a ring of N covers the circle with lenses
   // down to a little more than 360 / N (a ring of 4 x 150 or 6 x 120 degrees: the 195-225 guesses
   // put their focal lengths 25-40 % off, which no fit recovers from).
@@ -1925,11 +1926,11 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
     if (fov < 185.0 && best_whole && best_error < kFisheyeFitMaxPx) break;
     RingOrder order;
     if (ring_feats) {
-      const std::optional<Rig> guess = circular_fisheye_rig(sets[0], fov);
+      const std::optional<Rig> guess = circular_fisheye_rig(sets[0], *circles, fov);
       if (!guess) return std::nullopt;
       order = ring_order(*ring_feats, *guess, o);
     }
-    std::optional<Rig> rough = circular_fisheye_rig(sets[0], fov, order.slots);
+    std::optional<Rig> rough = circular_fisheye_rig(sets[0], *circles, fov, order.slots);
     if (!rough) return std::nullopt;
     rough->reference = reference >= 0 && reference < int(rough->cameras.size()) ? reference : 0;
     try {

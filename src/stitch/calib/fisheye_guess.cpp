@@ -122,23 +122,32 @@ std::optional<LensCircle> find_image_circle(const ImageView& frame) {
   return c;
 }
 
-std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, double fov_deg,
-                                        const std::vector<int>& slots) {
-  if (frames.size() < 2 || !(fov_deg > 90 && fov_deg < 360)) return std::nullopt;
+std::optional<std::vector<LensCircle>> find_image_circles(const std::vector<ImageView>& frames) {
+  std::vector<LensCircle> circles;
+  for (const ImageView& f : frames) {
+    const std::optional<LensCircle> circle = find_image_circle(f);
+    if (!circle) return std::nullopt;
+    circles.push_back(*circle);
+  }
+  return circles;
+}
+
+std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, const std::vector<LensCircle>& circles,
+                                        double fov_deg, const std::vector<int>& slots) {
+  if (frames.size() < 2 || circles.size() != frames.size() || !(fov_deg > 90 && fov_deg < 360)) return std::nullopt;
   if (!slots.empty() && slots.size() != frames.size()) return std::nullopt;
   Rig rig;
   rig.projection = "spherical";
   rig.reference = 0;
   const int n = int(frames.size());
   for (int i = 0; i < n; ++i) {
-    const std::optional<LensCircle> circle = find_image_circle(frames[i]);
-    if (!circle) return std::nullopt;
+    const LensCircle& circle = circles[std::size_t(i)];
     Camera c;
     c.width = frames[i].width;
     c.height = frames[i].height;
-    c.fx = c.fy = circle->radius / (0.5 * fov_deg * CV_PI / 180.0);
-    c.cx = circle->cx;
-    c.cy = circle->cy;
+    c.fx = c.fy = circle.radius / (0.5 * fov_deg * CV_PI / 180.0);
+    c.cx = circle.cx;
+    c.cy = circle.cy;
     c.lens.model = Lens::Model::Fisheye;
     c.lens.circle = circle;
     c.lens.estimate = true;
@@ -147,6 +156,14 @@ std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, do
     rig.cameras.push_back(c);
   }
   return rig;
+}
+
+std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, double fov_deg,
+                                        const std::vector<int>& slots) {
+  if (frames.size() < 2 || !(fov_deg > 90 && fov_deg < 360)) return std::nullopt;
+  const std::optional<std::vector<LensCircle>> circles = find_image_circles(frames);
+  if (!circles) return std::nullopt;
+  return circular_fisheye_rig(frames, *circles, fov_deg, slots);
 }
 
 }  // namespace stitch

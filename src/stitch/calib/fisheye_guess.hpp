@@ -24,4 +24,10 @@ std::optional<LensCircle> find_image_circle(const ImageView& frame);
 std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, double fov_deg,
                                         const std::vector<int>& slots = {});
 
+// The same in two steps, for a caller that tries several fields of view and orders: every
+// frame's image circle (nullopt when a frame shows none), found once; the rig from those.
+std::optional<std::vector<LensCircle>> find_image_circles(const std::vector<ImageView>& frames);
+std::optional<Rig> circular_fisheye_rig(const std::vector<ImageView>& frames, const std::vector<LensCircle>& circles,
+                                        double fov_deg, const std::vector<int>& slots = {});
+
 }  // namespace stitch
