@@ -815,6 +815,19 @@ struct RotationFit {
   std::vector<std::string> warnings;
 };
 
+// How many cameras the usable pairs tie to `reference` (itself included), directly or through others.
+int cameras_tied_to(const std::vector<PairData>& pairs, int n, int reference) {
+  std::vector<bool> tied(std::size_t(n), false);
+  if (reference < 0 || reference >= n) return 0;
+  tied[std::size_t(reference)] = true;
+  for (bool grew = true; grew;) {
+    grew = false;
+    for (const PairData& p : pairs)
+      if (p.ok && tied[std::size_t(p.a)] != tied[std::size_t(p.b)]) tied[std::size_t(p.a)] = tied[std::size_t(p.b)] = grew = true;
+  }
+  return int(std::count(tied.begin(), tied.end(), true));
+}
+
 RotationFit adjust(const Rig& start, const std::vector<PairData>& pairs, const BundleAdjustOptions& options = {}) {
   RotationFit f;
   f.rig = start;
@@ -1439,21 +1452,24 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   bool any_rays = false;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b) any_rays |= ray_pair(a, b);
-  // `ray_thr_rad` > 0: the ray pairs' RANSAC threshold; rotations and lenses from `lens_rig`.
-  auto match_all = [&](const Rig& lens_rig, double ransac_scale = 1.0, double ray_thr_rad = 0) {
+  // `ray_thr_rad` > 0: the ray pairs' RANSAC threshold; rotations and lenses from `lens_rig`,
+  // or from `ray_rig` for the ray pairs when given.
+  auto match_all = [&](const Rig& lens_rig, double ransac_scale = 1.0, double ray_thr_rad = 0,
+                       const Rig* ray_rig = nullptr) {
     std::vector<PairData> out;
     for (int a = 0; a < n; ++a)
       for (int b = a + 1; b < n; ++b) {
         const Camera &A = start.cameras[a], &B = start.cameras[b];
         if (ray_pair(a, b)) {
-          const Camera &LA = lens_rig.cameras[a], &LB = lens_rig.cameras[b];
+          const Rig& rays_through = ray_rig ? *ray_rig : lens_rig;
+          const Camera &LA = rays_through.cameras[a], &LB = rays_through.cameras[b];
           const double axes = std::acos(std::clamp(LA.R().col(2).dot(LB.R().col(2)), -1.0, 1.0));
           if (axes > (lens_half_fov(LA) + lens_half_fov(LB)) * (1 + o.overlap_margin)) continue;
           const double f = std::min(LA.fx, LB.fx);
           // First pass: a rough focal length bends every ray (3 % is 3 degrees at 100 degrees
           // off the axis, which no rotation absorbs): match loosely, the adjustment cleans up.
           const double thr = ray_thr_rad > 0 ? ray_thr_rad : std::max(4 * o.ransac_threshold_px / f, 0.12);
-          out.push_back(match_pair_rays(feats, a, b, o, lens_rig, thr, 0.3));
+          out.push_back(match_pair_rays(feats, a, b, o, rays_through, thr, 0.3));
           continue;
         }
         if (start.planar()) {
@@ -1598,10 +1614,17 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
           lens_rig.cameras[i].lens = rot.rig.cameras[i].lens;
           lens_rig.cameras[i].lens.estimate = true;
         }
-      std::vector<PairData> pairs2 = match_all(lens_rig);
+      // Ray pairs through the adjusted rig as a whole: an estimated fisheye lens belongs to its
+      // estimated focal length (k1 from f 103 px on the rough f 91 bent the rim rays by 7 degrees),
+      // and the rough rotations can be 20 degrees off (ring of 5 x 185: four pairs lost).
+      std::vector<PairData> pairs2 = match_all(lens_rig, 1.0, 0, &rot.rig);
       Rig r1 = rot.rig;
       for (int i = 0; i < n; ++i) r1.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
       RotationFit rot2 = adjust(r1, pairs2, ba_options);
+      // Matches that no longer tie every camera to the reference let the cut-off part turn
+      // freely (that ring: 122 degrees off at 0.36 px rms): keep the first fit then.
+      if (rot2.ok && cameras_tied_to(pairs2, n, rot.rig.reference) < cameras_tied_to(pairs, n, rot.rig.reference))
+        rot2.ok = false;
       if (rot2.ok) {
         rot = std::move(rot2);
         pairs = std::move(pairs2);
@@ -1618,6 +1641,8 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       for (int i = 0; i < n; ++i) r1.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
       std::vector<PairData> pairs2 = match_all(rot.rig, 1.0, o.ransac_threshold_px / f);
       RotationFit rot2 = adjust(r1, pairs2, ba_options);
+      if (rot2.ok && cameras_tied_to(pairs2, n, rot.rig.reference) < cameras_tied_to(pairs, n, rot.rig.reference))
+        rot2.ok = false;
       if (rot2.ok) {
         rot = std::move(rot2);
         pairs = std::move(pairs2);
