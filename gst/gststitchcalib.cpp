@@ -185,6 +185,7 @@ static guint signals[LAST_SIGNAL];
 /* One calibration job in a worker thread. The worker owns its inputs and this channel (shared):
  * it never touches the element, which may be gone before it finishes. */
 struct WorkerChannel {
+  stitch::JobKind kind = stitch::JobKind::First;
   std::atomic<bool> cancel{false};
   std::atomic<bool> done{false};
   std::mutex m;  // only for the condition variable: never held while computing
@@ -484,6 +485,7 @@ static gboolean post_events(GstStitchCalib* self) {
 
 static void start_worker(CalibState* st, std::shared_ptr<stitch::CalibJob> job) {
   auto ch = std::make_shared<WorkerChannel>();
+  ch->kind = job->kind;
   {
     std::lock_guard<std::mutex> g(workers_lock);
     ++workers_alive;
@@ -715,6 +717,21 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
        * finished first (a flush or a stop still releases the wait), so that its result is
        * announced and saved. */
       snapshot_settings(st);
+      if (st->worker && st->worker->kind == stitch::JobKind::Pooled && st->save_path.empty() &&
+          !st->worker->done.load()) {
+        /* The automatic pooled recalibration would only improve frames that will never come
+         * (and no save-file to write it to): it is cancelled, not waited for (EOS came 6-15 s
+         * late on the real clips). */
+        GST_DEBUG_OBJECT(self, "end of stream: the pooled recalibration in flight is cancelled");
+        std::shared_ptr<WorkerChannel> ch = st->worker;
+        ch->cancel = true;
+        /* It stops at the calibrator's next stage (a detection, a pair: well under a second).
+         * Waited for all the same: a process that exits while it runs OpenCV crashes in the
+         * thread pool's teardown. */
+        wait_for_worker(st);
+        st->worker.reset();
+        st->session.abandon_job();
+      }
       if (st->worker && wait_for_worker(st)) collect_outcome(st);
       if (!st->session.current() && !st->session.failed() && st->last_torn) {
         /* The stream ended on torn pictures alone: no later frame can replace them (a photo, a

@@ -515,8 +515,13 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     if (!job.left_out) return text;
     return renumbered(text, kept) + " (" + camera_list(job.left_out, job.sizes.size()) + " left out: no picture)";
   };
+  SessionConfig config = job.config;
+  config.options.cancel = &cancel;  // a cancelled job stops at the calibrator's next stage
   try {
-    o.result = calibrate(job.config, job.rough, sets);
+    o.result = calibrate(config, job.rough, sets);
+  } catch (const CalibrationCancelled&) {
+    o.cancelled = true;
+    return o;
   } catch (const RigError& e) {
     o.error = speak(e.what());
     // Degenerate rough geometry cannot be repaired by other frames.
@@ -1202,6 +1207,11 @@ void CalibSession::bundle_dropped() {
   e.processed = passed_;
   e.dropped = dropped_;
   events_.push_back(e);
+}
+
+void CalibSession::abandon_job() {
+  job_in_flight_ = false;
+  ++serial_;
 }
 
 void CalibSession::on_eos() {

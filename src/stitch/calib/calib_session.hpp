@@ -250,6 +250,9 @@ class CalibSession {
   void bundle_dropped();
   // The stream ended: an error when no calibration was ever made.
   void on_eos();
+  // The job in flight was cancelled by the caller: its outcome, if it comes, is ignored, and
+  // the next job may start (a seek after the end of the stream).
+  void abandon_job();
   void request_recalibration() { recalibrate_requested_ = true; }
   // Whether the last bundle was kept from the first calibration by torn pictures alone (every
   // camera delivered; each refused one was "corrupt"). At the end of a stream such a picture is
