@@ -637,6 +637,8 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   }
   const GstStitchBundleMeta* bundle = gst_buffer_get_stitch_bundle_meta(buf);
   frame.missing_mask = bundle ? bundle->missing_mask : 0;
+  if (bundle && bundle->has_pad_numbers && bundle->n_views == frame.sizes.size())
+    frame.camera_ids.assign(bundle->pad_numbers, bundle->pad_numbers + MIN(bundle->n_views, guint(STITCH_MAX_VIEWS)));
   frame.time_s = running_time_s(self, buf);
   st->now_s = frame.time_s;
   if (bundle) {

@@ -882,7 +882,18 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
     gst_element_post_message(GST_ELEMENT(self), gst_message_new_element(GST_OBJECT(self), offsets));
   }
   /* the offsets travel with the bundle: stitchcalib saves them with the rig */
-  gst_stitch_bundle_meta_set_time_offsets(gst_buffer_add_stitch_bundle_meta(outbuf, n, missing), applied, n, estimated);
+  GstStitchBundleMeta* bundle_meta = gst_buffer_add_stitch_bundle_meta(outbuf, n, missing);
+  gst_stitch_bundle_meta_set_time_offsets(bundle_meta, applied, n, estimated);
+  /* which pad each view comes from: stitchcalib keeps the geometry of the cameras that stay when
+   * one leaves (a released pad renumbers the views after it) */
+  guint pad_numbers[STITCH_MAX_VIEWS] = {0};
+  bool numbered = n <= STITCH_MAX_VIEWS;
+  for (guint v = 0; numbered && v < n; ++v) {
+    const gchar* name = v < pads.size() && pads[v] ? GST_PAD_NAME(pads[v]) : NULL;
+    numbered = name && g_str_has_prefix(name, "sink_");
+    if (numbered) pad_numbers[v] = guint(g_ascii_strtoull(name + 5, NULL, 10));
+  }
+  if (numbered) gst_stitch_bundle_meta_set_pad_numbers(bundle_meta, pad_numbers, n);
   return GST_FLOW_OK;
 }
 

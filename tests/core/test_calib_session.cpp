@@ -825,6 +825,67 @@ TEST(CalibSession, ResizeRecalibratesFromScratch) {
   EXPECT_NE(w->text.find("number of cameras changed mid-stream (3 -> 2)"), std::string::npos) << w->text;
 }
 
+// probe3: the middle one of three cameras leaves while playing (its pad released). Calibrated
+// again from scratch, the two that stay share nothing and the panorama stopped for good ("camera
+// 0 shares too few features", 7 panoramas of the house clips, then none). The cameras that stay
+// have not moved: they keep their geometry, at once, on the same canvas.
+TEST(CalibSession, ACameraThatLeavesKeepsTheOthersCalibration) {
+  CalibSession s;
+  s.set_config(quick());
+  int jobs = 0;
+  auto feed_ids = [&](int f, const std::vector<cv::Mat>& frames, const std::vector<unsigned>& ids) {
+    CalibSession::Frame fr;
+    fr.time_s = f / 30.0;
+    for (const auto& m : frames) fr.sizes.push_back({m.cols, m.rows});
+    fr.camera_ids = ids;
+    auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+    if (job) {
+      ++jobs;
+      std::atomic<bool> cancel{false};
+      s.on_outcome(run_calib_job(*job, cancel));
+    }
+    if (s.current()) s.bundle_passed();
+    else s.bundle_dropped();
+    return s.take_events();
+  };
+  const auto three = crops(3);
+  feed_ids(0, three, {0, 1, 2});
+  ASSERT_TRUE(s.current());
+  ASSERT_EQ(s.current()->cameras.size(), 3u);
+  const Rig before = *s.current();
+  jobs = 0;
+  std::vector<SessionEvent> events;
+  for (int f = 1; f < 40; ++f)
+    for (auto& e : feed_ids(f, {three[0], three[2]}, {0, 2})) events.push_back(e);
+  EXPECT_EQ(count(events, SessionEvent::Type::Error), 0);
+  EXPECT_EQ(count(events, SessionEvent::Type::Pending), 0);
+  EXPECT_EQ(jobs, 0);
+  const SessionEvent* in = find(events, SessionEvent::Type::Installed);
+  ASSERT_NE(in, nullptr);
+  EXPECT_EQ(in->report.source, "kept");
+  const SessionEvent* w = find(events, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("camera 1 (input 1) left"), std::string::npos) << w->text;
+  ASSERT_TRUE(s.current());
+  const Rig& now = *s.current();
+  ASSERT_EQ(now.cameras.size(), 2u);
+  EXPECT_EQ(now.canvas_width, before.canvas_width);
+  EXPECT_EQ(now.canvas_height, before.canvas_height);
+  ASSERT_TRUE(now.cameras[0].homography && now.cameras[1].homography);
+  EXPECT_LT((*now.cameras[0].homography - *before.cameras[0].homography).norm(), 1e-9);
+  EXPECT_LT((*now.cameras[1].homography - *before.cameras[2].homography).norm(), 1e-9);
+  // without the pad numbers (an older stitchsync) it is still a calibration from scratch
+  CalibSession t;
+  t.set_config(quick());
+  feed(t, 0, three);
+  CalibSession::Frame fr;
+  fr.time_s = 1;
+  fr.sizes = {{640, 480}, {640, 480}};
+  auto job = t.on_frame(fr, views_of({three[0], three[2]}));
+  ASSERT_TRUE(job);
+  EXPECT_FALSE(job->current);
+}
+
 TEST(CalibSession, DriftWatchNeedsTwoBadChecksInARow) {
   SessionConfig c = quick();
   c.drift_threshold_px = 3;

@@ -616,6 +616,7 @@ bool CalibSession::handle_sizes(const Frame& frame) {
       fail(change + " and on-resize=error");
       return false;
     }
+    if (keep_remaining_cameras(frame)) return true;
     warn(change + "; calibrating again with every camera");
     forget_calibration();
     return true;
@@ -639,6 +640,63 @@ bool CalibSession::handle_sizes(const Frame& frame) {
   }
   warn("Input resolution changed mid-stream (" + what + "); recalibrating");
   forget_calibration();
+  return true;
+}
+
+bool CalibSession::keep_remaining_cameras(const Frame& frame) {
+  // Cameras that left (their pads released): the ones that stay have not moved, so their geometry
+  // is kept and the panorama goes on at once. A calibration from scratch could fail for good
+  // where the camera that left was the only link between the others (the middle one of three).
+  if (frame.sizes.size() >= sizes_.size() || frame.sizes.size() < 2 || camera_ids_.size() != sizes_.size() ||
+      frame.camera_ids.size() != frame.sizes.size() || current_->cameras.size() != sizes_.size())
+    return false;
+  std::vector<std::size_t> keep;
+  for (std::size_t j = 0; j < frame.camera_ids.size(); ++j) {
+    std::size_t i = 0;
+    while (i < camera_ids_.size() && camera_ids_[i] != frame.camera_ids[j]) ++i;
+    if (i == camera_ids_.size() || (!keep.empty() && i <= keep.back()) || frame.sizes[j] != sizes_[i]) return false;
+    keep.push_back(i);
+  }
+  Rig rig = *current_;
+  rig.cameras.clear();
+  std::uint64_t left_out = 0;
+  std::vector<double> absent;
+  std::string gone;
+  int reference = -1;
+  for (std::size_t j = 0; j < keep.size(); ++j) {
+    rig.cameras.push_back(current_->cameras[keep[j]]);
+    if (bit(left_out_, keep[j])) left_out |= std::uint64_t(1) << j;
+    if (keep[j] < absent_since_.size()) absent.resize(j + 1, -1), absent[j] = absent_since_[keep[j]];
+    if (int(keep[j]) == current_->reference) reference = int(j);
+  }
+  for (std::size_t i = 0, j = 0; i < camera_ids_.size(); ++i) {
+    if (j < keep.size() && keep[j] == i) { ++j; continue; }
+    gone += (gone.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " (input " + std::to_string(camera_ids_[i]) + ")";
+  }
+  int live = 0;
+  for (const Camera& c : rig.cameras) live += c.left_out ? 0 : 1;
+  if (live < 2) return false;
+  // The reference only anchors the rig frame and the colour correction: the middle one that stays.
+  if (reference < 0) reference = int(keep.size() / 2);
+  rig.reference = reference;
+  warn("The number of cameras changed mid-stream (" + std::to_string(sizes_.size()) + " -> " +
+       std::to_string(frame.sizes.size()) + "): " + gone + " left" +
+       "; the other cameras keep their calibration");
+  sizes_ = frame.sizes;
+  camera_ids_ = frame.camera_ids;
+  left_out_ = left_out;
+  absent_since_ = absent;
+  window_open_ = false;
+  bins_.clear();
+  job_in_flight_ = false;
+  ++serial_;
+  CalibrationResult r;
+  r.rig = std::move(rig);
+  CalibReport rep;
+  rep.source = "kept";
+  const int w = panorama_w_, h = panorama_h_;
+  install(rep, &r);
+  panorama_w_ = w, panorama_h_ = h;
   return true;
 }
 
@@ -944,6 +1002,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
   if (!current_) {
     if (first_frame_at_ < 0) first_frame_at_ = now_;
     sizes_ = frame.sizes;
+    camera_ids_ = frame.camera_ids;
     if (!config_.load_file.empty()) {
       load_file(frame.missing_mask);
       return nullptr;
