@@ -692,10 +692,13 @@ bool CalibSession::keep_remaining_cameras(const Frame& frame) {
   ++serial_;
   CalibrationResult r;
   r.rig = std::move(rig);
+  if (installed_model_) r.model = *installed_model_;
   CalibReport rep;
-  rep.source = "kept";
+  rep.source = installed_model_ ? "kept" : "file";  // a kept loaded file stays one (no model)
+  const std::string source = "kept";
   const int w = panorama_w_, h = panorama_h_;
   install(rep, &r);
+  if (!events_.empty() && events_.back().type == SessionEvent::Type::Installed) events_.back().report.source = source;
   panorama_w_ = w, panorama_h_ = h;
   return true;
 }
