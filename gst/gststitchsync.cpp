@@ -8,7 +8,10 @@
  * by pad number (sink_0 first). For every output timestamp each view is the input frame that
  * covers that running time (GstVideoAggregator semantics), so inputs may run at different or
  * variable rates and may be live (latency, timeouts). Inputs of any raw format are converted
- * to RGBA; interlaced inputs are refused with an error that names the pad.
+ * to RGBA; interlaced inputs are refused with an error that names the pad. Inputs with
+ * non-square pixels (pixel-aspect-ratio other than 1/1) are resampled to square-pixel views
+ * (widened, or heightened for ratios below 1). Each bundle's meta names the pad of every view,
+ * so that stitchcalib knows which camera left when a pad is released.
  *
  * With a GPU (and `backend` not `cpu`) the bundle goes out in CUDA memory
  * (`video/x-raw(memory:CUDAMemory)`, gst-cuda) when downstream takes it, and the frames then
