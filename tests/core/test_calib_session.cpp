@@ -322,6 +322,32 @@ TEST(CalibSession, DarkCameraIsLeftOutAndJoinsWhenItShowsAPicture) {
   EXPECT_NE(w->text.find("camera 2 delivers a picture now"), std::string::npos) << w->text;
 }
 
+// probe3: a camera that shows a flat white (or grey, or blown-out) picture is as useless to a
+// calibration from the images as a dark one: it is left out the same way, and stays out while
+// it shows nothing. Before, two good phone clips and a white camera gave no panorama at all
+// ("Could not calibrate before the stream ended ... camera 2 is featureless").
+TEST(CalibSession, FeaturelessCameraIsLeftOutLikeADarkOne) {
+  for (const double level : {255.0, 128.0}) {
+    CalibSession s;
+    s.set_config(quick());
+    auto frames = crops(3);
+    frames[2] = cv::Mat(480, 640, CV_8UC4, cv::Scalar(level, level, level, 255));
+    std::vector<SessionEvent> events;
+    int f = 0;
+    for (; f < 200 && !s.current(); ++f)
+      for (auto& e : feed(s, f, frames)) events.push_back(e);
+    ASSERT_TRUE(s.current()) << "level " << level << ": the two cameras with a picture were never stitched";
+    EXPECT_NEAR(f / 30.0, SessionConfig().leave_out_after_s, 0.2);
+    EXPECT_EQ(count(events, SessionEvent::Type::Error), 0);
+    EXPECT_TRUE(s.current()->cameras[2].left_out);
+    EXPECT_FALSE(s.current()->cameras[0].left_out);
+    // still flat: no calibration from scratch every half second
+    const auto version = s.version();
+    for (int k = 0; k < 30; ++k, ++f) feed(s, f, frames);
+    EXPECT_EQ(s.version(), version);
+  }
+}
+
 // A camera that never delivers a frame (stitchsync marks it missing, at a placeholder size) is
 // left out the same way; when it starts at its real size, the calibration is made again with it,
 // not reported as a resolution change.

@@ -952,14 +952,22 @@ bool CalibSession::absent_long_enough(std::size_t camera) const {
          now_ - absent_since_[camera] >= config_.leave_out_after_s;
 }
 
+bool CalibSession::shows_nothing(const ImageView& view) const {
+  // Dark (a lens cap, a dead sensor), or, for a calibration from the images alone, featureless:
+  // a flat white or grey picture (blown out, fogged, a cap in the light) that no matcher can
+  // place (probe3: two phone clips and a white camera made no panorama at all). A rig-file
+  // places a featureless camera by its rough geometry, so there it stays in.
+  const FrameVerdict v = assess_frame(view).verdict;
+  return v == FrameVerdict::Dark || (v == FrameVerdict::Featureless && config_.rig_file.empty());
+}
+
 std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::vector<ImageView>& views) {
   const std::size_t n = frame.sizes.size();
   if (n > 64 || config_.leave_out_after_s <= 0) return 0;
   absent_since_.resize(n, -1);
   std::uint64_t absent = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    const bool gone = bit(frame.missing_mask, i) ||
-                      (views.size() == n && assess_frame(views[i]).verdict == FrameVerdict::Dark);
+    const bool gone = bit(frame.missing_mask, i) || (views.size() == n && shows_nothing(views[i]));
     if (!gone) {
       absent_since_[i] = -1;
       continue;
@@ -1060,7 +1068,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     if (!back || !have_pixels) return nullptr;
     last_rejoin_check_ = now_;
     for (std::size_t i = 0; i < views.size(); ++i)
-      if (bit(back, i) && assess_frame(views[i]).verdict == FrameVerdict::Dark) return nullptr;
+      if (bit(back, i) && shows_nothing(views[i])) return nullptr;
     rejoin(back, views.size());
     return nullptr;
   }

@@ -338,6 +338,7 @@ class CalibSession {
   std::vector<std::array<int, 2>> sizes_;
   std::vector<unsigned> camera_ids_;  // the inputs of sizes_ (Frame::camera_ids), when known
   bool keep_remaining_cameras(const Frame& frame);
+  bool shows_nothing(const ImageView& view) const;  // a camera to leave out (dark, or featureless)
   int panorama_w_ = 0, panorama_h_ = 0;  // kept over recalibrations
   // The panorama size a calibration from scratch mid-stream (a resize, a camera added or back)
   // is fitted into: stitchblend's output, which encoders and muxers cannot see change.
