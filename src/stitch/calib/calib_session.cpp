@@ -1154,7 +1154,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       for (std::size_t i = 0; i < r.rig.cameras.size() && i < 64; ++i)
         if (r.rig.cameras[i].left_out) left_out_ |= std::uint64_t(1) << i;
       if (left_out_)
-        warn(camera_list(left_out_, r.rig.cameras.size()) + " delivered no picture (no frame, or a dark one) for " +
+        warn(camera_list(left_out_, r.rig.cameras.size()) + " delivered no picture (no frame, a dark one, or a featureless one) for " +
              fmt(config_.leave_out_after_s) + " s: calibrated and stitched without " +
              agree(left_out_, "it; it joins", "them; each joins") +
              " with a calibration from scratch once it delivers (the panorama keeps its size)");
