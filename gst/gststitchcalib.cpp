@@ -97,8 +97,9 @@
  * (`on-resize=error`). A camera that leaves (its stitchsync pad released) takes its view with
  * it: the cameras that stay keep their geometry on the same canvas (message `source=kept`, a
  * warning naming the camera and its input), so the panorama goes on at once even where the
- * camera that left was the only link between the others; `on-resize=error` stops instead. A camera added while playing is always calibrated in, with a warning
- * that the number of cameras changed. Such a calibration from scratch, and the one a left-out
+ * camera that left was the only link between the others; `on-resize=error` stops instead.
+ * A camera added while playing is always calibrated in, with a warning that the number of
+ * cameras changed. Such a calibration from scratch, and the one a left-out
  * camera joins with, is fitted into the panorama size the stream already has (encoders and
  * muxers cannot take a size change). Flushes (seeks) keep the calibration: the rig has not moved.
  *
