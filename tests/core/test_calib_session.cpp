@@ -1,5 +1,6 @@
 // The calibration policy (calib_session): frame quality, when it calibrates, what it accepts,
 // how long it keeps trying, what it says, and canvases that equal the panorama.
+#include <cstdio>
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -857,7 +858,10 @@ TEST(CalibSession, ResizeRecalibratesFromScratch) {
 // have not moved: they keep their geometry, at once, on the same canvas.
 TEST(CalibSession, ACameraThatLeavesKeepsTheOthersCalibration) {
   CalibSession s;
-  s.set_config(quick());
+  SessionConfig config = quick();
+  config.save_file = testdata::temp_dir() + "/leaves_keeps.json";
+  std::remove(config.save_file.c_str());
+  s.set_config(config);
   int jobs = 0;
   auto feed_ids = [&](int f, const std::vector<cv::Mat>& frames, const std::vector<unsigned>& ids) {
     CalibSession::Frame fr;
@@ -900,6 +904,8 @@ TEST(CalibSession, ACameraThatLeavesKeepsTheOthersCalibration) {
   ASSERT_TRUE(now.cameras[0].homography && now.cameras[1].homography);
   EXPECT_LT((*now.cameras[0].homography - *before.cameras[0].homography).norm(), 1e-9);
   EXPECT_LT((*now.cameras[1].homography - *before.cameras[2].homography).norm(), 1e-9);
+  // the saved calibration stays the whole rig's: a part of it is nothing new to save
+  EXPECT_EQ(rig_load(config.save_file).cameras.size(), 3u);
   // without the pad numbers (an older stitchsync) it is still a calibration from scratch
   CalibSession t;
   t.set_config(quick());

@@ -697,7 +697,12 @@ bool CalibSession::keep_remaining_cameras(const Frame& frame) {
   rep.source = installed_model_ ? "kept" : "file";  // a kept loaded file stays one (no model)
   const std::string source = "kept";
   const int w = panorama_w_, h = panorama_h_;
+  // save-file keeps the whole rig's calibration: a part of it is nothing new (and a file for fewer
+  // cameras would not load for the whole rig)
+  const std::string save_file = config_.save_file;
+  config_.save_file.clear();
   install(rep, &r);
+  config_.save_file = save_file;
   if (!events_.empty() && events_.back().type == SessionEvent::Type::Installed) events_.back().report.source = source;
   panorama_w_ = w, panorama_h_ = h;
   return true;
