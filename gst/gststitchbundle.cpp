@@ -25,6 +25,8 @@ static gboolean bundle_meta_init(GstMeta* meta, gpointer, GstBuffer*) {
   m->has_time_offsets = FALSE;
   m->estimated_mask = 0;
   std::memset(m->time_offsets_ns, 0, sizeof(m->time_offsets_ns));
+  m->has_pad_numbers = FALSE;
+  std::memset(m->pad_numbers, 0, sizeof(m->pad_numbers));
   return TRUE;
 }
 
@@ -37,6 +39,8 @@ static gboolean bundle_meta_transform(GstBuffer* dest, GstMeta* meta, GstBuffer*
   d->has_time_offsets = m->has_time_offsets;
   d->estimated_mask = m->estimated_mask;
   std::memcpy(d->time_offsets_ns, m->time_offsets_ns, sizeof(d->time_offsets_ns));
+  d->has_pad_numbers = m->has_pad_numbers;
+  std::memcpy(d->pad_numbers, m->pad_numbers, sizeof(d->pad_numbers));
   return TRUE;
 }
 
@@ -65,6 +69,14 @@ GstStitchBundleMeta* gst_buffer_add_stitch_bundle_meta(GstBuffer* buffer, guint 
 GstStitchBundleMeta* gst_buffer_get_stitch_bundle_meta(GstBuffer* buffer) {
   return reinterpret_cast<GstStitchBundleMeta*>(
       gst_buffer_get_meta(buffer, gst_stitch_bundle_meta_api_get_type()));
+}
+
+void gst_stitch_bundle_meta_set_pad_numbers(GstStitchBundleMeta* meta, const guint* pad_numbers, guint n) {
+  if (!meta) return;
+  n = MIN(n, guint(STITCH_MAX_VIEWS));
+  std::memset(meta->pad_numbers, 0, sizeof(meta->pad_numbers));
+  for (guint v = 0; v < n; ++v) meta->pad_numbers[v] = pad_numbers[v];
+  meta->has_pad_numbers = TRUE;
 }
 
 void gst_stitch_bundle_meta_set_time_offsets(GstStitchBundleMeta* meta, const gint64* offsets_ns, guint n,

@@ -46,6 +46,10 @@ typedef struct {
   gboolean has_time_offsets;
   guint64 estimated_mask;
   gint64 time_offsets_ns[STITCH_MAX_VIEWS];
+  /* the number N of the sink pad (sink_N) each view comes from, when `has_pad_numbers`: a camera
+   * that leaves (its pad released) is known by it, and stitchcalib keeps the others' geometry */
+  gboolean has_pad_numbers;
+  guint pad_numbers[STITCH_MAX_VIEWS];
 } GstStitchBundleMeta;
 
 /* The rig (geometry) attached by stitchcalib. `version` changes whenever the calibration
@@ -64,6 +68,9 @@ GstStitchBundleMeta* gst_buffer_get_stitch_bundle_meta(GstBuffer* buffer);
 /* Sets the meta's time offsets (n <= STITCH_MAX_VIEWS values; has_time_offsets is derived). */
 void gst_stitch_bundle_meta_set_time_offsets(GstStitchBundleMeta* meta, const gint64* offsets_ns, guint n,
                                              guint64 estimated_mask);
+
+/* Sets which sink pad each view comes from (n <= STITCH_MAX_VIEWS values). */
+void gst_stitch_bundle_meta_set_pad_numbers(GstStitchBundleMeta* meta, const guint* pad_numbers, guint n);
 
 GType gst_stitch_rig_meta_api_get_type(void);
 const GstMetaInfo* gst_stitch_rig_meta_get_info(void);

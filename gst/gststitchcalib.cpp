@@ -91,11 +91,15 @@
  * calibration, and a state change to READY (or a flush) releases the streaming thread and
  * cancels the worker between its stages.
  *
- * An input that changes resolution mid-stream (or a camera that leaves) is calibrated again
+ * An input that changes resolution mid-stream is calibrated again
  * from scratch (the rig-file or the images, never the old geometry), with a warning naming the
  * camera and both sizes (`on-resize=recalibrate`), or stops the stream with an error
- * (`on-resize=error`). A camera added while playing is always calibrated in, with a warning
- * that the number of cameras changed. Such a calibration from scratch, and the one a left-out
+ * (`on-resize=error`). A camera that leaves (its stitchsync pad released) takes its view with
+ * it: the cameras that stay keep their geometry on the same canvas (message `source=kept`, a
+ * warning naming the camera and its input), so the panorama goes on at once even where the
+ * camera that left was the only link between the others; `on-resize=error` stops instead.
+ * A camera added while playing is always calibrated in, with a warning that the number of
+ * cameras changed. Such a calibration from scratch, and the one a left-out
  * camera joins with, is fitted into the panorama size the stream already has (encoders and
  * muxers cannot take a size change). Flushes (seeks) keep the calibration: the rig has not moved.
  *
@@ -639,6 +643,8 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   }
   const GstStitchBundleMeta* bundle = gst_buffer_get_stitch_bundle_meta(buf);
   frame.missing_mask = bundle ? bundle->missing_mask : 0;
+  if (bundle && bundle->has_pad_numbers && bundle->n_views == frame.sizes.size())
+    frame.camera_ids.assign(bundle->pad_numbers, bundle->pad_numbers + MIN(bundle->n_views, guint(STITCH_MAX_VIEWS)));
   frame.time_s = running_time_s(self, buf);
   st->now_s = frame.time_s;
   if (bundle) {

@@ -194,6 +194,13 @@ gboolean converts_on_device(GstVideoFormat format);
 gboolean map_input_frame(StitchSyncState* st, const GstVideoInfo* info, GstBuffer* buffer, GstVideoFrame* frame);
 /* A pad's view size: its frames', or the bundle's while it has no caps (or no pad). */
 std::array<int, 2> view_size(GstVideoAggregator* vagg, GstVideoAggregatorPad* pad);
+/* The view size of a frame of `info`: non-square pixels (pixel-aspect-ratio other than 1/1, an
+ * anamorphic or DV/HDV camera) are resampled to square ones, widened or heightened so that no
+ * detail is lost; the calibration and the blend take square pixels. */
+std::array<int, 2> square_pixel_size(const GstVideoInfo* info);
+inline bool has_square_pixels(const GstVideoInfo* info) {
+  return info->par_n <= 0 || info->par_d <= 0 || info->par_n == info->par_d;
+}
 /* `target` ns added to the pad's running time from now on (state lock held). */
 void apply_time_offset(GstAggregatorPad* pad, SyncPadState& st, gint64 target);
 /* The bundle's views from the pads (NULL: a view without an input), in system or CUDA memory;

@@ -28,9 +28,21 @@ gboolean map_input_frame(StitchSyncState* st, const GstVideoInfo* info, GstBuffe
 }
 
 /* A pad's view size: its frames', or the bundle's while it has no caps. */
+std::array<int, 2> square_pixel_size(const GstVideoInfo* info) {
+  gint w = GST_VIDEO_INFO_WIDTH(info), h = GST_VIDEO_INFO_HEIGHT(info);
+  if (!has_square_pixels(info) && w > 0 && h > 0) {
+    if (info->par_n > info->par_d)
+      w = gint(gst_util_uint64_scale_int_round(guint64(w), info->par_n, info->par_d));
+    else
+      h = gint(gst_util_uint64_scale_int_round(guint64(h), info->par_d, info->par_n));
+  }
+  return {MAX(w, 1), MAX(h, 1)};
+}
+
 std::array<int, 2> view_size(GstVideoAggregator* vagg, GstVideoAggregatorPad* pad) {
-  gint w = pad && pad->info.finfo ? GST_VIDEO_INFO_WIDTH(&pad->info) : 0;
-  gint h = pad && pad->info.finfo ? GST_VIDEO_INFO_HEIGHT(&pad->info) : 0;
+  const std::array<int, 2> square = pad && pad->info.finfo ? square_pixel_size(&pad->info) : std::array<int, 2>{0, 0};
+  gint w = pad && pad->info.finfo && GST_VIDEO_INFO_WIDTH(&pad->info) > 0 ? square[0] : 0;
+  gint h = pad && pad->info.finfo && GST_VIDEO_INFO_HEIGHT(&pad->info) > 0 ? square[1] : 0;
   if (w <= 0 || h <= 0) {
     w = GST_VIDEO_INFO_WIDTH(&vagg->info);
     h = GST_VIDEO_INFO_HEIGHT(&vagg->info);

@@ -1,5 +1,6 @@
 // The calibration policy (calib_session): frame quality, when it calibrates, what it accepts,
 // how long it keeps trying, what it says, and canvases that equal the panorama.
+#include <cstdio>
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -320,6 +321,32 @@ TEST(CalibSession, DarkCameraIsLeftOutAndJoinsWhenItShowsAPicture) {
   const SessionEvent* w = find(events, SessionEvent::Type::Warning);
   ASSERT_NE(w, nullptr);
   EXPECT_NE(w->text.find("camera 2 delivers a picture now"), std::string::npos) << w->text;
+}
+
+// probe3: a camera that shows a flat white (or grey, or blown-out) picture is as useless to a
+// calibration from the images as a dark one: it is left out the same way, and stays out while
+// it shows nothing. Before, two good phone clips and a white camera gave no panorama at all
+// ("Could not calibrate before the stream ended ... camera 2 is featureless").
+TEST(CalibSession, FeaturelessCameraIsLeftOutLikeADarkOne) {
+  for (const double level : {255.0, 128.0}) {
+    CalibSession s;
+    s.set_config(quick());
+    auto frames = crops(3);
+    frames[2] = cv::Mat(480, 640, CV_8UC4, cv::Scalar(level, level, level, 255));
+    std::vector<SessionEvent> events;
+    int f = 0;
+    for (; f < 200 && !s.current(); ++f)
+      for (auto& e : feed(s, f, frames)) events.push_back(e);
+    ASSERT_TRUE(s.current()) << "level " << level << ": the two cameras with a picture were never stitched";
+    EXPECT_NEAR(f / 30.0, SessionConfig().leave_out_after_s, 0.2);
+    EXPECT_EQ(count(events, SessionEvent::Type::Error), 0);
+    EXPECT_TRUE(s.current()->cameras[2].left_out);
+    EXPECT_FALSE(s.current()->cameras[0].left_out);
+    // still flat: no calibration from scratch every half second
+    const auto version = s.version();
+    for (int k = 0; k < 30; ++k, ++f) feed(s, f, frames);
+    EXPECT_EQ(s.version(), version);
+  }
 }
 
 // A camera that never delivers a frame (stitchsync marks it missing, at a placeholder size) is
@@ -823,6 +850,72 @@ TEST(CalibSession, ResizeRecalibratesFromScratch) {
   const SessionEvent* w = find(e, SessionEvent::Type::Warning);
   ASSERT_NE(w, nullptr);
   EXPECT_NE(w->text.find("number of cameras changed mid-stream (3 -> 2)"), std::string::npos) << w->text;
+}
+
+// probe3: the middle one of three cameras leaves while playing (its pad released). Calibrated
+// again from scratch, the two that stay share nothing and the panorama stopped for good ("camera
+// 0 shares too few features", 7 panoramas of the house clips, then none). The cameras that stay
+// have not moved: they keep their geometry, at once, on the same canvas.
+TEST(CalibSession, ACameraThatLeavesKeepsTheOthersCalibration) {
+  CalibSession s;
+  SessionConfig config = quick();
+  config.save_file = testdata::temp_dir() + "/leaves_keeps.json";
+  std::remove(config.save_file.c_str());
+  s.set_config(config);
+  int jobs = 0;
+  auto feed_ids = [&](int f, const std::vector<cv::Mat>& frames, const std::vector<unsigned>& ids) {
+    CalibSession::Frame fr;
+    fr.time_s = f / 30.0;
+    for (const auto& m : frames) fr.sizes.push_back({m.cols, m.rows});
+    fr.camera_ids = ids;
+    auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+    if (job) {
+      ++jobs;
+      std::atomic<bool> cancel{false};
+      s.on_outcome(run_calib_job(*job, cancel));
+    }
+    if (s.current()) s.bundle_passed();
+    else s.bundle_dropped();
+    return s.take_events();
+  };
+  const auto three = crops(3);
+  feed_ids(0, three, {0, 1, 2});
+  ASSERT_TRUE(s.current());
+  ASSERT_EQ(s.current()->cameras.size(), 3u);
+  const Rig before = *s.current();
+  jobs = 0;
+  std::vector<SessionEvent> events;
+  for (int f = 1; f < 40; ++f)
+    for (auto& e : feed_ids(f, {three[0], three[2]}, {0, 2})) events.push_back(e);
+  EXPECT_EQ(count(events, SessionEvent::Type::Error), 0);
+  EXPECT_EQ(count(events, SessionEvent::Type::Pending), 0);
+  EXPECT_EQ(jobs, 0);
+  const SessionEvent* in = find(events, SessionEvent::Type::Installed);
+  ASSERT_NE(in, nullptr);
+  EXPECT_EQ(in->report.source, "kept");
+  const SessionEvent* w = find(events, SessionEvent::Type::Warning);
+  ASSERT_NE(w, nullptr);
+  EXPECT_NE(w->text.find("camera 1 (input 1) left"), std::string::npos) << w->text;
+  ASSERT_TRUE(s.current());
+  const Rig& now = *s.current();
+  ASSERT_EQ(now.cameras.size(), 2u);
+  EXPECT_EQ(now.canvas_width, before.canvas_width);
+  EXPECT_EQ(now.canvas_height, before.canvas_height);
+  ASSERT_TRUE(now.cameras[0].homography && now.cameras[1].homography);
+  EXPECT_LT((*now.cameras[0].homography - *before.cameras[0].homography).norm(), 1e-9);
+  EXPECT_LT((*now.cameras[1].homography - *before.cameras[2].homography).norm(), 1e-9);
+  // the saved calibration stays the whole rig's: a part of it is nothing new to save
+  EXPECT_EQ(rig_load(config.save_file).cameras.size(), 3u);
+  // without the pad numbers (an older stitchsync) it is still a calibration from scratch
+  CalibSession t;
+  t.set_config(quick());
+  feed(t, 0, three);
+  CalibSession::Frame fr;
+  fr.time_s = 1;
+  fr.sizes = {{640, 480}, {640, 480}};
+  auto job = t.on_frame(fr, views_of({three[0], three[2]}));
+  ASSERT_TRUE(job);
+  EXPECT_FALSE(job->current);
 }
 
 TEST(CalibSession, DriftWatchNeedsTwoBadChecksInARow) {

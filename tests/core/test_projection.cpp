@@ -281,6 +281,37 @@ TEST(Projection, WaveCorrectionRemovesATilt) {
   }
 }
 
+// A camera mounted on its side (portrait in a landscape rig, probe3): its y axis is the
+// horizontal one. Taking its x axis made "up" the viewing direction and turned the panorama on
+// its side (limlight pair with the right clip rotated 90 degrees: a 4098x642 canvas, half black).
+TEST(Projection, WaveCorrectionKeepsACameraMountedOnItsSide) {
+  for (const double side : {90.0, -90.0}) {
+    Rig rig = ring_rig(Projection::Spherical, 0.0);
+    rig.cameras.resize(3);
+    rig.reference = 0;
+    const double yaws[3] = {0, 35, -35};
+    for (int i = 0; i < 3; ++i) {
+      rig.cameras[i].yaw_deg = yaws[i];
+      rig.cameras[i].pitch_deg = rig.cameras[i].roll_deg = 0;
+    }
+    rig.cameras[1].roll_deg = side;
+    const Rig level = rig;
+    const Eigen::Matrix3d tilt = (Eigen::AngleAxisd(0.07, Eigen::Vector3d::UnitX()) *
+                                  Eigen::AngleAxisd(-0.05, Eigen::Vector3d::UnitZ()))
+                                     .toRotationMatrix();
+    for (auto& c : rig.cameras) c.set_R(tilt * c.R());
+    wave_correct(rig);
+    for (int i = 0; i < 3; ++i) {
+      // Every camera's rotation relative to the level rig is one common yaw.
+      const Eigen::Matrix3d d = rig.cameras[i].R() * level.cameras[i].R().transpose();
+      const Eigen::Matrix3d d0 = rig.cameras[0].R() * level.cameras[0].R().transpose();
+      EXPECT_LT((d - d0).norm(), 1e-6) << "camera " << i << " side " << side;
+      EXPECT_NEAR(d(1, 1), 1.0, 1e-6) << "camera " << i << ": the vertical is not kept";
+    }
+    EXPECT_NEAR(std::abs(rig.cameras[1].roll_deg), 90.0, 1e-4);
+  }
+}
+
 namespace {
 
 // The ring rendered from the photo with a rough rig off by a few degrees and percent.

@@ -408,6 +408,10 @@ TEST_F(StitchSyncTest, ViewsOrderedByPadNumber) {
   for (std::size_t k = 0; k < outputs.size(); ++k) {
     for (int v = 0; v < 3; ++v)
       EXPECT_EQ(decode_frame(read_view(outputs[k], v), v), int(k)) << "output " << k << " view " << v;
+    const GstStitchBundleMeta* bm = bundle_meta(outputs[k]);
+    ASSERT_NE(bm, nullptr);
+    ASSERT_TRUE(bm->has_pad_numbers);
+    for (int v = 0; v < 3; ++v) EXPECT_EQ(bm->pad_numbers[v], guint(v));
   }
 }
 
@@ -614,6 +618,39 @@ TEST_F(StitchSyncTest, I420InputConvertedToRgba) {
     EXPECT_EQ(bm->missing_mask, 0u);
     // The RGBA input next to it is untouched.
     EXPECT_EQ(decode_frame(read_view(outputs[k], 1), 1), int(k));
+  }
+}
+
+// probe3: a camera with non-square pixels (pixel-aspect-ratio 4/3: anamorphic, DV/HDV) is
+// resampled to square pixels (widened, nothing lost): its view has the picture's shape. Taken as
+// square, a 540x404 4/3 camera beside a 720x404 one was stitched squeezed (rms 18 px, no warning).
+TEST_F(StitchSyncTest, NonSquarePixelsBecomeSquareViews) {
+  gst_util_set_object_arg(G_OBJECT(element), "backend", "cpu");
+  attach(2);
+  std::vector<Input> in(2);
+  in[0].caps = "video/x-raw,format=I420,width=" + std::to_string(kWidth) + ",height=" + std::to_string(kHeight) +
+               ",framerate=30/1,colorimetry=bt601,pixel-aspect-ratio=4/3";
+  in[0].frames = frames_at(30, 3);
+  in[0].plane_values = {128, 100, 160};
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 3));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  ASSERT_EQ(outputs.size(), 3u);
+  for (std::size_t k = 0; k < outputs.size(); ++k) {
+    const View v0 = read_view(outputs[k], 0);
+    ASSERT_TRUE(v0.present);
+    EXPECT_EQ(v0.width, (kWidth * 4 + 1) / 3) << "output " << k;
+    EXPECT_EQ(v0.height, kHeight) << "output " << k;
+    EXPECT_TRUE(v0.uniform);
+    const View v1 = read_view(outputs[k], 1);
+    EXPECT_EQ(v1.width, kWidth);
+    EXPECT_EQ(decode_frame(v1, 1), int(k));
+    // each view says which pad it comes from (stitchcalib keeps the others when one leaves)
+    const GstStitchBundleMeta* bm = bundle_meta(outputs[k]);
+    ASSERT_NE(bm, nullptr);
+    EXPECT_TRUE(bm->has_pad_numbers);
+    EXPECT_EQ(bm->pad_numbers[0], 0u);
+    EXPECT_EQ(bm->pad_numbers[1], 1u);
   }
 }
 

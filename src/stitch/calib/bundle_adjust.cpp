@@ -449,12 +449,22 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
 Eigen::Matrix3d wave_correct(Rig& rig) {
   // The "up" direction is the one most orthogonal to every camera's x axis: the eigenvector of
   // the smallest eigenvalue of sum x x^T (OpenCV's horizontal wave correction does the same).
+  // A camera mounted on its side (rolled by about 90 degrees relative to the reference camera: a
+  // portrait-mounted camera in a landscape rig) has its y axis horizontal, not its x axis; taking
+  // its x axis would make "up" the viewing direction and turn the panorama on its side. Each
+  // camera's horizontal axis is the one of x, y further from the reference camera's down axis.
   Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
   Eigen::Vector3d down_sum = Eigen::Vector3d::Zero();
+  const Eigen::Vector3d ref_down = rig.cameras.at(rig.reference).R().col(1);
   for (const auto& c : rig.cameras) {
     const Eigen::Matrix3d R = c.R();
-    S += R.col(0) * R.col(0).transpose();
-    down_sum += R.col(1);
+    Eigen::Vector3d across = R.col(0), down = R.col(1);
+    if (std::abs(R.col(1).dot(ref_down)) < std::abs(R.col(0).dot(ref_down))) {
+      across = R.col(1);
+      down = R.col(0).dot(ref_down) >= 0 ? Eigen::Vector3d(R.col(0)) : Eigen::Vector3d(-R.col(0));
+    }
+    S += across * across.transpose();
+    down_sum += down;
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(S);
   // x axes that (almost) all point the same way span no plane: nothing to level.

@@ -621,6 +621,7 @@ bool CalibSession::handle_sizes(const Frame& frame) {
       fail(change + " and on-resize=error");
       return false;
     }
+    if (keep_remaining_cameras(frame)) return true;
     warn(change + "; calibrating again with every camera");
     forget_calibration();
     return true;
@@ -644,6 +645,71 @@ bool CalibSession::handle_sizes(const Frame& frame) {
   }
   warn("Input resolution changed mid-stream (" + what + "); recalibrating");
   forget_calibration();
+  return true;
+}
+
+bool CalibSession::keep_remaining_cameras(const Frame& frame) {
+  // Cameras that left (their pads released): the ones that stay have not moved, so their geometry
+  // is kept and the panorama goes on at once. A calibration from scratch could fail for good
+  // where the camera that left was the only link between the others (the middle one of three).
+  if (frame.sizes.size() >= sizes_.size() || frame.sizes.size() < 2 || camera_ids_.size() != sizes_.size() ||
+      frame.camera_ids.size() != frame.sizes.size() || current_->cameras.size() != sizes_.size())
+    return false;
+  std::vector<std::size_t> keep;
+  for (std::size_t j = 0; j < frame.camera_ids.size(); ++j) {
+    std::size_t i = 0;
+    while (i < camera_ids_.size() && camera_ids_[i] != frame.camera_ids[j]) ++i;
+    if (i == camera_ids_.size() || (!keep.empty() && i <= keep.back()) || frame.sizes[j] != sizes_[i]) return false;
+    keep.push_back(i);
+  }
+  Rig rig = *current_;
+  rig.cameras.clear();
+  std::uint64_t left_out = 0;
+  std::vector<double> absent;
+  std::string gone;
+  int reference = -1;
+  for (std::size_t j = 0; j < keep.size(); ++j) {
+    rig.cameras.push_back(current_->cameras[keep[j]]);
+    if (bit(left_out_, keep[j])) left_out |= std::uint64_t(1) << j;
+    if (keep[j] < absent_since_.size()) absent.resize(j + 1, -1), absent[j] = absent_since_[keep[j]];
+    if (int(keep[j]) == current_->reference) reference = int(j);
+  }
+  for (std::size_t i = 0, j = 0; i < camera_ids_.size(); ++i) {
+    if (j < keep.size() && keep[j] == i) { ++j; continue; }
+    gone += (gone.empty() ? "" : ", ") + std::string("camera ") + std::to_string(i) + " (input " + std::to_string(camera_ids_[i]) + ")";
+  }
+  int live = 0;
+  for (const Camera& c : rig.cameras) live += c.left_out ? 0 : 1;
+  if (live < 2) return false;
+  // The reference only anchors the rig frame and the colour correction: the middle one that stays.
+  if (reference < 0) reference = int(keep.size() / 2);
+  rig.reference = reference;
+  warn("The number of cameras changed mid-stream (" + std::to_string(sizes_.size()) + " -> " +
+       std::to_string(frame.sizes.size()) + "): " + gone + " left" +
+       "; the other cameras keep their calibration");
+  sizes_ = frame.sizes;
+  camera_ids_ = frame.camera_ids;
+  left_out_ = left_out;
+  absent_since_ = absent;
+  window_open_ = false;
+  bins_.clear();
+  job_in_flight_ = false;
+  ++serial_;
+  CalibrationResult r;
+  r.rig = std::move(rig);
+  if (installed_model_) r.model = *installed_model_;
+  CalibReport rep;
+  rep.source = installed_model_ ? "kept" : "file";  // a kept loaded file stays one (no model)
+  const std::string source = "kept";
+  const int w = panorama_w_, h = panorama_h_;
+  // save-file keeps the whole rig's calibration: a part of it is nothing new (and a file for fewer
+  // cameras would not load for the whole rig)
+  const std::string save_file = config_.save_file;
+  config_.save_file.clear();
+  install(rep, &r);
+  config_.save_file = save_file;
+  if (!events_.empty() && events_.back().type == SessionEvent::Type::Installed) events_.back().report.source = source;
+  panorama_w_ = w, panorama_h_ = h;
   return true;
 }
 
@@ -896,14 +962,22 @@ bool CalibSession::absent_long_enough(std::size_t camera) const {
          now_ - absent_since_[camera] >= config_.leave_out_after_s;
 }
 
+bool CalibSession::shows_nothing(const ImageView& view) const {
+  // Dark (a lens cap, a dead sensor), or, for a calibration from the images alone, featureless:
+  // a flat white or grey picture (blown out, fogged, a cap in the light) that no matcher can
+  // place (probe3: two phone clips and a white camera made no panorama at all). A rig-file
+  // places a featureless camera by its rough geometry, so there it stays in.
+  const FrameVerdict v = assess_frame(view).verdict;
+  return v == FrameVerdict::Dark || (v == FrameVerdict::Featureless && config_.rig_file.empty());
+}
+
 std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::vector<ImageView>& views) {
   const std::size_t n = frame.sizes.size();
   if (n > 64 || config_.leave_out_after_s <= 0) return 0;
   absent_since_.resize(n, -1);
   std::uint64_t absent = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    const bool gone = bit(frame.missing_mask, i) ||
-                      (views.size() == n && assess_frame(views[i]).verdict == FrameVerdict::Dark);
+    const bool gone = bit(frame.missing_mask, i) || (views.size() == n && shows_nothing(views[i]));
     if (!gone) {
       absent_since_[i] = -1;
       continue;
@@ -949,6 +1023,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
   if (!current_) {
     if (first_frame_at_ < 0) first_frame_at_ = now_;
     sizes_ = frame.sizes;
+    camera_ids_ = frame.camera_ids;
     if (!config_.load_file.empty()) {
       load_file(frame.missing_mask);
       return nullptr;
@@ -1003,7 +1078,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     if (!back || !have_pixels) return nullptr;
     last_rejoin_check_ = now_;
     for (std::size_t i = 0; i < views.size(); ++i)
-      if (bit(back, i) && assess_frame(views[i]).verdict == FrameVerdict::Dark) return nullptr;
+      if (bit(back, i) && shows_nothing(views[i])) return nullptr;
     rejoin(back, views.size());
     return nullptr;
   }
@@ -1089,7 +1164,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       for (std::size_t i = 0; i < r.rig.cameras.size() && i < 64; ++i)
         if (r.rig.cameras[i].left_out) left_out_ |= std::uint64_t(1) << i;
       if (left_out_)
-        warn(camera_list(left_out_, r.rig.cameras.size()) + " delivered no picture (no frame, or a dark one) for " +
+        warn(camera_list(left_out_, r.rig.cameras.size()) + " delivered no picture (no frame, a dark one, or a featureless one) for " +
              fmt(config_.leave_out_after_s) + " s: calibrated and stitched without " +
              agree(left_out_, "it; it joins", "them; each joins") +
              " with a calibration from scratch once it delivers (the panorama keeps its size)");

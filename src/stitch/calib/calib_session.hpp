@@ -181,7 +181,7 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
 
 struct CalibReport {        // one installed (or rejected) calibration, for the bus
   std::uint64_t version = 0;
-  std::string source;        // file, rig, images, pooled, recalibration
+  std::string source;        // file, rig, images, pooled, recalibration, kept (a camera left)
   std::shared_ptr<const Rig> rig;
   int refined_cameras = 0, inliers = 0, warnings = 0;
   double fit_rms_px = -1;    // the calibrator's own residual over accepted pairs (-1: not given)
@@ -234,6 +234,9 @@ class CalibSession {
     double time_s = 0;  // running time (seconds); may jump back (seeks): only forward steps count
     std::vector<std::array<int, 2>> sizes;
     std::uint64_t missing_mask = 0;  // views the bundle lacks
+    // Which input each view comes from (stitchsync's pad numbers; empty: unknown). When a camera
+    // leaves, the others keep their geometry instead of a calibration from scratch.
+    std::vector<unsigned> camera_ids;
   };
 
   void set_config(const SessionConfig& config);
@@ -336,6 +339,9 @@ class CalibSession {
   std::string rough_from_;
   std::vector<std::array<int, 2>> rough_sizes_;  // the view sizes rough_ was adapted to
   std::vector<std::array<int, 2>> sizes_;
+  std::vector<unsigned> camera_ids_;  // the inputs of sizes_ (Frame::camera_ids), when known
+  bool keep_remaining_cameras(const Frame& frame);
+  bool shows_nothing(const ImageView& view) const;  // a camera to leave out (dark, or featureless)
   int panorama_w_ = 0, panorama_h_ = 0;  // kept over recalibrations
   // The panorama size a calibration from scratch mid-stream (a resize, a camera added or back)
   // is fitted into: stitchblend's output, which encoders and muxers cannot see change.
