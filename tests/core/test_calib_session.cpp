@@ -757,6 +757,20 @@ TEST(CalibSession, JudgeRefusesACandidateThatLosesAnOverlapOrThePicture) {
   EXPECT_TRUE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.5, 100), cur, cur_cover, cur_cover).install);
   // Not 10% better: kept out.
   EXPECT_FALSE(judge_candidate(residuals({{0, 1}, {1, 2}}, 1.9, 100), cur, cur_cover, cur_cover).install);
+  // Better on both overlaps, and a pair only the candidate measures (cameras 0 and 2: boxes that
+  // touch on its canvas, matches across views that share no scene, 200 px apart): judged on the
+  // pairs both measure, installed. Before, the extra pair alone made it "67.7 px against 2.0".
+  RigResiduals extra = residuals({{0, 1}, {1, 2}, {0, 2}}, 1.5, 100);
+  extra.pairs[2].median_px = extra.pairs[2].median_camera_px = 200;
+  extra.median_px = extra.median_camera_px = (1.5 + 1.5 + 200) / 3;
+  const Judgement fair = judge_candidate(extra, cur, cur_cover, cur_cover);
+  EXPECT_TRUE(fair.install) << fair.reason;
+  // The same pairs, worse on the common ones: kept out, and the reason gives the common figures.
+  RigResiduals worse = residuals({{0, 1}, {1, 2}, {0, 2}}, 3.0, 100);
+  worse.pairs[2].median_px = worse.pairs[2].median_camera_px = 200;
+  const Judgement unfair = judge_candidate(worse, cur, cur_cover, cur_cover);
+  EXPECT_FALSE(unfair.install);
+  EXPECT_NE(unfair.reason.find("3.00 camera px against the current 2.00"), std::string::npos) << unfair.reason;
   // Better on what is left, but camera 2 no longer overlaps camera 1 (pulled apart): kept out.
   const Judgement lost = judge_candidate(residuals({{0, 1}}, 0.5, 100), cur, cur_cover, cur_cover);
   EXPECT_FALSE(lost.install);

@@ -439,9 +439,30 @@ Judgement judge_candidate(const RigResiduals& cand, const RigResiduals& cur, con
                           const RigCoverage& cur_cover) {
   Judgement j;
   // Camera pixels where both have them (they do wherever the maps are differentiable).
-  const bool cam_units = cand.median_camera_px >= 0 && cur.median_camera_px >= 0;
-  const double c = cam_units ? cand.median_camera_px : cand.median_px;
-  const double now = cam_units ? cur.median_camera_px : cur.median_px;
+  bool cam_units = cand.median_camera_px >= 0 && cur.median_camera_px >= 0;
+  double c = cam_units ? cand.median_camera_px : cand.median_px;
+  double now = cam_units ? cur.median_camera_px : cur.median_px;
+  // Compared on the pairs both measure, with the same weights: a pair only one of them puts in
+  // overlap (the house's left and right cameras, whose boxes touch on the candidate's canvas)
+  // is measured on matches across views that share no scene, hundreds of pixels apart, and
+  // decided the verdict on its own (rms-px 176 against 2.3).
+  double common_c = 0, common_now = 0, common_cam_c = 0, common_cam_now = 0, weight = 0;
+  bool common_cam = true;
+  for (const auto& p : cur.pairs)
+    for (const auto& q : cand.pairs) {
+      if (q.a != p.a || q.b != p.b || p.matches <= 0 || q.matches <= 0 || p.median_px < 0 || q.median_px < 0) continue;
+      common_c += p.matches * q.median_px;
+      common_now += p.matches * p.median_px;
+      common_cam &= p.median_camera_px >= 0 && q.median_camera_px >= 0;
+      common_cam_c += p.matches * q.median_camera_px;
+      common_cam_now += p.matches * p.median_camera_px;
+      weight += p.matches;
+    }
+  if (weight > 0 && (cand.pairs.size() != cur.pairs.size() || weight < cur.matches)) {
+    cam_units = common_cam;
+    c = (common_cam ? common_cam_c : common_c) / weight;
+    now = (common_cam ? common_cam_now : common_now) / weight;
+  }
   const std::string unit = cam_units ? " camera px" : " px";
   if (c < 0) {
     j.reason = "nothing to measure it by on the held-out frames";
