@@ -194,6 +194,29 @@ TEST_F(CalibOnRealPhoto, CancelledCalibrationStopsAtItsNextStage) {
   EXPECT_LT(stopped - kCancelAfterS, 3.0);
 }
 
+// Two views that share no scene, whose rig boxes touch (the house's left and right cameras on a
+// pooled candidate's canvas): their matches are across unrelated pictures, and the few a
+// fundamental matrix takes (7-9 of 13-21 on the house) measured 200 px. No pair is measured;
+// a true pair still is (ImagesAloneCalibrate: 50 or more).
+TEST_F(CalibOnRealPhoto, ViewsSharingNoSceneAreNotMeasured) {
+  cv::Mat other = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  ASSERT_FALSE(other.empty());
+  cv::resize(other, other, cv::Size(1280, 960), 0, 0, cv::INTER_LINEAR);
+  int worst = 0;
+  for (int k = 0; k < 6; ++k) {
+    cv::Mat cam0 = photo(cv::Rect(60 * k, 100 + 20 * k, 640, 480)).clone();
+    cv::Mat cam1 = other(cv::Rect(40 * k, 30 * k, 640, 480)).clone();
+    Eigen::Matrix3d shift = Eigen::Matrix3d::Identity();
+    shift(0, 2) = 400;
+    const Rig rig = rig_with(shift);
+    const std::vector<ImageView> frames = {as_view(cam0), as_view(cam1)};
+    const AlignmentReport a = measure_alignment(rig, frames);
+    worst = std::max(worst, a.matches);
+    EXPECT_EQ(a.matches, 0) << "crop " << k << ": " << a.matches << " matches measured at " << a.median_px << " px";
+  }
+  std::printf("views sharing no scene: at most %d matches measured\n", worst);
+}
+
 // A rectilinear camera pair whose frames are vignetted to a disc on black (what a circular
 // fisheye looks like at first sight): no fisheye rig fits them, so the pinhole calibration
 // stands, with no fisheye lens and no claim of image circles.
