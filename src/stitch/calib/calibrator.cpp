@@ -2339,7 +2339,8 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
       }
       std::vector<uchar> inl;
       const Camera &A = rig.cameras[a], &B = rig.cameras[b];
-      if (!rig.planar() && (needs_rays(A) || needs_rays(B))) {
+      const bool on_rays = !rig.planar() && (needs_rays(A) || needs_rays(B));
+      if (on_rays) {
         // Wide lenses on a curved canvas (a dual fisheye's overlap lies 80-100 degrees off both
         // axes, where ideal pinhole pixels do not exist and the epipolar test below took wrong
         // matches: the exact rig of a dual fisheye read 400-800 px misaligned). The cameras turn
@@ -2405,9 +2406,10 @@ AlignmentReport measure_alignment(const Rig& rig, const std::vector<ImageView>& 
       }
       // Views that share no scene still give a few matches a fundamental matrix takes (7-10 of
       // 13-21 across unrelated pictures, 200-660 px apart on the canvas); a real overlap gives
-      // dozens. Fewer than this measure nothing.
-      constexpr std::size_t kMinMeasuredMatches = 16;
-      if (d.size() < kMinMeasuredMatches) continue;
+      // dozens. Fewer than 16 measure nothing. One rotation of the rays (2 px, 3 unknowns) takes
+      // no chance matches: 8 do (a 190-degree dual fisheye's thin ring gives ~10).
+      const std::size_t min_matches = on_rays ? 8 : 16;
+      if (d.size() < min_matches) continue;
       std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
       rep.pair_median_px.push_back(d[d.size() / 2]);
       all.insert(all.end(), d.begin(), d.end());
