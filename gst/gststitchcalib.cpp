@@ -387,6 +387,16 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
   if (r.coverage >= 0)
     gst_structure_set(s, "coverage", G_TYPE_DOUBLE, r.coverage, "previous-coverage", G_TYPE_DOUBLE, r.previous_coverage, NULL);
   if (!r.model.empty()) gst_structure_set(s, "model", G_TYPE_STRING, r.model.c_str(), NULL);
+  /* the cameras' lenses (issue 15): "pinhole", or the models and, per camera, k1 and k2 */
+  const std::string lens = stitch::rig_lens_summary(rig);
+  gst_structure_set(s, "lens", G_TYPE_STRING, lens.c_str(), NULL);
+  if (lens != "pinhole") {
+    std::vector<double> k1, k2;
+    for (const auto& c : rig.cameras) k1.push_back(c.lens.k1), k2.push_back(c.lens.k2);
+    GValue a1 = value_array(k1), a2 = value_array(k2);
+    gst_structure_take_value(s, "lens-k1", &a1);
+    gst_structure_take_value(s, "lens-k2", &a2);
+  }
   GValue cams = value_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
   std::vector<int> left_out;  // the cameras calibrated without (no frame, or a dark one)
@@ -483,6 +493,7 @@ static gboolean post_events(GstStitchCalib* self) {
 }
 
 static void start_worker(CalibState* st, std::shared_ptr<stitch::CalibJob> job) {
+  st->cancel_worker();  /* one the session forgot (a resize, a lens fit that gave way): stop it */
   auto ch = std::make_shared<WorkerChannel>();
   {
     std::lock_guard<std::mutex> g(workers_lock);
@@ -650,6 +661,8 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
 
   bool flushing = false;
   const gboolean guarded = stitch_guard(GST_ELEMENT(self), "stitchcalib", [&]() {
+    /* the background lens fit gives way to a recalibration whose frames are collected */
+    if (st->worker && !st->worker->done.load() && st->session.give_way(false)) st->cancel_worker();
     collect_outcome(st);
     /* Pixels are read only on the bundles the session wants (quality checks and calibrations):
      * CUDA-memory views then come to the host through gst-cuda; every other bundle passes untouched. */
@@ -715,6 +728,8 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
        * finished first (a flush or a stop still releases the wait), so that its result is
        * announced and saved. */
       snapshot_settings(st);
+      /* ...except the background lens fit, which is cancelled: it must not delay the end */
+      if (st->worker && !st->worker->done.load() && st->session.give_way(true)) st->cancel_worker();
       if (st->worker && wait_for_worker(st)) collect_outcome(st);
       if (!st->session.current() && !st->session.failed() && st->last_torn) {
         /* The stream ended on torn pictures alone: no later frame can replace them (a photo, a
