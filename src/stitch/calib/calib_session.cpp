@@ -529,14 +529,48 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
   lo.bundle_adjust = false;
   lo.projection.reset();  // the installed canvas's (the start's)
   std::optional<CalibrationResult> best;
-  for (const Rig& start : lens_fit_starts(*job.current, model)) {
-    if (cancelled()) return o;
-    try {
-      CalibrationResult r = calibrate_from_rig(start, sets, lo);
-      if (lens_fit_usable(r) && (!best || r.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(r);
-    } catch (const std::exception&) {
-      // no usable lens fit from this start
+  const auto fit_from = [&](const std::vector<Rig>& starts) {
+    for (const Rig& start : starts) {
+      if (cancelled()) return;
+      try {
+        CalibrationResult r = calibrate_from_rig(start, sets, lo);
+        if (lens_fit_usable(r) && (!best || r.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(r);
+      } catch (const std::exception&) {
+        // no usable lens fit from this start
+      }
     }
+  };
+  fit_from(lens_fit_starts(*job.current, model));
+  // The pinhole fit of distorted cameras can hold focal lengths far off (a k1 -0.23 trio on a
+  // plane canvas: 594 px for a true 260), and the lens fit from there runs off (the calibrator
+  // keeps the rough rig). Then from focal lengths guessed from the frame width (60, 45, 80
+  // degrees across), rotations read from the homographies (planar) or kept.
+  if (!best && model == CameraModel::Rotation) {
+    const Rig& cur = *job.current;
+    bool homographies = cur.planar();
+    for (const auto& c : cur.cameras) homographies &= bool(c.homography);
+    std::vector<Rig> guessed;
+    if (homographies) {
+      guessed = lens_fit_starts(cur, CameraModel::Homography);
+    } else {
+      for (const double hfov : {60.0, 45.0, 80.0}) {
+        Rig r = cur;
+        r.canvas_width = r.canvas_height = 0;
+        r.canvas_scale = 0;
+        r.canvas_wrap = false;
+        for (auto& c : r.cameras) {
+          c.fx = c.fy = 0.5 * c.width / std::tan(0.5 * hfov * kPi / 180.0);
+          c.cx = 0.5 * (c.width - 1);
+          c.cy = 0.5 * (c.height - 1);
+          c.homography.reset();
+          c.lens = Lens{};
+          c.lens.model = Lens::Model::Radtan;
+          c.lens.estimate = true;
+        }
+        guessed.push_back(r);
+      }
+    }
+    fit_from(guessed);
   }
   if (cancelled()) return o;
   if (!best) {
