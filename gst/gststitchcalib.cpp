@@ -66,15 +66,27 @@
  *   it joins, with a calibration from scratch.
  * - A `load-file` is checked against the images once: a warning names the cameras it does not
  *   fit.
+ * - Lenses from evidence: the first calibration from the images is pinhole (fast). Afterwards,
+ *   in the background, a radtan k1/k2 lens is fitted to every camera from the installed rig on
+ *   the pooled window's frames, judged like a pooled calibration on the held-out frames, and
+ *   installed (`source` lens) only when it also wins by the evidence rule of stitch-calibrate
+ *   (below 70% of the pinhole residual and 0.2 camera px less); else it is reported in a
+ *   `stitchcalib-rejected` message. Barrel-distorted phones and action cameras get their lens;
+ *   undistorted cameras stay pinhole. Not run with a rig-file or load-file (the file states the
+ *   lenses: absent is pinhole), `camera-model=homography`, cameras that already have lenses
+ *   (fisheyes), a camera left out, or when the pinhole residual is already within 0.2 camera
+ *   px. It never delays the stream: it gives way to a recalibration and is cancelled at the end
+ *   of the stream.
  *
  * Every installed calibration is posted as an element message named `stitchcalib`: `version`,
- * `source` (file, rig, images, pooled, recalibration), `canvas-width`/`-height`, `rms-px` (root
+ * `source` (file, rig, images, pooled, recalibration, lens), `canvas-width`/`-height`, `rms-px` (root
  * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `alignment-camera-px` and
  * `previous-camera-px` (the same in camera pixels, what the judge compares), `coverage` and
  * `previous-coverage` (the share of the canvas the cameras cover; pooled calibrations and
- * recalibrations), `fit-rms-px`, `inliers`, ... It is
+ * recalibrations), `lens` (the cameras' lens models: `pinhole`, `radtan`, `fisheye`, ...) with
+ * `lens-k1` and `lens-k2` (per camera) when they have lenses, `fit-rms-px`, `inliers`, ... It is
  * written to `save-file` when set, with the time offsets stitchsync applies (time-alignment,
  * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
  * stitchblend outputs them, and fitted into the current panorama on recalibration).

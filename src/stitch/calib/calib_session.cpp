@@ -509,7 +509,8 @@ namespace {
 // installed rig (lens_fit_starts), on the window's calibration frames; the best usable start by
 // its own held-out error; then judged as a pooled candidate would be (residuals and coverage of
 // both on the held-out frames). calibrate_from_rig itself is not interrupted: `cancel` is
-// checked before and after each start (one start ~1-6 s on 3 x 640x480, BENCHMARKS.md).
+// checked before and after each start (BENCHMARKS.md: seconds a start).
+constexpr std::size_t kLensFitSets = 2;
 CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) {
   CalibOutcome o;
   o.kind = job.kind;
@@ -519,8 +520,13 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
     o.error = job.current ? "no usable frames" : "no calibration to start from";
     return o;
   }
+  // Two of the window's sets (its first and last): a lens is the camera's, the same in every
+  // frame; each set more costs the whole fit again (3 x 640x480, 5 sets: ~45 s a start on a
+  // loaded core).
   std::vector<std::vector<ImageView>> sets;
-  for (const auto& set : job.calib_sets) sets.push_back(set.views());
+  const std::size_t n = job.calib_sets.size();
+  for (std::size_t k = 0; k < n; ++k)
+    if (k == 0 || (k + 1 == n && sets.size() < kLensFitSets)) sets.push_back(job.calib_sets[k].views());
   const CalibrationOptions& opt = job.config.options;
   CameraModel model = opt.bundle_adjust ? CameraModel::Rotation : opt.model;
   if (model == CameraModel::Auto) model = job.current->planar() && job.current->cameras[0].homography ? CameraModel::Homography : CameraModel::Rotation;
