@@ -1298,6 +1298,8 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
         e.report = rep;
         events_.push_back(e);
       }
+      // A recalibration installed (the rig moved) is pinhole: the lens is fitted again after it.
+      if (verdict.install && o.kind == JobKind::Recalibration) lens_wanted_ = true;
       if (verdict.install) maybe_lens_due(o.candidate.median_camera_px);
       return;
     }
