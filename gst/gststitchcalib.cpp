@@ -197,6 +197,7 @@ static guint signals[LAST_SIGNAL];
 /* One calibration job in a worker thread. The worker owns its inputs and this channel (shared):
  * it never touches the element, which may be gone before it finishes. */
 struct WorkerChannel {
+  stitch::JobKind kind = stitch::JobKind::First;
   std::atomic<bool> cancel{false};
   std::atomic<bool> done{false};
   std::mutex m;  // only for the condition variable: never held while computing
@@ -507,6 +508,7 @@ static gboolean post_events(GstStitchCalib* self) {
 static void start_worker(CalibState* st, std::shared_ptr<stitch::CalibJob> job) {
   st->cancel_worker();  /* one the session forgot (a resize, a lens fit that gave way): stop it */
   auto ch = std::make_shared<WorkerChannel>();
+  ch->kind = job->kind;
   {
     std::lock_guard<std::mutex> g(workers_lock);
     ++workers_alive;
@@ -740,8 +742,23 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
        * finished first (a flush or a stop still releases the wait), so that its result is
        * announced and saved. */
       snapshot_settings(st);
-      /* ...except the background lens fit, which is cancelled: it must not delay the end */
-      if (st->worker && !st->worker->done.load() && st->session.give_way(true)) st->cancel_worker();
+      if (st->worker && !st->worker->done.load() &&
+          (st->worker->kind == stitch::JobKind::Lens ||
+           (st->worker->kind == stitch::JobKind::Pooled && st->save_path.empty()))) {
+        /* The automatic pooled recalibration would only improve frames that will never come
+         * (and no save-file to write it to): it is cancelled, not waited for (EOS came 6-15 s
+         * late on the real clips). So is the background lens fit, always: it must not delay the
+         * end (CalibSession::give_way). */
+        GST_DEBUG_OBJECT(self, "end of stream: the %s job in flight is cancelled", stitch::job_kind_name(st->worker->kind));
+        std::shared_ptr<WorkerChannel> ch = st->worker;
+        ch->cancel = true;
+        /* It stops at the calibrator's next stage (a detection, a pair: well under a second).
+         * Waited for all the same: a process that exits while it runs OpenCV crashes in the
+         * thread pool's teardown. */
+        wait_for_worker(st);
+        st->worker.reset();
+        st->session.abandon_job();
+      }
       if (st->worker && wait_for_worker(st)) collect_outcome(st);
       if (!st->session.current() && !st->session.failed() && st->last_torn) {
         /* The stream ended on torn pictures alone: no later frame can replace them (a photo, a

@@ -3,7 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
+#include <atomic>
+#include <chrono>
 #include <cstdio>
+#include <thread>
 #include <map>
 #include <opencv2/imgproc.hpp>
 
@@ -152,6 +155,43 @@ TEST_F(CalibOnRealPhoto, ImagesAloneCalibrate) {
   AlignmentReport a = measure_alignment(r.rig, frames);
   EXPECT_GE(a.matches, 50);
   EXPECT_LT(a.median_px, 1.0);
+}
+
+// A calibration another thread cancels stops at its next stage with CalibrationCancelled, not
+// a result and not a RigError (a live session's background job at the end of the stream: EOS
+// waited 2-15 s for it, and a process exiting while it ran OpenCV crashed). Set before it
+// starts, nothing runs; set while it runs, it stops within a stage.
+TEST_F(CalibOnRealPhoto, CancelledCalibrationStopsAtItsNextStage) {
+  cv::Mat G = (cv::Mat_<double>(3, 3) << 0.99, -0.02, 420, 0.02, 0.99, 150, 1e-5, 0, 1);
+  Pair p = make_pair(photo, G);
+  std::vector<ImageView> frames = {as_view(p.cam0), as_view(p.cam1)};
+  std::atomic<bool> cancel{true};
+  CalibrationOptions o;
+  o.cancel = &cancel;
+  EXPECT_THROW(calibrate_from_images(frames, 0, o), CalibrationCancelled);
+  EXPECT_THROW(calibrate_from_rig(rig_with(perturbed(p.truth)), frames, o), CalibrationCancelled);
+
+  // Cancelled half a second in: the whole fit takes 20-70 s on the 2-core VM (SIFT, matches,
+  // the pinhole adjustment, then the lens fit's sweeps and dense refits); it must stop within
+  // one of its stages (before: up to 12 s inside an adjustment or the dense matches).
+  cancel = false;
+  constexpr double kCancelAfterS = 0.5;
+  std::thread canceller([&] {
+    std::this_thread::sleep_for(std::chrono::duration<double>(kCancelAfterS));
+    cancel = true;
+  });
+  const auto t0 = std::chrono::steady_clock::now();
+  bool cancelled = false;
+  try {
+    calibrate_from_images(frames, 0, o);
+  } catch (const CalibrationCancelled&) {
+    cancelled = true;
+  }
+  const double stopped = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  canceller.join();
+  std::printf("cancelled at %.2f s, stopped at %.2f s\n", kCancelAfterS, stopped);
+  EXPECT_TRUE(cancelled);
+  EXPECT_LT(stopped - kCancelAfterS, 3.0);
 }
 
 // A rectilinear camera pair whose frames are vignetted to a disc on black (what a circular

@@ -12,6 +12,18 @@
 namespace stitch {
 namespace {
 
+// lm.minimize(x), one iteration at a time so that a cancelled calibration stops within one.
+template <class LM>
+void minimize(LM& lm, Eigen::VectorXd& x, const std::atomic<bool>* cancel) {
+  Eigen::LevenbergMarquardtSpace::Status status = lm.minimizeInit(x);
+  if (status == Eigen::LevenbergMarquardtSpace::ImproperInputParameters) return;
+  do {
+    if (cancel && cancel->load(std::memory_order_relaxed)) return;
+    status = lm.minimizeOneStep(x);
+  } while (status == Eigen::LevenbergMarquardtSpace::Running);
+}
+
+
 struct Model {
   std::vector<Eigen::Matrix3d> R, K;
   std::vector<Camera> cam;  // K and lens applied (the lens path)
@@ -212,7 +224,8 @@ double truncated_cost(const Problem& p, const Eigen::VectorXd& x, double cap_px)
 // estimating camera, as d = k1 (r/f)^2 at the half diagonal r (the same bend whatever the focal),
 // fit rotations and focal lengths with the lens held, and start from the candidate whose
 // truncated cost is lowest (coarse grid, then a finer one around the best).
-double sweep_lens_start(const Problem& full, Eigen::VectorXd& x, double cap_px, int max_iterations) {
+double sweep_lens_start(const Problem& full, Eigen::VectorXd& x, double cap_px, int max_iterations,
+                        const std::atomic<bool>* cancel) {
   std::vector<int> est;
   for (int i = 0; i < full.layout.n; ++i)
     if (full.layout.lens_index(i) >= 0 && full.layout.lens_group[i] == i) est.push_back(i);
@@ -238,7 +251,7 @@ double sweep_lens_start(const Problem& full, Eigen::VectorXd& x, double cap_px, 
     Eigen::NumericalDiff<Functor> numdiff(fn);
     Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
     lm.parameters.maxfev = std::min(max_iterations, 30) * (q.layout.size() + 1);  // a ranking, not the fit
-    lm.minimize(xq);
+    minimize(lm, xq, cancel);
     if (!xq.allFinite()) return 1e300;
     const double cost = truncated_cost(q, xq, cap_px);
     xo = x;
@@ -335,14 +348,14 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
   bool from_zero = !p.layout.lens_k.empty();
   for (int i = 0; i < n; ++i)
     if (const int l = p.layout.lens_index(i); l >= 0) from_zero &= x[l] == 0 && (p.layout.lens_count(i) < 2 || x[l + 1] == 0);
-  if (from_zero && o.sweep_lens) rep.lens_sweep_d = sweep_lens_start(p, x, o.outlier_px, o.max_iterations);
+  if (from_zero && o.sweep_lens) rep.lens_sweep_d = sweep_lens_start(p, x, o.outlier_px, o.max_iterations, o.cancel);
   for (int round = 0; round < 2; ++round) {
     Functor fn{&p};
     Eigen::NumericalDiff<Functor> numdiff(fn);
     Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
     lm.parameters.maxfev = o.max_iterations * (p.layout.size() + 1);
     if (p.lens()) lm.parameters.xtol = lm.parameters.ftol = 1e-12;  // a flat valley: focal vs k1, k2
-    lm.minimize(x);
+    minimize(lm, x, o.cancel);
     if (round == 1) break;
     // Drop the matches the fit does not explain (false matches, parallax) and fit again.
     f.resize(4 * p.pa.size());
@@ -391,7 +404,7 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
       lm.parameters.maxfev = o.max_iterations * (q.layout.size() + 1);
       if (q.lens()) lm.parameters.xtol = lm.parameters.ftol = 1e-12;
       Eigen::VectorXd xr = x;
-      lm.minimize(xr);
+      minimize(lm, xr, o.cancel);
       if (!xr.allFinite()) break;
       x = xr;
     }

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <atomic>
 #include <string>
 #include <vector>
 
@@ -42,6 +43,9 @@ struct BundleAdjustOptions {
   // robust_scale x the matches' robust sigma (1.4826 x their median error): precise, dense matches
   // (dense_matches.hpp) whose few poorly placed ones would otherwise lean on the focal length.
   double robust_scale = 0;
+  // Set (by another thread): every minimisation stops at its next iteration, and the report is
+  // of an unfinished fit; the caller checks the flag and gives up (calibrator.hpp's cancel).
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 struct BundleAdjustReport {

@@ -508,8 +508,8 @@ namespace {
 // The background lens-from-evidence fit (JobKind::Lens): radtan k1/k2 for every camera, from the
 // installed rig (lens_fit_starts), on the window's calibration frames; the best usable start by
 // its own held-out error; then judged as a pooled candidate would be (residuals and coverage of
-// both on the held-out frames). calibrate_from_rig itself is not interrupted: `cancel` is
-// checked before and after each start (BENCHMARKS.md: seconds a start).
+// both on the held-out frames). `cancel` stops it at the calibrator's next stage
+// (CalibrationOptions::cancel) and is checked between the starts.
 constexpr std::size_t kLensFitSets = 2;
 CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) {
   CalibOutcome o;
@@ -534,6 +534,7 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
   lo.model = CameraModel::Rotation;
   lo.bundle_adjust = false;
   lo.projection.reset();  // the installed canvas's (the start's)
+  lo.cancel = &cancel;    // a cancelled job stops at the calibrator's next stage
   std::optional<CalibrationResult> best;
   bool ran_off = false;  // a fit's focal lengths ran off (the calibrator's warning)
   const auto fit_from = [&](const std::vector<Rig>& starts) {
@@ -543,6 +544,9 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
         CalibrationResult r = calibrate_from_rig(start, sets, lo);
         for (const auto& w : r.warnings) ran_off |= w.find("estimating the lens ran off") != std::string::npos;
         if (lens_fit_usable(r) && (!best || r.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(r);
+      } catch (const CalibrationCancelled&) {
+        o.cancelled = true;
+        return;
       } catch (const std::exception&) {
         // no usable lens fit from this start
       }
@@ -632,8 +636,13 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     if (!job.left_out) return text;
     return renumbered(text, kept) + " (" + camera_list(job.left_out, job.sizes.size()) + " left out: no picture)";
   };
+  SessionConfig config = job.config;
+  config.options.cancel = &cancel;  // a cancelled job stops at the calibrator's next stage
   try {
-    o.result = calibrate(job.config, job.rough, sets);
+    o.result = calibrate(config, job.rough, sets);
+  } catch (const CalibrationCancelled&) {
+    o.cancelled = true;
+    return o;
   } catch (const RigError& e) {
     o.error = speak(e.what());
     // Degenerate rough geometry cannot be repaired by other frames.
@@ -1415,6 +1424,11 @@ void CalibSession::bundle_dropped() {
   e.processed = passed_;
   e.dropped = dropped_;
   events_.push_back(e);
+}
+
+void CalibSession::abandon_job() {
+  job_in_flight_ = false;
+  ++serial_;
 }
 
 void CalibSession::on_eos() {

@@ -255,6 +255,9 @@ class CalibSession {
   void bundle_dropped();
   // The stream ended: an error when no calibration was ever made.
   void on_eos();
+  // The job in flight was cancelled by the caller: its outcome, if it comes, is ignored, and
+  // the next job may start (a seek after the end of the stream).
+  void abandon_job();
   void request_recalibration() { recalibrate_requested_ = true; }
   // Lens from evidence (issue 15). The first calibration from the images is pinhole (fast: the
   // stream waits for it). Afterwards a background job (JobKind::Lens) fits a radtan k1/k2 lens

@@ -39,6 +39,14 @@ cv::Ptr<cv::Feature2D> make_detector(FeatureType type, int max_features) {
   return cv::SIFT::create(max_features);
 }
 
+}  // namespace
+
+void throw_if_cancelled(const CalibrationOptions& options) {
+  if (options.cancel && options.cancel->load(std::memory_order_relaxed)) throw CalibrationCancelled();
+}
+
+namespace {
+
 cv::Mat to_gray(const ImageView& v) {
   cv::Mat gray;
   cv::cvtColor(as_mat(v), gray, cv::COLOR_RGBA2GRAY);
@@ -46,6 +54,7 @@ cv::Mat to_gray(const ImageView& v) {
 }
 
 Features detect(const cv::Mat& gray, const cv::Mat& mask, const CalibrationOptions& o) {
+  throw_if_cancelled(o);
   const double mp = gray.total() / 1e6;
   const double s = mp > o.feature_megapixels ? std::sqrt(o.feature_megapixels / mp) : 1.0;
   cv::Mat img = gray, m = mask;
@@ -372,6 +381,7 @@ constexpr double kLensUnknownRansacScale = 4.0;
 PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOptions& o,
                     const Eigen::Matrix3d* predicted, double tolerance, const Rig* lens_rig = nullptr,
                     double ransac_scale = 1.0) {
+  throw_if_cancelled(o);
   PairData p;
   p.a = a;
   p.b = b;
@@ -514,6 +524,7 @@ void for_each_matched_ray(const FeatureSets& feats, int a, int b, const Calibrat
 // back-to-back pair's overlap) match as well as central ones.
 PairData match_pair_rays(const FeatureSets& feats, int a, int b, const CalibrationOptions& o, const Rig& rig,
                          double thr_rad, double tolerance_rad) {
+  throw_if_cancelled(o);
   PairData p;
   p.a = a;
   p.b = b;
@@ -1001,6 +1012,7 @@ Features masked(const Features& f, const cv::Mat& mask) {
 // `feats`: the views' features when already detected (reused inside the overlaps).
 void refine_homography_chain(CalibrationResult& res, const std::vector<std::vector<ImageView>>& sets,
                              const CalibrationOptions& o, const HeldSet& held, const FeatureSets* feats = nullptr) {
+  throw_if_cancelled(o);
   Rig& rig = res.rig;
   const int n = int(rig.cameras.size());
   const std::vector<OverlapEdge> edges = overlap_edges(rig);
@@ -1294,8 +1306,10 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   int accepted = 0;
   int share = -1;  // the dense refit's lens sharing, decided on the first pass (choose_shared_lens)
   for (int pass = 0; pass < 2; ++pass) {
+    if (base.cancel && base.cancel->load(std::memory_order_relaxed)) return start;  // the caller throws
     DenseMatchOptions dopt;
     dopt.rays = rays;
+    dopt.cancel = base.cancel;
     if (rays) dopt.max_points = 2000;
     // Pooled over two smoothings of the patches (kDenseBlurs): the alignment's bias depends on
     // the texture as it is smoothed, and two smoothings of the same overlap are partly
@@ -1360,6 +1374,7 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
 
 CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std::vector<ImageView>>& sets,
                                      const CalibrationOptions& o) {
+  throw_if_cancelled(o);
   if (sets.empty()) throw RigError("no frames to calibrate on");
   for (const auto& frames : sets) {
     if (frames.size() != rough_in.cameras.size())
@@ -1507,6 +1522,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // one k1 (no k2): the ring's shape (how far the two radii stray from mirror images of each
   // other) then pins it down, unless its standard error says otherwise (checked after the fit).
   BundleAdjustOptions ba_options;
+  ba_options.cancel = o.cancel;
   std::vector<int> narrow;
   std::vector<double> narrow_spread(n, 0);
   if (estimating && any_rays)
@@ -1604,6 +1620,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       for (int i : narrow) r0h.cameras[i].lens.estimate = false;
       rot = adjust(r0h, pairs, ba_options);
     }
+    throw_if_cancelled(o);
     if (rot.ok && estimating) {
       // The first pass matched with lenses still unknown: the homography RANSAC (3 px) dropped
       // much of the distorted periphery, which is what tells k2 and the focal length apart.
@@ -1656,7 +1673,9 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       // error. Photometric matches aligned through the rig's own lens map carry no such bias
       // and cover the whole ring, not only the corners SIFT finds.
       bool refitted = false;
+      throw_if_cancelled(o);
       rot = refine_on_dense_matches(rot, rough, pairs, sets, true, ba_options, &refitted);
+      throw_if_cancelled(o);
       // No photometric refit (a ring too narrow or bare to track 40 patches on, e.g. 190
       // degrees): the keypoint fit's sigma is optimistic (k1 -0.021 +- 0.0025 for a true 0, 10 dB
       // lost), so a loosely determined k1 is declined rather than kept with a warning.
@@ -1671,7 +1690,13 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       RotationFit rot2 = adjust(r1, pairs, ba_options);
       if (rot2.ok) rot = std::move(rot2);
     }
-    if (rot.ok && estimating && !any_rays && o.dense_lens_matches) rot = refine_on_dense_matches(rot, rough, pairs, sets);
+    throw_if_cancelled(o);
+    if (rot.ok && estimating && !any_rays && o.dense_lens_matches) {
+      BundleAdjustOptions dense_options;
+      dense_options.cancel = o.cancel;
+      rot = refine_on_dense_matches(rot, rough, pairs, sets, false, dense_options);
+    }
+    throw_if_cancelled(o);
     if (rot.ok && estimating && !any_rays && o.dense_lens_matches && o.photometric_refit) {
       // The overlaps' brightness itself, no located points (photometric_refine.hpp).
       std::vector<std::pair<int, int>> links;
@@ -1971,6 +1996,8 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
       best_fov = fov;
       best = std::move(r);
       ring = order;
+    } catch (const CalibrationCancelled&) {
+      throw;
     } catch (const std::exception& e) {
       last_error = e.what();
       continue;
@@ -2100,6 +2127,8 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
       CalibrationOptions lo = o;
       lo.model = CameraModel::Rotation;
       lens = calibrate_from_rig(rough, sets, lo);
+    } catch (const CalibrationCancelled&) {
+      throw;
     } catch (const std::exception&) {
       continue;  // no usable lens fit from this start
     }
@@ -2120,6 +2149,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
 namespace {
 CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<ImageView>>& sets, int reference,
                                                 const CalibrationOptions& o) {
+  throw_if_cancelled(o);
   if (sets.empty()) throw RigError("no frames to calibrate on");
   const std::vector<ImageView>& frames = sets[0];
   const int n = int(frames.size());
@@ -2182,7 +2212,10 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
       Rig r = r0;
       for (auto& c : r.cameras) c.fx = c.fy = f_px > 0 ? f_px : c.width / (2 * std::tan(hfov_deg * kPi / 360));
       rotations_from_pairs(r, pairs);
-      return adjust(r, pairs);
+      throw_if_cancelled(o);
+      BundleAdjustOptions bo;
+      bo.cancel = o.cancel;
+      return adjust(r, pairs, bo);
     };
     const std::vector<double> fs = focal_estimates(r0, pairs);
     if (!fs.empty()) rot = start_with(0, median_of(fs));

@@ -3,7 +3,9 @@
 // Runs rarely (start-up, on request), on the CPU with OpenCV's features2d.
 #pragma once
 
+#include <atomic>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -69,7 +71,18 @@ struct CalibrationOptions {
   std::optional<Projection> projection;
   // A held-out match is kept out of both fits and judges them (every holdout_every-th).
   int holdout_every = 5;
+  // Set (by another thread): the calibration stops at its next stage (a detection, a pair's
+  // match, an adjustment, a guess) with CalibrationCancelled. A live session's background job
+  // is useless once the stream ended, and the process waits for its thread.
+  const std::atomic<bool>* cancel = nullptr;
 };
+
+// Thrown by the calibration functions when options.cancel is set. Not a RigError: nothing is
+// wrong with the rig, and no caller reports it as a calibration failure.
+struct CalibrationCancelled : std::runtime_error {
+  CalibrationCancelled() : std::runtime_error("calibration cancelled") {}
+};
+void throw_if_cancelled(const CalibrationOptions& options);
 
 const char* camera_model_name(CameraModel m);
 

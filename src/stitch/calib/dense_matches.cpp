@@ -268,6 +268,7 @@ std::vector<PairMatches> dense_matches(const Rig& rig, const std::vector<std::pa
     all.a = a;
     all.b = b;
     for (const auto& set : images) {
+      if (o.cancel && o.cancel->load(std::memory_order_relaxed)) return out;
       const PairMatches m = dense_pair_matches(rig, a, b, set.at(a), set.at(b), o);
       all.pa.insert(all.pa.end(), m.pa.begin(), m.pa.end());
       all.pb.insert(all.pb.end(), m.pb.begin(), m.pb.end());

@@ -7,6 +7,8 @@
 // the sub-pixel shift with a gain and an offset (Lucas-Kanade), to a few hundredths of a pixel.
 #pragma once
 
+#include <atomic>
+
 #include <opencv2/core.hpp>
 #include <utility>
 #include <vector>
@@ -29,6 +31,8 @@ struct DenseMatchOptions {
   // ideal pinhole pixel): pa / pb repeat the raw pixels, as the ray matches do (the adjustment
   // works on ra / rb). Off: matches without an ideal pixel are dropped.
   bool rays = false;
+  // Set (by another thread): dense_matches stops before its next pair and frame set.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 // A grey frame prepared for alignment.
