@@ -2,7 +2,9 @@
 // how long it keeps trying, what it says, and canvases that equal the panorama.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <fstream>
+#include <thread>
 #include <map>
 
 #include <opencv2/imgproc.hpp>
@@ -1207,9 +1209,22 @@ TEST(CalibSessionLens, LensJobGivesWayAndIsSkippedWithARigFile) {
   EXPECT_FALSE(s.give_way(false)) << "nothing waits for it";
   EXPECT_TRUE(s.give_way(true)) << "the end of the stream does not wait for it";
   EXPECT_FALSE(s.job_in_flight());
-  // A cancelled lens job's outcome is ignored.
-  std::atomic<bool> cancel{true};
-  s.on_outcome(run_calib_job(*lens, cancel));
+  // Cancelled while it runs (the end of the stream), the lens job stops at the calibrator's next
+  // stage, and its outcome is ignored.
+  std::atomic<bool> cancel{false};
+  CalibOutcome out;
+  const auto t0 = std::chrono::steady_clock::now();
+  std::thread worker([&]() { out = run_calib_job(*lens, cancel); });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  cancel = true;
+  const auto t1 = std::chrono::steady_clock::now();
+  worker.join();
+  const double stop_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  std::printf("lens job cancelled after %.2f s: stopped %.2f s later\n",
+              std::chrono::duration<double>(t1 - t0).count(), stop_s);
+  EXPECT_TRUE(out.cancelled);
+  EXPECT_LT(stop_s, 2.0);
+  s.on_outcome(out);
   EXPECT_EQ(s.version(), 1u);
   // With a rig-file the file states the lenses: no lens job.
   const std::string path = testdata::temp_dir() + "/lens_trio_rough.json";
