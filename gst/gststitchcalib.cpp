@@ -807,9 +807,17 @@ static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
 }
 
 static gboolean gst_stitch_calib_stop(GstBaseTransform* trans) {
-  /* The streaming thread has stopped: cancel the worker (it ends at its next stage boundary,
-   * on its own) and forget everything. Nothing waits for it. */
+  /* The streaming thread has stopped: cancel the worker and forget everything. The worker stops
+   * at the calibrator's next stage (CalibrationOptions::cancel: well under a second), and that
+   * moment is waited for, 3 s at most: an application that sets the pipeline to NULL and exits
+   * while it runs OpenCV crashed in the thread pool's teardown (examples/recalibrate.py with the
+   * background lens fit in flight). */
   CalibState* st = GST_STITCH_CALIB(trans)->state;
+  if (std::shared_ptr<WorkerChannel> ch = st->worker) {
+    ch->cancel = true;
+    std::unique_lock<std::mutex> g(ch->m);
+    ch->cv.wait_for(g, std::chrono::seconds(3), [&] { return ch->done.load(); });
+  }
   st->cancel_worker();
   st->session.reset();
   st->forget_torn();

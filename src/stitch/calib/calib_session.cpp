@@ -1165,14 +1165,16 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     return nullptr;
   }
   if (frame.missing_mask) return nullptr;
-  // Triggers of a recalibration window.
-  if (!window_open_) {
+  // Triggers of a recalibration window. A lens window (the background lens fit collecting its
+  // own frames) gives way to it: the lens is fitted after the recalibration, on its frames.
+  if (!window_open_ || window_kind_ == JobKind::Lens) {
     bool due = false;
     if (recalibrate_requested_ && config_.load_file.empty()) due = true;
     if (config_.recalibrate_interval_s > 0 && config_.load_file.empty() &&
         now_ >= last_calibration_at_ + config_.recalibrate_interval_s)
       due = true;
     recalibrate_requested_ = false;
+    if (due && window_open_) lens_wanted_ = true;
     if (due) start_window(JobKind::Recalibration);
   } else {
     recalibrate_requested_ = false;  // one window answers every request made while it collects
