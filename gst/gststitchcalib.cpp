@@ -66,15 +66,27 @@
  *   it joins, with a calibration from scratch.
  * - A `load-file` is checked against the images once: a warning names the cameras it does not
  *   fit.
+ * - Lenses from evidence: the first calibration from the images is pinhole (fast). Afterwards,
+ *   in the background, a radtan k1/k2 lens is fitted to every camera from the installed rig on
+ *   the pooled window's frames, judged like a pooled calibration on the held-out frames, and
+ *   installed (`source` lens) only when it also wins by the evidence rule of stitch-calibrate
+ *   (below 70% of the pinhole residual and 0.2 camera px less); else it is reported in a
+ *   `stitchcalib-rejected` message. Barrel-distorted phones and action cameras get their lens;
+ *   undistorted cameras stay pinhole. Not run with a rig-file or load-file (the file states the
+ *   lenses: absent is pinhole), `camera-model=homography`, cameras that already have lenses
+ *   (fisheyes), a camera left out, or when the pinhole residual is already within 0.2 camera
+ *   px. It never delays the stream: it gives way to a recalibration and is cancelled at the end
+ *   of the stream.
  *
  * Every installed calibration is posted as an element message named `stitchcalib`: `version`,
- * `source` (file, rig, images, pooled, recalibration), `canvas-width`/`-height`, `rms-px` (root
+ * `source` (file, rig, images, pooled, recalibration, lens), `canvas-width`/`-height`, `rms-px` (root
  * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `alignment-camera-px` and
  * `previous-camera-px` (the same in camera pixels, what the judge compares), `coverage` and
  * `previous-coverage` (the share of the canvas the cameras cover; pooled calibrations and
- * recalibrations), `fit-rms-px`, `inliers`, ... It is
+ * recalibrations), `lens` (the cameras' lens models: `pinhole`, `radtan`, `fisheye`, ...) with
+ * `lens-k1` and `lens-k2` (per camera) when they have lenses, `fit-rms-px`, `inliers`, ... It is
  * written to `save-file` when set, with the time offsets stitchsync applies (time-alignment,
  * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
  * stitchblend outputs them, and fitted into the current panorama on recalibration).
@@ -392,6 +404,16 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
   if (r.coverage >= 0)
     gst_structure_set(s, "coverage", G_TYPE_DOUBLE, r.coverage, "previous-coverage", G_TYPE_DOUBLE, r.previous_coverage, NULL);
   if (!r.model.empty()) gst_structure_set(s, "model", G_TYPE_STRING, r.model.c_str(), NULL);
+  /* the cameras' lenses (issue 15): "pinhole", or the models and, per camera, k1 and k2 */
+  const std::string lens = stitch::rig_lens_summary(rig);
+  gst_structure_set(s, "lens", G_TYPE_STRING, lens.c_str(), NULL);
+  if (lens != "pinhole") {
+    std::vector<double> k1, k2;
+    for (const auto& c : rig.cameras) k1.push_back(c.lens.k1), k2.push_back(c.lens.k2);
+    GValue a1 = value_array(k1), a2 = value_array(k2);
+    gst_structure_take_value(s, "lens-k1", &a1);
+    gst_structure_take_value(s, "lens-k2", &a2);
+  }
   GValue cams = value_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
   std::vector<int> left_out;  // the cameras calibrated without (no frame, or a dark one)
@@ -488,6 +510,7 @@ static gboolean post_events(GstStitchCalib* self) {
 }
 
 static void start_worker(CalibState* st, std::shared_ptr<stitch::CalibJob> job) {
+  st->cancel_worker();  /* one the session forgot (a resize, a lens fit that gave way): stop it */
   auto ch = std::make_shared<WorkerChannel>();
   ch->kind = job->kind;
   {
@@ -658,6 +681,8 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
 
   bool flushing = false;
   const gboolean guarded = stitch_guard(GST_ELEMENT(self), "stitchcalib", [&]() {
+    /* the background lens fit gives way to a recalibration whose frames are collected */
+    if (st->worker && !st->worker->done.load() && st->session.give_way(false)) st->cancel_worker();
     collect_outcome(st);
     /* Pixels are read only on the bundles the session wants (quality checks and calibrations):
      * CUDA-memory views then come to the host through gst-cuda; every other bundle passes untouched. */
@@ -723,12 +748,14 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
        * finished first (a flush or a stop still releases the wait), so that its result is
        * announced and saved. */
       snapshot_settings(st);
-      if (st->worker && st->worker->kind == stitch::JobKind::Pooled && st->save_path.empty() &&
-          !st->worker->done.load()) {
+      if (st->worker && !st->worker->done.load() &&
+          (st->worker->kind == stitch::JobKind::Lens ||
+           (st->worker->kind == stitch::JobKind::Pooled && st->save_path.empty()))) {
         /* The automatic pooled recalibration would only improve frames that will never come
          * (and no save-file to write it to): it is cancelled, not waited for (EOS came 6-15 s
-         * late on the real clips). */
-        GST_DEBUG_OBJECT(self, "end of stream: the pooled recalibration in flight is cancelled");
+         * late on the real clips). So is the background lens fit, always: it must not delay the
+         * end (CalibSession::give_way). */
+        GST_DEBUG_OBJECT(self, "end of stream: the %s job in flight is cancelled", stitch::job_kind_name(st->worker->kind));
         std::shared_ptr<WorkerChannel> ch = st->worker;
         ch->cancel = true;
         /* It stops at the calibrator's next stage (a detection, a pair: well under a second).
@@ -786,9 +813,17 @@ static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
 }
 
 static gboolean gst_stitch_calib_stop(GstBaseTransform* trans) {
-  /* The streaming thread has stopped: cancel the worker (it ends at its next stage boundary,
-   * on its own) and forget everything. Nothing waits for it. */
+  /* The streaming thread has stopped: cancel the worker and forget everything. The worker stops
+   * at the calibrator's next stage (CalibrationOptions::cancel: well under a second), and that
+   * moment is waited for, 3 s at most: an application that sets the pipeline to NULL and exits
+   * while it runs OpenCV crashed in the thread pool's teardown (examples/recalibrate.py with the
+   * background lens fit in flight). */
   CalibState* st = GST_STITCH_CALIB(trans)->state;
+  if (std::shared_ptr<WorkerChannel> ch = st->worker) {
+    ch->cancel = true;
+    std::unique_lock<std::mutex> g(ch->m);
+    ch->cv.wait_for(g, std::chrono::seconds(3), [&] { return ch->done.load(); });
+  }
   st->cancel_worker();
   st->session.reset();
   st->forget_torn();

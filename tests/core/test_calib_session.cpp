@@ -3,7 +3,10 @@
 #include <cstdio>
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <fstream>
+#include <thread>
+#include <map>
 
 #include <opencv2/imgproc.hpp>
 
@@ -1163,4 +1166,190 @@ TEST(CalibSession, UnknownRigFieldsAreWarnedAbout) {
   EXPECT_NE(w->text.find("typo_rig.json\": ignored a field it does not know: camera 0: \"yaw\" (did you mean \"yaw_deg\"?)"),
             std::string::npos)
       << w->text;
+}
+
+// ---- lens from evidence in the background (issue 15) -------------------------------------------
+
+namespace {
+
+// Three cameras 35 degrees apart with a radtan lens (k1, k2; pinhole when both are 0), rendered
+// from the photo taken as an equirectangular panorama; `noise` grey levels of sensor noise per
+// frame (seeded by the frame), so that held-out frames are not the calibration frames.
+std::vector<cv::Mat> lens_trio_frames(const Rig& truth, int frame, double noise = 2.0) {
+  static std::map<std::pair<double, double>, std::vector<cv::Mat>> clean;
+  const auto key = std::make_pair(truth.cameras[0].lens.k1, truth.cameras[0].fx);
+  if (!clean.count(key))
+    for (const auto& c : truth.cameras) clean[key].push_back(testdata::render_camera_from_equirect(photo(), c));
+  std::vector<cv::Mat> out;
+  cv::RNG rng(std::uint64_t(1000 + frame));
+  for (const auto& m : clean[key]) {
+    cv::Mat n(m.size(), CV_16SC4), f;
+    rng.fill(n, cv::RNG::NORMAL, 0, noise);
+    m.convertTo(f, CV_16SC4);
+    f += n;
+    f.convertTo(f, CV_8UC4);
+    f.setTo(cv::Scalar(0, 0, 0, 255), m == 0);  // keeps alpha; black stays black
+    std::vector<cv::Mat> ch;
+    cv::split(f, ch);
+    ch[3].setTo(255);
+    cv::merge(ch, f);
+    out.push_back(f);
+  }
+  return out;
+}
+
+struct LensRun {
+  std::vector<SessionEvent> events;
+  std::vector<JobKind> jobs;
+  std::shared_ptr<const Rig> first, last;
+};
+
+// Default session settings but a short pooling window (2 sets over 0.3 s): frames fed at 30 fps,
+// every job run synchronously, until the lens job has come and gone (or `frames` frames).
+LensRun run_lens_session(const Rig& truth, int frames = 40) {
+  SessionConfig c;
+  c.calibration_frames = 2;
+  c.calibration_window_s = 0.3;
+  CalibSession s;
+  s.set_config(c);
+  LensRun run;
+  for (int f = 0; f < frames; ++f) {
+    const auto views = lens_trio_frames(truth, f);
+    CalibSession::Frame fr;
+    fr.time_s = f / 30.0;
+    for (const auto& m : views) fr.sizes.push_back({m.cols, m.rows});
+    auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(views) : std::vector<ImageView>());
+    if (job) {
+      run.jobs.push_back(job->kind);
+      std::atomic<bool> cancel{false};
+      s.on_outcome(run_calib_job(*job, cancel));
+    }
+    if (s.current()) s.bundle_passed();
+    if (!run.first && s.current()) run.first = s.current();
+    for (auto& e : s.take_events()) run.events.push_back(e);
+    if (!run.jobs.empty() && run.jobs.back() == JobKind::Lens && !s.job_in_flight()) break;
+  }
+  run.last = s.current();
+  return run;
+}
+
+// The seam error of a rig on the frames: independent matches of the overlaps, camera pixels.
+AlignmentReport seams(const Rig& rig, const Rig& truth) {
+  auto frames = lens_trio_frames(truth, 0, 0.0);
+  return measure_alignment(rig, views_of(frames));
+}
+
+}  // namespace
+
+// Barrel-distorted cameras (k1 -0.23, k2 0.055) calibrated by a session with default settings:
+// the first calibration is pinhole (fast), the background lens fit gives every camera a radtan
+// lens near the truth, installed as source "lens", and the seams close.
+TEST(CalibSessionLens, DistortedRigGetsARadtanLensInTheBackground) {
+  const Rig truth = testdata::radtan_trio(320, 240, 260, 35.0, -0.23, 0.055, true, "spherical", 0.0);
+  const LensRun run = run_lens_session(truth);
+  ASSERT_TRUE(run.first && run.last);
+  for (const auto& c : run.first->cameras) EXPECT_TRUE(c.lens.pinhole()) << "the first calibration is pinhole";
+  ASSERT_FALSE(run.jobs.empty());
+  EXPECT_EQ(run.jobs.back(), JobKind::Lens) << "no lens job after the pooled one";
+  const SessionEvent* lens = nullptr;
+  for (const auto& e : run.events)
+    if ((e.type == SessionEvent::Type::Installed || e.type == SessionEvent::Type::Rejected) && e.report.source == "lens")
+      lens = &e;
+  ASSERT_NE(lens, nullptr);
+  std::printf("lens job: %s, %.3f camera px (pinhole %.3f) %s\n", lens->type == SessionEvent::Type::Installed ? "installed" : "rejected",
+              lens->report.residuals.median_camera_px, lens->report.previous_camera_px, lens->report.rejected_because.c_str());
+  ASSERT_EQ(lens->type, SessionEvent::Type::Installed) << lens->report.rejected_because;
+  EXPECT_EQ(lens->report.model, "rotation");
+  EXPECT_EQ(rig_lens_summary(*run.last), "radtan");
+  for (const auto& c : run.last->cameras) {
+    std::printf("  k1 %+.4f k2 %+.4f f %.1f\n", c.lens.k1, c.lens.k2, c.fx);
+    EXPECT_EQ(c.lens.model, Lens::Model::Radtan);
+    EXPECT_NEAR(c.lens.k1, -0.23, 0.25 * 0.23);
+  }
+  const AlignmentReport before = seams(*run.first, truth), after = seams(*run.last, truth);
+  std::printf("seams: median %.3f -> %.3f camera px, p90 %.3f -> %.3f canvas px\n", before.median_camera_px,
+              after.median_camera_px, before.p90_px, after.p90_px);
+  EXPECT_LT(after.median_camera_px, 0.7 * before.median_camera_px);
+  EXPECT_LT(after.p90_px, before.p90_px);
+  // The panorama keeps its size.
+  EXPECT_EQ(run.last->canvas_width, run.first->canvas_width);
+  EXPECT_EQ(run.last->canvas_height, run.first->canvas_height);
+}
+
+// Undistorted cameras: no lens is invented (the fit is skipped by the cheap check, or it does not
+// win by the evidence rule); the pinhole calibration stays.
+TEST(CalibSessionLens, UndistortedRigStaysPinhole) {
+  const Rig truth = testdata::radtan_trio(320, 240, 260, 35.0, 0, 0, false, "spherical", 0.0);
+  const LensRun run = run_lens_session(truth);
+  ASSERT_TRUE(run.last);
+  for (const auto& e : run.events)
+    if (e.report.source == "lens")
+      std::printf("lens job: %s %s\n", e.type == SessionEvent::Type::Installed ? "installed" : "rejected",
+                  e.report.rejected_because.c_str());
+  for (const auto& c : run.last->cameras) EXPECT_TRUE(c.lens.pinhole()) << "no lens invented for undistorted cameras";
+  EXPECT_EQ(rig_lens_summary(*run.last), "pinhole");
+}
+
+// The lens fit is a background job: it gives way to a recalibration whose frames are collected
+// and to the end of the stream (its outcome is then ignored), and it is skipped with a rig-file.
+TEST(CalibSessionLens, LensJobGivesWayAndIsSkippedWithARigFile) {
+  const Rig truth = testdata::radtan_trio(320, 240, 260, 35.0, -0.23, 0.055, true, "spherical", 0.0);
+  SessionConfig c;
+  c.calibration_frames = 1;  // no pooling: the lens fit collects a window of its own
+  c.calibration_window_s = 0.3;
+  CalibSession s;
+  s.set_config(c);
+  std::shared_ptr<CalibJob> lens;
+  for (int f = 0; f < 40 && !lens; ++f) {
+    const auto views = lens_trio_frames(truth, f);
+    CalibSession::Frame fr;
+    fr.time_s = f / 30.0;
+    for (const auto& m : views) fr.sizes.push_back({m.cols, m.rows});
+    auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(views) : std::vector<ImageView>());
+    if (job && job->kind == JobKind::Lens) lens = job;
+    else if (job) {
+      std::atomic<bool> cancel{false};
+      s.on_outcome(run_calib_job(*job, cancel));
+    }
+  }
+  ASSERT_TRUE(lens) << "no lens job";
+  EXPECT_FALSE(s.give_way(false)) << "nothing waits for it";
+  EXPECT_TRUE(s.give_way(true)) << "the end of the stream does not wait for it";
+  EXPECT_FALSE(s.job_in_flight());
+  // Cancelled while it runs (the end of the stream), the lens job stops at the calibrator's next
+  // stage, and its outcome is ignored.
+  std::atomic<bool> cancel{false};
+  CalibOutcome out;
+  const auto t0 = std::chrono::steady_clock::now();
+  std::thread worker([&]() { out = run_calib_job(*lens, cancel); });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  cancel = true;
+  const auto t1 = std::chrono::steady_clock::now();
+  worker.join();
+  const double stop_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  std::printf("lens job cancelled after %.2f s: stopped %.2f s later\n",
+              std::chrono::duration<double>(t1 - t0).count(), stop_s);
+  EXPECT_TRUE(out.cancelled);
+  EXPECT_LT(stop_s, 2.0);
+  s.on_outcome(out);
+  EXPECT_EQ(s.version(), 1u);
+  // With a rig-file the file states the lenses: no lens job.
+  const std::string path = testdata::temp_dir() + "/lens_trio_rough.json";
+  rig_save(testdata::rough_trio(truth, 1), path);
+  c.rig_file = path;
+  CalibSession t;
+  t.set_config(c);
+  for (int f = 0; f < 30; ++f) {
+    const auto views = lens_trio_frames(truth, f);
+    CalibSession::Frame fr;
+    fr.time_s = f / 30.0;
+    for (const auto& m : views) fr.sizes.push_back({m.cols, m.rows});
+    auto job = t.on_frame(fr, t.wants_pixels(fr) ? views_of(views) : std::vector<ImageView>());
+    if (job) {
+      EXPECT_NE(job->kind, JobKind::Lens);
+      std::atomic<bool> no{false};
+      t.on_outcome(run_calib_job(*job, no));
+    }
+  }
+  EXPECT_TRUE(t.current());
 }

@@ -206,8 +206,24 @@ const char* job_kind_name(JobKind k) {
     case JobKind::Recalibration: return "recalibration";
     case JobKind::DriftCheck: return "drift-check";
     case JobKind::LoadCheck: return "load-check";
+    case JobKind::Lens: return "lens";
   }
   return "?";
+}
+
+std::string rig_lens_summary(const Rig& rig) {
+  std::vector<std::string> models;
+  bool any = false;
+  for (const auto& c : rig.cameras) {
+    if (c.left_out) continue;
+    any |= !c.lens.pinhole();
+    const std::string m = lens_model_name(c.lens.model);
+    if (std::find(models.begin(), models.end(), m) == models.end()) models.push_back(m);
+  }
+  if (!any) return "pinhole";
+  std::string out;
+  for (const auto& m : models) out += (out.empty() ? "" : ", ") + m;
+  return out;
 }
 
 std::vector<ImageView> FrameSet::views() const {
@@ -508,7 +524,112 @@ Judgement judge_candidate(const RigResiduals& cand, const RigResiduals& cur, con
   return j;
 }
 
+namespace {
+
+// The background lens-from-evidence fit (JobKind::Lens): radtan k1/k2 for every camera, from the
+// installed rig (lens_fit_starts), on the window's calibration frames; the best usable start by
+// its own held-out error; then judged as a pooled candidate would be (residuals and coverage of
+// both on the held-out frames). `cancel` stops it at the calibrator's next stage
+// (CalibrationOptions::cancel) and is checked between the starts.
+constexpr std::size_t kLensFitSets = 2;
+CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) {
+  CalibOutcome o;
+  o.kind = job.kind;
+  o.serial = job.serial;
+  auto cancelled = [&]() { return (o.cancelled = cancel.load()); };
+  if (!job.current || job.calib_sets.empty()) {
+    o.error = job.current ? "no usable frames" : "no calibration to start from";
+    return o;
+  }
+  // Two of the window's sets (its first and last): a lens is the camera's, the same in every
+  // frame; each set more costs the whole fit again (3 x 640x480, 5 sets: ~45 s a start on a
+  // loaded core).
+  std::vector<std::vector<ImageView>> sets;
+  const std::size_t n = job.calib_sets.size();
+  for (std::size_t k = 0; k < n; ++k)
+    if (k == 0 || (k + 1 == n && sets.size() < kLensFitSets)) sets.push_back(job.calib_sets[k].views());
+  const CalibrationOptions& opt = job.config.options;
+  CameraModel model = opt.bundle_adjust ? CameraModel::Rotation : opt.model;
+  if (model == CameraModel::Auto) model = job.current->planar() && job.current->cameras[0].homography ? CameraModel::Homography : CameraModel::Rotation;
+  CalibrationOptions lo = opt;
+  lo.model = CameraModel::Rotation;
+  lo.bundle_adjust = false;
+  lo.projection.reset();  // the installed canvas's (the start's)
+  lo.cancel = &cancel;    // a cancelled job stops at the calibrator's next stage
+  std::optional<CalibrationResult> best;
+  bool ran_off = false;  // a fit's focal lengths ran off (the calibrator's warning)
+  const auto fit_from = [&](const std::vector<Rig>& starts) {
+    for (const Rig& start : starts) {
+      if (cancelled()) return;
+      try {
+        CalibrationResult r = calibrate_from_rig(start, sets, lo);
+        for (const auto& w : r.warnings) ran_off |= w.find("estimating the lens ran off") != std::string::npos;
+        if (lens_fit_usable(r) && (!best || r.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(r);
+      } catch (const CalibrationCancelled&) {
+        o.cancelled = true;
+        return;
+      } catch (const std::exception&) {
+        // no usable lens fit from this start
+      }
+    }
+  };
+  fit_from(lens_fit_starts(*job.current, model));
+  // The pinhole fit of distorted cameras can hold focal lengths far off (a k1 -0.23 trio on a
+  // plane canvas: 594 px for a true 260), and the lens fit from there runs off (the calibrator
+  // keeps the rough rig). Then from focal lengths guessed from the frame width (60, 45, 80
+  // degrees across), rotations read from the homographies (planar) or kept. Only then: on the
+  // real house clip (no distortion) three more starts cost ~80 s of a core for nothing.
+  if (!best && ran_off && model == CameraModel::Rotation) {
+    const Rig& cur = *job.current;
+    bool homographies = cur.planar();
+    for (const auto& c : cur.cameras) homographies &= bool(c.homography);
+    std::vector<Rig> guessed;
+    if (homographies) {
+      guessed = lens_fit_starts(cur, CameraModel::Homography);
+    } else {
+      for (const double hfov : {60.0, 45.0, 80.0}) {
+        Rig r = cur;
+        r.canvas_width = r.canvas_height = 0;
+        r.canvas_scale = 0;
+        r.canvas_wrap = false;
+        for (auto& c : r.cameras) {
+          c.fx = c.fy = 0.5 * c.width / std::tan(0.5 * hfov * kPi / 180.0);
+          c.cx = 0.5 * (c.width - 1);
+          c.cy = 0.5 * (c.height - 1);
+          c.homography.reset();
+          c.lens = Lens{};
+          c.lens.model = Lens::Model::Radtan;
+          c.lens.estimate = true;
+        }
+        guessed.push_back(r);
+      }
+    }
+    fit_from(guessed);
+  }
+  if (cancelled()) return o;
+  if (!best) {
+    o.error = "no usable lens fit";
+    return o;
+  }
+  o.result = std::move(best);
+  Rig& rig = o.result->rig;
+  fit_canvas(rig, job.current->canvas_width, job.current->canvas_height);
+  const bool heldout = !job.holdout_sets.empty();
+  const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
+  o.residual_source = heldout ? "held-out" : "calibration frames";
+  o.candidate = measure_residuals(rig, judge, &cancel);
+  if (cancelled()) return o;
+  o.current = measure_residuals(*job.current, judge, &cancel);
+  o.candidate_cover = rig_coverage(rig);
+  o.current_cover = rig_coverage(*job.current);
+  cancelled();
+  return o;
+}
+
+}  // namespace
+
 CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel) {
+  if (job.kind == JobKind::Lens) return run_lens_job(job, cancel);
   CalibOutcome o;
   o.kind = job.kind;
   o.serial = job.serial;
@@ -754,6 +875,9 @@ void CalibSession::forget_calibration() {
   bins_.clear();
   load_check_due_ = false;
   job_in_flight_ = false;
+  lens_wanted_ = lens_due_ = false;
+  last_calib_sets_.clear();
+  last_holdout_sets_.clear();
   ++serial_;
   first_frame_at_ = now_;
   next_attempt_at_ = now_;
@@ -930,7 +1054,40 @@ std::shared_ptr<CalibJob> CalibSession::make_job(JobKind kind) {
     if (installed_model_ && !job->config.projection) job->config.projection = current_->projection_kind();
   }
   job_in_flight_ = true;
+  in_flight_kind_ = kind;
   return job;
+}
+
+std::string CalibSession::lens_skip_reason(double residual_camera_px) const {
+  const CalibrationOptions& o = config_.options;
+  if (!o.lens_from_evidence) return "off";
+  if (!current_) return "no calibration";
+  if (!config_.rig_file.empty() || !config_.load_file.empty()) return "the rig-file or load-file states the lenses";
+  if (o.model == CameraModel::Homography && !o.bundle_adjust) return "camera-model=homography";
+  if (left_out_ || any_left_out(*current_)) return "a camera is left out";
+  for (const auto& c : current_->cameras)
+    if (!c.lens.pinhole()) return "the cameras have lenses already";
+  // Cheap check first: no lens can beat a residual that is already within the evidence margin.
+  if (residual_camera_px >= 0 && residual_camera_px <= kLensEvidenceMinPx) return "the pinhole calibration fits";
+  return "";
+}
+
+void CalibSession::maybe_lens_due(double residual_camera_px) {
+  if (!lens_wanted_) return;
+  lens_wanted_ = false;
+  lens_due_ = lens_skip_reason(residual_camera_px).empty() && !last_calib_sets_.empty();
+  if (!lens_due_) last_calib_sets_.clear(), last_holdout_sets_.clear();
+}
+
+bool CalibSession::give_way(bool at_eos) {
+  if (!job_in_flight_ || in_flight_kind_ != JobKind::Lens) return false;
+  const bool window_ready = window_open_ && window_kind_ != JobKind::Lens &&
+                            now_ >= window_start_ + config_.calibration_window_s;
+  if (!at_eos && !window_ready) return false;
+  job_in_flight_ = false;
+  ++serial_;  // its outcome is stale now
+  lens_wanted_ = !at_eos;  // tried again after that window's job, on its frames
+  return true;
 }
 
 std::string CalibSession::bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score,
@@ -1104,14 +1261,16 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     return nullptr;
   }
   if (frame.missing_mask) return nullptr;
-  // Triggers of a recalibration window.
-  if (!window_open_) {
+  // Triggers of a recalibration window. A lens window (the background lens fit collecting its
+  // own frames) gives way to it: the lens is fitted after the recalibration, on its frames.
+  if (!window_open_ || window_kind_ == JobKind::Lens) {
     bool due = false;
     if (recalibrate_requested_ && config_.load_file.empty()) due = true;
     if (config_.recalibrate_interval_s > 0 && config_.load_file.empty() &&
         now_ >= last_calibration_at_ + config_.recalibrate_interval_s)
       due = true;
     recalibrate_requested_ = false;
+    if (due && window_open_) lens_wanted_ = true;
     if (due) start_window(JobKind::Recalibration);
   } else {
     recalibrate_requested_ = false;  // one window answers every request made while it collects
@@ -1133,11 +1292,12 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     for (auto& b : bins_)
       if (b.best) (b.holdout ? job->holdout_sets : job->calib_sets).push_back(std::move(*b.best));
     bins_.clear();
-    last_calibration_at_ = now_;
+    if (window_kind_ != JobKind::Lens) last_calibration_at_ = now_;
     if (job->calib_sets.empty()) {
       job_in_flight_ = false;
       if (window_kind_ == JobKind::Recalibration)
         warn("Recalibration skipped: no usable frames in the calibration window; keeping the current calibration");
+      if (window_kind_ != JobKind::Lens) maybe_lens_due(-1);
       return nullptr;
     }
     // Too few frames to hold any out: judge on the calibration frames themselves.
@@ -1145,6 +1305,18 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       job->holdout_sets.push_back(std::move(job->calib_sets.back()));
       job->calib_sets.pop_back();
     }
+    // The lens fit that may follow uses the same frames (cv::Mat headers: shared, not copied).
+    last_calib_sets_ = job->calib_sets;
+    last_holdout_sets_ = job->holdout_sets;
+    return job;
+  }
+  if (lens_due_ && !window_open_) {
+    lens_due_ = false;
+    auto job = make_job(JobKind::Lens);
+    job->calib_sets = std::move(last_calib_sets_);
+    job->holdout_sets = std::move(last_holdout_sets_);
+    last_calib_sets_.clear();
+    last_holdout_sets_.clear();
     return job;
   }
   if (window_open_ || !have_pixels) return nullptr;
@@ -1191,8 +1363,13 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
              " with a calibration from scratch once it delivers (the panorama keeps its size)");
       install(rep, &r);
       // Pool better frames (refine=none reads none: nothing to gain).
-      if (!left_out_ && config_.calibration_frames > 1 && !(rough_ && config_.options.refinement == Refinement::None))
-        start_window(JobKind::Pooled);
+      const bool pool =
+          !left_out_ && config_.calibration_frames > 1 && !(rough_ && config_.options.refinement == Refinement::None);
+      if (pool) start_window(JobKind::Pooled);
+      // Then the lens from evidence, in the background: after the pooled window, on its frames,
+      // or on a window of its own.
+      lens_wanted_ = lens_skip_reason(o.candidate.median_camera_px).empty();
+      if (lens_wanted_ && !pool) start_window(JobKind::Lens);
       next_drift_check_at_ = now_ + config_.drift_check_interval_s;
       return;
     }
@@ -1202,6 +1379,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       if (!o.error.empty() || !o.result) {
         warn(std::string(o.kind == JobKind::Pooled ? "Pooled calibration" : "Recalibration") + " failed (" + o.error +
              "); keeping the current calibration");
+        maybe_lens_due(-1);
         return;
       }
       CalibReport rep;
@@ -1221,7 +1399,48 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
         CalibrationResult r = *o.result;
         install(rep, &r);
       } else {
+        maybe_lens_due(o.current.median_camera_px);
         if (cur >= 0) baseline_px_ = cur;
+        rep.rig = std::make_shared<const Rig>(o.result->rig);
+        rep.version = version_;
+        fill_report(rep, &*o.result);
+        SessionEvent e = make_event(SessionEvent::Type::Rejected, "");
+        e.report = rep;
+        events_.push_back(e);
+      }
+      // A recalibration installed (the rig moved) is pinhole: the lens is fitted again after it.
+      if (verdict.install && o.kind == JobKind::Recalibration) lens_wanted_ = true;
+      if (verdict.install) maybe_lens_due(o.candidate.median_camera_px);
+      return;
+    }
+    case JobKind::Lens: {
+      // No usable fit: the pinhole calibration stays, nothing to announce.
+      if (!o.error.empty() || !o.result) return;
+      CalibReport rep;
+      rep.source = "lens";
+      rep.residuals = o.candidate;
+      rep.residual_source = o.residual_source;
+      rep.previous_px = o.current.median_px;
+      rep.previous_camera_px = o.current.median_camera_px;
+      if (!o.candidate_cover.camera_share.empty()) rep.coverage = o.candidate_cover.share;
+      if (!o.current_cover.camera_share.empty()) rep.previous_coverage = o.current_cover.share;
+      // Judged as any candidate, and it must win by the evidence rule of calibrate_from_images
+      // (a lens only where the images show distortion), in camera pixels on the same frames.
+      Judgement verdict = judge_candidate(o.candidate, o.current, o.candidate_cover, o.current_cover);
+      const double lens_px = o.candidate.median_camera_px, pin_px = o.current.median_camera_px;
+      if (verdict.install && !lens_evidence_wins(pin_px, lens_px)) {
+        verdict.install = false;
+        verdict.reason = "no clear evidence of lens distortion: " + fmt(lens_px, 2) + " camera px with radtan k1/k2 against " +
+                         fmt(pin_px, 2) + " pinhole (a lens needs below " + fmt(100 * kLensEvidenceRatio, 0) + "% and " +
+                         fmt(kLensEvidenceMinPx, 2) + " px less)";
+      }
+      rep.rejected_because = verdict.reason;
+      if (verdict.install) {
+        CalibrationResult r = *o.result;
+        r.warnings.push_back("lens distortion found in the images (" + fmt(pin_px, 2) + " camera px pinhole, " +
+                             fmt(lens_px, 2) + " with radtan k1/k2, held out): the cameras get radtan lenses");
+        install(rep, &r);
+      } else {
         rep.rig = std::make_shared<const Rig>(o.result->rig);
         rep.version = version_;
         fill_report(rep, &*o.result);

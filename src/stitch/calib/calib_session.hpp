@@ -92,7 +92,8 @@ struct SessionConfig {
   double leave_out_after_s = 4.0;
 };
 
-enum class JobKind { First, Pooled, Recalibration, DriftCheck, LoadCheck };
+// Lens: the background lens-from-evidence fit (see CalibSession: "lens from evidence").
+enum class JobKind { First, Pooled, Recalibration, DriftCheck, LoadCheck, Lens };
 const char* job_kind_name(JobKind k);
 
 // Owned copies of one bundle's views (RGBA).
@@ -195,6 +196,10 @@ struct CalibReport {        // one installed (or rejected) calibration, for the 
   std::string model;         // "rotation" or "homography" (planar canvases); empty: a loaded file
 };
 
+// What lenses a rig's cameras have, for messages: "pinhole" when none has one, else the models
+// (e.g. "radtan", "fisheye", "radtan, pinhole").
+std::string rig_lens_summary(const Rig& rig);
+
 struct SessionEvent {
   enum class Type { Installed, Rejected, Pending, Qos, Warning, Error } type = Type::Warning;
   std::string text;          // Pending: why; Warning, Error: the message
@@ -257,6 +262,20 @@ class CalibSession {
   // the next job may start (a seek after the end of the stream).
   void abandon_job();
   void request_recalibration() { recalibrate_requested_ = true; }
+  // Lens from evidence (issue 15). The first calibration from the images is pinhole (fast: the
+  // stream waits for it). Afterwards a background job (JobKind::Lens) fits a radtan k1/k2 lens
+  // to every camera from the installed rig (lens_fit_starts) on the frames of the pooling window,
+  // and installs it only when judge_candidate accepts it and it wins by the evidence rule
+  // (lens_evidence_wins) in camera pixels on the held-out frames. Skipped with a rig-file or a
+  // load-file (the file states the lenses: absent is pinhole), camera-model=homography,
+  // options.lens_from_evidence off, a camera left out, cameras that already have a lens (a
+  // fisheye ring, estimated), and when the installed calibration's held-out residual is already
+  // within kLensEvidenceMinPx (no lens could win). It is a background job: it gives way.
+  // Whether the job in flight is one that gives way (the lens fit) to work that waits now (a
+  // recalibration window that has collected its frames) or to the end of the stream (`at_eos`):
+  // when it does, the session forgets it (its outcome is ignored) and the caller cancels the
+  // worker instead of waiting for it.
+  bool give_way(bool at_eos);
   // Whether the last bundle was kept from the first calibration by torn pictures alone (every
   // camera delivered; each refused one was "corrupt"). At the end of a stream such a picture is
   // the camera's last (two photos given as one-frame streams): accept_torn_pictures() then takes
@@ -293,6 +312,11 @@ class CalibSession {
   void warn_unknown_fields(const std::string& property, const std::string& path, const Rig& rig);
   void install(CalibReport report, CalibrationResult* result);
   void start_window(JobKind kind);
+  // Lens from evidence: why the background lens fit is not run on the installed calibration
+  // (empty: it is); `residual_camera_px`: its held-out residual (-1: not known).
+  std::string lens_skip_reason(double residual_camera_px) const;
+  // After a windowed job's outcome: the lens fit becomes due (on that window's frames).
+  void maybe_lens_due(double residual_camera_px);
   std::shared_ptr<CalibJob> make_job(JobKind kind);
   // `skip`: views not judged (left out).
   std::string bundle_problem(const std::vector<ImageView>& views, bool features_needed, double* score,
@@ -368,6 +392,11 @@ class CalibSession {
   // jobs
   std::uint64_t serial_ = 0;
   bool job_in_flight_ = false;
+  JobKind in_flight_kind_ = JobKind::First;
+  // lens from evidence: wanted after the next windowed job (once per calibration from scratch),
+  // due now (with the frames of the last window), the frames of the last window
+  bool lens_wanted_ = false, lens_due_ = false;
+  std::vector<FrameSet> last_calib_sets_, last_holdout_sets_;
   // QoS
   std::uint64_t passed_ = 0, dropped_ = 0, dropped_reported_ = 0;
   double last_qos_at_ = -1e9;

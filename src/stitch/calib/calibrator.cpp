@@ -2036,6 +2036,58 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
   return best;
 }
 
+bool lens_evidence_wins(double pinhole_px, double lens_px) {
+  return pinhole_px > 0 && lens_px >= 0 && lens_px < kLensEvidenceRatio * pinhole_px && pinhole_px - lens_px > kLensEvidenceMinPx;
+}
+
+bool lens_fit_usable(const CalibrationResult& lens) {
+  bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
+  for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
+  return usable;
+}
+
+std::vector<Rig> lens_fit_starts(const Rig& pin, CameraModel model) {
+  // Rough rigs of a lens fit (radtan, coefficients estimated): the pinhole rotation rig; or, when
+  // homographies won (strong distortion, k1 -0.35, bends the rotation model more than a free
+  // homography: 3.3 px vs 1.5 px held out, and its focal lengths run off, ~9700 px for a true
+  // 554; branch probe360), rotations read from those homographies through a few guessed focal
+  // lengths (50-90 degrees across the reference's width).
+  std::vector<Rig> starts;
+  if (model == CameraModel::Rotation) {
+    starts.push_back(pin);
+  } else if (pin.planar() && !pin.cameras.empty()) {
+    const Rig& h = pin;
+    const Camera& ref = h.cameras[std::size_t(std::clamp(h.reference, 0, int(h.cameras.size()) - 1))];
+    bool all = true;
+    for (const auto& c : h.cameras) all &= bool(c.homography);
+    if (all)
+      for (const double hfov : {60.0, 45.0, 80.0}) {
+        Rig r = h;
+        r.canvas_width = r.canvas_height = 0;
+        r.canvas_scale = 0;
+        for (auto& c : r.cameras) {
+          c.fx = c.fy = 0.5 * ref.width / std::tan(0.5 * hfov * kPi / 180.0) * double(c.width) / ref.width;
+          c.cx = 0.5 * (c.width - 1);
+          c.cy = 0.5 * (c.height - 1);
+        }
+        const Eigen::Matrix3d Kr = r.cameras[std::size_t(h.reference)].K();
+        for (std::size_t i = 0; i < r.cameras.size(); ++i) {
+          const Eigen::Matrix3d rel = ref.homography->inverse() * *h.cameras[i].homography;  // i -> reference pixels
+          r.cameras[i].set_R(nearest_rotation(Kr.inverse() * rel * r.cameras[i].K()));
+        }
+        for (auto& c : r.cameras) c.homography.reset();
+        starts.push_back(r);
+      }
+  }
+  for (Rig& rough : starts)
+    for (auto& c : rough.cameras) {
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+    }
+  return starts;
+}
+
 constexpr double kFisheyeFallbackPoorPx = 1.5;
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
@@ -2066,47 +2118,10 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   else
     fisheye_error.clear();
   if (!o.lens_from_evidence || o.model == CameraModel::Homography || !(pin.rotation_heldout_px > 0)) return pin;
-  // Rough rigs of a lens fit (radtan, coefficients estimated): the pinhole rotation rig; or, when
-  // homographies won (strong distortion, k1 -0.35, bends the rotation model more than a free
-  // homography: 3.3 px vs 1.5 px held out, and its focal lengths run off, ~9700 px for a true
-  // 554; branch probe360), rotations read from those homographies through a few guessed focal
-  // lengths (50-90 degrees across the reference's width).
-  std::vector<Rig> starts;
-  double hp = pin.rotation_heldout_px;
-  if (pin.model == CameraModel::Rotation) {
-    starts.push_back(pin.rig);
-  } else if (pin.rig.planar() && pin.homography_heldout_px > 0) {
-    hp = pin.homography_heldout_px;
-    const Rig& h = pin.rig;
-    const Camera& ref = h.cameras[h.reference];
-    bool all = true;
-    for (const auto& c : h.cameras) all &= bool(c.homography);
-    if (all)
-      for (const double hfov : {60.0, 45.0, 80.0}) {
-        Rig r = h;
-        r.canvas_width = r.canvas_height = 0;
-        r.canvas_scale = 0;
-        for (auto& c : r.cameras) {
-          c.fx = c.fy = 0.5 * ref.width / std::tan(0.5 * hfov * kPi / 180.0) * double(c.width) / ref.width;
-          c.cx = 0.5 * (c.width - 1);
-          c.cy = 0.5 * (c.height - 1);
-        }
-        const Eigen::Matrix3d Kr = r.cameras[h.reference].K();
-        for (std::size_t i = 0; i < r.cameras.size(); ++i) {
-          const Eigen::Matrix3d rel = ref.homography->inverse() * *h.cameras[i].homography;  // i -> reference pixels
-          r.cameras[i].set_R(nearest_rotation(Kr.inverse() * rel * r.cameras[i].K()));
-        }
-        for (auto& c : r.cameras) c.homography.reset();
-        starts.push_back(r);
-      }
-  }
+  const double hp = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
+  if (!(hp > 0)) return pin;
   std::optional<CalibrationResult> best;
-  for (Rig rough : starts) {
-    for (auto& c : rough.cameras) {
-      c.lens = Lens{};
-      c.lens.model = Lens::Model::Radtan;
-      c.lens.estimate = true;
-    }
+  for (const Rig& rough : lens_fit_starts(pin.rig, pin.model)) {
     CalibrationResult lens;
     try {
       CalibrationOptions lo = o;
@@ -2117,14 +2132,12 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     } catch (const std::exception&) {
       continue;  // no usable lens fit from this start
     }
-    bool usable = lens.model == CameraModel::Rotation && lens.rotation_heldout_px > 0;
-    for (const auto& c : lens.rig.cameras) usable &= !c.lens.estimate && lens_problem(c).empty();
-    if (usable && (!best || lens.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(lens);
+    if (lens_fit_usable(lens) && (!best || lens.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(lens);
   }
   if (!best) return pin;
   CalibrationResult& lens = *best;
   const double hl = lens.rotation_heldout_px;
-  if (hl < kLensEvidenceRatio * hp && hp - hl > kLensEvidenceMinPx) {
+  if (lens_evidence_wins(hp, hl)) {
     if (!fisheye_error.empty()) lens.warnings.insert(lens.warnings.begin(), pin.warnings.back());
     lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(hp) + " px pinhole, " +
                             std::to_string(hl) + " px with radtan k1/k2): the cameras get radtan lenses");

@@ -145,6 +145,21 @@ CalibrationResult calibrate_from_images(const std::vector<ImageView>& frames, in
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& options);
 
+// Lens from evidence (issue 15; calibrate_from_images with lens_from_evidence, and the
+// elements' background lens fit, calib_session.hpp): the rough rigs a radtan k1/k2 fit of pinhole
+// cameras starts from, every lens radtan with its coefficients to estimate. `model` Rotation: the
+// pinhole rig itself; Homography (a planar rig with every camera's homography): rotations read
+// from the homographies through a few guessed focal lengths (strong distortion bends the
+// rotation model more than a free homography). Empty when there is nothing to start from.
+std::vector<Rig> lens_fit_starts(const Rig& pinhole, CameraModel model);
+// A lens fit (calibrate_from_rig of a start, rotation model) that can be compared: rotation
+// model, a held-out error, every lens estimated and sane.
+bool lens_fit_usable(const CalibrationResult& lens);
+// The evidence rule: a lens is kept only when its error falls below kLensEvidenceRatio (0.7) of
+// the pinhole one and by more than kLensEvidenceMinPx (0.2 px), both measured alike.
+bool lens_evidence_wins(double pinhole_px, double lens_px);
+extern const double kLensEvidenceRatio, kLensEvidenceMinPx;
+
 struct AlignmentReport {
   double median_px = -1;   // over all pairs' matches; -1 when nothing could be matched
   double p90_px = -1;      // 90th percentile of the same distances
