@@ -170,6 +170,10 @@ TEST_F(CalibOnRealPhoto, CancelledCalibrationStopsAtItsNextStage) {
   o.cancel = &cancel;
   EXPECT_THROW(calibrate_from_images(frames, 0, o), CalibrationCancelled);
   EXPECT_THROW(calibrate_from_rig(rig_with(perturbed(p.truth)), frames, o), CalibrationCancelled);
+  // A deadline already passed (a background job's budget) stops it the same way.
+  CalibrationOptions late;
+  late.deadline = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  EXPECT_THROW(calibrate_from_images(frames, 0, late), CalibrationCancelled);
 
   // Cancelled half a second in: the whole fit takes 20-70 s on the 2-core VM (SIFT, matches,
   // the pinhole adjustment, then the lens fit's sweeps and dense refits); it must stop within

@@ -14,11 +14,12 @@ namespace {
 
 // lm.minimize(x), one iteration at a time so that a cancelled calibration stops within one.
 template <class LM>
-void minimize(LM& lm, Eigen::VectorXd& x, const std::atomic<bool>* cancel) {
+void minimize(LM& lm, Eigen::VectorXd& x, const BundleAdjustOptions& o) {
   Eigen::LevenbergMarquardtSpace::Status status = lm.minimizeInit(x);
   if (status == Eigen::LevenbergMarquardtSpace::ImproperInputParameters) return;
   do {
-    if (cancel && cancel->load(std::memory_order_relaxed)) return;
+    if (o.cancel && o.cancel->load(std::memory_order_relaxed)) return;
+    if (o.deadline && std::chrono::steady_clock::now() > *o.deadline) return;
     status = lm.minimizeOneStep(x);
   } while (status == Eigen::LevenbergMarquardtSpace::Running);
 }
@@ -225,7 +226,7 @@ double truncated_cost(const Problem& p, const Eigen::VectorXd& x, double cap_px)
 // fit rotations and focal lengths with the lens held, and start from the candidate whose
 // truncated cost is lowest (coarse grid, then a finer one around the best).
 double sweep_lens_start(const Problem& full, Eigen::VectorXd& x, double cap_px, int max_iterations,
-                        const std::atomic<bool>* cancel) {
+                        const BundleAdjustOptions& stop) {
   std::vector<int> est;
   for (int i = 0; i < full.layout.n; ++i)
     if (full.layout.lens_index(i) >= 0 && full.layout.lens_group[i] == i) est.push_back(i);
@@ -251,7 +252,7 @@ double sweep_lens_start(const Problem& full, Eigen::VectorXd& x, double cap_px, 
     Eigen::NumericalDiff<Functor> numdiff(fn);
     Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
     lm.parameters.maxfev = std::min(max_iterations, 30) * (q.layout.size() + 1);  // a ranking, not the fit
-    minimize(lm, xq, cancel);
+    minimize(lm, xq, stop);
     if (!xq.allFinite()) return 1e300;
     const double cost = truncated_cost(q, xq, cap_px);
     xo = x;
@@ -348,14 +349,14 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
   bool from_zero = !p.layout.lens_k.empty();
   for (int i = 0; i < n; ++i)
     if (const int l = p.layout.lens_index(i); l >= 0) from_zero &= x[l] == 0 && (p.layout.lens_count(i) < 2 || x[l + 1] == 0);
-  if (from_zero && o.sweep_lens) rep.lens_sweep_d = sweep_lens_start(p, x, o.outlier_px, o.max_iterations, o.cancel);
+  if (from_zero && o.sweep_lens) rep.lens_sweep_d = sweep_lens_start(p, x, o.outlier_px, o.max_iterations, o);
   for (int round = 0; round < 2; ++round) {
     Functor fn{&p};
     Eigen::NumericalDiff<Functor> numdiff(fn);
     Eigen::LevenbergMarquardt<Eigen::NumericalDiff<Functor>> lm(numdiff);
     lm.parameters.maxfev = o.max_iterations * (p.layout.size() + 1);
     if (p.lens()) lm.parameters.xtol = lm.parameters.ftol = 1e-12;  // a flat valley: focal vs k1, k2
-    minimize(lm, x, o.cancel);
+    minimize(lm, x, o);
     if (round == 1) break;
     // Drop the matches the fit does not explain (false matches, parallax) and fit again.
     f.resize(4 * p.pa.size());
@@ -404,7 +405,7 @@ BundleAdjustReport bundle_adjust(Rig& rig, const std::vector<PairMatches>& match
       lm.parameters.maxfev = o.max_iterations * (q.layout.size() + 1);
       if (q.lens()) lm.parameters.xtol = lm.parameters.ftol = 1e-12;
       Eigen::VectorXd xr = x;
-      minimize(lm, xr, o.cancel);
+      minimize(lm, xr, o);
       if (!xr.allFinite()) break;
       x = xr;
     }

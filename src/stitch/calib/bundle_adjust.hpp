@@ -5,6 +5,8 @@
 
 #include <Eigen/Core>
 #include <atomic>
+#include <chrono>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -46,6 +48,7 @@ struct BundleAdjustOptions {
   // Set (by another thread): every minimisation stops at its next iteration, and the report is
   // of an unfinished fit; the caller checks the flag and gives up (calibrator.hpp's cancel).
   const std::atomic<bool>* cancel = nullptr;
+  std::optional<std::chrono::steady_clock::time_point> deadline;  // the same once the clock passes it
 };
 
 struct BundleAdjustReport {

@@ -43,6 +43,7 @@ cv::Ptr<cv::Feature2D> make_detector(FeatureType type, int max_features) {
 
 void throw_if_cancelled(const CalibrationOptions& options) {
   if (options.cancel && options.cancel->load(std::memory_order_relaxed)) throw CalibrationCancelled();
+  if (options.deadline && std::chrono::steady_clock::now() > *options.deadline) throw CalibrationCancelled();
 }
 
 namespace {
@@ -1306,7 +1307,9 @@ RotationFit refine_on_dense_matches(const RotationFit& start, const Rig& rough, 
   int accepted = 0;
   int share = -1;  // the dense refit's lens sharing, decided on the first pass (choose_shared_lens)
   for (int pass = 0; pass < 2; ++pass) {
-    if (base.cancel && base.cancel->load(std::memory_order_relaxed)) return start;  // the caller throws
+    if ((base.cancel && base.cancel->load(std::memory_order_relaxed)) ||
+        (base.deadline && std::chrono::steady_clock::now() > *base.deadline))
+      return start;  // the caller throws
     DenseMatchOptions dopt;
     dopt.rays = rays;
     dopt.cancel = base.cancel;
@@ -1523,6 +1526,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // other) then pins it down, unless its standard error says otherwise (checked after the fit).
   BundleAdjustOptions ba_options;
   ba_options.cancel = o.cancel;
+  ba_options.deadline = o.deadline;
   std::vector<int> narrow;
   std::vector<double> narrow_spread(n, 0);
   if (estimating && any_rays)
@@ -1694,6 +1698,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
     if (rot.ok && estimating && !any_rays && o.dense_lens_matches) {
       BundleAdjustOptions dense_options;
       dense_options.cancel = o.cancel;
+      dense_options.deadline = o.deadline;
       rot = refine_on_dense_matches(rot, rough, pairs, sets, false, dense_options);
     }
     throw_if_cancelled(o);
@@ -2215,6 +2220,7 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
       throw_if_cancelled(o);
       BundleAdjustOptions bo;
       bo.cancel = o.cancel;
+      bo.deadline = o.deadline;
       return adjust(r, pairs, bo);
     };
     const std::vector<double> fs = focal_estimates(r0, pairs);

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -75,6 +76,9 @@ struct CalibrationOptions {
   // match, an adjustment, a guess) with CalibrationCancelled. A live session's background job
   // is useless once the stream ended, and the process waits for its thread.
   const std::atomic<bool>* cancel = nullptr;
+  // Set: the same once the steady clock passes it (a background job's budget: the lens fit on a
+  // real clip that shows no distortion tried every start for 143 s of a core).
+  std::optional<std::chrono::steady_clock::time_point> deadline;
 };
 
 // Thrown by the calibration functions when options.cancel is set. Not a RigError: nothing is
