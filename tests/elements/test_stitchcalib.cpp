@@ -312,8 +312,11 @@ TEST(StitchCalib, BusSyncHandlerReadsAndSetsProperties) {
   EXPECT_EQ(r.frames.size(), 20u);
 }
 
-// set_state(NULL) while the first calibration runs (large views, seconds of work) returns at
-// once: the waiting streaming thread is released and the worker cancelled, never joined.
+// set_state(NULL) while the first calibration runs (large views, seconds of work) returns
+// promptly: the waiting streaming thread is released and the worker cancelled; stop() waits only
+// for the calibrator's current stage to end (an application exiting while the worker ran OpenCV
+// crashed in its thread pool's teardown), 0.1-0.5 s on the loaded 2-core VM, not for the
+// calibration.
 TEST(StitchCalib, NullDuringACalibrationReturnsPromptly) {
   gsttest::init();
   cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
@@ -354,7 +357,7 @@ TEST(StitchCalib, NullDuringACalibrationReturnsPromptly) {
   const double took = double(g_get_monotonic_time() - t0) / G_USEC_PER_SEC;
   gst_object_unref(pipe);
   EXPECT_FALSE(calibrated) << "the calibration finished before NULL: the test proves nothing";
-  EXPECT_LT(took, 0.3);
+  EXPECT_LT(took, 1.5);
 }
 
 TEST(StitchCalib, MessageCarriesPerCameraResiduals) {

@@ -868,11 +868,41 @@ void CalibSession::rejoin(std::uint64_t back, std::size_t cameras) {
   forget_calibration();
 }
 
+std::shared_ptr<CalibJob> CalibSession::rejoin_in_background(std::uint64_t back, const Frame& frame,
+                                                            const std::vector<ImageView>& views) {
+  // The cameras still absent stay out; every camera in the job must show features.
+  const std::uint64_t leave = left_out_ & frame.missing_mask;
+  if (!bundle_problem(views, !rough_.has_value(), nullptr, leave).empty()) return nullptr;
+  if (!rejoin_announced_)
+    warn(camera_list(back, views.size()) + agree(back, " delivers", " deliver") +
+         " a picture now: calibrating again with " + agree(back, "it", "them") +
+         ", in the background; the panorama goes on without " + agree(back, "it", "them") + " meanwhile");
+  rejoin_announced_ = true;
+  auto job = make_job(JobKind::First);
+  // From scratch (the rough rig or the images: the old geometry was made without it), in the
+  // panorama the stream already has.
+  job->current.reset();
+  job->fit_width = panorama_w_ > 0 ? panorama_w_ : current_->canvas_width;
+  job->fit_height = panorama_h_ > 0 ? panorama_h_ : current_->canvas_height;
+  job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));
+  if (leave) {
+    job->left_out = leave;
+    job->sizes = frame.sizes;
+    job->config.reference = kept_index(config_.reference, leave);
+    if (job->rough) {
+      job->rough->cameras = kept_items(job->rough->cameras, leave);
+      job->rough->reference = kept_index(job->rough->reference, leave);
+    }
+  }
+  return job;
+}
+
 void CalibSession::forget_calibration() {
   // From scratch (the rough rig or the images), never from the old geometry: it was made for
   // other cameras. Jobs in flight are forgotten; the version keeps counting.
   current_.reset();
   left_out_ = 0;
+  rejoin_announced_ = false;
   absent_since_.clear();
   rough_.reset();
   sizes_.clear();
@@ -1192,7 +1222,9 @@ bool CalibSession::wants_pixels(const Frame& frame) {
     return config_.leave_out_after_s > 0;
   }
   // a left-out camera that sends frames again: is it back (not dark)?
-  if (left_out_) return (left_out_ & ~frame.missing_mask) != 0 && now_ - last_rejoin_check_ >= 0.5;
+  if (left_out_)
+    return !job_in_flight_ && (left_out_ & ~frame.missing_mask) != 0 && now_ - last_rejoin_check_ >= 0.5 &&
+           now_ >= next_attempt_at_;
   if (frame.missing_mask) return false;
   if (window_open_ || load_check_due_ || recalibrate_requested_) return true;
   if (config_.recalibrate_interval_s > 0 && now_ + 0.5 >= last_calibration_at_ + config_.recalibrate_interval_s) return true;
@@ -1260,12 +1292,12 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     // Calibrated without some cameras: nothing is pooled or recalibrated until they are back.
     // One that delivers a picture again (not dark) brings a calibration from scratch with it.
     const std::uint64_t back = left_out_ & ~frame.missing_mask;
-    if (!back || !have_pixels) return nullptr;
+    if (!back || !have_pixels || job_in_flight_ || (frame.missing_mask & ~left_out_)) return nullptr;
     last_rejoin_check_ = now_;
     for (std::size_t i = 0; i < views.size(); ++i)
       if (bit(back, i) && shows_nothing(views[i])) return nullptr;
-    rejoin(back, views.size());
-    return nullptr;
+    if (now_ < next_attempt_at_) return nullptr;  // a failed attempt waits retry_interval_s
+    return rejoin_in_background(back, frame, views);
   }
   if (frame.missing_mask) return nullptr;
   // Triggers of a recalibration window. A lens window (the background lens fit collecting its
@@ -1346,6 +1378,13 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
   if (o.cancelled || failed_) return;
   switch (o.kind) {
     case JobKind::First: {
+      if ((!o.error.empty() || !o.result) && current_) {
+        // A camera's background rejoin: the panorama goes on without it; tried again later.
+        next_attempt_at_ = now_ + config_.retry_interval_s;
+        warn("calibrating with the camera that came back failed (" + o.error + "): going on without it; trying again in " +
+             fmt(config_.retry_interval_s) + " s");
+        return;
+      }
       if (!o.error.empty() || !o.result) {
         if (o.fatal) {
           fail("Calibration failed: " + o.error);
@@ -1358,6 +1397,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       CalibrationResult r = *o.result;
       CalibReport rep;
       rep.source = rough_ ? "rig" : "images";
+      rejoin_announced_ = false;
       rep.residuals = o.candidate;
       rep.residual_source = o.residual_source;
       left_out_ = 0;

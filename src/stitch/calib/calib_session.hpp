@@ -325,6 +325,11 @@ class CalibSession {
   void forget_calibration();
   // Left-out cameras `back` deliver a picture: said, and calibrated again with every camera.
   void rejoin(std::uint64_t back, std::size_t cameras);
+  // A left-out camera that shows a picture again: a calibration from scratch with it, run in the
+  // background while the current one (without it) keeps the panorama going.
+  std::shared_ptr<CalibJob> rejoin_in_background(std::uint64_t back, const Frame& frame,
+                                                 const std::vector<ImageView>& views);
+  bool rejoin_announced_ = false;
   // Before the first calibration: camera absent (missing or dark) for leave_out_after_s.
   bool absent_long_enough(std::size_t camera) const;
   // Before the first calibration: the cameras absent (missing, or dark when pixels are given)
