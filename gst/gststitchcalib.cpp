@@ -63,7 +63,10 @@
  *   running time (4 s) before the first calibration is left out of it: the others (two at least)
  *   are calibrated and stitched, its view is marked missing, a warning and the message's
  *   `left-out` (camera indices) name it, and save-file is not written. When it shows a picture
- *   it joins, with a calibration from scratch.
+ *   it joins, with a calibration from scratch made in the background: the panorama goes on
+ *   without it until that calibration is ready (a failed one is tried again a little later).
+ *   A camera that starts at a size other than its placeholder's is
+ *   calibrated in from scratch at once.
  * - A `load-file` is checked against the images once: a warning names the cameras it does not
  *   fit.
  * - Lenses from evidence: the first calibration from the images is pinhole (fast). Afterwards,

@@ -902,7 +902,7 @@ void CalibSession::forget_calibration() {
   // other cameras. Jobs in flight are forgotten; the version keeps counting.
   current_.reset();
   left_out_ = 0;
-  rejoin_announced_ = false;
+  rejoin_announced_ = rejoin_failed_ = false;
   absent_since_.clear();
   rough_.reset();
   sizes_.clear();
@@ -1379,10 +1379,14 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
   switch (o.kind) {
     case JobKind::First: {
       if ((!o.error.empty() || !o.result) && current_) {
-        // A camera's background rejoin: the panorama goes on without it; tried again later.
-        next_attempt_at_ = now_ + config_.retry_interval_s;
-        warn("calibrating with the camera that came back failed (" + o.error + "): going on without it; trying again in " +
-             fmt(config_.retry_interval_s) + " s");
+        // A camera's background rejoin: the panorama goes on without it; tried again later (each
+        // attempt is a calibration from scratch: not every half second), said once.
+        constexpr double kRejoinRetryS = 5.0;
+        next_attempt_at_ = now_ + std::max(config_.retry_interval_s, kRejoinRetryS);
+        if (!rejoin_failed_)
+          warn("calibrating with the camera that came back failed (" + o.error + "): going on without it; trying again every " +
+               fmt(std::max(config_.retry_interval_s, kRejoinRetryS)) + " s");
+        rejoin_failed_ = true;
         return;
       }
       if (!o.error.empty() || !o.result) {
@@ -1397,7 +1401,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       CalibrationResult r = *o.result;
       CalibReport rep;
       rep.source = rough_ ? "rig" : "images";
-      rejoin_announced_ = false;
+      rejoin_announced_ = rejoin_failed_ = false;
       rep.residuals = o.candidate;
       rep.residual_source = o.residual_source;
       left_out_ = 0;

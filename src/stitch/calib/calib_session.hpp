@@ -329,7 +329,7 @@ class CalibSession {
   // background while the current one (without it) keeps the panorama going.
   std::shared_ptr<CalibJob> rejoin_in_background(std::uint64_t back, const Frame& frame,
                                                  const std::vector<ImageView>& views);
-  bool rejoin_announced_ = false;
+  bool rejoin_announced_ = false, rejoin_failed_ = false;
   // Before the first calibration: camera absent (missing or dark) for leave_out_after_s.
   bool absent_long_enough(std::size_t camera) const;
   // Before the first calibration: the cameras absent (missing, or dark when pixels are given)
