@@ -269,6 +269,18 @@ int kept_index(int full, std::uint64_t left_out) {
   for (int i = 0; i < full; ++i) k += !bit(left_out, std::size_t(i));
   return k;
 }
+// A first calibration's job without the cameras in `leave` (its frames are already kept_items):
+// the reference and the rough rig renumbered, the full sizes kept for its messages.
+void leave_out_of_job(CalibJob& job, std::uint64_t leave, const std::vector<std::array<int, 2>>& sizes, int reference) {
+  if (!leave) return;
+  job.left_out = leave;
+  job.sizes = sizes;
+  job.config.reference = kept_index(reference, leave);
+  if (job.rough) {
+    job.rough->cameras = kept_items(job.rough->cameras, leave);
+    job.rough->reference = kept_index(job.rough->reference, leave);
+  }
+}
 std::vector<int> full_indices(std::size_t n, std::uint64_t left_out) {
   std::vector<int> idx;
   for (std::size_t i = 0; i < n; ++i)
@@ -885,15 +897,7 @@ std::shared_ptr<CalibJob> CalibSession::rejoin_in_background(std::uint64_t back,
   job->fit_width = panorama_w_ > 0 ? panorama_w_ : current_->canvas_width;
   job->fit_height = panorama_h_ > 0 ? panorama_h_ : current_->canvas_height;
   job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));
-  if (leave) {
-    job->left_out = leave;
-    job->sizes = frame.sizes;
-    job->config.reference = kept_index(config_.reference, leave);
-    if (job->rough) {
-      job->rough->cameras = kept_items(job->rough->cameras, leave);
-      job->rough->reference = kept_index(job->rough->reference, leave);
-    }
-  }
+  leave_out_of_job(*job, leave, frame.sizes, config_.reference);
   return job;
 }
 
@@ -1277,15 +1281,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       for (const auto& sz : kept_items(frame.sizes, leave)) grey.push_back(cv::Mat(sz[1], sz[0], CV_8UC4, cv::Scalar(0, 0, 0, 255)));
       job->calib_sets.push_back({grey});
     }
-    if (leave) {
-      job->left_out = leave;
-      job->sizes = frame.sizes;
-      job->config.reference = kept_index(config_.reference, leave);
-      if (job->rough) {
-        job->rough->cameras = kept_items(job->rough->cameras, leave);
-        job->rough->reference = kept_index(job->rough->reference, leave);
-      }
-    }
+    leave_out_of_job(*job, leave, frame.sizes, config_.reference);
     return job;
   }
   if (left_out_) {
