@@ -15,26 +15,13 @@
 #include <string>
 #include <vector>
 
+#include "bench_photo.hpp"
 #include "lens_rig.hpp"
 #include "stitch/calib/calibrator.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/lens.hpp"
 
 using namespace stitch;
-
-namespace {
-
-std::vector<double> list_of(const std::string& s) {
-  std::vector<double> v;
-  std::stringstream ss(s);
-  std::string t;
-  while (std::getline(ss, t, ',')) v.push_back(std::stod(t));
-  return v;
-}
-
-
-
-}  // namespace
 
 int main(int argc, char** argv) {
   std::vector<std::string> photos;
@@ -45,8 +32,8 @@ int main(int argc, char** argv) {
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--photo") photos.push_back(v);
-    else if (k == "--k1") k1s = list_of(v);
-    else if (k == "--spacing") spacings = list_of(v);
+    else if (k == "--k1") k1s = stitch_bench::comma_numbers(v);
+    else if (k == "--spacing") spacings = stitch_bench::comma_numbers(v);
     else if (k == "--seeds") seeds = std::stoi(v);
     else if (k == "--size") size = std::stoi(v);
     else if (k == "--dense") opts.dense_lens_matches = std::stoi(v) != 0;
@@ -65,12 +52,8 @@ int main(int argc, char** argv) {
   double worst_corner = 0, worst_median = 0, worst_k1_rel = 0;
   std::printf("| photo | spacing | seed | k1 true | k2 true | k1 est (worst cam) | f est (true %.0f) | corner err | match median | pinhole rig: corner err | match median | warnings |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n", f);
   for (const auto& path : photos) {
-    cv::Mat bgr = cv::imread(path, cv::IMREAD_COLOR), photo;
-    if (bgr.empty()) {
-      std::fprintf(stderr, "cannot read %s\n", path.c_str());
-      return 1;
-    }
-    cv::cvtColor(bgr, photo, cv::COLOR_BGR2RGBA);
+    const cv::Mat photo = stitch_bench::read_photo_rgba(path);
+    if (photo.empty()) return 1;
     const std::string name = path.substr(path.find_last_of('/') + 1);
     for (double spacing : spacings)
       for (int seed = 0; seed < seeds; ++seed) {

@@ -27,6 +27,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_photo.hpp"
 #include "image_compare.hpp"
 #include "lens_quality.hpp"
 #include "lens_rig.hpp"
@@ -146,13 +147,8 @@ int main(int argc, char** argv) {
   double worst_gap = -1e9, worst_shift = 0, worst_bend = 0;
   std::string worst_gap_at;
   for (const auto& path : photos) {
-    cv::Mat bgr = cv::imread(path, cv::IMREAD_COLOR), photo;
-    if (bgr.empty()) {
-      std::fprintf(stderr, "cannot read %s\n", path.c_str());
-      return 1;
-    }
-    cv::cvtColor(bgr, photo, cv::COLOR_BGR2RGBA);
-    if (photo.cols > 2688) cv::resize(photo, photo, cv::Size(2688, 2688 * photo.rows / photo.cols), 0, 0, cv::INTER_AREA);
+    const cv::Mat photo = stitch_bench::read_photo_rgba(path, 2688);
+    if (photo.empty()) return 1;
     const std::string name = path.substr(path.find_last_of('/') + 1);
     for (int seed = 0; seed < seeds; ++seed) {
       double pinhole_psnr = 0;

@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_photo.hpp"
 #include "image_compare.hpp"
 #include "lens_quality.hpp"
 #include "lens_rig.hpp"
@@ -34,20 +35,6 @@ using namespace stitch;
 
 namespace {
 
-std::vector<double> numbers(const std::string& s) {
-  std::vector<double> v;
-  std::stringstream ss(s);
-  std::string x;
-  while (std::getline(ss, x, ',')) v.push_back(std::stod(x));
-  return v;
-}
-std::vector<std::string> words(const std::string& s) {
-  std::vector<std::string> v;
-  std::stringstream ss(s);
-  std::string x;
-  while (std::getline(ss, x, ',')) v.push_back(x);
-  return v;
-}
 
 std::vector<ImageView> views_of(std::vector<cv::Mat>& m) {
   std::vector<ImageView> v;
@@ -55,23 +42,6 @@ std::vector<ImageView> views_of(std::vector<cv::Mat>& m) {
   return v;
 }
 
-std::vector<cv::Mat> noisy(const std::vector<cv::Mat>& clean, int frame, double noise) {
-  std::vector<cv::Mat> out;
-  cv::RNG rng(std::uint64_t(1000 + frame));
-  for (const auto& m : clean) {
-    cv::Mat n(m.size(), CV_16SC4), f;
-    rng.fill(n, cv::RNG::NORMAL, 0, noise);
-    m.convertTo(f, CV_16SC4);
-    f += n;
-    f.convertTo(f, CV_8UC4);
-    std::vector<cv::Mat> ch;
-    cv::split(f, ch);
-    ch[3].setTo(255);
-    cv::merge(ch, f);
-    out.push_back(f);
-  }
-  return out;
-}
 
 struct Run {
   std::shared_ptr<const Rig> first, last;
@@ -153,8 +123,8 @@ int main(int argc, char** argv) {
     if (k == "--photo") photos.push_back(v);
     else if (k == "--clip") clips.push_back(v);
     else if (k == "--seeds") seeds = std::stoi(v);
-    else if (k == "--k1") k1s = numbers(v);
-    else if (k == "--spacing") spacings = numbers(v);
+    else if (k == "--k1") k1s = stitch_bench::comma_numbers(v);
+    else if (k == "--spacing") spacings = stitch_bench::comma_numbers(v);
     else {
       std::fprintf(stderr, "unknown option %s\n", k.c_str());
       return 2;
@@ -165,13 +135,8 @@ int main(int argc, char** argv) {
     std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
   }
   for (const auto& path : photos) {
-    cv::Mat bgr = cv::imread(path, cv::IMREAD_COLOR), photo;
-    if (bgr.empty()) {
-      std::fprintf(stderr, "cannot read %s\n", path.c_str());
-      return 1;
-    }
-    cv::cvtColor(bgr, photo, cv::COLOR_BGR2RGBA);
-    if (photo.cols > 2688) cv::resize(photo, photo, cv::Size(2688, 2688 * photo.rows / photo.cols), 0, 0, cv::INTER_AREA);
+    const cv::Mat photo = stitch_bench::read_photo_rgba(path, 2688);
+    if (photo.empty()) return 1;
     const std::string name = path.substr(path.find_last_of('/') + 1);
     for (const double k1 : k1s)
       for (const double spacing : spacings)
@@ -181,7 +146,7 @@ int main(int argc, char** argv) {
           rig_layout_canvas(truth);
           std::vector<cv::Mat> clean;
           for (const auto& c : truth.cameras) clean.push_back(testdata::render_camera_from_equirect(photo, c));
-          const Run run = run_session([&](int f) { return noisy(clean, f, 2.0); }, 200);
+          const Run run = run_session([&](int f) { return testdata::with_sensor_noise(clean, f, 2.0, false); }, 200);
           if (!run.first || !run.last) {
             std::printf("| %s | %+.2f | %.0f | %d | no calibration | | | | | | |\n", name.c_str(), k1, spacing, seed);
             continue;
@@ -216,7 +181,7 @@ int main(int argc, char** argv) {
   }
   for (const auto& clip : clips) {
     std::vector<cv::VideoCapture> caps;
-    for (const auto& f : words(clip)) caps.emplace_back(f);
+    for (const auto& f : stitch_bench::comma_list(clip)) caps.emplace_back(f);
     std::vector<cv::Mat> last;
     const Run run = run_session(
         [&](int) {

@@ -752,15 +752,8 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
        * announced and saved. */
       snapshot_settings(st);
       if (st->worker && !st->worker->done.load() &&
-          (st->worker->kind == stitch::JobKind::Lens ||
-           ((st->worker->kind == stitch::JobKind::Pooled ||
-             (st->worker->kind == stitch::JobKind::First && st->session.current())) &&
-            st->save_path.empty()))) {
-        /* The automatic pooled recalibration would only improve frames that will never come
-         * (and no save-file to write it to): it is cancelled, not waited for (EOS came 6-15 s
-         * late on the real clips). So is a returning camera's calibration in the background (the
-         * panorama without it is already going), and the background lens fit, always: it must not
-         * delay the end (CalibSession::give_way). */
+          stitch::cancel_at_end_of_stream(st->worker->kind, st->session.current() != nullptr, !st->save_path.empty())) {
+        /* Not waited for (the EOS came 6-15 s late on the real clips with the pooled one). */
         GST_DEBUG_OBJECT(self, "end of stream: the %s job in flight is cancelled", stitch::job_kind_name(st->worker->kind));
         std::shared_ptr<WorkerChannel> ch = st->worker;
         ch->cancel = true;

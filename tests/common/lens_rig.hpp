@@ -263,4 +263,27 @@ inline double lens_corner_error(const stitch::Rig& est, const stitch::Rig& truth
   return worst;
 }
 
+// `clean` frames (RGBA) with Gaussian sensor noise of `sigma` grey levels, seeded by `frame`, so
+// that successive frames of a static rig differ; opaque. `keep_black`: pixels black in the clean
+// frame (outside an image circle, say) stay black.
+inline std::vector<cv::Mat> with_sensor_noise(const std::vector<cv::Mat>& clean, int frame, double sigma,
+                                              bool keep_black) {
+  std::vector<cv::Mat> out;
+  cv::RNG rng(std::uint64_t(1000 + frame));
+  for (const auto& m : clean) {
+    cv::Mat n(m.size(), CV_16SC4), f;
+    rng.fill(n, cv::RNG::NORMAL, 0, sigma);
+    m.convertTo(f, CV_16SC4);
+    f += n;
+    f.convertTo(f, CV_8UC4);
+    if (keep_black) f.setTo(cv::Scalar(0, 0, 0, 255), m == 0);
+    std::vector<cv::Mat> ch;
+    cv::split(f, ch);
+    ch[3].setTo(255);
+    cv::merge(ch, f);
+    out.push_back(f);
+  }
+  return out;
+}
+
 }  // namespace testdata

@@ -1186,22 +1186,7 @@ std::vector<cv::Mat> lens_trio_frames(const Rig& truth, int frame, double noise 
   const auto key = std::make_pair(truth.cameras[0].lens.k1, truth.cameras[0].fx);
   if (!clean.count(key))
     for (const auto& c : truth.cameras) clean[key].push_back(testdata::render_camera_from_equirect(photo(), c));
-  std::vector<cv::Mat> out;
-  cv::RNG rng(std::uint64_t(1000 + frame));
-  for (const auto& m : clean[key]) {
-    cv::Mat n(m.size(), CV_16SC4), f;
-    rng.fill(n, cv::RNG::NORMAL, 0, noise);
-    m.convertTo(f, CV_16SC4);
-    f += n;
-    f.convertTo(f, CV_8UC4);
-    f.setTo(cv::Scalar(0, 0, 0, 255), m == 0);  // keeps alpha; black stays black
-    std::vector<cv::Mat> ch;
-    cv::split(f, ch);
-    ch[3].setTo(255);
-    cv::merge(ch, f);
-    out.push_back(f);
-  }
-  return out;
+  return testdata::with_sensor_noise(clean[key], frame, noise, true);
 }
 
 struct LensRun {
@@ -1358,4 +1343,17 @@ TEST(CalibSessionLens, LensJobGivesWayAndIsSkippedWithARigFile) {
     }
   }
   EXPECT_TRUE(t.current());
+}
+
+// At the end of the stream: the jobs whose result only later frames would use are cancelled;
+// the first calibration and a requested recalibration are finished; save-file keeps the
+// automatic ones (their result is written).
+TEST(CalibSession, EndOfStreamCancelsOnlyJobsNoFrameWillUse) {
+  EXPECT_TRUE(cancel_at_end_of_stream(JobKind::Lens, true, false));
+  EXPECT_TRUE(cancel_at_end_of_stream(JobKind::Lens, true, true));
+  EXPECT_TRUE(cancel_at_end_of_stream(JobKind::Pooled, true, false));
+  EXPECT_FALSE(cancel_at_end_of_stream(JobKind::Pooled, true, true));
+  EXPECT_TRUE(cancel_at_end_of_stream(JobKind::First, true, false));  // a returning camera's
+  EXPECT_FALSE(cancel_at_end_of_stream(JobKind::First, false, false));
+  EXPECT_FALSE(cancel_at_end_of_stream(JobKind::Recalibration, true, false));
 }

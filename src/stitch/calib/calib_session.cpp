@@ -199,6 +199,11 @@ double shrink_canvas_to_output(Rig& rig, int output_width, int output_height, Cr
 
 // ---- jobs ------------------------------------------------------------------------------------
 
+bool cancel_at_end_of_stream(JobKind kind, bool calibrated, bool saving) {
+  if (kind == JobKind::Lens) return true;
+  return !saving && (kind == JobKind::Pooled || (kind == JobKind::First && calibrated));
+}
+
 const char* job_kind_name(JobKind k) {
   switch (k) {
     case JobKind::First: return "first";
@@ -574,14 +579,14 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
   // loaded 2-core VM (k1 -0.3 from guessed focal lengths the longest).
   lo.deadline = std::chrono::steady_clock::now() + std::chrono::seconds(kLensJobBudgetS);
   std::optional<CalibrationResult> best;
-  bool ran_off = false;  // a fit's focal lengths ran off (the calibrator's warning)
+  bool ran_off = false;  // a fit's focal lengths ran off (CalibrationResult::lens_ran_off)
   bool out_of_time = false;
   const auto fit_from = [&](const std::vector<Rig>& starts) {
     for (const Rig& start : starts) {
       if (cancelled() || out_of_time) return;
       try {
         CalibrationResult r = calibrate_from_rig(start, sets, lo);
-        for (const auto& w : r.warnings) ran_off |= w.find("estimating the lens ran off") != std::string::npos;
+        ran_off |= r.lens_ran_off;
         if (lens_fit_usable(r) && (!best || r.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(r);
       } catch (const CalibrationCancelled&) {
         if (cancelled()) return;
@@ -890,12 +895,11 @@ std::shared_ptr<CalibJob> CalibSession::rejoin_in_background(std::uint64_t back,
          " a picture now: calibrating again with " + agree(back, "it", "them") +
          ", in the background; the panorama goes on without " + agree(back, "it", "them") + " meanwhile");
   rejoin_announced_ = true;
-  auto job = make_job(JobKind::First);
   // From scratch (the rough rig or the images: the old geometry was made without it), in the
   // panorama the stream already has.
-  job->current.reset();
-  job->fit_width = panorama_w_ > 0 ? panorama_w_ : current_->canvas_width;
-  job->fit_height = panorama_h_ > 0 ? panorama_h_ : current_->canvas_height;
+  auto job = make_job(JobKind::First);
+  job->fit_width = panorama_w_;
+  job->fit_height = panorama_h_;
   job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));
   leave_out_of_job(*job, leave, frame.sizes, config_.reference);
   return job;
@@ -1049,6 +1053,15 @@ void CalibSession::install(CalibReport rep, CalibrationResult* result) {
     }
   }
   SessionEvent e = make_event(SessionEvent::Type::Installed, "");
+  e.report = rep;
+  events_.push_back(e);
+}
+
+void CalibSession::reject(CalibReport rep, const CalibrationResult& result) {
+  rep.rig = std::make_shared<const Rig>(result.rig);
+  rep.version = version_;
+  fill_report(rep, &result);
+  SessionEvent e = make_event(SessionEvent::Type::Rejected, "");
   e.report = rep;
   events_.push_back(e);
 }
@@ -1448,12 +1461,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       } else {
         maybe_lens_due(o.current.median_camera_px);
         if (cur >= 0) baseline_px_ = cur;
-        rep.rig = std::make_shared<const Rig>(o.result->rig);
-        rep.version = version_;
-        fill_report(rep, &*o.result);
-        SessionEvent e = make_event(SessionEvent::Type::Rejected, "");
-        e.report = rep;
-        events_.push_back(e);
+        reject(rep, *o.result);
       }
       // A recalibration installed (the rig moved) is pinhole: the lens is fitted again after it.
       if (verdict.install && o.kind == JobKind::Recalibration) lens_wanted_ = true;
@@ -1488,12 +1496,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
                              fmt(lens_px, 2) + " with radtan k1/k2, held out): the cameras get radtan lenses");
         install(rep, &r);
       } else {
-        rep.rig = std::make_shared<const Rig>(o.result->rig);
-        rep.version = version_;
-        fill_report(rep, &*o.result);
-        SessionEvent e = make_event(SessionEvent::Type::Rejected, "");
-        e.report = rep;
-        events_.push_back(e);
+        reject(rep, *o.result);
       }
       return;
     }

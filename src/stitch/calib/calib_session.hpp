@@ -96,6 +96,13 @@ struct SessionConfig {
 enum class JobKind { First, Pooled, Recalibration, DriftCheck, LoadCheck, Lens };
 const char* job_kind_name(JobKind k);
 
+// At the end of the stream, whether the job in flight is cancelled rather than waited for: what
+// it would make applies to frames that will never come. The lens fit always; the automatic pooled
+// recalibration and a returning camera's calibration (`calibrated`: one is installed) unless
+// `saving` (a save-file records it). A first calibration and a requested recalibration (its
+// message is awaited) are finished.
+bool cancel_at_end_of_stream(JobKind kind, bool calibrated, bool saving);
+
 // Owned copies of one bundle's views (RGBA).
 struct FrameSet {
   std::vector<cv::Mat> images;
@@ -311,6 +318,8 @@ class CalibSession {
   bool load_rough();
   void warn_unknown_fields(const std::string& property, const std::string& path, const Rig& rig);
   void install(CalibReport report, CalibrationResult* result);
+  // A candidate kept out: announced (stitchcalib-rejected) with its report, nothing installed.
+  void reject(CalibReport report, const CalibrationResult& result);
   void start_window(JobKind kind);
   // Lens from evidence: why the background lens fit is not run on the installed calibration
   // (empty: it is); `residual_camera_px`: its held-out residual (-1: not known).

@@ -1524,6 +1524,11 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
   // with the focal 35 % off, seams still sub-pixel). Identical lenses (same model and frame) share
   // one k1 (no k2): the ring's shape (how far the two radii stray from mirror images of each
   // other) then pins it down, unless its standard error says otherwise (checked after the fit).
+  // A re-match whose pairs tie fewer cameras to the reference than the current ones lets the
+  // cut-off part turn freely (a 5 x 185 ring: 122 degrees off at 0.36 px rms): not taken.
+  const auto loses_cameras = [&](const std::vector<PairData>& rematched) {
+    return cameras_tied_to(rematched, n, rough.reference) < cameras_tied_to(pairs, n, rough.reference);
+  };
   BundleAdjustOptions ba_options;
   ba_options.cancel = o.cancel;
   ba_options.deadline = o.deadline;
@@ -1642,10 +1647,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       Rig r1 = rot.rig;
       for (int i = 0; i < n; ++i) r1.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
       RotationFit rot2 = adjust(r1, pairs2, ba_options);
-      // Matches that no longer tie every camera to the reference let the cut-off part turn
-      // freely (that ring: 122 degrees off at 0.36 px rms): keep the first fit then.
-      if (rot2.ok && cameras_tied_to(pairs2, n, rot.rig.reference) < cameras_tied_to(pairs, n, rot.rig.reference))
-        rot2.ok = false;
+      if (loses_cameras(pairs2)) rot2.ok = false;
       if (rot2.ok) {
         rot = std::move(rot2);
         pairs = std::move(pairs2);
@@ -1662,8 +1664,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
       for (int i = 0; i < n; ++i) r1.cameras[i].lens.estimate = rough.cameras[i].lens.estimate;
       std::vector<PairData> pairs2 = match_all(rot.rig, 1.0, o.ransac_threshold_px / f);
       RotationFit rot2 = adjust(r1, pairs2, ba_options);
-      if (rot2.ok && cameras_tied_to(pairs2, n, rot.rig.reference) < cameras_tied_to(pairs, n, rot.rig.reference))
-        rot2.ok = false;
+      if (loses_cameras(pairs2)) rot2.ok = false;
       if (rot2.ok) {
         rot = std::move(rot2);
         pairs = std::move(pairs2);
@@ -1734,6 +1735,7 @@ CalibrationResult calibrate_from_rig(const Rig& rough_in, const std::vector<std:
         res.warnings.push_back("camera " + std::to_string(i) + ": estimating the lens ran off (focal length " +
                                std::to_string(rough.cameras[i].fx) + " -> " + std::to_string(rot.rig.cameras[i].fx) +
                                " px): keeping the rough rig; give the lens coefficients");
+        res.lens_ran_off = true;
         rot.ok = false;
         break;
       }

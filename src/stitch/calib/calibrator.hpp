@@ -121,6 +121,7 @@ struct CalibrationResult {
   double rotation_heldout_px = -1, homography_heldout_px = -1;
   int heldout_matches = 0;
   bool projection_chosen = false;  // the projection was chosen from the field of view
+  bool lens_ran_off = false;       // estimating a lens ran a focal length off: the rough rig was kept
   double hfov_deg = 0, vfov_deg = 0;  // rotation model: field of view the rig covers
 };
 
