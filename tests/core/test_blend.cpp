@@ -1,6 +1,7 @@
 // Warp + position-weighted blend (paper eq. 15-16) on real images.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <functional>
 
 #include <Eigen/Dense>
@@ -10,6 +11,7 @@
 #include "stitch/blend/blender_cpu.hpp"
 #include "stitch/blend/compositor.hpp"
 #include "stitch/cv_interop.hpp"
+#include "stitch/parallel.hpp"
 #include "test_data.hpp"
 
 using namespace stitch;
@@ -275,4 +277,30 @@ TEST(Blend, PrewarpedDownscaleIsTheCanvasAreaAverage) {
   std::printf("downscale %.3f x %.3f to %dx%d: largest difference from the area average %.3f\n", A(0, 0), A(1, 1),
               g.width, g.height, worst);
   }
+}
+
+// parallel_tasks_beside_parts (the seam DP sweeps beside the mix rows): every task and every
+// (item, part) runs exactly once, at any thread count, and no two tasks share a stripe index.
+TEST(Parallel, EveryTaskAndPartRunsOnceBesideEachOther) {
+  const int threads = cv::getNumThreads();
+  for (const int n : {1, 2, 7, 16})
+    for (const int tasks : {0, 1, 4}) {
+      cv::setNumThreads(n);
+      const std::vector<int> parts = {5, 0, 739, 3};
+      std::vector<std::atomic<int>> task_runs(static_cast<std::size_t>(tasks));
+      std::vector<std::vector<std::atomic<int>>> part_runs;
+      for (const int p : parts) part_runs.emplace_back(std::size_t(p));
+      parallel_tasks_beside_parts(tasks, [&](int t) { task_runs[std::size_t(t)]++; }, parts,
+                                  [&](std::size_t i, int k) { part_runs[i][std::size_t(k)]++; });
+      for (auto& r : task_runs) EXPECT_EQ(r.load(), 1) << n << " threads, " << tasks << " tasks";
+      for (auto& item : part_runs)
+        for (auto& r : item) EXPECT_EQ(r.load(), 1) << n << " threads, " << tasks << " tasks";
+    }
+  cv::setNumThreads(threads);
+  // Only tasks, and nothing at all.
+  int runs = 0;
+  parallel_tasks_beside_parts(3, [&](int) { ++runs; }, {}, [&](std::size_t, int) { ADD_FAILURE(); });
+  cv::setNumThreads(threads);
+  EXPECT_EQ(runs, 3);
+  parallel_tasks_beside_parts(0, [&](int) { ADD_FAILURE(); }, {0, 0}, [&](std::size_t, int) { ADD_FAILURE(); });
 }

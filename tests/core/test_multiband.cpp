@@ -2,6 +2,7 @@
 // reference, and on the properties that make it worth having.
 #include <gtest/gtest.h>
 
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/stitching/detail/blenders.hpp>
 
@@ -391,6 +392,45 @@ TEST(Seam, ConsensusBlendTakesOneViewWhereTheViewsDisagreeAndTheMeanWhereTheyAgr
   }
   std::printf("overlap away from the object: %.3f%% of pixels = the weighted mean\n", 100.0 * same / n);
   EXPECT_GE(double(same) / n, 0.995);
+}
+
+// The default consensus blend runs the DP sweeps beside the mix rows in one parallel loop
+// (seam.cpp, parallel_tasks_beside_parts): three cameras (two seams, four sweeps), two frames
+// (the second holds the first's path), the same panoramas bit for bit at any thread count.
+TEST(Seam, ConsensusBlendIsTheSameAtAnyThreadCount) {
+  const Rig rig = testdata::shifted_rig(3, 400, 300, 200);
+  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
+  const cv::Mat patch = photo(cv::Rect(500, 300, 40, 80));
+  cv::RNG rng(5);
+  std::vector<std::vector<cv::Mat>> frames(2);
+  for (int f = 0; f < 2; ++f)
+    for (int i = 0; i < 3; ++i) {
+      cv::Mat cam = photo(cv::Rect(200 * i, 0, 400, 300)).clone();
+      // a near object in each overlap, shifted between the views (parallax) and between the frames
+      if (i > 0) patch.copyTo(cam(cv::Rect(60 + 10 * f, 100, 40, 80)));
+      if (i < 2) patch.copyTo(cam(cv::Rect(290 + 10 * f, 100, 40, 80)));
+      frames[std::size_t(f)].push_back(with_noise(cam, rng));
+    }
+  auto run = [&](int threads) {
+    cv::setNumThreads(threads);
+    CompositorSettings settings;
+    settings.seam = SeamMode::DynamicProgramming;
+    Compositor c(Backend::Cpu);
+    c.prepare(rig, settings);
+    std::vector<cv::Mat> outs;
+    for (auto& f : frames) {
+      outs.emplace_back(c.geometry().height, c.geometry().width, CV_8UC4);
+      c.compose({as_view(f[0]), as_view(f[1]), as_view(f[2])}, as_view(outs.back()));
+    }
+    return outs;
+  };
+  const int threads = cv::getNumThreads();
+  const std::vector<cv::Mat> one = run(1);
+  for (const int n : {2, 3, 8}) {
+    const std::vector<cv::Mat> many = run(n);
+    for (std::size_t f = 0; f < one.size(); ++f) EXPECT_EQ(cv::norm(one[f], many[f], cv::NORM_INF), 0.0) << n << " threads, frame " << f;
+  }
+  cv::setNumThreads(threads);
 }
 
 // The DP sweeps from both ends and meets in the middle (seam_math.hpp dp_meeting_row): the path

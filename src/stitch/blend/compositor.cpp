@@ -2,6 +2,7 @@
 
 #include "stitch/blend/blender_cpu.hpp"
 #include "stitch/parallel.hpp"
+#include "stitch/stage_profile.hpp"
 #include "stitch/warp/warper_cpu.hpp"
 
 #include <algorithm>
@@ -19,30 +20,11 @@
 namespace stitch {
 
 namespace {
-// STITCH_BLEND_PROFILE=1: the CPU blend's phases (warp, fuse, seams, mix, resample) in wall ms on
-// stderr, to see where a stage's time goes at a given thread count.
-struct BlendProfile {
-  static bool on() {
-    static const bool enabled = std::getenv("STITCH_BLEND_PROFILE") != nullptr;
-    return enabled;
-  }
-  static double cpu_ms() {  // the process' CPU time, all threads
-    timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-  }
-  std::chrono::steady_clock::time_point last = std::chrono::steady_clock::now();
-  double last_cpu = on() ? cpu_ms() : 0;
-  void mark(const char* what) {
-    if (!on()) return;
-    const auto now = std::chrono::steady_clock::now();
-    const double cpu = cpu_ms();
-    std::fprintf(stderr, "blend %s %.2f ms (CPU time %.2f ms)\n", what,
-                 std::chrono::duration<double, std::milli>(now - last).count(), cpu - last_cpu);
-    last = now;
-    last_cpu = cpu;
-  }
-};
+// The CPU blend's phases (warp, fuse, seams, mix, resample): STITCH_BLEND_PROFILE=1 (stage_profile.hpp).
+StageProfile blend_profile() {
+  static const bool enabled = StageProfile::enabled_for("blend");
+  return StageProfile("blend", enabled);
+}
 
 // True when output = canvas shifted by whole pixels and inside it: the crop/scale pass is a copy.
 bool crop_only(const Eigen::Matrix3d& A, const cv::Size& canvas, const cv::Size& out) {
@@ -313,7 +295,7 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
 }
 
 void Compositor::fuse_cpu(const std::vector<ImageView>& views, const ImageView& out) {
-  BlendProfile profile;
+  StageProfile profile = blend_profile();
   if (seam_ && blend_mode_ == BlendMode::Multiband) {
     static_cast<MultibandBlender&>(*blender_).set_labels(seam_->find(views).data());
     profile.mark("seams");
@@ -371,7 +353,7 @@ void Compositor::compose_prewarped(const std::vector<ImageView>& views, const Im
   canvas.height = blend_geometry_.height;
   canvas.pitch = static_cast<std::size_t>(canvas.width) * 4;
   fuse_cpu(views, canvas);
-  BlendProfile profile;
+  StageProfile profile = blend_profile();
   const cv::Mat src(canvas.height, canvas.width, CV_8UC4, canvas.data, canvas.pitch);
   cv::Mat dst(out.height, out.width, CV_8UC4, out.data, out.pitch);
   const Eigen::Matrix3d& A = geometry_.canvas_to_output;
@@ -461,7 +443,7 @@ void Compositor::compose_views(const std::vector<ImageView>& camera_frames, cons
     compose_prewarped(camera_frames, out);
     return;
   }
-  BlendProfile profile;
+  StageProfile profile = blend_profile();
   check_frame_sizes(views_, camera_frames);
   // Sparsely sampled views read a reduced copy (prefilter_sparse_views); CUDA reduces on the device.
   const std::vector<ImageView>& frames = cuda_ ? camera_frames : reducer_.reduce(views_, camera_frames);

@@ -1,5 +1,6 @@
 #include "stitch/blend/seam.hpp"
 #include "stitch/parallel.hpp"
+#include "stitch/stage_profile.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -264,6 +265,8 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
     y = std::min(std::max(y, r.y), r.y + r.height - 1);
     return int(l[std::size_t(y - r.y) * r.width + (x - r.x)]);
   };
+  static const bool profiling = StageProfile::enabled_for("seams");
+  StageProfile profile("seams", profiling);
   const seam::Weights w = weights();
   const bool clearance = w.clearance_radius > 0 && w.clearance > 0.f, mixing = w.mix_radius > 0;
   const bool holding = mixing && w.label_hold > 0.f && previous_labels_.size() == labels_.size();
@@ -337,6 +340,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
     p.row_dark_b[std::size_t(r)] = dark_b;
     if (clearance || mixing) across_row(p, r, first_radius);
   });
+  profile.mark("costs");
   for (const int index : cut) {
     Pair& p = pairs_[std::size_t(index)];
     int cells = 0, dark_a = 0, dark_b = 0;
@@ -367,24 +371,30 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
     });
     if (mixing) parallel_for_parts(rows, [&](int k, int r) { across_row(pairs_[std::size_t(cut[std::size_t(k)])], r, w.mix_radius); });
   }
-  if (mixing) {  // the consensus blend's mix level of every overlap pixel (max over pairs)
-    write_rows([&](int k, int r) {  // each (r, c) is its own output pixel: no two rows write one byte
-      Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
-      const int cols = cols_of(p), R = w.mix_radius, n = rows[std::size_t(k)];
-      for (int c = 0; c < cols; ++c) {
-        if (p.costs[std::size_t(r) * cols + c] == seam::kOutside) continue;
-        int sum = 0;
-        for (int q = std::max(0, r - R); q <= std::min(n - 1, r + R); ++q) sum += p.across[std::size_t(q) * cols + c];
-        const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
-        const int level = p.blank_a || p.blank_b ? 255 : seam::mix_level(w, sum);
-        uint8_t& m = mix_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
-        m = uint8_t(std::max(int(m), level));
-        if (holding) p.levels[std::size_t(r) * cols + c] = uint8_t(level);
+  // The consensus blend's mix level of every overlap pixel (max over pairs), one row; each (r, c)
+  // is its own output pixel: no two rows write one byte.
+  auto mix_row = [&](int k, int r) {
+    Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
+    const int cols = cols_of(p), R = w.mix_radius, n = rows[std::size_t(k)];
+    for (int c = 0; c < cols; ++c) {
+      if (p.costs[std::size_t(r) * cols + c] == seam::kOutside) continue;
+      int sum = 0;
+      for (int q = std::max(0, r - R); q <= std::min(n - 1, r + R); ++q) sum += p.across[std::size_t(q) * cols + c];
+      const int bx = p.vertical ? c : r, by = p.vertical ? r : c;
+      const int level = p.blank_a || p.blank_b ? 255 : seam::mix_level(w, sum);
+      uint8_t& m = mix_[std::size_t(p.box.y + by) * width_ + p.box.x + bx];
+      m = uint8_t(std::max(int(m), level));
+      if (holding) p.levels[std::size_t(r) * cols + c] = uint8_t(level);
+      if (w.crossing > 0.f) {
         float& v = p.costs[std::size_t(r) * cols + c];
         v = seam::crossing_cost(w, v, p.centre_cost[std::size_t(by) * p.box.width + bx], level);
       }
-    });
-  }
+    }
+  };
+  // The DPs read the costs, which the mix pass changes only with a crossing or view-switch cost;
+  // without them (the defaults) the sweeps run beside the mix rows, in one loop.
+  const bool sweeps_beside_mix = mixing && boxes_disjoint_ && !holding && !(w.crossing > 0.f);
+  if (mixing && !sweeps_beside_mix) write_rows(mix_row);
   if (holding) {  // the view-switch cost of every seam point: per row, sums before and after it
     parallel_for_parts(rows, [&](int k, int r) {
       Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
@@ -407,6 +417,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
       }
     });
   }
+  if (!sweeps_beside_mix) profile.mark("mix");
   // The DPs: both sweeps of every pair at once (2 tasks a pair), then each pair's path.
   std::vector<SeamDp> dps;
   dps.reserve(cut.size());
@@ -416,9 +427,12 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
     dps.emplace_back(p.costs.data(), rows_of(p), cols_of(p), has_previous ? p.previous_path.data() : nullptr, w,
                      p.step.data());
   }
-  if (!dps.empty())
+  const auto sweep = [&](int t) { dps[std::size_t(t / 2)].sweep(t % 2); };
+  if (sweeps_beside_mix)
+    parallel_tasks_beside_parts(int(2 * dps.size()), sweep, rows, mix_row);
+  else if (!dps.empty())
     cv::parallel_for_(cv::Range(0, int(2 * dps.size())), [&](const cv::Range& r) {
-      for (int t = r.start; t < r.end; ++t) dps[std::size_t(t / 2)].sweep(t % 2);
+      for (int t = r.start; t < r.end; ++t) sweep(t);
     }, double(2 * dps.size()));
   for (std::size_t k = 0; k < cut.size(); ++k) {
     Pair& p = pairs_[std::size_t(cut[k])];
@@ -427,6 +441,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
     p.path = path;
     p.previous_path = std::move(path);
   }
+  profile.mark(sweeps_beside_mix ? "dp + mix" : "dp");
   // Every overlap pixel labelled a or b goes to a before the seam and to b after it.
   write_rows([&](int k, int r) {
     const Pair& p = pairs_[std::size_t(cut[std::size_t(k)])];
@@ -438,6 +453,7 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
       if (l == p.a || l == p.b) l = uint8_t(p.blank_a ? p.b : p.blank_b ? p.a : cc < p.path[std::size_t(r)] ? p.a : p.b);
     }
   });
+  profile.mark("labels");
 }
 
 void apply_seam_mix(const std::vector<ViewPlacement>& views, const std::vector<ImageView>& warped,

@@ -1,4 +1,6 @@
 #include "stitch/color/color.hpp"
+
+#include "stitch/stage_profile.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/lens.hpp"
 #include "stitch/rig/overlap.hpp"
@@ -532,6 +534,8 @@ void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::ve
   }
   const bool fit = options_.method != ColorMethod::None;
   if (!fit && !options_.balance) return;
+  static const bool profiling = StageProfile::enabled_for("color");
+  StageProfile profile("color", profiling);
   request_.pairs = fit;
   request_.match.assign(sampling_.pairs.size(), HistogramMatch::None);
   const bool matrices = options_.method == ColorMethod::Matrix2D || options_.method == ColorMethod::Matrix3D;
@@ -547,6 +551,7 @@ void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::ve
   request_.static_frames = std::clamp(options_.static_frames, 0, 255);
   request_.align_tolerance = std::clamp(options_.align_tolerance, 0, 1 << 20);
   ops_->reduce(views, request_, stats_);
+  profile.mark("reduce");
   const bool step = fit && detect_step(views);
   if (step) {
     // A global illumination step or a cut: what came before no longer describes the scene.
@@ -580,7 +585,9 @@ void ColorCorrector::process(const Rig& rig, uint64_t rig_version, const std::ve
     }
     update_balance(views);
   }
+  profile.mark("fit");
   ops_->apply_all(views, current_, lut_, fit ? std::clamp(options_.highlight_knee, 0, 255) : 255);
+  profile.mark("apply");
 }
 
 }  // namespace stitch
