@@ -180,6 +180,7 @@ struct CalibOutcome {
   RigResiduals candidate, current;          // on the held-out frames (or the calibration's own)
   RigCoverage candidate_cover, current_cover;  // Pooled, Recalibration
   std::string residual_source;              // "held-out" or "calibration frames"
+  std::optional<LensPrecheck> lens_precheck;  // Lens: the cheap test before the fit (lens_precheck)
 };
 
 // The work of one job; pure, may run in any thread. Catches nothing: the caller does.

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -2093,6 +2094,146 @@ std::vector<Rig> lens_fit_starts(const Rig& pin, CameraModel model) {
       c.lens.estimate = true;
     }
   return starts;
+}
+
+// Measured (BENCHMARKS.md, "The cheap test before the lens fit"): see lens_precheck.
+const double kLensPrecheckRatio = 0.85, kLensPrecheckMinPx = 0.05, kLensPrecheckSignificance = 3.5;
+
+std::string LensPrecheck::describe() const {
+  char b[160];
+  std::snprintf(b, sizeof b, "k1 %+.3f: %.3f -> %.3f px held out (%d matches, %.1f standard errors, %.2f s)", k1,
+                pinhole_px, lens_px, heldout, significance, seconds);
+  return b;
+}
+
+LensPrecheck lens_precheck(const Rig& pin, const std::vector<std::vector<ImageView>>& sets, const CalibrationOptions& o) {
+  const auto t0 = std::chrono::steady_clock::now();
+  LensPrecheck r;
+  const auto done = [&]() {
+    r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return r;
+  };
+  const int n = int(pin.cameras.size());
+  if (n < 2 || sets.empty() || pin.reference < 0 || pin.reference >= n) return done();
+  for (const auto& frames : sets) {
+    if (int(frames.size()) != n) return done();
+    check_frames(frames);
+  }
+  // Matches of every pair the pinhole rig puts in overlap, checked loosely against it (lenses
+  // unknown: the distorted periphery is off the pinhole maps by pixels).
+  const FeatureSets feats = detect_all(sets, n, o);
+  bool homographies = pin.planar();
+  for (const auto& c : pin.cameras) homographies &= bool(c.homography);
+  std::vector<PairData> pairs;
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      const Camera &A = pin.cameras[std::size_t(a)], &B = pin.cameras[std::size_t(b)];
+      Eigen::Matrix3d predicted;
+      if (homographies) {
+        if (overlap_box(pin, a, b).area() <= 0) continue;
+        predicted = B.homography->inverse() * *A.homography;
+      } else {
+        const double axes = std::acos(std::clamp(A.R().col(2).dot(B.R().col(2)), -1.0, 1.0));
+        if (axes > (half_diagonal_fov(A) + half_diagonal_fov(B)) * (1 + o.overlap_margin)) continue;
+        predicted = rough_pairwise_homography(pin, a, b);
+      }
+      PairData p = match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), nullptr,
+                              kLensUnknownRansacScale);
+      if (!p.ok || p.held_count() == 0) continue;
+      p.ra = p.pa;  // raw = ideal under the starts' zero lenses
+      p.rb = p.pb;
+      pairs.push_back(std::move(p));
+    }
+  throw_if_cancelled(o);
+  if (pairs.empty()) return done();
+  std::vector<PairData> pin_pairs = pairs;
+  for (auto& p : pin_pairs) p.ra.clear(), p.rb.clear();
+  // Held-out error of a fitted rig, raw pixel to raw pixel (a -> b), each match capped: a match
+  // neither model explains (a false one, parallax) weighs alike in both.
+  constexpr double kCapPx = 3.0;
+  const auto heldout_errors = [&](const Rig& rig) {
+    std::vector<double> e;
+    for (const auto& p : pairs)
+      for (std::size_t k = 0; k < p.ra.size(); ++k) {
+        if (!p.held[k]) continue;
+        Eigen::Vector2d q;
+        e.push_back(raw_transfer(rig, p.a, p.b, p.ra[k], q) ? std::min(kCapPx, (q - p.rb[k]).norm()) : kCapPx);
+      }
+    return e;
+  };
+  const auto rms = [](const std::vector<double>& e) {
+    double sum = 0;
+    for (const double x : e) sum += x * x;
+    return e.empty() ? -1.0 : std::sqrt(sum / double(e.size()));
+  };
+  // The starts: the pinhole rig's K and R; with homographies, rotations read from them through
+  // a guessed focal length too (lens_fit_starts: a pinhole fit of distorted cameras on a plane
+  // can hold focal lengths 20x the truth, from where k1 is not found).
+  std::vector<Rig> starts{pin};
+  if (homographies) {
+    // One guess (60 degrees across) is enough: the adjustment's distortion sweep fits the focal
+    // for each candidate, and 45 / 80 degrees led to the same fit on every rendered rig.
+    std::vector<Rig> guessed = lens_fit_starts(pin, CameraModel::Homography);
+    // (A homography-model rig's own K and R are that guess already: not twice.)
+    bool same = !guessed.empty();
+    for (std::size_t i = 0; same && i < pin.cameras.size(); ++i)
+      same = std::abs(guessed.front().cameras[i].fx - pin.cameras[i].fx) < 1e-6 * pin.cameras[i].fx &&
+             guessed.front().cameras[i].R().isApprox(pin.cameras[i].R(), 1e-9);
+    if (!guessed.empty() && !same) starts.push_back(std::move(guessed.front()));
+  }
+  // 60 fitted matches a pair (of ~150-300): the adjustment's cost is linear in them (numerical
+  // derivatives), and 4 parameters a camera plus one k1 need far fewer.
+  constexpr std::size_t kTrainCap = 60;
+  const std::vector<PairMatches> train_pin = training_matches(pin_pairs, kTrainCap),
+                                 train_lens = training_matches(pairs, kTrainCap);
+  BundleAdjustOptions bo;
+  bo.cancel = o.cancel;
+  bo.deadline = o.deadline;
+  BundleAdjustOptions pin_o = bo, lens_o = bo;
+  pin_o.estimate_lens = false;
+  lens_o.shared_lens = true;  // one k1 for alike cameras: the test asks "any distortion?"
+  lens_o.estimate_k2 = false;
+  std::vector<double> pin_e, lens_e;
+  for (const Rig& st : starts) {
+    Rig ps = st, ls = st;
+    for (auto& c : ps.cameras) c.lens = Lens{}, c.homography.reset();
+    for (auto& c : ls.cameras) {
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+      c.homography.reset();
+    }
+    const BundleAdjustReport bp = bundle_adjust(ps, train_pin, pin_o);
+    throw_if_cancelled(o);
+    if (bp.ok)
+      if (std::vector<double> e = heldout_errors(ps); pin_e.empty() || rms(e) < rms(pin_e)) pin_e = std::move(e);
+    const BundleAdjustReport bl = bundle_adjust(ls, train_lens, lens_o);
+    throw_if_cancelled(o);
+    bool sane = bl.ok && bl.lens_warning.empty();
+    for (const auto& c : ls.cameras) sane &= lens_problem(c).empty();
+    if (sane)
+      if (std::vector<double> e = heldout_errors(ls); lens_e.empty() || rms(e) < rms(lens_e)) {
+        lens_e = std::move(e);
+        r.k1 = ls.cameras[std::size_t(pin.reference)].lens.k1;
+      }
+  }
+  if (pin_e.empty() || lens_e.size() != pin_e.size()) return done();
+  r.heldout = int(pin_e.size());
+  r.pinhole_px = rms(pin_e);
+  r.lens_px = rms(lens_e);
+  // Paired over the same held-out matches: the mean drop of the squared error in its standard
+  // errors (a few dozen matches of a real scene's parallax move the rms by 10-20 % either way).
+  double mean = 0, var = 0;
+  const double m = double(pin_e.size());
+  for (std::size_t k = 0; k < pin_e.size(); ++k) mean += (pin_e[k] * pin_e[k] - lens_e[k] * lens_e[k]) / m;
+  for (std::size_t k = 0; k < pin_e.size(); ++k) {
+    const double d = pin_e[k] * pin_e[k] - lens_e[k] * lens_e[k] - mean;
+    var += d * d / std::max(1.0, m - 1);
+  }
+  r.significance = var > 0 ? mean / std::sqrt(var / m) : (mean > 0 ? 1e9 : 0.0);
+  r.plausible = r.pinhole_px > 0 && r.lens_px < kLensPrecheckRatio * r.pinhole_px &&
+                r.pinhole_px - r.lens_px > kLensPrecheckMinPx && r.significance > kLensPrecheckSignificance;
+  return done();
 }
 
 constexpr double kFisheyeFallbackPoorPx = 1.5;

@@ -165,6 +165,31 @@ bool lens_fit_usable(const CalibrationResult& lens);
 bool lens_evidence_wins(double pinhole_px, double lens_px);
 extern const double kLensEvidenceRatio, kLensEvidenceMinPx;
 
+// The cheap test before a lens fit (the elements' background lens job, calib_session.hpp): whether
+// the images show any sign of lens distortion at all. A whole lens fit (lens_fit_starts through
+// calibrate_from_rig, dense matches) costs 3-90 s of a core; on cameras without distortion (every
+// real clip measured) it finds nothing. This one matches SIFT features once in the overlaps the
+// pinhole rig predicts (loosely, as a lens fit's first pass), then adjusts the same matches twice
+// from the same starts: pinhole (rotations and focal lengths) and with one radial coefficient k1
+// shared by alike cameras (the adjustment's distortion sweep included), and compares the two on
+// the held-out matches (every holdout_every-th), in raw camera pixels. Distortion is plausible
+// when k1 explains them clearly better: below kLensPrecheckRatio of the pinhole error and by
+// kLensPrecheckMinPx (looser than the evidence rule: the full fit and the judge decide). Fractions
+// of a second on a few VGA frames. `pinhole`: a calibrated rig (rotation model; a planar rig with
+// homographies also gets starts read from them, as lens_fit_starts does).
+struct LensPrecheck {
+  bool plausible = false;
+  double pinhole_px = -1, lens_px = -1;  // held-out rms, raw camera pixels (each match capped)
+  double k1 = 0;                          // the lens fit's (the reference camera's)
+  int heldout = 0;                        // held-out matches compared
+  double significance = 0;                // the paired drop of their squared errors, in standard errors
+  double seconds = 0;
+  std::string describe() const;           // "k1 -0.12: 0.41 -> 0.18 px held out (312 matches)"
+};
+LensPrecheck lens_precheck(const Rig& pinhole, const std::vector<std::vector<ImageView>>& sets,
+                           const CalibrationOptions& options);
+extern const double kLensPrecheckRatio, kLensPrecheckMinPx, kLensPrecheckSignificance;
+
 struct AlignmentReport {
   double median_px = -1;   // over all pairs' matches; -1 when nothing could be matched
   double p90_px = -1;      // 90th percentile of the same distances
