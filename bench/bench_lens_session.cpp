@@ -11,7 +11,9 @@
 //  - real clips (--clip dir/a.mp4,dir/b.mp4, repeatable): the same, without truth: the lens
 //    found (none expected) and the seams before / after.
 //   stitch-bench-lens-session --photo data/photos/boat1_1600.jpg [--seeds 2] [--k1 -0.05,-0.3]
-//                             [--spacing 30,40] [--clip a.mp4,b.mp4]
+//                             [--spacing 30,40] [--clip a.mp4,b.mp4] [--skip 0,150,300]
+//   (--skip: each clip again from these frames on; LENS_SESSION_PRECHECK_ONLY=1: the lens job's
+//   cheap test alone, lens_precheck, instead of the job)
 #include <chrono>
 #include <cstdlib>
 #include <cmath>
@@ -141,12 +143,14 @@ std::string k1_text(const Rig& r) {
 int main(int argc, char** argv) {
   std::vector<std::string> photos, clips;
   int seeds = 2;
+  std::vector<double> skips{0};  // --skip: clips from these frame numbers on (comma list)
   std::vector<double> k1s{0, -0.05, -0.1, -0.2, -0.3}, spacings{30, 40};
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--photo") photos.push_back(v);
     else if (k == "--clip") clips.push_back(v);
     else if (k == "--seeds") seeds = std::stoi(v);
+    else if (k == "--skip") skips = stitch_bench::comma_numbers(v);
     else if (k == "--k1") k1s = stitch_bench::comma_numbers(v);
     else if (k == "--spacing") spacings = stitch_bench::comma_numbers(v);
     else {
@@ -200,12 +204,14 @@ int main(int argc, char** argv) {
         }
   }
   if (!clips.empty()) {
-    std::printf("\n| clip | frames | first | lens job | installed lens | seam median camera px before -> after | seam p90 canvas px before -> after | lens job s | lens job CPU s |\n");
+    std::printf("\n| clip | from frame + frames | first | lens job | installed lens | seam median camera px before -> after | seam p90 canvas px before -> after | lens job s | lens job CPU s |\n");
     std::printf("|---|---|---|---|---|---|---|---|---|\n");
   }
-  for (const auto& clip : clips) {
+  for (const auto& clip : clips)
+  for (const double skip : skips) {
     std::vector<cv::VideoCapture> caps;
     for (const auto& f : stitch_bench::comma_list(clip)) caps.emplace_back(f);
+    for (auto& c : caps) c.set(cv::CAP_PROP_POS_FRAMES, skip);
     std::vector<cv::Mat> last;
     const Run run = run_session(
         [&](int) {
@@ -221,12 +227,12 @@ int main(int argc, char** argv) {
         },
         900);
     if (!run.first || !run.last || last.empty()) {
-      std::printf("| %s | %d | no calibration | | | | | |\n", clip.c_str(), run.frames);
+      std::printf("| %s | %d+%d | no calibration | | | | | |\n", clip.c_str(), int(skip), run.frames);
       continue;
     }
     const auto views = views_of(last);
     const AlignmentReport a = measure_alignment(*run.first, views), b = measure_alignment(*run.last, views);
-    std::printf("| %s | %d | %s %s | %s | %s | %.3f -> %.3f | %.2f -> %.2f | %.1f | %.1f |\n", clip.c_str(), run.frames,
+    std::printf("| %s | %d+%d | %s %s | %s | %s | %.3f -> %.3f | %.2f -> %.2f | %.1f | %.1f |\n", clip.c_str(), int(skip), run.frames,
                 run.first->projection.c_str(), run.first_model.c_str(), run.lens.c_str(), k1_text(*run.last).c_str(), a.median_camera_px,
                 b.median_camera_px, a.p90_px, b.p90_px, run.lens_s, run.lens_cpu_s);
     std::fflush(stdout);

@@ -2236,6 +2236,91 @@ LensPrecheck lens_precheck(const Rig& pin, const std::vector<std::vector<ImageVi
   return done();
 }
 
+CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                    const std::vector<Camera>& lenses_in, const CalibrationOptions& o) {
+  throw_if_cancelled(o);
+  if (sets.empty()) throw RigError("no frames to calibrate on");
+  const std::size_t n = lenses_in.size();
+  for (const auto& frames : sets) {
+    if (frames.size() != n)
+      throw RigError("the cameras' lenses are known for " + std::to_string(n) + " cameras but " +
+                     std::to_string(frames.size()) + " streams are connected");
+    check_frames(frames);
+  }
+  // The known intrinsics at the frames' sizes.
+  Rig known;
+  for (const Camera& c : lenses_in) known.cameras.push_back(c);
+  std::vector<std::array<int, 2>> sizes;
+  for (const auto& v : sets[0]) sizes.push_back({v.width, v.height});
+  for (std::size_t i = 0; i < n; ++i) {
+    const Camera& c = known.cameras[i];
+    if (c.width <= 0 || c.height <= 0 ||
+        std::abs(double(sizes[i][0]) / c.width - double(sizes[i][1]) / c.height) > 0.01 * double(sizes[i][0]) / c.width)
+      throw RigError("camera " + std::to_string(i) + ": its known lens was found at " + std::to_string(c.width) + "x" +
+                     std::to_string(c.height) + ", another picture than " + std::to_string(sizes[i][0]) + "x" +
+                     std::to_string(sizes[i][1]));
+  }
+  rig_adapt_to_sizes(known, sizes);
+  for (std::size_t i = 0; i < n; ++i)
+    if (const std::string p = lens_problem(known.cameras[i]); !p.empty())
+      throw RigError("camera " + std::to_string(i) + ": its known lens is unusable: " + p);
+  // Ideal pinhole pictures: each ideal pixel's raw pixel through the lens (cv::remap).
+  std::vector<std::pair<cv::Mat, cv::Mat>> maps(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Camera& c = known.cameras[i];
+    cv::Mat mx(c.height, c.width, CV_32F), my(c.height, c.width, CV_32F);
+    for (int y = 0; y < c.height; ++y)
+      for (int x = 0; x < c.width; ++x) {
+        Eigen::Vector2d raw;
+        const bool ok = distort_point(c, Eigen::Vector2d(x, y), raw);
+        mx.at<float>(y, x) = ok ? float(raw.x()) : -1.f;
+        my.at<float>(y, x) = ok ? float(raw.y()) : -1.f;
+      }
+    maps[i] = {mx, my};
+  }
+  std::vector<std::vector<cv::Mat>> ideal(sets.size());
+  std::vector<std::vector<ImageView>> ideal_views(sets.size());
+  for (std::size_t t = 0; t < sets.size(); ++t) {
+    for (std::size_t i = 0; i < n; ++i) {
+      cv::Mat out;
+      cv::remap(as_mat(sets[t][i]), out, maps[i].first, maps[i].second, cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+                cv::Scalar(0, 0, 0, 255));
+      ideal[t].push_back(out);
+    }
+    for (auto& m : ideal[t]) ideal_views[t].push_back(as_view(m));
+  }
+  throw_if_cancelled(o);
+  CalibrationOptions po = o;
+  po.lens_from_evidence = false;  // the lenses are known
+  po.circular_fisheyes = false;
+  po.model = CameraModel::Rotation;  // lens rigs are rotation rigs (the homography chain takes none)
+  po.bundle_adjust = false;
+  const CalibrationResult pin = calibrate_from_images(ideal_views, reference, po);
+  // Rotations from the ideal pictures; the known intrinsics and lenses (held); the canvas laid
+  // out again by the refit.
+  Rig start = pin.rig;
+  for (std::size_t i = 0; i < n; ++i) {
+    Camera& c = start.cameras[i];
+    const Camera& k = known.cameras[i];
+    c.fx = k.fx, c.fy = k.fy, c.cx = k.cx, c.cy = k.cy;
+    c.lens = k.lens;
+    c.lens.estimate = false;
+    c.homography.reset();
+  }
+  start.canvas_width = start.canvas_height = 0;
+  start.canvas_scale = 0;
+  start.canvas_wrap = false;
+  CalibrationOptions ro = o;
+  ro.model = CameraModel::Rotation;
+  ro.bundle_adjust = false;
+  ro.projection.reset();  // the pinhole fit's (o.projection when given)
+  CalibrationResult r = calibrate_from_rig(start, sets, ro);
+  r.projection_chosen = pin.projection_chosen;
+  if (r.model != CameraModel::Rotation || !(r.rotation_heldout_px > 0))
+    throw RigError("the refit with the cameras' lenses found no rotation rig");
+  return r;
+}
+
 constexpr double kFisheyeFallbackPoorPx = 1.5;
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {

@@ -190,6 +190,20 @@ LensPrecheck lens_precheck(const Rig& pinhole, const std::vector<std::vector<Ima
                            const CalibrationOptions& options);
 extern const double kLensPrecheckRatio, kLensPrecheckMinPx, kLensPrecheckSignificance;
 
+// A calibration from the images alone of cameras whose lenses are known (the elements' lens fit
+// found them: a recalibration, a calibration from scratch after a resize or a camera that came
+// back; calib_session.hpp). calibrate_from_images calibrates pinhole cameras, and a pinhole fit of
+// distorted cameras is what the lens replaced. Here each frame is undistorted through its known
+// lens first (ideal pinhole pictures with the known intrinsics, same size), those are calibrated
+// as pinhole cameras (rotation model: rotations and focal lengths free to follow a rig that
+// moved), and the result, given the known intrinsics and lenses (coefficients held), is refined
+// on the raw frames by calibrate_from_rig. `lenses[i]`: camera i's intrinsics and lens; scaled
+// when its frames are another size of the same aspect. Throws RigError as the calibrators do
+// (and when a camera's known lens does not fit its frames).
+CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                    const std::vector<Camera>& lenses,
+                                                    const CalibrationOptions& options);
+
 struct AlignmentReport {
   double median_px = -1;   // over all pairs' matches; -1 when nothing could be matched
   double p90_px = -1;      // 90th percentile of the same distances
