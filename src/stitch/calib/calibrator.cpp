@@ -2097,12 +2097,13 @@ std::vector<Rig> lens_fit_starts(const Rig& pin, CameraModel model) {
 }
 
 // Measured (BENCHMARKS.md, "The cheap test before the lens fit"): see lens_precheck.
-const double kLensPrecheckRatio = 0.85, kLensPrecheckMinPx = 0.05, kLensPrecheckSignificance = 3.5;
+const double kLensPrecheckRatio = 0.85, kLensPrecheckMinPx = 0.05, kLensPrecheckSignificance = 3.5,
+             kLensPrecheckMaxBend = 0.5;
 
 std::string LensPrecheck::describe() const {
   char b[160];
-  std::snprintf(b, sizeof b, "k1 %+.3f: %.3f -> %.3f px held out (%d matches, %.1f standard errors, %.2f s)", k1,
-                pinhole_px, lens_px, heldout, significance, seconds);
+  std::snprintf(b, sizeof b, "k1 %+.3f (corner bend %+.3f): %.3f -> %.3f px held out (%d matches, %.1f standard errors, %.2f s)",
+                k1, bend, pinhole_px, lens_px, heldout, significance, seconds);
   return b;
 }
 
@@ -2214,7 +2215,9 @@ LensPrecheck lens_precheck(const Rig& pin, const std::vector<std::vector<ImageVi
     if (sane)
       if (std::vector<double> e = heldout_errors(ls); lens_e.empty() || rms(e) < rms(lens_e)) {
         lens_e = std::move(e);
-        r.k1 = ls.cameras[std::size_t(pin.reference)].lens.k1;
+        const Camera& c = ls.cameras[std::size_t(pin.reference)];
+        r.k1 = c.lens.k1;
+        r.bend = c.lens.k1 * 0.25 * (double(c.width) * c.width + double(c.height) * c.height) / (c.fx * c.fy);
       }
   }
   if (pin_e.empty() || lens_e.size() != pin_e.size()) return done();
@@ -2231,8 +2234,12 @@ LensPrecheck lens_precheck(const Rig& pin, const std::vector<std::vector<ImageVi
     var += d * d / std::max(1.0, m - 1);
   }
   r.significance = var > 0 ? mean / std::sqrt(var / m) : (mean > 0 ? 1e9 : 0.0);
+  // A k1 that bends the frame's corners by more than half their radius is no lens the fit could
+  // find (the adjustment sweeps -0.32..+0.16): it bent parallax or motion (the real house clip: k1
+  // +30..+80 at f ~5000).
   r.plausible = r.pinhole_px > 0 && r.lens_px < kLensPrecheckRatio * r.pinhole_px &&
-                r.pinhole_px - r.lens_px > kLensPrecheckMinPx && r.significance > kLensPrecheckSignificance;
+                r.pinhole_px - r.lens_px > kLensPrecheckMinPx && r.significance > kLensPrecheckSignificance &&
+                std::abs(r.bend) <= kLensPrecheckMaxBend;
   return done();
 }
 

@@ -172,23 +172,27 @@ extern const double kLensEvidenceRatio, kLensEvidenceMinPx;
 // pinhole rig predicts (loosely, as a lens fit's first pass), then adjusts the same matches twice
 // from the same starts: pinhole (rotations and focal lengths) and with one radial coefficient k1
 // shared by alike cameras (the adjustment's distortion sweep included), and compares the two on
-// the held-out matches (every holdout_every-th), in raw camera pixels. Distortion is plausible
-// when k1 explains them clearly better: below kLensPrecheckRatio of the pinhole error and by
-// kLensPrecheckMinPx (looser than the evidence rule: the full fit and the judge decide). Fractions
-// of a second on a few VGA frames. `pinhole`: a calibrated rig (rotation model; a planar rig with
-// homographies also gets starts read from them, as lens_fit_starts does).
+// the held-out matches (every holdout_every-th), raw pixel to raw pixel, each error capped at
+// 3 px. Distortion is plausible when k1 explains them clearly and consistently better: rms below
+// kLensPrecheckRatio (0.85) of the pinhole one and kLensPrecheckMinPx (0.05 px) less, the paired
+// drop of the squared errors more than kLensPrecheckSignificance (3.5) standard errors, and a k1
+// that bends the frame's corners by at most kLensPrecheckMaxBend (0.5) of their radius. Looser
+// than the evidence rule: the full fit and the judge decide. About a second of a core on a few
+// VGA frames. `pinhole`: a calibrated rig (rotation model; a planar rig with homographies also
+// gets a start read from them through a guessed focal length, as lens_fit_starts does).
 struct LensPrecheck {
   bool plausible = false;
   double pinhole_px = -1, lens_px = -1;  // held-out rms, raw camera pixels (each match capped)
   double k1 = 0;                          // the lens fit's (the reference camera's)
+  double bend = 0;                        // k1 (r / f)^2 at its half diagonal r
   int heldout = 0;                        // held-out matches compared
   double significance = 0;                // the paired drop of their squared errors, in standard errors
   double seconds = 0;
-  std::string describe() const;           // "k1 -0.12: 0.41 -> 0.18 px held out (312 matches)"
+  std::string describe() const;           // "k1 -0.093 (corner bend -0.034): 0.555 -> 0.243 px held out ..."
 };
 LensPrecheck lens_precheck(const Rig& pinhole, const std::vector<std::vector<ImageView>>& sets,
                            const CalibrationOptions& options);
-extern const double kLensPrecheckRatio, kLensPrecheckMinPx, kLensPrecheckSignificance;
+extern const double kLensPrecheckRatio, kLensPrecheckMinPx, kLensPrecheckSignificance, kLensPrecheckMaxBend;
 
 // A calibration from the images alone of cameras whose lenses are known (the elements' lens fit
 // found them: a recalibration, a calibration from scratch after a resize or a camera that came
