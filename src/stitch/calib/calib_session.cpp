@@ -1149,8 +1149,10 @@ void CalibSession::note_installed_lenses(const std::string& source) {
   // Only what was estimated from the images (not a file, a rig-file, nor a kept rig).
   if (!current_ || !(source == "images" || source == "pooled" || source == "recalibration" || source == "lens")) return;
   const Rig& rig = *current_;
+  // Radtan lenses (what the lens fit finds): a fisheye rig from the images (image circles) is
+  // calibrated as one again by calibrate_from_images, and no ideal pinhole picture holds its view.
   bool all = !rig.cameras.empty();
-  for (const Camera& c : rig.cameras) all &= !c.left_out && !c.lens.pinhole() && !c.lens.estimate;
+  for (const Camera& c : rig.cameras) all &= !c.left_out && c.lens.model == Lens::Model::Radtan && !c.lens.estimate;
   if (!all) {
     // Calibrated without them (none known yet, or the pinhole calibration won): forgotten.
     if (!any_left_out(rig)) known_lenses_.clear(), known_lens_keys_.clear();
