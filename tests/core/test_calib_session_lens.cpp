@@ -233,7 +233,11 @@ TEST(CalibSessionLensRecal, RecalibrationsKeepTheLens) {
   d.until(JobKind::Pooled, large, 30);
   EXPECT_EQ(rig_lens_summary(*d.s.current()), "radtan");
   int lens_jobs = 0;
-  for (const auto& j : d.jobs) lens_jobs += j.kind == JobKind::Lens;
+  for (const auto& j : d.jobs) {
+    lens_jobs += j.kind == JobKind::Lens;
+    std::printf("  job %s, %zu known lenses%s: %.2f s\n", job_kind_name(j.kind), j.lenses,
+                j.outcome.kept_lenses ? " (kept)" : "", j.seconds);
+  }
   EXPECT_EQ(lens_jobs, 1) << "the lens fit ran again";
   EXPECT_GT(d.s.version(), lens_version);
 }
