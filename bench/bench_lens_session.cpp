@@ -11,7 +11,9 @@
 //  - real clips (--clip dir/a.mp4,dir/b.mp4, repeatable): the same, without truth: the lens
 //    found (none expected) and the seams before / after.
 //   stitch-bench-lens-session --photo data/photos/boat1_1600.jpg [--seeds 2] [--k1 -0.05,-0.3]
-//                             [--spacing 30,40] [--clip a.mp4,b.mp4]
+//                             [--spacing 30,40] [--clip a.mp4,b.mp4] [--skip 0,150,300]
+//   (--skip: each clip again from these frames on; LENS_SESSION_PRECHECK_ONLY=1: the lens job's
+//   cheap test alone, lens_precheck, instead of the job)
 #include <chrono>
 #include <cstdlib>
 #include <cmath>
@@ -22,6 +24,7 @@
 #include <opencv2/videoio.hpp>
 #include <sstream>
 #include <string>
+#include <sys/resource.h>
 #include <vector>
 
 #include "bench_photo.hpp"
@@ -35,6 +38,12 @@ using namespace stitch;
 
 namespace {
 
+// CPU seconds of the whole process (every thread: OpenCV's pool too), user + system.
+double process_cpu_s() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
 
 std::vector<ImageView> views_of(std::vector<cv::Mat>& m) {
   std::vector<ImageView> v;
@@ -46,8 +55,9 @@ std::vector<ImageView> views_of(std::vector<cv::Mat>& m) {
 struct Run {
   std::shared_ptr<const Rig> first, last;
   std::string lens = "skipped";
+  std::string precheck;  // the lens job's cheap test, when it passed
   std::string first_model;  // installed / rejected: reason / skipped / failed
-  double lens_s = 0, total_s = 0;
+  double lens_s = 0, lens_cpu_s = 0, total_s = 0;
   int frames = 0;
 };
 
@@ -70,14 +80,29 @@ Run run_session(F frame, int max_frames) {
     for (const auto& x : m) fr.sizes.push_back({x.cols, x.rows});
     auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(m) : std::vector<ImageView>());
     bool lens_done = false;
+    if (job && job->kind == JobKind::Lens && std::getenv("LENS_SESSION_PRECHECK_ONLY")) {
+      // The cheap test alone (lens_precheck), on the sets the lens job fits: for tuning it.
+      std::vector<std::vector<ImageView>> sets{job->calib_sets.front().views()};
+      if (job->calib_sets.size() > 1) sets.push_back(job->calib_sets.back().views());
+      const double c0 = process_cpu_s();
+      const LensPrecheck p = lens_precheck(*job->current, sets, job->config.options);
+      run.lens_cpu_s = process_cpu_s() - c0;
+      run.lens_s = p.seconds;
+      run.lens = std::string(p.plausible ? "plausible " : "no ") + p.describe();
+      break;
+    }
     if (job) {
       std::atomic<bool> cancel{false};
       const auto j0 = std::chrono::steady_clock::now();
+      const double c0 = process_cpu_s();
       const CalibOutcome o = run_calib_job(*job, cancel);
       if (job->kind == JobKind::Lens) {
         run.lens_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - j0).count();
+        run.lens_cpu_s = process_cpu_s() - c0;
         lens_done = true;
         if (!o.error.empty()) run.lens = "failed: " + o.error;
+        if (o.lens_precheck && o.lens_precheck->plausible) run.precheck = "plausible, " + o.lens_precheck->describe();
+        if (o.lens_precheck) std::fprintf(stderr, "precheck: %s %s\n", o.lens_precheck->plausible ? "plausible" : "no", o.lens_precheck->describe().c_str());
       }
       s.on_outcome(o);
     }
@@ -86,7 +111,8 @@ Run run_session(F frame, int max_frames) {
     for (const auto& e : s.take_events())
       if (e.type == SessionEvent::Type::Installed && run.first_model.empty()) run.first_model = e.report.model;
       else if (e.report.source == "lens")
-        run.lens = e.type == SessionEvent::Type::Installed ? "installed" : "rejected: " + e.report.rejected_because;
+        run.lens = (e.type == SessionEvent::Type::Installed ? "installed" : "rejected: " + e.report.rejected_because) +
+                   (run.precheck.empty() ? "" : " (" + run.precheck + ")");
     if (lens_done) break;
   }
   run.last = s.current();
@@ -117,12 +143,14 @@ std::string k1_text(const Rig& r) {
 int main(int argc, char** argv) {
   std::vector<std::string> photos, clips;
   int seeds = 2;
+  std::vector<double> skips{0};  // --skip: clips from these frame numbers on (comma list)
   std::vector<double> k1s{0, -0.05, -0.1, -0.2, -0.3}, spacings{30, 40};
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--photo") photos.push_back(v);
     else if (k == "--clip") clips.push_back(v);
     else if (k == "--seeds") seeds = std::stoi(v);
+    else if (k == "--skip") skips = stitch_bench::comma_numbers(v);
     else if (k == "--k1") k1s = stitch_bench::comma_numbers(v);
     else if (k == "--spacing") spacings = stitch_bench::comma_numbers(v);
     else {
@@ -131,8 +159,8 @@ int main(int argc, char** argv) {
     }
   }
   if (!photos.empty()) {
-    std::printf("| photo | k1 | spacing | seed | first model | lens job | installed lens | seam median camera px before -> after | seam p90 canvas px before -> after | PSNR dB before -> after | lens job s |\n");
-    std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+    std::printf("| photo | k1 | spacing | seed | first model | lens job | installed lens | seam median camera px before -> after | seam p90 canvas px before -> after | PSNR dB before -> after | lens job s | lens job CPU s |\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   }
   for (const auto& path : photos) {
     const cv::Mat photo = stitch_bench::read_photo_rgba(path, 2688);
@@ -167,21 +195,23 @@ int main(int argc, char** argv) {
           } catch (const std::exception& e) {
             std::fprintf(stderr, "PSNR: %s\n", e.what());
           }
-          std::printf("| %s | %+.2f | %.0f | %d | %s %s | %s | %s | %.3f -> %.3f | %.2f -> %.2f | %.2f -> %.2f | %.1f |\n",
+          std::printf("| %s | %+.2f | %.0f | %d | %s %s | %s | %s | %.3f -> %.3f | %.2f -> %.2f | %.2f -> %.2f | %.1f | %.1f |\n",
                       name.c_str(), k1, spacing, seed, run.first->projection.c_str(),
                       run.first_model.c_str(), run.lens.c_str(),
                       k1_text(*run.last).c_str(), a.median_camera_px, b.median_camera_px, a.p90_px, b.p90_px, pa, pb,
-                      run.lens_s);
+                      run.lens_s, run.lens_cpu_s);
           std::fflush(stdout);
         }
   }
   if (!clips.empty()) {
-    std::printf("\n| clip | frames | first | lens job | installed lens | seam median camera px before -> after | seam p90 canvas px before -> after | lens job s |\n");
-    std::printf("|---|---|---|---|---|---|---|---|\n");
+    std::printf("\n| clip | from frame + frames | first | lens job | installed lens | seam median camera px before -> after | seam p90 canvas px before -> after | lens job s | lens job CPU s |\n");
+    std::printf("|---|---|---|---|---|---|---|---|---|\n");
   }
-  for (const auto& clip : clips) {
+  for (const auto& clip : clips)
+  for (const double skip : skips) {
     std::vector<cv::VideoCapture> caps;
     for (const auto& f : stitch_bench::comma_list(clip)) caps.emplace_back(f);
+    for (auto& c : caps) c.set(cv::CAP_PROP_POS_FRAMES, skip);
     std::vector<cv::Mat> last;
     const Run run = run_session(
         [&](int) {
@@ -197,14 +227,14 @@ int main(int argc, char** argv) {
         },
         900);
     if (!run.first || !run.last || last.empty()) {
-      std::printf("| %s | %d | no calibration | | | | | |\n", clip.c_str(), run.frames);
+      std::printf("| %s | %d+%d | no calibration | | | | | |\n", clip.c_str(), int(skip), run.frames);
       continue;
     }
     const auto views = views_of(last);
     const AlignmentReport a = measure_alignment(*run.first, views), b = measure_alignment(*run.last, views);
-    std::printf("| %s | %d | %s %s | %s | %s | %.3f -> %.3f | %.2f -> %.2f | %.1f |\n", clip.c_str(), run.frames,
+    std::printf("| %s | %d+%d | %s %s | %s | %s | %.3f -> %.3f | %.2f -> %.2f | %.1f | %.1f |\n", clip.c_str(), int(skip), run.frames,
                 run.first->projection.c_str(), run.first_model.c_str(), run.lens.c_str(), k1_text(*run.last).c_str(), a.median_camera_px,
-                b.median_camera_px, a.p90_px, b.p90_px, run.lens_s);
+                b.median_camera_px, a.p90_px, b.p90_px, run.lens_s, run.lens_cpu_s);
     std::fflush(stdout);
   }
   return 0;

@@ -578,6 +578,23 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
   // of a core, taken from the chain on a CPU-only machine). A fit that wins took 3-64 s on the
   // loaded 2-core VM (k1 -0.3 from guessed focal lengths the longest).
   lo.deadline = std::chrono::steady_clock::now() + std::chrono::seconds(kLensJobBudgetS);
+  // The cheap test first (lens_precheck: a k1 adjustment of sparse matches against a pinhole
+  // one, a fraction of a second): on cameras without distortion the whole fit below found nothing
+  // in 3-143 s of a core (every real clip measured).
+  try {
+    o.lens_precheck = lens_precheck(*job.current, sets, lo);
+  } catch (const CalibrationCancelled&) {
+    if (cancelled()) return o;
+    o.error = "no lens evidence within " + std::to_string(kLensJobBudgetS) + " s";
+    return o;
+  } catch (const std::exception& e) {
+    o.error = std::string("no lens evidence: ") + e.what();
+    return o;
+  }
+  if (!o.lens_precheck->plausible) {
+    o.error = "no sign of lens distortion in the matches (" + o.lens_precheck->describe() + ")";
+    return o;
+  }
   std::optional<CalibrationResult> best;
   bool ran_off = false;  // a fit's focal lengths ran off (CalibrationResult::lens_ran_off)
   bool out_of_time = false;
@@ -684,7 +701,19 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
   SessionConfig config = job.config;
   config.options.cancel = &cancel;  // a cancelled job stops at the calibrator's next stage
   try {
-    o.result = calibrate(config, job.rough, sets);
+    if (!job.lenses.empty() && !job.rough && !job.left_out) {
+      // Cameras whose lenses are known keep them; when the refit with them fails (another camera
+      // plugged in?), the pinhole calibration as without them, judged as usual.
+      CalibrationOptions lo = config.options;
+      lo.projection = config.projection;
+      try {
+        o.result = calibrate_from_images_with_lenses(sets, config.reference, job.lenses, lo);
+        o.kept_lenses = true;
+      } catch (const RigError& e) {
+        o.lens_error = e.what();
+      }
+    }
+    if (!o.result) o.result = calibrate(config, job.rough, sets);
   } catch (const CalibrationCancelled&) {
     o.cancelled = true;
     return o;
@@ -1038,6 +1067,7 @@ void CalibSession::install(CalibReport rep, CalibrationResult* result) {
   fill_report(rep, result);
   if (!rep.model.empty()) installed_model_ = result->model;
   else installed_model_.reset();
+  note_installed_lenses(rep.source);
   ever_installed_ = true;
   panorama_w_ = current_->canvas_width;
   panorama_h_ = current_->canvas_height;
@@ -1107,9 +1137,51 @@ std::shared_ptr<CalibJob> CalibSession::make_job(JobKind kind) {
       job->config.options.model = *installed_model_;
     if (installed_model_ && !job->config.projection) job->config.projection = current_->projection_kind();
   }
+  if ((kind == JobKind::First || kind == JobKind::Pooled || kind == JobKind::Recalibration) && !rough_ &&
+      config_.load_file.empty())
+    job->lenses = known_lenses_now();
   job_in_flight_ = true;
   in_flight_kind_ = kind;
   return job;
+}
+
+void CalibSession::note_installed_lenses(const std::string& source) {
+  // Only what was estimated from the images (not a file, a rig-file, nor a kept rig).
+  if (!current_ || !(source == "images" || source == "pooled" || source == "recalibration" || source == "lens")) return;
+  const Rig& rig = *current_;
+  // Radtan lenses (what the lens fit finds): a fisheye rig from the images (image circles) is
+  // calibrated as one again by calibrate_from_images, and no ideal pinhole picture holds its view.
+  bool all = !rig.cameras.empty();
+  for (const Camera& c : rig.cameras) all &= !c.left_out && c.lens.model == Lens::Model::Radtan && !c.lens.estimate;
+  if (!all) {
+    // Calibrated without them (none known yet, or the pinhole calibration won): forgotten.
+    if (!any_left_out(rig)) known_lenses_.clear(), known_lens_keys_.clear();
+    return;
+  }
+  for (std::size_t i = 0; i < rig.cameras.size(); ++i) {
+    const long key = camera_ids_.size() == rig.cameras.size() ? long(camera_ids_[i]) : long(i);
+    Camera c = rig.cameras[i];
+    c.homography.reset();
+    const auto it = std::find(known_lens_keys_.begin(), known_lens_keys_.end(), key);
+    if (it == known_lens_keys_.end()) {
+      known_lens_keys_.push_back(key);
+      known_lenses_.push_back(c);
+    } else {
+      known_lenses_[std::size_t(it - known_lens_keys_.begin())] = c;
+    }
+  }
+}
+
+std::vector<Camera> CalibSession::known_lenses_now() const {
+  std::vector<Camera> out;
+  if (known_lenses_.empty() || sizes_.empty()) return out;
+  for (std::size_t i = 0; i < sizes_.size(); ++i) {
+    const long key = camera_ids_.size() == sizes_.size() ? long(camera_ids_[i]) : long(i);
+    const auto it = std::find(known_lens_keys_.begin(), known_lens_keys_.end(), key);
+    if (it == known_lens_keys_.end()) return {};
+    out.push_back(known_lenses_[std::size_t(it - known_lens_keys_.begin())]);
+  }
+  return out;
 }
 
 std::string CalibSession::lens_skip_reason(double residual_camera_px) const {
@@ -1385,6 +1457,8 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
   if (!job_in_flight_ || o.serial != serial_) return;  // forgotten (a reset, a resize)
   job_in_flight_ = false;
   if (o.cancelled || failed_) return;
+  if (!o.lens_error.empty() && o.result)
+    warn("calibrating with the cameras' known lenses failed (" + o.lens_error + "): calibrated as pinhole cameras");
   switch (o.kind) {
     case JobKind::First: {
       if ((!o.error.empty() || !o.result) && current_) {

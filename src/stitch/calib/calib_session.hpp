@@ -122,6 +122,10 @@ struct CalibJob {
   // holds a left-out placeholder for each (Camera::left_out), sized from `sizes` (every camera's).
   std::uint64_t left_out = 0;
   std::vector<std::array<int, 2>> sizes;
+  // The cameras' known lenses (intrinsics and lens, per camera; empty: none known): a calibration
+  // from the images (First, Pooled, Recalibration) keeps them (calibrate_from_images_with_lenses)
+  // instead of calibrating pinhole cameras; see CalibSession, "lens from evidence".
+  std::vector<Camera> lenses;
 };
 
 struct PairResidual {
@@ -180,6 +184,11 @@ struct CalibOutcome {
   RigResiduals candidate, current;          // on the held-out frames (or the calibration's own)
   RigCoverage candidate_cover, current_cover;  // Pooled, Recalibration
   std::string residual_source;              // "held-out" or "calibration frames"
+  // A job given known lenses: whether the result keeps them (false: the refit with them failed,
+  // `lens_error` says why, and the result is the pinhole calibration of the raw frames).
+  bool kept_lenses = false;
+  std::string lens_error;
+  std::optional<LensPrecheck> lens_precheck;  // Lens: the cheap test before the fit (lens_precheck)
 };
 
 // The work of one job; pure, may run in any thread. Catches nothing: the caller does.
@@ -278,6 +287,12 @@ class CalibSession {
   // options.lens_from_evidence off, a camera left out, cameras that already have a lens (a
   // fisheye ring, estimated), and when the installed calibration's held-out residual is already
   // within kLensEvidenceMinPx (no lens could win). It is a background job: it gives way.
+  // Once a lens is installed, the session knows the cameras' lenses (known_lenses_, by input when
+  // stitchsync numbers them): later calibrations from the images (a recalibration, the pooled
+  // window after a calibration from scratch, a resize of the same aspect, a camera that comes
+  // back) keep them (CalibJob::lenses), judged as before in camera pixels against what is
+  // installed. A calibration from the images installed without lenses (the refit with them failed
+  // and the pinhole one won) forgets them, and the lens fit may find them again.
   // Whether the job in flight is one that gives way (the lens fit) to work that waits now (a
   // recalibration window that has collected its frames) or to the end of the stream (`at_eos`):
   // when it does, the session forgets it (its outcome is ignored) and the caller cancels the
@@ -410,6 +425,14 @@ class CalibSession {
   // lens from evidence: wanted after the next windowed job (once per calibration from scratch),
   // due now (with the frames of the last window), the frames of the last window
   bool lens_wanted_ = false, lens_due_ = false;
+  // The lenses installed calibrations found (intrinsics and lens at the size found), by input
+  // (Frame::camera_ids; the view index when unknown). Kept over calibrations from scratch.
+  std::vector<Camera> known_lenses_;
+  std::vector<long> known_lens_keys_;
+  void note_installed_lenses(const std::string& source);
+  // The known lenses of the cameras now connected (sizes_, camera_ids_), empty unless every
+  // camera has one.
+  std::vector<Camera> known_lenses_now() const;
   std::vector<FrameSet> last_calib_sets_, last_holdout_sets_;
   // QoS
   std::uint64_t passed_ = 0, dropped_ = 0, dropped_reported_ = 0;

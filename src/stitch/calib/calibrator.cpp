@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -2093,6 +2094,238 @@ std::vector<Rig> lens_fit_starts(const Rig& pin, CameraModel model) {
       c.lens.estimate = true;
     }
   return starts;
+}
+
+// Measured (BENCHMARKS.md, "The cheap test before the lens fit"): see lens_precheck.
+const double kLensPrecheckRatio = 0.85, kLensPrecheckMinPx = 0.05, kLensPrecheckSignificance = 3.5,
+             kLensPrecheckMaxBend = 0.5;
+
+std::string LensPrecheck::describe() const {
+  char b[160];
+  std::snprintf(b, sizeof b, "k1 %+.3f (corner bend %+.3f): %.3f -> %.3f px held out (%d matches, %.1f standard errors, %.2f s)",
+                k1, bend, pinhole_px, lens_px, heldout, significance, seconds);
+  return b;
+}
+
+LensPrecheck lens_precheck(const Rig& pin, const std::vector<std::vector<ImageView>>& sets, const CalibrationOptions& o) {
+  const auto t0 = std::chrono::steady_clock::now();
+  LensPrecheck r;
+  const auto done = [&]() {
+    r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return r;
+  };
+  const int n = int(pin.cameras.size());
+  if (n < 2 || sets.empty() || pin.reference < 0 || pin.reference >= n) return done();
+  for (const auto& frames : sets) {
+    if (int(frames.size()) != n) return done();
+    check_frames(frames);
+  }
+  // Matches of every pair the pinhole rig puts in overlap, checked loosely against it (lenses
+  // unknown: the distorted periphery is off the pinhole maps by pixels).
+  const FeatureSets feats = detect_all(sets, n, o);
+  bool homographies = pin.planar();
+  for (const auto& c : pin.cameras) homographies &= bool(c.homography);
+  std::vector<PairData> pairs;
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      const Camera &A = pin.cameras[std::size_t(a)], &B = pin.cameras[std::size_t(b)];
+      Eigen::Matrix3d predicted;
+      if (homographies) {
+        if (overlap_box(pin, a, b).area() <= 0) continue;
+        predicted = B.homography->inverse() * *A.homography;
+      } else {
+        const double axes = std::acos(std::clamp(A.R().col(2).dot(B.R().col(2)), -1.0, 1.0));
+        if (axes > (half_diagonal_fov(A) + half_diagonal_fov(B)) * (1 + o.overlap_margin)) continue;
+        predicted = rough_pairwise_homography(pin, a, b);
+      }
+      PairData p = match_pair(feats, a, b, o, &predicted, 0.25 * std::max(B.width, B.height), nullptr,
+                              kLensUnknownRansacScale);
+      if (!p.ok || p.held_count() == 0) continue;
+      p.ra = p.pa;  // raw = ideal under the starts' zero lenses
+      p.rb = p.pb;
+      pairs.push_back(std::move(p));
+    }
+  throw_if_cancelled(o);
+  if (pairs.empty()) return done();
+  std::vector<PairData> pin_pairs = pairs;
+  for (auto& p : pin_pairs) p.ra.clear(), p.rb.clear();
+  // Held-out error of a fitted rig, raw pixel to raw pixel (a -> b), each match capped: a match
+  // neither model explains (a false one, parallax) weighs alike in both.
+  constexpr double kCapPx = 3.0;
+  const auto heldout_errors = [&](const Rig& rig) {
+    std::vector<double> e;
+    for (const auto& p : pairs)
+      for (std::size_t k = 0; k < p.ra.size(); ++k) {
+        if (!p.held[k]) continue;
+        Eigen::Vector2d q;
+        e.push_back(raw_transfer(rig, p.a, p.b, p.ra[k], q) ? std::min(kCapPx, (q - p.rb[k]).norm()) : kCapPx);
+      }
+    return e;
+  };
+  const auto rms = [](const std::vector<double>& e) {
+    double sum = 0;
+    for (const double x : e) sum += x * x;
+    return e.empty() ? -1.0 : std::sqrt(sum / double(e.size()));
+  };
+  // The starts: the pinhole rig's K and R; with homographies, rotations read from them through
+  // a guessed focal length too (lens_fit_starts: a pinhole fit of distorted cameras on a plane
+  // can hold focal lengths 20x the truth, from where k1 is not found).
+  std::vector<Rig> starts{pin};
+  if (homographies) {
+    // One guess (60 degrees across) is enough: the adjustment's distortion sweep fits the focal
+    // for each candidate, and 45 / 80 degrees led to the same fit on every rendered rig.
+    std::vector<Rig> guessed = lens_fit_starts(pin, CameraModel::Homography);
+    // (A homography-model rig's own K and R are that guess already: not twice.)
+    bool same = !guessed.empty();
+    for (std::size_t i = 0; same && i < pin.cameras.size(); ++i)
+      same = std::abs(guessed.front().cameras[i].fx - pin.cameras[i].fx) < 1e-6 * pin.cameras[i].fx &&
+             guessed.front().cameras[i].R().isApprox(pin.cameras[i].R(), 1e-9);
+    if (!guessed.empty() && !same) starts.push_back(std::move(guessed.front()));
+  }
+  // 60 fitted matches a pair (of ~150-300): the adjustment's cost is linear in them (numerical
+  // derivatives), and 4 parameters a camera plus one k1 need far fewer.
+  constexpr std::size_t kTrainCap = 60;
+  const std::vector<PairMatches> train_pin = training_matches(pin_pairs, kTrainCap),
+                                 train_lens = training_matches(pairs, kTrainCap);
+  BundleAdjustOptions bo;
+  bo.cancel = o.cancel;
+  bo.deadline = o.deadline;
+  BundleAdjustOptions pin_o = bo, lens_o = bo;
+  pin_o.estimate_lens = false;
+  lens_o.shared_lens = true;  // one k1 for alike cameras: the test asks "any distortion?"
+  lens_o.estimate_k2 = false;
+  std::vector<double> pin_e, lens_e;
+  for (const Rig& st : starts) {
+    Rig ps = st, ls = st;
+    for (auto& c : ps.cameras) c.lens = Lens{}, c.homography.reset();
+    for (auto& c : ls.cameras) {
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+      c.homography.reset();
+    }
+    const BundleAdjustReport bp = bundle_adjust(ps, train_pin, pin_o);
+    throw_if_cancelled(o);
+    if (bp.ok)
+      if (std::vector<double> e = heldout_errors(ps); pin_e.empty() || rms(e) < rms(pin_e)) pin_e = std::move(e);
+    const BundleAdjustReport bl = bundle_adjust(ls, train_lens, lens_o);
+    throw_if_cancelled(o);
+    bool sane = bl.ok && bl.lens_warning.empty();
+    for (const auto& c : ls.cameras) sane &= lens_problem(c).empty();
+    if (sane)
+      if (std::vector<double> e = heldout_errors(ls); lens_e.empty() || rms(e) < rms(lens_e)) {
+        lens_e = std::move(e);
+        const Camera& c = ls.cameras[std::size_t(pin.reference)];
+        r.k1 = c.lens.k1;
+        r.bend = c.lens.k1 * 0.25 * (double(c.width) * c.width + double(c.height) * c.height) / (c.fx * c.fy);
+      }
+  }
+  if (pin_e.empty() || lens_e.size() != pin_e.size()) return done();
+  r.heldout = int(pin_e.size());
+  r.pinhole_px = rms(pin_e);
+  r.lens_px = rms(lens_e);
+  // Paired over the same held-out matches: the mean drop of the squared error in its standard
+  // errors (a few dozen matches of a real scene's parallax move the rms by 10-20 % either way).
+  double mean = 0, var = 0;
+  const double m = double(pin_e.size());
+  for (std::size_t k = 0; k < pin_e.size(); ++k) mean += (pin_e[k] * pin_e[k] - lens_e[k] * lens_e[k]) / m;
+  for (std::size_t k = 0; k < pin_e.size(); ++k) {
+    const double d = pin_e[k] * pin_e[k] - lens_e[k] * lens_e[k] - mean;
+    var += d * d / std::max(1.0, m - 1);
+  }
+  r.significance = var > 0 ? mean / std::sqrt(var / m) : (mean > 0 ? 1e9 : 0.0);
+  // A k1 that bends the frame's corners by more than half their radius is no lens the fit could
+  // find (the adjustment sweeps -0.32..+0.16): it bent parallax or motion (the real stereo hallway
+  // clip: k1 +279, a bend of +1.8, for 18 held-out matches).
+  r.plausible = r.pinhole_px > 0 && r.lens_px < kLensPrecheckRatio * r.pinhole_px &&
+                r.pinhole_px - r.lens_px > kLensPrecheckMinPx && r.significance > kLensPrecheckSignificance &&
+                std::abs(r.bend) <= kLensPrecheckMaxBend;
+  return done();
+}
+
+CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                    const std::vector<Camera>& lenses_in, const CalibrationOptions& o) {
+  throw_if_cancelled(o);
+  if (sets.empty()) throw RigError("no frames to calibrate on");
+  const std::size_t n = lenses_in.size();
+  for (const auto& frames : sets) {
+    if (frames.size() != n)
+      throw RigError("the cameras' lenses are known for " + std::to_string(n) + " cameras but " +
+                     std::to_string(frames.size()) + " streams are connected");
+    check_frames(frames);
+  }
+  // The known intrinsics at the frames' sizes.
+  Rig known;
+  for (const Camera& c : lenses_in) known.cameras.push_back(c);
+  std::vector<std::array<int, 2>> sizes;
+  for (const auto& v : sets[0]) sizes.push_back({v.width, v.height});
+  for (std::size_t i = 0; i < n; ++i) {
+    const Camera& c = known.cameras[i];
+    if (c.width <= 0 || c.height <= 0 ||
+        std::abs(double(sizes[i][0]) / c.width - double(sizes[i][1]) / c.height) > 0.01 * double(sizes[i][0]) / c.width)
+      throw RigError("camera " + std::to_string(i) + ": its known lens was found at " + std::to_string(c.width) + "x" +
+                     std::to_string(c.height) + ", another picture than " + std::to_string(sizes[i][0]) + "x" +
+                     std::to_string(sizes[i][1]));
+  }
+  rig_adapt_to_sizes(known, sizes);
+  for (std::size_t i = 0; i < n; ++i)
+    if (const std::string p = lens_problem(known.cameras[i]); !p.empty())
+      throw RigError("camera " + std::to_string(i) + ": its known lens is unusable: " + p);
+  // Ideal pinhole pictures: each ideal pixel's raw pixel through the lens (cv::remap).
+  std::vector<std::pair<cv::Mat, cv::Mat>> maps(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Camera& c = known.cameras[i];
+    cv::Mat mx(c.height, c.width, CV_32F), my(c.height, c.width, CV_32F);
+    for (int y = 0; y < c.height; ++y)
+      for (int x = 0; x < c.width; ++x) {
+        Eigen::Vector2d raw;
+        const bool ok = distort_point(c, Eigen::Vector2d(x, y), raw);
+        mx.at<float>(y, x) = ok ? float(raw.x()) : -1.f;
+        my.at<float>(y, x) = ok ? float(raw.y()) : -1.f;
+      }
+    maps[i] = {mx, my};
+  }
+  std::vector<std::vector<cv::Mat>> ideal(sets.size());
+  std::vector<std::vector<ImageView>> ideal_views(sets.size());
+  for (std::size_t t = 0; t < sets.size(); ++t) {
+    for (std::size_t i = 0; i < n; ++i) {
+      cv::Mat out;
+      cv::remap(as_mat(sets[t][i]), out, maps[i].first, maps[i].second, cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+                cv::Scalar(0, 0, 0, 255));
+      ideal[t].push_back(out);
+    }
+    for (auto& m : ideal[t]) ideal_views[t].push_back(as_view(m));
+  }
+  throw_if_cancelled(o);
+  CalibrationOptions po = o;
+  po.lens_from_evidence = false;  // the lenses are known
+  po.circular_fisheyes = false;
+  po.model = CameraModel::Rotation;  // lens rigs are rotation rigs (the homography chain takes none)
+  po.bundle_adjust = false;
+  const CalibrationResult pin = calibrate_from_images(ideal_views, reference, po);
+  // Rotations from the ideal pictures; the known intrinsics and lenses (held); the canvas laid
+  // out again by the refit.
+  Rig start = pin.rig;
+  for (std::size_t i = 0; i < n; ++i) {
+    Camera& c = start.cameras[i];
+    const Camera& k = known.cameras[i];
+    c.fx = k.fx, c.fy = k.fy, c.cx = k.cx, c.cy = k.cy;
+    c.lens = k.lens;
+    c.lens.estimate = false;
+    c.homography.reset();
+  }
+  start.canvas_width = start.canvas_height = 0;
+  start.canvas_scale = 0;
+  start.canvas_wrap = false;
+  CalibrationOptions ro = o;
+  ro.model = CameraModel::Rotation;
+  ro.bundle_adjust = false;
+  ro.projection.reset();  // the pinhole fit's (o.projection when given)
+  CalibrationResult r = calibrate_from_rig(start, sets, ro);
+  r.projection_chosen = pin.projection_chosen;
+  if (r.model != CameraModel::Rotation || !(r.rotation_heldout_px > 0))
+    throw RigError("the refit with the cameras' lenses found no rotation rig");
+  return r;
 }
 
 constexpr double kFisheyeFallbackPoorPx = 1.5;

@@ -165,6 +165,49 @@ bool lens_fit_usable(const CalibrationResult& lens);
 bool lens_evidence_wins(double pinhole_px, double lens_px);
 extern const double kLensEvidenceRatio, kLensEvidenceMinPx;
 
+// The cheap test before a lens fit (the elements' background lens job, calib_session.hpp): whether
+// the images show any sign of lens distortion at all. A whole lens fit (lens_fit_starts through
+// calibrate_from_rig, dense matches) costs 3-90 s of a core; on cameras without distortion (every
+// real clip measured) it finds nothing. This one matches SIFT features once in the overlaps the
+// pinhole rig predicts (loosely, as a lens fit's first pass), then adjusts the same matches twice
+// from the same starts: pinhole (rotations and focal lengths) and with one radial coefficient k1
+// shared by alike cameras (the adjustment's distortion sweep included), and compares the two on
+// the held-out matches (every holdout_every-th), raw pixel to raw pixel, each error capped at
+// 3 px. Distortion is plausible when k1 explains them clearly and consistently better: rms below
+// kLensPrecheckRatio (0.85) of the pinhole one and kLensPrecheckMinPx (0.05 px) less, the paired
+// drop of the squared errors more than kLensPrecheckSignificance (3.5) standard errors, and a k1
+// that bends the frame's corners by at most kLensPrecheckMaxBend (0.5) of their radius. Looser
+// than the evidence rule: the full fit and the judge decide. About a second of a core on a few
+// VGA frames. `pinhole`: a calibrated rig (rotation model; a planar rig with homographies also
+// gets a start read from them through a guessed focal length, as lens_fit_starts does).
+struct LensPrecheck {
+  bool plausible = false;
+  double pinhole_px = -1, lens_px = -1;  // held-out rms, raw camera pixels (each match capped)
+  double k1 = 0;                          // the lens fit's (the reference camera's)
+  double bend = 0;                        // k1 (r / f)^2 at its half diagonal r
+  int heldout = 0;                        // held-out matches compared
+  double significance = 0;                // the paired drop of their squared errors, in standard errors
+  double seconds = 0;
+  std::string describe() const;           // "k1 -0.093 (corner bend -0.034): 0.555 -> 0.243 px held out ..."
+};
+LensPrecheck lens_precheck(const Rig& pinhole, const std::vector<std::vector<ImageView>>& sets,
+                           const CalibrationOptions& options);
+extern const double kLensPrecheckRatio, kLensPrecheckMinPx, kLensPrecheckSignificance, kLensPrecheckMaxBend;
+
+// A calibration from the images alone of cameras whose lenses are known (the elements' lens fit
+// found them: a recalibration, a calibration from scratch after a resize or a camera that came
+// back; calib_session.hpp). calibrate_from_images calibrates pinhole cameras, and a pinhole fit of
+// distorted cameras is what the lens replaced. Here each frame is undistorted through its known
+// lens first (ideal pinhole pictures with the known intrinsics, same size), those are calibrated
+// as pinhole cameras (rotation model: rotations and focal lengths free to follow a rig that
+// moved), and the result, given the known intrinsics and lenses (coefficients held), is refined
+// on the raw frames by calibrate_from_rig. `lenses[i]`: camera i's intrinsics and lens; scaled
+// when its frames are another size of the same aspect. Throws RigError as the calibrators do
+// (and when a camera's known lens does not fit its frames).
+CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vector<ImageView>>& sets, int reference,
+                                                    const std::vector<Camera>& lenses,
+                                                    const CalibrationOptions& options);
+
 struct AlignmentReport {
   double median_px = -1;   // over all pairs' matches; -1 when nothing could be matched
   double p90_px = -1;      // 90th percentile of the same distances
