@@ -676,6 +676,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
   if (bundle && bundle->has_pad_numbers && bundle->n_views == frame.sizes.size())
     frame.camera_ids.assign(bundle->pad_numbers, bundle->pad_numbers + MIN(bundle->n_views, guint(STITCH_MAX_VIEWS)));
   frame.time_s = running_time_s(self, buf);
+  frame.live = upstream_is_live(self);
   st->now_s = frame.time_s;
   if (bundle) {
     st->offsets.present = bundle->has_time_offsets;
@@ -701,7 +702,8 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     }
     std::shared_ptr<stitch::CalibJob> job = st->session.on_frame(frame, views);
     if (job) start_worker(st, job);
-    if (!st->session.current() && st->worker && !st->session.failed()) {
+    if (st->worker && !st->session.failed() &&
+        stitch::stream_waits_for_job(st->worker->kind, st->session.current() != nullptr, frame.live)) {
       if (!wait_for_worker(st)) {
         flushing = true;
         return;

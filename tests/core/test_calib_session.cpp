@@ -1357,3 +1357,15 @@ TEST(CalibSession, EndOfStreamCancelsOnlyJobsNoFrameWillUse) {
   EXPECT_FALSE(cancel_at_end_of_stream(JobKind::First, false, false));
   EXPECT_FALSE(cancel_at_end_of_stream(JobKind::Recalibration, true, false));
 }
+
+// The stream waits for a first calibration (no panorama yet), and for a returning camera's only
+// when the cameras are files (non-live): live ones go on without it meanwhile. Background jobs
+// (pooled, recalibration, lens) never hold the stream.
+TEST(CalibSession, StreamWaitsForAReturningCameraOnlyWhenTheCamerasAreNotLive) {
+  EXPECT_TRUE(stream_waits_for_job(JobKind::First, false, true));
+  EXPECT_TRUE(stream_waits_for_job(JobKind::First, false, false));
+  EXPECT_TRUE(stream_waits_for_job(JobKind::First, true, false));   // a returning file camera
+  EXPECT_FALSE(stream_waits_for_job(JobKind::First, true, true));   // a returning live camera
+  for (const JobKind k : {JobKind::Pooled, JobKind::Recalibration, JobKind::Lens, JobKind::DriftCheck})
+    for (const bool live : {false, true}) EXPECT_FALSE(stream_waits_for_job(k, true, live)) << job_kind_name(k);
+}

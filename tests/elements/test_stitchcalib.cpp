@@ -663,7 +663,9 @@ TEST(StitchCalib, DarkCameraIsLeftOutThenJoins) {
                                kFrames, r);
   ASSERT_TRUE(r.errors.empty()) << r.errors[0];
   EXPECT_TRUE(r.warning_contains("camera 2 delivered no picture"));
-  EXPECT_TRUE(r.warning_contains("camera 2 delivers a picture now"));
+  // Non-live cameras: the stream waits for the calibration with it (stream_waits_for_job), so the
+  // last calibration has every camera whatever the machine's load.
+  EXPECT_TRUE(r.warning_contains("camera 2 delivers a picture now: calibrating again with it (the stream waits"));
   ASSERT_FALSE(r.frames.empty());
   // Stitched from 4 s on (120 frames), the dark camera's 2 s included.
   EXPECT_GT(int(r.frames.size()), kFrames - 120 - 30);

@@ -204,6 +204,10 @@ bool cancel_at_end_of_stream(JobKind kind, bool calibrated, bool saving) {
   return !saving && (kind == JobKind::Pooled || (kind == JobKind::First && calibrated));
 }
 
+bool stream_waits_for_job(JobKind kind, bool calibrated, bool live) {
+  return !calibrated || (kind == JobKind::First && !live);
+}
+
 const char* job_kind_name(JobKind k) {
   switch (k) {
     case JobKind::First: return "first";
@@ -922,7 +926,8 @@ std::shared_ptr<CalibJob> CalibSession::rejoin_in_background(std::uint64_t back,
   if (!rejoin_announced_)
     warn(camera_list(back, views.size()) + agree(back, " delivers", " deliver") +
          " a picture now: calibrating again with " + agree(back, "it", "them") +
-         ", in the background; the panorama goes on without " + agree(back, "it", "them") + " meanwhile");
+         (frame.live ? std::string(", in the background; the panorama goes on without ") + agree(back, "it", "them") + " meanwhile"
+                     : std::string(" (the stream waits for it: the cameras are not live)")));
   rejoin_announced_ = true;
   // From scratch (the rough rig or the images: the old geometry was made without it), in the
   // panorama the stream already has.

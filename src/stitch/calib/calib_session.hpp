@@ -103,6 +103,13 @@ const char* job_kind_name(JobKind k);
 // message is awaited) are finished.
 bool cancel_at_end_of_stream(JobKind kind, bool calibrated, bool saving);
 
+// Whether the stream waits for the job in flight before the bundle goes on: a calibration with
+// nothing installed always (there is no panorama yet); a returning camera's calibration (kind
+// First while one is `calibrated`) when the cameras are not `live`: files then show the camera
+// from about the bundle it came back on, whatever the machine's speed, as a late file camera's
+// first calibration does. Live cameras go on without it meanwhile: the panorama must not stop.
+bool stream_waits_for_job(JobKind kind, bool calibrated, bool live);
+
 // Owned copies of one bundle's views (RGBA).
 struct FrameSet {
   std::vector<cv::Mat> images;
@@ -258,6 +265,7 @@ class CalibSession {
     // Which input each view comes from (stitchsync's pad numbers; empty: unknown). When a camera
     // leaves, the others keep their geometry instead of a calibration from scratch.
     std::vector<unsigned> camera_ids;
+    bool live = true;  // the cameras are live (a returning camera is then calibrated without stopping the stream)
   };
 
   void set_config(const SessionConfig& config);
