@@ -42,6 +42,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import parallax  # noqa: E402
 
 
+# Each view's background excludes its object copy widened by this window (px): the copy's
+# anti-aliased edge and the mask's misses stay out of the background (STITCH_MOVE_EXCL overrides).
+EXCL = int(os.environ.get("STITCH_MOVE_EXCL", "3"))
+
+
 def position_weight_image(w, h):
     u = np.arange(w, dtype=np.float64)
     v = np.arange(h, dtype=np.float64)
@@ -89,6 +94,11 @@ def estimate_blobs(ya, yb, overlap, args, max_disp, direction=None):
             continue
         blob = lab == k
         x, y, w, h = stats[k, :4]
+        # A near object is a compact blob in front of an aligned background: a blob as tall as the
+        # overlap itself (a whole overlap of varying depth, e.g. a corridor) is no object to move.
+        rows = np.nonzero(overlap[:, x:x + w].any(axis=1))[0]
+        if len(rows) and h >= args.tallest * (rows[-1] - rows[0] + 1):
+            continue
         # the search line: the epipolar direction (near points move one way only), or both ways
         # along the rows when the rig has no baseline
         ux, uy = direction if direction is not None else (1.0, 0.0)
@@ -239,38 +249,75 @@ def compose(scene, rd, t, args, state):
                            None if args.no_epipolar else epipolar_direction(scene, a, b, overlap))
         if args.hold and not args.oracle:
             blobs = hold(blobs, state.setdefault((a, b), []), lumas[a], lumas[b], args)
-        tb = theta[b] / np.maximum(theta[a] + theta[b], 1e-9)
-        # tb must be defined beyond the overlap too: 0 on a's side, 1 on b's side
-        tb = np.where(overlap, tb, np.where(valid[a], 0.0, 1.0)).astype(np.float32)
-        for ma, dx, dy, _ in blobs:
-            if not ma.any():
-                continue
-            # backward map of the moved object: output p shows q with q + tb(q) d = p
-            qx, qy = xs.copy(), ys.copy()
-            for _ in range(4):
-                s = cv2.remap(tb, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-                qx, qy = xs - s * dx, ys - s * dy
-            s = cv2.remap(tb, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            inside = cv2.remap(ma.astype(np.float32), qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-            va = cv2.remap(valid[a].astype(np.float32), qx, qy, cv2.INTER_NEAREST) * (1 - s)
-            vb = cv2.remap(valid[b].astype(np.float32), qx + dx, qy + dy, cv2.INTER_NEAREST) * s
-            sa = cv2.remap(views[a], qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            sb = cv2.remap(views[b], qx + dx, qy + dy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            obj = (va[..., None] * sa + vb[..., None] * sb) / np.maximum(va + vb, 1e-6)[..., None]
-            # background: each view only where it does not show this object
-            mb = shift(ma.astype(np.float32), -dx, -dy) > 0.5  # b's copy: M_a + d
-            na = valid[a] & ~cv2.dilate(ma.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-            nb = valid[b] & ~cv2.dilate(mb.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-            ga, gb = theta[a] * na, theta[b] * nb
-            # only this pair's overlap area is recomposed (other views keep their weight share)
-            region = (overlap | ma | mb) & (valid[a] | valid[b])
-            gsum = ga + gb
-            bg = (ga[..., None] * views[a] + gb[..., None] * views[b]) / np.maximum(gsum, 1e-9)[..., None]
-            use_bg = region & (gsum > 1e-6)
-            out = np.where(use_bg[..., None], bg, out)
-            k = np.clip(inside, 0, 1)[..., None] * ((va + vb) > 0)[..., None]
-            out = k * obj + (1 - k) * out
+        out = apply_moves(out, views, valid, theta, a, b, blobs)
     return out, alpha
+
+
+def apply_moves(out, views, valid, theta, a, b, blobs):
+    """out with each blob's object drawn once between its copies in views a and b (step 4)."""
+    H, W = out.shape[:2]
+    overlap = valid[a] & valid[b]
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float32)
+    tb = theta[b] / np.maximum(theta[a] + theta[b], 1e-9)
+    # tb must be defined beyond the overlap too: 0 on a's side, 1 on b's side
+    tb = np.where(overlap, tb, np.where(valid[a], 0.0, 1.0)).astype(np.float32)
+    for ma, dx, dy, _ in blobs:
+        if not ma.any():
+            continue
+        # backward map of the moved object: output p shows q with q + tb(q) d = p
+        qx, qy = xs.copy(), ys.copy()
+        for _ in range(4):
+            s = cv2.remap(tb, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            qx, qy = xs - s * dx, ys - s * dy
+        s = cv2.remap(tb, qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        inside = cv2.remap(ma.astype(np.float32), qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        va = cv2.remap(valid[a].astype(np.float32), qx, qy, cv2.INTER_NEAREST) * (1 - s)
+        vb = cv2.remap(valid[b].astype(np.float32), qx + dx, qy + dy, cv2.INTER_NEAREST) * s
+        sa = cv2.remap(views[a], qx, qy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        sb = cv2.remap(views[b], qx + dx, qy + dy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        obj = (va[..., None] * sa + vb[..., None] * sb) / np.maximum(va + vb, 1e-6)[..., None]
+        # background: each view only where it does not show this object
+        mb = shift(ma.astype(np.float32), -dx, -dy) > 0.5  # b's copy: M_a + d
+        na = valid[a] & ~cv2.dilate(ma.astype(np.uint8), np.ones((EXCL, EXCL), np.uint8)).astype(bool)
+        nb = valid[b] & ~cv2.dilate(mb.astype(np.uint8), np.ones((EXCL, EXCL), np.uint8)).astype(bool)
+        ga, gb = theta[a] * na, theta[b] * nb
+        # recomposed: around the two copies only (elsewhere the base output stays)
+        region = (cv2.dilate((ma | mb).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0) & (valid[a] | valid[b])
+        gsum = ga + gb
+        bg = (ga[..., None] * views[a] + gb[..., None] * views[b]) / np.maximum(gsum, 1e-9)[..., None]
+        use_bg = region & (gsum > 1e-6)
+        out = np.where(use_bg[..., None], bg, out)
+        k = np.clip(inside, 0, 1)[..., None] * ((va + vb) > 0)[..., None]
+        out = k * obj + (1 - k) * out
+    return out
+
+
+def compose_real(rig_path, d, t, base, args):
+    """The move on a real set (parallax_real.py's frames and rig; no baseline: both directions)."""
+    import parallax_real
+    r = json.load(open(rig_path))
+    raw, (W, H) = parallax_real.warped_views(rig_path, d, len(r["cameras"]), t)
+    views = [v.astype(np.float32) for v, _ in raw]
+    valid = [cv2.erode(m.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0 for _, m in raw]
+    weight = []
+    for c, m in zip(r["cameras"], valid):
+        Hm = np.asarray(c["homography"], np.float64).reshape(3, 3)
+        pw = cv2.warpPerspective(position_weight_image(c["width"], c["height"]), Hm, (W, H), flags=cv2.INTER_LINEAR)
+        weight.append(np.where(m, pw, 0).astype(np.float32))
+    wsum = np.maximum(sum(weight), 1e-9)
+    theta = [w / wsum for w in weight]
+    out = base[:H, :W].astype(np.float32)
+    lumas = [luma(v) for v in views]
+    for a in range(len(views)):
+        for b in range(a + 1, len(views)):
+            overlap = valid[a] & valid[b]
+            if overlap.sum() < 64:
+                continue
+            cols = np.nonzero(overlap.any(axis=0))[0]
+            max_disp = min(args.max_disparity, int(cols[-1] - cols[0]))
+            blobs = estimate_blobs(lumas[a], lumas[b], overlap, args, max_disp, None)
+            out = apply_moves(out, views, valid, theta, a, b, blobs)
+    return out
 
 
 def hold(blobs, last, ya, yb, args):
@@ -297,12 +344,16 @@ def parser():
     ap.add_argument("--hold", action="store_true")
     ap.add_argument("--base", default="", help="chain whose panorama is kept where no object is moved "
                     "(run by parallax.py in the same --out; default: the weighted mean of the views)")
+    ap.add_argument("--real", default="", help="parallax_real.py's --out: move on its sets (base: --base, "
+                    "default consensus) and score with its metrics")
     ap.add_argument("--homography-only", action="store_true", help="the prototype's own weighted mean (check)")
     ap.add_argument("--disagree", type=float, default=12.0)
     ap.add_argument("--match", type=float, default=8.0)
     ap.add_argument("--min-area", type=int, default=400)
     ap.add_argument("--margin", type=float, default=4.0, help="grey levels the shifted match must beat the unshifted one by")
     ap.add_argument("--max-disparity", type=int, default=400)
+    ap.add_argument("--tallest", type=float, default=0.9, help="blobs this share of the overlap's height or "
+                    "taller are left alone (not an object in front of a background)")
     ap.add_argument("--support", type=float, default=0.5, help="share of the object's textured pixels the shift must match")
     ap.add_argument("--no-epipolar", action="store_true", help="search both ways along the rows (no baseline known)")
     return ap
@@ -310,6 +361,8 @@ def parser():
 
 def main():
     args = parser().parse_args()
+    if args.real:
+        return main_real(args)
     name = args.name or ("move-oracle" if args.oracle else "py-homography" if args.homography_only else "move")
     for rname in args.rigs.split(","):
         for seed in [int(s) for s in args.seeds.split(",")]:
@@ -333,6 +386,36 @@ def main():
             allr = json.load(open(res_path)) if os.path.exists(res_path) else {}
             allr[name] = r
             json.dump(allr, open(res_path, "w"), indent=1)
+    return 0
+
+
+def main_real(args):
+    import parallax_real
+    base_name = args.base or "consensus"
+    for name in sorted(os.listdir(args.real)):
+        top = os.path.join(args.real, name)
+        d = os.path.join(top, "frames")
+        rig = os.path.join(d, "rig.json")
+        if not os.path.exists(rig) or not os.path.exists(os.path.join(top, base_name, "pano_0000.png")):
+            continue
+        n = len(json.load(open(rig))["cameras"])
+        od = os.path.join(top, "move")
+        os.makedirs(od, exist_ok=True)
+        t = 0
+        while os.path.exists(os.path.join(top, base_name, "pano_%04d.png" % t)) and t < args.frames:
+            base = cv2.imread(os.path.join(top, base_name, "pano_%04d.png" % t), cv2.IMREAD_UNCHANGED)
+            out = compose_real(rig, d, t, base[:, :, :3], args)
+            pano = base.copy()
+            pano[:out.shape[0], :out.shape[1], :3] = np.clip(np.rint(out), 0, 255).astype(np.uint8)
+            cv2.imwrite(os.path.join(od, "pano_%04d.png" % t), pano)
+            t += 1
+        h = None
+        for cname in ("homography", base_name, "move"):
+            r = parallax_real.evaluate(os.path.join(top, cname), rig, d, n, t)
+            h = h or r
+            print("%-12s %-12s detail MAD %.3f (cut %+.1f%%) SSIM %.4f flicker %.3f" % (
+                name, cname, r["detail_mad"], (1 - r["detail_mad"] / h["detail_mad"]) * 100, r["ssim"], r["flicker"]),
+                flush=True)
     return 0
 
 

@@ -25,21 +25,21 @@ W, H = 360, 240
 OBJ_X, OBJ_Y, OBJ_W, OBJ_H = 170, 60, 90, 120
 
 
-def scene(d, in_a=True, in_b=True, noise=1.0, seed=3):
+def scene(d, in_a=True, in_b=True, noise=1.0, seed=3, top=OBJ_Y, height=OBJ_H):
     """Views a and b of one background (a crop of the boat photo: sky, water, buildings) with a
     textured object (a crop of the aerial photo) at OBJ_X in a and OBJ_X + d in b."""
     bg = cv2.resize(gray("boat1_1600.jpg"), (W * 2, H * 2), interpolation=cv2.INTER_AREA)[100:100 + H, 200:200 + W]
-    tex = gray("aero1.jpg")[40:40 + OBJ_H, 60:60 + OBJ_W]
+    tex = gray("aero1.jpg")[40:40 + height, 60:60 + OBJ_W]
     a, b = bg.copy(), bg.copy()
     if in_a:
-        a[OBJ_Y:OBJ_Y + OBJ_H, OBJ_X:OBJ_X + OBJ_W] = tex
+        a[top:top + height, OBJ_X:OBJ_X + OBJ_W] = tex
     if in_b:
-        b[OBJ_Y:OBJ_Y + OBJ_H, OBJ_X + d:OBJ_X + d + OBJ_W] = tex
+        b[top:top + height, OBJ_X + d:OBJ_X + d + OBJ_W] = tex
     rng = np.random.default_rng(seed)
     a += rng.normal(0, noise, a.shape).astype(np.float32)
     b += rng.normal(0, noise, b.shape).astype(np.float32)
     truth = np.zeros((H, W), bool)
-    truth[OBJ_Y:OBJ_Y + OBJ_H, OBJ_X:OBJ_X + OBJ_W] = True
+    truth[top:top + height, OBJ_X:OBJ_X + OBJ_W] = True
     return a, b, truth
 
 
@@ -81,6 +81,12 @@ class Move(unittest.TestCase):
         a, _, _ = scene(-40)
         for blob in estimate(a, black):  # one view black: whatever is found must not be a move of it
             self.assertFalse(blob[0].any() and np.isnan(blob[1]))
+
+    def test_a_disagreement_as_tall_as_the_overlap_is_not_moved(self):
+        # a whole overlap of varying depth (a corridor, real hallway set) is no object in front
+        # of a background: one displacement for it would tear the overlap apart
+        a, b, _ = scene(-40, top=0, height=H)
+        self.assertEqual([x for x in estimate(a, b) if x[0].any()], [])
 
     def test_an_object_only_one_view_shows_is_not_moved(self):
         for in_a in (False, True):
