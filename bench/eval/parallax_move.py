@@ -86,6 +86,9 @@ def estimate_blobs(ya, yb, overlap, args, max_disp, direction=None):
     """[(mask_a, dx, dy, score)] for the disagreement blobs of one overlap."""
     diff = cv2.GaussianBlur(np.abs(ya - yb), (0, 0), 2.0)
     dis = (diff > args.disagree) & overlap
+    # the overlap's rim (resampling at the views' borders) disagrees a little everywhere, and
+    # joins every blob to it: the tallness test below looks inside the rim only
+    inner = cv2.erode(overlap.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
     dis = cv2.morphologyEx(dis.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
     n, lab, stats, _ = cv2.connectedComponentsWithStats(dis, connectivity=8)
     out = []
@@ -96,8 +99,9 @@ def estimate_blobs(ya, yb, overlap, args, max_disp, direction=None):
         x, y, w, h = stats[k, :4]
         # A near object is a compact blob in front of an aligned background: a blob as tall as the
         # overlap itself (a whole overlap of varying depth, e.g. a corridor) is no object to move.
-        rows = np.nonzero(overlap[:, x:x + w].any(axis=1))[0]
-        if len(rows) and h >= args.tallest * (rows[-1] - rows[0] + 1):
+        rows = np.nonzero(inner[:, x:x + w].any(axis=1))[0]
+        own = np.nonzero((blob & inner)[:, x:x + w].any(axis=1))[0]
+        if len(rows) and len(own) and own[-1] - own[0] + 1 >= args.tallest * (rows[-1] - rows[0] + 1):
             continue
         # the search line: the epipolar direction (near points move one way only), or both ways
         # along the rows when the rig has no baseline
