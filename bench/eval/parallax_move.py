@@ -285,8 +285,10 @@ def apply_moves(out, views, valid, theta, a, b, blobs):
         na = valid[a] & ~cv2.dilate(ma.astype(np.uint8), np.ones((EXCL, EXCL), np.uint8)).astype(bool)
         nb = valid[b] & ~cv2.dilate(mb.astype(np.uint8), np.ones((EXCL, EXCL), np.uint8)).astype(bool)
         ga, gb = theta[a] * na, theta[b] * nb
-        # recomposed: around the two copies only (elsewhere the base output stays)
-        region = (cv2.dilate((ma | mb).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0) & (valid[a] | valid[b])
+        # recomposed: the pair's whole overlap and the copies (once the views agree on the object,
+        # a blend after the move is their weighted mean there; keeping the base output around the
+        # copies kept its cuts through them: near s1 background 48.13 dB instead of 48.32)
+        region = (overlap | ma | mb) & (valid[a] | valid[b])
         gsum = ga + gb
         bg = (ga[..., None] * views[a] + gb[..., None] * views[b]) / np.maximum(gsum, 1e-9)[..., None]
         use_bg = region & (gsum > 1e-6)
