@@ -1369,3 +1369,31 @@ TEST(CalibSession, StreamWaitsForAReturningCameraOnlyWhenTheCamerasAreNotLive) {
   for (const JobKind k : {JobKind::Pooled, JobKind::Recalibration, JobKind::Lens, JobKind::DriftCheck})
     for (const bool live : {false, true}) EXPECT_FALSE(stream_waits_for_job(k, true, live)) << job_kind_name(k);
 }
+
+// The same source given to two pads: said once, by the cameras' indices; a camera that only
+// looks alike (another crop of the photo) or is dark is not taken for it.
+TEST(CalibSession, TheSameSourceTwiceIsSaid) {
+  const auto good = crops(3);
+  std::vector<cv::Mat> noisy = {good[0], good[0].clone(), good[1]};
+  cv::Mat noise(noisy[1].size(), CV_8UC4);
+  cv::randu(noise, 0, 2);  // a re-encode's differences
+  noisy[1] += noise;
+  std::vector<ImageView> views;
+  for (const auto& m : noisy) views.push_back(view_of(m));
+  const auto same = identical_views(views);
+  ASSERT_EQ(same.size(), 1u);
+  EXPECT_EQ(same[0], std::make_pair(0, 1));
+  EXPECT_TRUE(identical_views(views, 0b10).empty());  // camera 1 skipped (left out)
+  std::vector<ImageView> distinct;
+  for (const auto& m : good) distinct.push_back(view_of(m));
+  EXPECT_TRUE(identical_views(distinct).empty());
+  // Through the session: the warning names both cameras, once.
+  CalibSession s;
+  s.set_config(quick());
+  const std::vector<cv::Mat> twice = {good[0], good[0], good[1]};
+  int said = 0;
+  for (int f = 0; f < 3; ++f)
+    for (const SessionEvent& e : feed(s, f, twice))
+      said += e.type == SessionEvent::Type::Warning && e.text.find("camera 0 and camera 1 show the same picture") != std::string::npos;
+  EXPECT_EQ(said, 1);
+}

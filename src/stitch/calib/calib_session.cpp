@@ -204,6 +204,27 @@ bool cancel_at_end_of_stream(JobKind kind, bool calibrated, bool saving) {
   return !saving && (kind == JobKind::Pooled || (kind == JobKind::First && calibrated));
 }
 
+std::vector<std::pair<int, int>> identical_views(const std::vector<ImageView>& views, std::uint64_t skip) {
+  constexpr int kAcross = 64;
+  std::vector<cv::Mat> small(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    if ((i < 64 && (skip >> i & 1)) || views[i].empty()) continue;
+    const int h = std::max(1, int(std::lround(double(kAcross) * views[i].height / views[i].width)));
+    cv::resize(as_mat(views[i]), small[i], cv::Size(kAcross, h), 0, 0, cv::INTER_AREA);
+  }
+  std::vector<std::pair<int, int>> same;
+  for (std::size_t i = 0; i < views.size(); ++i)
+    for (std::size_t j = i + 1; j < views.size(); ++j) {
+      if (small[i].empty() || small[j].empty() || views[i].width != views[j].width || views[i].height != views[j].height)
+        continue;
+      cv::Mat diff;
+      cv::absdiff(small[i], small[j], diff);
+      const cv::Scalar m = cv::mean(diff);
+      if (m[0] + m[1] + m[2] < 3.0) same.emplace_back(int(i), int(j));
+    }
+  return same;
+}
+
 bool stream_waits_for_job(JobKind kind, bool calibrated, bool live) {
   return !calibrated || (kind == JobKind::First && !live);
 }
@@ -1363,6 +1384,12 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       pending(problem + leave_out_blocked_);
       return nullptr;
     }
+    if (have_pixels && !identical_warned_)
+      for (const auto& [a, b] : identical_views(views, leave)) {
+        warn("camera " + std::to_string(a) + " and camera " + std::to_string(b) +
+             " show the same picture (the same source given twice?): they overlap completely and are stitched as one view");
+        identical_warned_ = true;
+      }
     auto job = make_job(JobKind::First);
     if (have_pixels) {
       job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));

@@ -110,6 +110,11 @@ bool cancel_at_end_of_stream(JobKind kind, bool calibrated, bool saving);
 // first calibration does. Live cameras go on without it meanwhile: the panorama must not stop.
 bool stream_waits_for_job(JobKind kind, bool calibrated, bool live);
 
+// Pairs (i, j), i < j, of views of one size that show the same picture (mean absolute difference
+// under 1 grey level at 64 px across): the same source given to two pads. Views in `skip` and
+// empty ones are not compared.
+std::vector<std::pair<int, int>> identical_views(const std::vector<ImageView>& views, std::uint64_t skip = 0);
+
 // Owned copies of one bundle's views (RGBA).
 struct FrameSet {
   std::vector<cv::Mat> images;
@@ -403,6 +408,7 @@ class CalibSession {
   std::vector<unsigned> camera_ids_;  // the inputs of sizes_ (Frame::camera_ids), when known
   bool keep_remaining_cameras(const Frame& frame);
   bool shows_nothing(const ImageView& view) const;  // a camera to leave out (dark, or featureless)
+  bool identical_warned_ = false;  // "the same picture" said once a session
   int panorama_w_ = 0, panorama_h_ = 0;  // kept over recalibrations
   // The panorama size a calibration from scratch mid-stream (a resize, a camera added or back)
   // is fitted into: stitchblend's output, which encoders and muxers cannot see change.
