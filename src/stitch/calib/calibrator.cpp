@@ -445,6 +445,71 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
   return p;
 }
 
+// A pair refused for too few consistent matches, looked at again once the other pairs have
+// placed both cameras: its matches within `tolerance` px of `predicted` (a -> b pixels from the
+// fitted rotations) that one homography explains (RANSAC) are kept when there are at least
+// kRescueMinInliers. Chance cannot line up that many matches with a geometry fitted without
+// them; without them a 360-degree ring's closing pair is tied by nothing and takes the ring's
+// whole closure error on one seam (probe4: 8-21 px there, 0.2-0.4 px on the fitted pairs).
+constexpr int kRescueMinInliers = 8;
+constexpr double kRescueTolerancePx = 40.0;
+PairData rematch_pair_near(const FeatureSets& feats, int a, int b, const CalibrationOptions& o,
+                           const Eigen::Matrix3d& predicted, double tolerance) {
+  PairData p;
+  p.a = a;
+  p.b = b;
+  std::vector<cv::Point2f> pa, pb;
+  std::vector<double> size;
+  for (const auto& f : feats)
+    for (const auto& mt : match(f[a], f[b], o.features)) {
+      const cv::Point2f qa = f[a].keypoints[mt.queryIdx].pt, qb = f[b].keypoints[mt.trainIdx].pt;
+      ++p.matches;
+      const Eigen::Vector3d h = predicted * Eigen::Vector3d(qa.x, qa.y, 1.0);
+      if (!(h.z() > 1e-9) || (h.head<2>() / h.z() - Eigen::Vector2d(qb.x, qb.y)).norm() > tolerance) continue;
+      pa.push_back(qa);
+      pb.push_back(qb);
+      size.push_back(0.5 * (f[a].keypoints[mt.queryIdx].size + f[b].keypoints[mt.trainIdx].size));
+    }
+  if (int(pa.size()) < kRescueMinInliers) return p;
+  std::vector<uchar> inl;
+  const cv::Mat H = cv::findHomography(pa, pb, cv::RANSAC, o.ransac_threshold_px, inl, 2000, 0.995);
+  if (H.empty()) return p;
+  p.H = to_eigen(H);
+  p.inliers = cv::countNonZero(inl);
+  if (p.inliers < kRescueMinInliers) return p;
+  int kept = 0;
+  const int every = std::max(o.holdout_every, 0);
+  for (std::size_t k = 0; k < pa.size(); ++k) {
+    if (!inl[k]) continue;
+    p.pa.emplace_back(pa[k].x, pa[k].y);
+    p.pb.emplace_back(pb[k].x, pb[k].y);
+    p.weight.push_back(std::min(1.0, kWeightSize / std::max(size[k], 1e-3)));
+    p.held.push_back(every >= 2 && kept % every == every / 2);
+    ++kept;
+  }
+  p.ok = true;
+  p.note = "kept: " + std::to_string(kept) + " matches agree with the rotations the other pairs fit";
+  return p;
+}
+
+// Every refused pinhole pair whose views the fitted rotations overlap, matched again near that
+// geometry (rematch_pair_near); true when one was kept.
+bool rescue_pairs_by_rotations(const Rig& rig, const FeatureSets& feats, std::vector<PairData>& pairs,
+                               const CalibrationOptions& o) {
+  bool any = false;
+  for (auto& p : pairs) {
+    if (p.ok || p.rays) continue;
+    const Camera &A = rig.cameras[std::size_t(p.a)], &B = rig.cameras[std::size_t(p.b)];
+    if (!A.lens.pinhole() || !B.lens.pinhole()) continue;
+    const Eigen::Matrix3d Hab = B.K() * B.R().transpose() * A.R() * A.K().inverse();
+    PairData q = rematch_pair_near(feats, p.a, p.b, o, Hab, kRescueTolerancePx);
+    if (!q.ok) continue;
+    p = std::move(q);
+    any = true;
+  }
+  return any;
+}
+
 Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& M);
 
 // Half the field of view (radians) a camera sees through its lens: the largest angle off the
@@ -2229,6 +2294,17 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
     if (!fs.empty()) rot = start_with(0, median_of(fs));
     if (!rot.ok || rot.ba.rms_after_px > 1.0)
       for (double hfov : {40.0, 60.0, 80.0, 100.0}) rot = best_of(rot, start_with(hfov, 0));
+    // Refused pairs the fitted rotations overlap, matched again near them (rescue_pairs_by_
+    // rotations); kept only when the refit explains them as well as the others.
+    std::vector<PairData> before = pairs;
+    if (rot.ok && rot.ba.rms_after_px <= 2.0 && rescue_pairs_by_rotations(rot.rig, feats, pairs, o)) {
+      BundleAdjustOptions bo;
+      bo.cancel = o.cancel;
+      bo.deadline = o.deadline;
+      const RotationFit again = adjust(rot.rig, pairs, bo);
+      if (again.ok && again.ba.rms_after_px <= std::max(1.0, 1.5 * rot.ba.rms_after_px)) rot = again;
+      else pairs = std::move(before);
+    }
   }
   CalibrationResult res;
   res.heldout_matches = held;
