@@ -8,6 +8,9 @@
 #           rows): "camera 0 is corrupt (a torn picture ...)", first panorama at pts 3.0 s of 5 s.
 # ring8:    a 6-camera ring with 8% overlap (hfov 65 at 60 deg steps): no output at all.
 # wide4:    4 pinholes hfov 100 around 360 (10% overlap): no output.
+# wide4long: the same ring seen from the jobsite panorama rolled by a third, 100 frames: 1728x486
+#           (true 1687), closing seam 2-3 off by 48.7 px, rms 0.33 / alignment-camera-px 0.52, silent;
+#           the pooled recalibration is rejected (the WORST case of probe4).
 set -u
 HERE=$(cd "$(dirname "$0")/../.." && pwd)
 S=${STITCH_SHARED_DATA:-$HERE/../shared/data}
@@ -20,6 +23,10 @@ case $1 in
   ring) $R --out $O/ring --cams="$(ring 6 68)" && EVAL_LINES=8 $HERE/bench/eval/probe_case.sh $O/ring ;;
   ring8) $R --out $O/ring8 --cams="$(ring 6 65)" && $HERE/bench/eval/probe_case.sh $O/ring8 ;;
   wide4) $R --out $O/wide4 --cams="$(ring 4 100)" && $HERE/bench/eval/probe_case.sh $O/wide4 ;;
+  wide4long)
+    mkdir -p $O && /usr/bin/python3 -c "import cv2,numpy as np,sys; im=cv2.imread(sys.argv[1]); cv2.imwrite(sys.argv[2], np.roll(im, im.shape[1]//3, axis=1), [cv2.IMWRITE_JPEG_QUALITY, 95])" $J $O/jobsite_roll.jpg &&
+    /usr/bin/python3 $HERE/bench/eval/render_geom.py --photo $O/jobsite_roll.jpg --equirect 1 --frames 100 --out $O/wide4long --cams="$(ring 4 100)" &&
+    TMO=400 EVAL_LINES=5 $HERE/bench/eval/probe_case.sh $O/wide4long ;;
   sideways)
     $R --frames 150 --out $O/sideways --cams="-20,0,90,55,$L;15,0,0,55,$L" &&
     GST_PLUGIN_PATH=$HERE/build/gst timeout 200 gst-launch-1.0 -e -v stitchbin name=s ! videoconvert ! \
