@@ -446,6 +446,93 @@ PairData match_pair(const FeatureSets& feats, int a, int b, const CalibrationOpt
   return p;
 }
 
+// A pair refused for too few consistent matches, looked at again once the other pairs have
+// placed both cameras: of its matches within `tolerance` px of `predicted` (a -> b pixels from
+// the fitted rotations), the largest group that differs from the prediction by one shift (within
+// kRescueShiftPx: over a seam a small rotation error is nearly a shift) is kept when it holds at
+// least kRescueMinInliers. Chance does not put that many matches within a few pixels of one shift
+// of a geometry fitted without them (a random match lands in such a disc with p ~ 0.02); without
+// them a 360-degree ring's closing pair is tied by nothing and takes the ring's whole closure
+// error on one seam (probe4: 8-21 px there, 0.2-0.4 px on the fitted pairs, no warning).
+constexpr int kRescueMinInliers = 6;
+constexpr double kRescueTolerancePx = 40.0, kRescueShiftPx = 5.0;
+PairData rematch_pair_near(const FeatureSets& feats, int a, int b, const CalibrationOptions& o,
+                           const Eigen::Matrix3d& predicted, double tolerance) {
+  PairData p;
+  p.a = a;
+  p.b = b;
+  std::vector<Eigen::Vector2d> pa, pb, shift;
+  std::vector<double> size;
+  for (const auto& f : feats)
+    for (const auto& mt : match(f[a], f[b], o.features)) {
+      const cv::Point2f qa = f[a].keypoints[mt.queryIdx].pt, qb = f[b].keypoints[mt.trainIdx].pt;
+      ++p.matches;
+      const Eigen::Vector3d h = predicted * Eigen::Vector3d(qa.x, qa.y, 1.0);
+      if (!(h.z() > 1e-9)) continue;
+      const Eigen::Vector2d d = Eigen::Vector2d(qb.x, qb.y) - h.head<2>() / h.z();
+      if (d.norm() > tolerance) continue;
+      pa.emplace_back(qa.x, qa.y);
+      pb.emplace_back(qb.x, qb.y);
+      shift.push_back(d);
+      size.push_back(0.5 * (f[a].keypoints[mt.queryIdx].size + f[b].keypoints[mt.trainIdx].size));
+    }
+  // The shift most matches agree with.
+  std::vector<int> best;
+  for (std::size_t k = 0; k < shift.size(); ++k) {
+    std::vector<int> in;
+    for (std::size_t j = 0; j < shift.size(); ++j)
+      if ((shift[j] - shift[k]).norm() <= kRescueShiftPx) in.push_back(int(j));
+    if (in.size() > best.size()) best = std::move(in);
+  }
+  if (int(best.size()) < kRescueMinInliers) return p;
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (int k : best) mean += shift[std::size_t(k)];
+  mean /= double(best.size());
+  Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
+  T.block<2, 1>(0, 2) = mean;
+  p.H = T * predicted;
+  p.inliers = int(best.size());
+  const int every = std::max(o.holdout_every, 0);
+  int kept = 0;
+  for (int k : best) {
+    p.pa.push_back(pa[std::size_t(k)]);
+    p.pb.push_back(pb[std::size_t(k)]);
+    p.weight.push_back(std::min(1.0, kWeightSize / std::max(size[std::size_t(k)], 1e-3)));
+    p.held.push_back(every >= 2 && kept % every == every / 2);
+    ++kept;
+  }
+  p.ok = true;
+  p.note = "kept: " + std::to_string(kept) + " matches agree with the rotations the other pairs fit";
+  return p;
+}
+
+// Every refused pinhole pair whose views the fitted rotations overlap, matched again near that
+// geometry (rematch_pair_near); true when one was kept.
+bool rescue_pairs_by_rotations(const Rig& rig, const FeatureSets& feats, std::vector<PairData>& pairs,
+                               const CalibrationOptions& o) {
+  bool any = false;
+  for (auto& p : pairs) {
+    if (p.ok || p.rays) continue;
+    const Camera &A = rig.cameras[std::size_t(p.a)], &B = rig.cameras[std::size_t(p.b)];
+    if (!A.lens.pinhole() || !B.lens.pinhole()) continue;
+    const Eigen::Matrix3d Hab = B.K() * B.R().transpose() * A.R() * A.K().inverse();
+    // Only views the fitted rotations overlap (a 9 x 9 grid of A, at least 3 points in B).
+    int seen = 0;
+    for (int gy = 0; gy < 9; ++gy)
+      for (int gx = 0; gx < 9; ++gx) {
+        const Eigen::Vector3d q = Hab * Eigen::Vector3d((A.width - 1) * gx / 8.0, (A.height - 1) * gy / 8.0, 1.0);
+        if (q.z() > 1e-9 && q.x() >= 0 && q.y() >= 0 && q.x() <= (B.width - 1) * q.z() && q.y() <= (B.height - 1) * q.z())
+          ++seen;
+      }
+    if (seen < 3) continue;
+    PairData q = rematch_pair_near(feats, p.a, p.b, o, Hab, kRescueTolerancePx);
+    if (!q.ok) continue;
+    p = std::move(q);
+    any = true;
+  }
+  return any;
+}
+
 Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& M);
 
 // Half the field of view (radians) a camera sees through its lens: the largest angle off the
@@ -2462,6 +2549,17 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
     if (!fs.empty()) rot = start_with(0, median_of(fs));
     if (!rot.ok || rot.ba.rms_after_px > 1.0)
       for (double hfov : {40.0, 60.0, 80.0, 100.0}) rot = best_of(rot, start_with(hfov, 0));
+    // Refused pairs the fitted rotations overlap, matched again near them (rescue_pairs_by_
+    // rotations); kept only when the refit explains them as well as the others.
+    std::vector<PairData> before = pairs;
+    if (rot.ok && rot.ba.rms_after_px <= 2.0 && rescue_pairs_by_rotations(rot.rig, feats, pairs, o)) {
+      BundleAdjustOptions bo;
+      bo.cancel = o.cancel;
+      bo.deadline = o.deadline;
+      const RotationFit again = adjust(rot.rig, pairs, bo);
+      if (again.ok && again.ba.rms_after_px <= std::max(1.0, 1.5 * rot.ba.rms_after_px)) rot = again;
+      else pairs = std::move(before);
+    }
   }
   CalibrationResult res;
   res.heldout_matches = held;
