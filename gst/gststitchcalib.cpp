@@ -63,8 +63,11 @@
  *   running time (4 s) before the first calibration is left out of it: the others (two at least)
  *   are calibrated and stitched, its view is marked missing, a warning and the message's
  *   `left-out` (camera indices) name it, and save-file is not written. When it shows a picture
- *   it joins, with a calibration from scratch made in the background: the panorama goes on
- *   without it until that calibration is ready (a failed one is tried again a little later).
+ *   it joins, with a calibration from scratch: live cameras get it in the background, the
+ *   panorama going on without the camera until it is ready (a failed one is tried again a
+ *   little later); with non-live inputs (files) the stream waits for it, so the camera is back
+ *   from about the frame it came back on, whatever the machine's load.
+ * - The same source given to two pads (identical pictures) is said in a warning.
  *   A camera that starts at a size other than its placeholder's is
  *   calibrated in from scratch at once.
  * - A `load-file` is checked against the images once: a warning names the cameras it does not
