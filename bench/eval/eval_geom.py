@@ -9,16 +9,11 @@ the cameras' rays R K^-1, pinhole) and by the truth (K_j R_j^T R_i K_i^-1); prin
 median and 95th percentile distance in camera-j pixels and the worst pair. A camera the
 calibration left out counts as a failed pair (inf).
 """
-import json, math, sys
+import json, math, os, sys
 import numpy as np
 
-
-def rot(yaw, pitch, roll):
-    y, p, r = (math.radians(v) for v in (yaw, pitch, roll))
-    Ry = np.array([[math.cos(y), 0, math.sin(y)], [0, 1, 0], [-math.sin(y), 0, math.cos(y)]])
-    Rx = np.array([[1, 0, 0], [0, math.cos(p), -math.sin(p)], [0, math.sin(p), math.cos(p)]])
-    Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
-    return Ry @ Rx @ Rz
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from render_geom import rot  # noqa: E402  (the truth's rotation convention)
 
 
 def main():
