@@ -5,7 +5,8 @@
 #           whose overlap is a textureless duct does not match and takes the whole ring-closure
 #           error (11 px, eval_geom pair 1-2) while the bus says alignment-camera-px 0.24.
 # sideways: a camera rolled 90 deg beside an upright one (vertical studs become horizontal
-#           rows): "camera 0 is corrupt (a torn picture ...)", first panorama at pts 3.0 s of 5 s.
+#           rows): "camera 0 is corrupt (a torn picture ...)", first panorama at pts 3.0 s of 5 s
+#           (fixed 2026-11-25: a tear must lie on a coded block's boundary; now pts 0).
 # ring8:    a 6-camera ring with 8% overlap (hfov 65 at 60 deg steps): no output at all.
 # wide4:    4 pinholes hfov 100 around 360 (10% overlap): no output.
 # wide4long: the same ring seen from the jobsite panorama rolled by a third, 100 frames: 1728x486

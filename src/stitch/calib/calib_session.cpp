@@ -64,6 +64,41 @@ std::string FrameQuality::describe() const {
   return "?";
 }
 
+namespace {
+
+// A decoder that loses part of a frame loses whole coded blocks (JPEG MCUs of 8/16 rows,
+// H.264/H.265/VP9/AV1 macroblocks and superblocks of 16-128 rows), so a broken keyframe's seam
+// lies between two rows of a multiple of 8, and changes the picture at once: one row boundary,
+// not an edge the lens spread over two rows. A strong horizontal edge of the scene (a shelf, a
+// rolled camera's studs: probe4 lost the first 3 s of such a rig) sits anywhere.
+// `row_fraction` is the tear as assess_frame found it on its small copy.
+bool tear_on_a_block_boundary(const cv::Mat& rgba, double row_fraction) {
+  const int h = rgba.rows, w = rgba.cols;
+  if (h < 16) return true;
+  const int centre = int(std::lround(row_fraction * h));
+  const int reach = std::max(3, int(std::ceil(2.0 * w / 320.0)) + 2);  // the small copy's row, in full rows
+  const int lo = std::max(0, centre - reach), hi = std::min(h - 2, centre + reach);
+  std::vector<double> step;  // step[k]: mean |row (lo+k+1) - row (lo+k)| over the width
+  cv::Mat grey;
+  cv::cvtColor(rgba.rowRange(lo, hi + 2), grey, cv::COLOR_RGBA2GRAY);
+  for (int y = 0; y + 1 < grey.rows; ++y) {
+    const uint8_t* a = grey.ptr<uint8_t>(y);
+    const uint8_t* b = grey.ptr<uint8_t>(y + 1);
+    double sum = 0;
+    for (int x = 0; x < w; ++x) sum += std::abs(int(a[x]) - int(b[x]));
+    step.push_back(sum / w);
+  }
+  if (step.empty()) return true;
+  const std::size_t at = std::size_t(std::max_element(step.begin(), step.end()) - step.begin());
+  double next = 0;  // the strongest other boundary within two rows
+  for (std::size_t k = at >= 2 ? at - 2 : 0; k <= std::min(step.size() - 1, at + 2); ++k)
+    if (k != at) next = std::max(next, step[k]);
+  const int first_row_below = lo + int(at) + 1;
+  return first_row_below % 8 == 0 && step[at] >= 1.5 * next;
+}
+
+}  // namespace
+
 FrameQuality assess_frame(const ImageView& v) {
   FrameQuality q;
   if (v.empty() || v.on_device) {
@@ -126,6 +161,7 @@ FrameQuality assess_frame(const ImageView& v) {
       }
     }
   }
+  if (q.tear > 4 && !tear_on_a_block_boundary(rgba, q.tear_row)) q.tear = std::min(q.tear, 4.0);
   if (q.mean_luma < 16) q.verdict = FrameVerdict::Dark;
   else if (q.tear > 4) q.verdict = FrameVerdict::Corrupt;  // natural frames of the real clips: <= 3.1
   else if (q.contrast >= 8 && q.sharpness < 20) q.verdict = FrameVerdict::Blurred;  // real clips: >= 440
