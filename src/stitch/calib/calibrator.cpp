@@ -2138,21 +2138,72 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
 // match_pair_rays once it has a start), and the cameras are placed along the tree of pairs with the
 // most inliers from the reference: side by side, a ring or any layout, pads in any order. That
 // rough rig (fisheye lenses to estimate, spherical canvas) goes to calibrate_from_rig; the fit the
-// held-out matches like best is kept. nullopt: no guess gave a whole, usable fit.
-constexpr double kFullFrameFisheyeFitMaxPx = 1.5;
+// held-out matches like best is kept. `pinhole`: the pinhole path's rig, when it gave one: the same
+// count of ray inliers (within 2 px) through its (rectilinear) cameras must be beaten by a quarter, else the
+// lenses are not wide fisheyes and nothing more is tried (a second of matching, no calibration).
+// nullopt: no guess gave a whole, usable fit (why_not says why).
+constexpr double kFullFrameFisheyeFitMaxPx = 1.5, kFullFrameFisheyeInlierGain = 1.25, kLensCompareThrPx = 2.0;
+namespace {
+struct RayRotations {
+  std::vector<std::vector<int>> count;  // inliers of each pair's rotation (0: none)
+  std::vector<std::vector<Eigen::Matrix3d>> Q;  // Q[a][b] takes a's rays to b's
+  long total = 0;
+};
+}  // namespace
+// thr_px > 0: inliers within thr_px camera pixels (at the rig's smallest focal length), to
+// compare lens guesses fairly; else within 1.5 degrees.
+static RayRotations pairwise_ray_rotations(const FeatureSets& feats, const Rig& rig, const CalibrationOptions& o,
+                                           double thr_px = 0) {
+  const int n = int(rig.cameras.size());
+  // A guess off the lens by 20 degrees moves the frame's edge rays by a few degrees: the rough
+  // rotations need only be close enough for calibrate_from_rig's ray matching (its tolerance).
+  double f = std::numeric_limits<double>::infinity();
+  for (const auto& c : rig.cameras) f = std::min(f, c.fx);
+  const double cos_thr = std::cos(thr_px > 0 ? thr_px / f : 1.5 * kPi / 180.0);
+  constexpr int kMinPairInliers = 20;
+  RayRotations out;
+  out.count.assign(std::size_t(n), std::vector<int>(std::size_t(n), 0));
+  out.Q.assign(std::size_t(n), std::vector<Eigen::Matrix3d>(std::size_t(n), Eigen::Matrix3d::Identity()));
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      throw_if_cancelled(o);
+      std::vector<Eigen::Vector3d> ua, ub;
+      for_each_matched_ray(feats, a, b, o, rig.cameras[std::size_t(a)], rig.cameras[std::size_t(b)],
+                           [&](const Eigen::Vector3d& ra, const Eigen::Vector3d& rb, const cv::KeyPoint&,
+                               const cv::KeyPoint&) {
+                             ua.push_back(ra.normalized());
+                             ub.push_back(rb.normalized());
+                           });
+      if (ua.size() < std::size_t(kMinPairInliers)) continue;
+      std::vector<int> all(ua.size());
+      std::iota(all.begin(), all.end(), 0);
+      std::vector<int> in = ray_rotation_inliers(ua, ub, all, Eigen::Matrix3d::Identity(), cos_thr, 1000);
+      for (int round = 0; round < 3 && in.size() >= 3; ++round)
+        in = ray_rotation_inliers(ua, ub, all, kabsch(ua, ub, in), cos_thr, 0);
+      if (int(in.size()) < kMinPairInliers) continue;
+      const Eigen::Matrix3d q = kabsch(ua, ub, in);
+      out.count[std::size_t(a)][std::size_t(b)] = out.count[std::size_t(b)][std::size_t(a)] = int(in.size());
+      out.Q[std::size_t(a)][std::size_t(b)] = q;
+      out.Q[std::size_t(b)][std::size_t(a)] = q.transpose();
+      out.total += long(in.size());
+    }
+  return out;
+}
+
 static std::optional<CalibrationResult> calibrate_full_frame_fisheyes(const std::vector<std::vector<ImageView>>& sets,
                                                                       int reference, const CalibrationOptions& o,
-                                                                      std::string& why_not) {
+                                                                      const Rig* pinhole, std::string& why_not) {
   const int n = sets.empty() ? 0 : int(sets[0].size());
   if (n < 2) return std::nullopt;
   reference = reference >= 0 && reference < n ? reference : 0;
   const FeatureSets feats = detect_all(sets, n, o);
-  std::optional<CalibrationResult> best;
-  double best_error = std::numeric_limits<double>::infinity(), best_fov = 0;
-  // A guess off the lens by 20 degrees moves the frame's edge rays by a few degrees: the rough
-  // rotations need only be close enough for calibrate_from_rig's ray matching (its tolerance).
-  const double cos_thr = std::cos(1.5 * kPi / 180.0);
-  constexpr int kMinPairInliers = 20;
+  struct Guess {
+    double fov;
+    Rig rough;
+    RayRotations rotations;
+  };
+  std::vector<Guess> guesses;
+  long best_total = 0;
   for (const double fov : {150.0, 125.0, 170.0}) {
     Rig rough;
     rough.projection = "spherical";
@@ -2168,31 +2219,23 @@ static std::optional<CalibrationResult> calibrate_full_frame_fisheyes(const std:
       c.lens.estimate = true;
       rough.cameras.push_back(c);
     }
-    // Pairwise rotations from the rays alone: Q[a][b] takes a's rays to b's.
-    std::vector<std::vector<int>> count(std::size_t(n), std::vector<int>(std::size_t(n), 0));
-    std::vector<std::vector<Eigen::Matrix3d>> Q(std::size_t(n), std::vector<Eigen::Matrix3d>(std::size_t(n), Eigen::Matrix3d::Identity()));
-    for (int a = 0; a < n; ++a)
-      for (int b = a + 1; b < n; ++b) {
-        throw_if_cancelled(o);
-        std::vector<Eigen::Vector3d> ua, ub;
-        for_each_matched_ray(feats, a, b, o, rough.cameras[std::size_t(a)], rough.cameras[std::size_t(b)],
-                             [&](const Eigen::Vector3d& ra, const Eigen::Vector3d& rb, const cv::KeyPoint&,
-                                 const cv::KeyPoint&) {
-                               ua.push_back(ra.normalized());
-                               ub.push_back(rb.normalized());
-                             });
-        if (ua.size() < std::size_t(kMinPairInliers)) continue;
-        std::vector<int> all(ua.size());
-        std::iota(all.begin(), all.end(), 0);
-        std::vector<int> in = ray_rotation_inliers(ua, ub, all, Eigen::Matrix3d::Identity(), cos_thr, 1000);
-        for (int round = 0; round < 3 && in.size() >= 3; ++round)
-          in = ray_rotation_inliers(ua, ub, all, kabsch(ua, ub, in), cos_thr, 0);
-        if (int(in.size()) < kMinPairInliers) continue;
-        const Eigen::Matrix3d q = kabsch(ua, ub, in);
-        count[std::size_t(a)][std::size_t(b)] = count[std::size_t(b)][std::size_t(a)] = int(in.size());
-        Q[std::size_t(a)][std::size_t(b)] = q;
-        Q[std::size_t(b)][std::size_t(a)] = q.transpose();
-      }
+    RayRotations rot = pairwise_ray_rotations(feats, rough, o);
+    if (pinhole) best_total = std::max(best_total, pairwise_ray_rotations(feats, rough, o, kLensCompareThrPx).total);
+    guesses.push_back({fov, std::move(rough), std::move(rot)});
+  }
+  if (pinhole && int(pinhole->cameras.size()) == n) {
+    Rig flat = *pinhole;
+    for (auto& c : flat.cameras) c.lens = Lens{}, c.homography.reset();
+    const long pinhole_total = pairwise_ray_rotations(feats, flat, o, kLensCompareThrPx).total;
+    if (!(double(best_total) > kFullFrameFisheyeInlierGain * double(pinhole_total))) {
+      why_not = "the matches fit rectilinear lenses as well (" + std::to_string(pinhole_total) + " ray inliers vs " +
+                std::to_string(best_total) + " through a fisheye guess)";
+      return std::nullopt;
+    }
+  }
+  std::optional<CalibrationResult> best;
+  double best_error = std::numeric_limits<double>::infinity(), best_fov = 0;
+  for (Guess& g : guesses) {
     // The tree of the strongest pairs from the reference (Prim): R_b = R_a Q_ab^T.
     std::vector<char> placed(std::size_t(n), 0);
     std::vector<Eigen::Matrix3d> R(std::size_t(n), Eigen::Matrix3d::Identity());
@@ -2201,24 +2244,24 @@ static std::optional<CalibrationResult> calibrate_full_frame_fisheyes(const std:
       int from = -1, to = -1, top = 0;
       for (int a = 0; a < n; ++a)
         for (int b = 0; b < n; ++b)
-          if (placed[std::size_t(a)] && !placed[std::size_t(b)] && count[std::size_t(a)][std::size_t(b)] > top)
-            top = count[std::size_t(a)][std::size_t(b)], from = a, to = b;
+          if (placed[std::size_t(a)] && !placed[std::size_t(b)] && g.rotations.count[std::size_t(a)][std::size_t(b)] > top)
+            top = g.rotations.count[std::size_t(a)][std::size_t(b)], from = a, to = b;
       if (to < 0) break;
-      R[std::size_t(to)] = R[std::size_t(from)] * Q[std::size_t(from)][std::size_t(to)].transpose();
+      R[std::size_t(to)] = R[std::size_t(from)] * g.rotations.Q[std::size_t(from)][std::size_t(to)].transpose();
       placed[std::size_t(to)] = 1;
     }
     if (std::count(placed.begin(), placed.end(), 1) < n) {
-      why_not = "at a guessed " + std::to_string(int(fov)) + "-degree fisheye lens, not every camera shares matched rays "
-                "with the others";
+      why_not = "at a guessed " + std::to_string(int(g.fov)) + "-degree fisheye lens, not every camera shares matched "
+                "rays with the others";
       continue;
     }
-    for (int i = 0; i < n; ++i) rough.cameras[std::size_t(i)].set_R(R[std::size_t(i)]);
+    for (int i = 0; i < n; ++i) g.rough.cameras[std::size_t(i)].set_R(R[std::size_t(i)]);
     try {
-      CalibrationResult r = calibrate_from_rig(rough, sets, o);
+      CalibrationResult r = calibrate_from_rig(g.rough, sets, o);
       const double error = r.rotation_heldout_px > 0 ? r.rotation_heldout_px : r.ba_rms_after_px;
       if (r.refined_cameras < n || !(error > 0) || !(error < best_error)) continue;
       best_error = error;
-      best_fov = fov;
+      best_fov = g.fov;
       best = std::move(r);
     } catch (const CalibrationCancelled&) {
       throw;
@@ -2531,19 +2574,24 @@ CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vecto
 
 constexpr double kFisheyeFallbackPoorPx = 1.5;
 // The full-frame fisheye attempt of calibrate_from_images: when the pinhole path failed
-// (pinhole_px < 0) or left more than kWideLensPoorPinholePx held out on frames at least
-// kWideLensMinAspect wide (a rectilinear camera's poor fit is parallax, not a lens); kept only
-// when it halves the pinhole error.
-constexpr double kWideLensPoorPinholePx = 1.5;
+// (pin null) or left more than kWideLensPoorPinholePx held out, and the matched rays fit a
+// guessed fisheye clearly better than its rectilinear cameras (calibrate_full_frame_fisheyes);
+// kept only when it wins by the lens evidence rule (lens_evidence_wins). Pixels alone do not tell: a row of 3 x 140 degrees
+// at 384 px held 1.1 px out with homographies, its seams 40-130 px at 1280.
+constexpr double kWideLensPoorPinholePx = 0.3;
 static std::optional<CalibrationResult> full_frame_fisheyes_instead(const std::vector<std::vector<ImageView>>& sets,
                                                                     int reference, const CalibrationOptions& o,
-                                                                    double pinhole_px, std::string& why_not) {
+                                                                    const CalibrationResult* pin, double pinhole_px,
+                                                                    std::string& why_not) {
   if (!o.full_frame_fisheyes || sets.empty() || sets[0].size() < 2) return std::nullopt;
-  if (pinhole_px >= 0 && !(pinhole_px > kWideLensPoorPinholePx)) return std::nullopt;
-  std::optional<CalibrationResult> wide = calibrate_full_frame_fisheyes(sets, reference, o, why_not);
+  // A pinhole fit that holds within a third of a pixel is not bent by a wide lens.
+  if (pin && !(pinhole_px > kWideLensPoorPinholePx)) return std::nullopt;
+  std::optional<CalibrationResult> wide = calibrate_full_frame_fisheyes(sets, reference, o, pin ? &pin->rig : nullptr, why_not);
+  const double error = !wide ? -1 : wide->rotation_heldout_px > 0 ? wide->rotation_heldout_px : wide->ba_rms_after_px;
+  if (std::getenv("STITCH_DEBUG_WIDE"))
+    std::fprintf(stderr, "full-frame fisheyes: pinhole %.3f px, fisheye %.3f px; %s\n", pinhole_px, error, why_not.c_str());
   if (!wide) return std::nullopt;
-  const double error = wide->rotation_heldout_px > 0 ? wide->rotation_heldout_px : wide->ba_rms_after_px;
-  if (pinhole_px >= 0 && !(error < 0.5 * pinhole_px)) return std::nullopt;
+  if (pin && !lens_evidence_wins(pinhole_px, error)) return std::nullopt;  // as any lens from the images
   return wide;
 }
 
@@ -2565,7 +2613,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   } catch (const RigError& e) {
     if (fisheye_error.empty()) {
       std::string why_not;
-      if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, -1, why_not)) return *wide;
+      if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, nullptr, -1, why_not)) return *wide;
       if (why_not.empty()) throw;
       throw RigError(std::string(e.what()) + "; as full-frame fisheyes: " + why_not);
     }
@@ -2574,7 +2622,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   if (fisheye_error.empty()) {
     std::string why_not;
     const double held = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
-    if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, held, why_not)) return *wide;
+    if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, &pin, held, why_not)) return *wide;
   }
   // Image circles that no fisheye rig fitted, and a pinhole fit that is poor too (a fisheye ring
   // the guesses missed: 40 px held out): say so rather than hand back a panorama of discs
