@@ -2141,8 +2141,10 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
 // held-out matches like best is kept. `pinhole`: the pinhole path's rig, when it gave one: the same
 // count of ray inliers (within 2 px) through its (rectilinear) cameras must be beaten by a quarter, else the
 // lenses are not wide fisheyes and nothing more is tried (a second of matching, no calibration).
-// nullopt: no guess gave a whole, usable fit (why_not says why).
-constexpr double kFullFrameFisheyeFitMaxPx = 1.5, kFullFrameFisheyeInlierGain = 1.25, kLensCompareThrPx = 2.0;
+// A fit that sees less than kFullFrameFisheyeMinFovDeg across the widest frame is a normal lens,
+// left to the radtan lens fit. nullopt: no guess gave a whole, usable wide fit (why_not says why).
+constexpr double kFullFrameFisheyeFitMaxPx = 1.5, kFullFrameFisheyeInlierGain = 1.25, kLensCompareThrPx = 2.0,
+                 kFullFrameFisheyeMinFovDeg = 100.0;
 namespace {
 struct RayRotations {
   std::vector<std::vector<int>> count;  // inliers of each pair's rotation (0: none)
@@ -2276,6 +2278,18 @@ static std::optional<CalibrationResult> calibrate_full_frame_fisheyes(const std:
     best.reset();
   }
   if (!best) return std::nullopt;
+  // A barrel lens of a normal field of view (a phone's k1 -0.35 over 66 degrees) fits the
+  // fisheye model too, but it is the radtan lens fit's (lens_fit_starts; the elements' lens job).
+  double widest = 0;
+  for (const auto& c : best->rig.cameras) {
+    Eigen::Vector3d left, right;
+    if (lens_unproject(c, {0.0, c.cy}, left) && lens_unproject(c, {c.width - 1.0, c.cy}, right))
+      widest = std::max(widest, std::acos(std::clamp(left.normalized().dot(right.normalized()), -1.0, 1.0)) * 180 / kPi);
+  }
+  if (widest < kFullFrameFisheyeMinFovDeg) {
+    why_not = "the fisheye fit sees " + std::to_string(int(widest)) + " degrees across, a normal lens";
+    return std::nullopt;
+  }
   best->warnings.erase(std::remove_if(best->warnings.begin(), best->warnings.end(),
                                       [](const std::string& w) {
                                         return w.find("given the fisheye model") != std::string::npos;
