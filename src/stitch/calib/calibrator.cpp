@@ -2628,7 +2628,9 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     if (fisheye_error.empty()) {
       std::string why_not;
       if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, nullptr, -1, why_not)) return *wide;
-      if (why_not.empty()) throw;
+      // Said only when a fisheye rig got as far as a fit: cameras that share no matches either
+      // way (a textureless view) keep the pinhole path's error alone.
+      if (why_not.empty() || why_not.rfind("at a guessed", 0) == 0) throw;
       throw RigError(std::string(e.what()) + "; as full-frame fisheyes: " + why_not);
     }
     throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
