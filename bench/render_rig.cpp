@@ -152,7 +152,9 @@ Options parse_args(int argc, char** argv) {
   if (o.cameras < 2 || o.cameras > 16) die(2, "--cameras must be between 2 and 16");
   if (o.lens != "pinhole" && o.lens != "radtan" && o.lens != "fisheye") die(2, "--lens must be pinhole, radtan or fisheye");
   if (o.lens == "fisheye" && !o.equirect) die(2, "--lens fisheye needs --equirect 1 (a planar photo cannot hold it)");
-  if (!(o.fov >= 90 && o.fov <= 280)) die(2, "--fov must be between 90 and 280 degrees");
+  // A full-frame fisheye (--circle 0, an action camera) sees 60-100 degrees across its shorter side.
+  if (!(o.fov >= (o.circle == 0 ? 50 : 90) && o.fov <= 280))
+    die(2, "--fov must be between 90 (50 with --circle 0) and 280 degrees");
   if (o.width < 16 || o.height < 16 || o.width > 8192 || o.height > 8192)
     die(2, "--width/--height must be between 16 and 8192");
   if (o.frames < 1 || o.frames > 100000) die(2, "--frames must be between 1 and 100000");

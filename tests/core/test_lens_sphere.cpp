@@ -700,3 +700,80 @@ TEST(PlaneCanvas, DualFisheyeWithoutAProjectionIsCalibratedOnASphere) {
   EXPECT_TRUE(names(q.warnings, "camera 0 (fisheye", "cannot show them"));
 }
 
+
+// Full-frame fisheyes (action cameras; branch probe-lens): no image circle, 140-150 degrees
+// across a 16:9 frame. The pinhole path folded ("degenerate homography": no panorama) or bent
+// them (a row of 3 x 140 degrees: 40-130 px seams, pinhole, no word). Now rotations are read
+// from matched rays through a guessed equidistant lens and the lenses estimated: a ring of 4 and
+// a row of 3 (pads out of order) within a pixel, said in a warning.
+namespace {
+Rig full_frame_fisheye_ring(int n, int width, int height, double hfov_deg) {
+  Rig rig;
+  rig.projection = "spherical";
+  for (int i = 0; i < n; ++i) {
+    Camera c;
+    c.width = width;
+    c.height = height;
+    c.cx = 0.5 * (width - 1);
+    c.cy = 0.5 * (height - 1);
+    c.fx = c.fy = 0.5 * width / (0.5 * hfov_deg * CV_PI / 180.0);
+    c.lens.model = Lens::Model::Fisheye;
+    c.lens.k1 = -0.02;
+    c.lens.k2 = 0.001;
+    c.yaw_deg = 360.0 * i / n;
+    if (c.yaw_deg > 180) c.yaw_deg -= 360;
+    rig.cameras.push_back(c);
+  }
+  rig.reference = 0;
+  return rig;
+}
+}  // namespace
+
+TEST(FullFrameFisheyes, ActionCameraRingAndRowFromTheImagesAlone) {
+  std::string name;
+  const cv::Mat photo = equirect_photo(name);
+  ASSERT_FALSE(photo.empty());
+  struct Case {
+    int ring;                // cameras around the full circle
+    double hfov;             // degrees across the frame's width
+    std::vector<int> pads;   // the ring's cameras fed, in this pad order
+    bool wraps;
+  };
+  const Case cases[] = {{4, 148, {0, 1, 2, 3}, true}, {5, 140, {1, 0, 2}, false}};
+  double worst = 0;
+  for (const Case& cs : cases) {
+    const Rig ring = full_frame_fisheye_ring(cs.ring, 384, 216, cs.hfov);
+    Rig truth = ring;
+    truth.cameras.clear();
+    for (const int k : cs.pads) truth.cameras.push_back(ring.cameras[std::size_t(k)]);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> views;
+    render_views(photo, truth, frames, views);
+    const std::string what = std::to_string(cs.pads.size()) + " x " + std::to_string(int(cs.hfov)) + " deg";
+    CalibrationResult r;
+    ASSERT_NO_THROW(r = calibrate_from_images(views, 0, CalibrationOptions{})) << what;
+    ASSERT_EQ(r.rig.cameras.size(), truth.cameras.size());
+    bool said = false;
+    for (const auto& w : r.warnings) said |= w.find("full-frame fisheye") != std::string::npos;
+    EXPECT_TRUE(said) << what;
+    EXPECT_EQ(r.rig.canvas_wrap, cs.wraps) << what;
+    double err = 0;
+    const int n = int(truth.cameras.size());
+    for (int a = 0; a < n; ++a) {
+      EXPECT_EQ(r.rig.cameras[std::size_t(a)].lens.model, Lens::Model::Fisheye) << what << " camera " << a;
+      for (int b = a + 1; b < n; ++b) {
+        int samples = 0;
+        const double e = worst_seam_px(r.rig, truth, a, b, &samples);
+        if (samples > 50) err = std::max(err, e);  // pairs that truly overlap
+      }
+    }
+    std::printf("%s: %s full-frame fisheyes, no rig file: worst seam error %.3f px\n", name.c_str(), what.c_str(), err);
+    for (const auto& w : r.warnings) std::printf("  warning: %s\n", w.c_str());
+    std::printf("  projection %s, model %d, held out rotation %.3f / homography %.3f px, fx %.1f (true %.1f), lens %d\n",
+                r.rig.projection.c_str(), int(r.model), r.rotation_heldout_px, r.homography_heldout_px,
+                r.rig.cameras[0].fx, truth.cameras[0].fx, int(r.rig.cameras[0].lens.model));
+    EXPECT_LE(err, 1.0) << what;
+    worst = std::max(worst, err);
+  }
+  RecordProperty("worst_seam_px", std::to_string(worst));
+}

@@ -2131,6 +2131,177 @@ static std::optional<CalibrationResult> calibrate_circular_fisheyes(const std::v
   return best;
 }
 
+// Full-frame fisheyes (action cameras, branch probe-lens): no image circle, 120-170 degrees across
+// the frame, so a pinhole fit folds or bends (a ring of 4 x 148 degrees: "degenerate homography").
+// For each guessed field of view across the width (equidistant lens: f = (w / 2) / (fov / 2)),
+// every pair's rotation is read from its matched rays alone (a RANSAC over 2-ray rotations, as
+// match_pair_rays once it has a start), and the cameras are placed along the tree of pairs with the
+// most inliers from the reference: side by side, a ring or any layout, pads in any order. That
+// rough rig (fisheye lenses to estimate, spherical canvas) goes to calibrate_from_rig; the fit the
+// held-out matches like best is kept. `pinhole`: the pinhole path's rig, when it gave one: the same
+// count of ray inliers (within 2 px) through its (rectilinear) cameras must be beaten by a quarter, else the
+// lenses are not wide fisheyes and nothing more is tried (a second of matching, no calibration).
+// A fit that sees less than kFullFrameFisheyeMinFovDeg across the widest frame is a normal lens,
+// left to the radtan lens fit. nullopt: no guess gave a whole, usable wide fit (why_not says why).
+constexpr double kFullFrameFisheyeFitMaxPx = 1.5, kFullFrameFisheyeInlierGain = 1.25, kLensCompareThrPx = 2.0,
+                 kFullFrameFisheyeMinFovDeg = 100.0;
+namespace {
+struct RayRotations {
+  std::vector<std::vector<int>> count;  // inliers of each pair's rotation (0: none)
+  std::vector<std::vector<Eigen::Matrix3d>> Q;  // Q[a][b] takes a's rays to b's
+  long total = 0;
+};
+}  // namespace
+// thr_px > 0: inliers within thr_px camera pixels (at the rig's smallest focal length), to
+// compare lens guesses fairly; else within 1.5 degrees.
+static RayRotations pairwise_ray_rotations(const FeatureSets& feats, const Rig& rig, const CalibrationOptions& o,
+                                           double thr_px = 0) {
+  const int n = int(rig.cameras.size());
+  // A guess off the lens by 20 degrees moves the frame's edge rays by a few degrees: the rough
+  // rotations need only be close enough for calibrate_from_rig's ray matching (its tolerance).
+  double f = std::numeric_limits<double>::infinity();
+  for (const auto& c : rig.cameras) f = std::min(f, c.fx);
+  const double cos_thr = std::cos(thr_px > 0 ? thr_px / f : 1.5 * kPi / 180.0);
+  constexpr int kMinPairInliers = 20;
+  RayRotations out;
+  out.count.assign(std::size_t(n), std::vector<int>(std::size_t(n), 0));
+  out.Q.assign(std::size_t(n), std::vector<Eigen::Matrix3d>(std::size_t(n), Eigen::Matrix3d::Identity()));
+  for (int a = 0; a < n; ++a)
+    for (int b = a + 1; b < n; ++b) {
+      throw_if_cancelled(o);
+      std::vector<Eigen::Vector3d> ua, ub;
+      for_each_matched_ray(feats, a, b, o, rig.cameras[std::size_t(a)], rig.cameras[std::size_t(b)],
+                           [&](const Eigen::Vector3d& ra, const Eigen::Vector3d& rb, const cv::KeyPoint&,
+                               const cv::KeyPoint&) {
+                             ua.push_back(ra.normalized());
+                             ub.push_back(rb.normalized());
+                           });
+      if (ua.size() < std::size_t(kMinPairInliers)) continue;
+      std::vector<int> all(ua.size());
+      std::iota(all.begin(), all.end(), 0);
+      std::vector<int> in = ray_rotation_inliers(ua, ub, all, Eigen::Matrix3d::Identity(), cos_thr, 1000);
+      for (int round = 0; round < 3 && in.size() >= 3; ++round)
+        in = ray_rotation_inliers(ua, ub, all, kabsch(ua, ub, in), cos_thr, 0);
+      if (int(in.size()) < kMinPairInliers) continue;
+      const Eigen::Matrix3d q = kabsch(ua, ub, in);
+      out.count[std::size_t(a)][std::size_t(b)] = out.count[std::size_t(b)][std::size_t(a)] = int(in.size());
+      out.Q[std::size_t(a)][std::size_t(b)] = q;
+      out.Q[std::size_t(b)][std::size_t(a)] = q.transpose();
+      out.total += long(in.size());
+    }
+  return out;
+}
+
+static std::optional<CalibrationResult> calibrate_full_frame_fisheyes(const std::vector<std::vector<ImageView>>& sets,
+                                                                      int reference, const CalibrationOptions& o,
+                                                                      const Rig* pinhole, std::string& why_not) {
+  const int n = sets.empty() ? 0 : int(sets[0].size());
+  if (n < 2) return std::nullopt;
+  reference = reference >= 0 && reference < n ? reference : 0;
+  const FeatureSets feats = detect_all(sets, n, o);
+  struct Guess {
+    double fov;
+    Rig rough;
+    RayRotations rotations;
+  };
+  std::vector<Guess> guesses;
+  long best_total = 0;
+  for (const double fov : {150.0, 125.0, 170.0}) {
+    Rig rough;
+    rough.projection = "spherical";
+    rough.reference = reference;
+    for (int i = 0; i < n; ++i) {
+      Camera c;
+      c.width = sets[0][std::size_t(i)].width;
+      c.height = sets[0][std::size_t(i)].height;
+      c.fx = c.fy = 0.5 * c.width / (0.5 * fov * kPi / 180.0);
+      c.cx = 0.5 * (c.width - 1);
+      c.cy = 0.5 * (c.height - 1);
+      c.lens.model = Lens::Model::Fisheye;
+      c.lens.estimate = true;
+      rough.cameras.push_back(c);
+    }
+    RayRotations rot = pairwise_ray_rotations(feats, rough, o);
+    if (pinhole) best_total = std::max(best_total, pairwise_ray_rotations(feats, rough, o, kLensCompareThrPx).total);
+    guesses.push_back({fov, std::move(rough), std::move(rot)});
+  }
+  if (pinhole && int(pinhole->cameras.size()) == n) {
+    Rig flat = *pinhole;
+    for (auto& c : flat.cameras) c.lens = Lens{}, c.homography.reset();
+    const long pinhole_total = pairwise_ray_rotations(feats, flat, o, kLensCompareThrPx).total;
+    if (!(double(best_total) > kFullFrameFisheyeInlierGain * double(pinhole_total))) {
+      why_not = "the matches fit rectilinear lenses as well (" + std::to_string(pinhole_total) + " ray inliers vs " +
+                std::to_string(best_total) + " through a fisheye guess)";
+      return std::nullopt;
+    }
+  }
+  std::optional<CalibrationResult> best;
+  double best_error = std::numeric_limits<double>::infinity(), best_fov = 0;
+  for (Guess& g : guesses) {
+    // The tree of the strongest pairs from the reference (Prim): R_b = R_a Q_ab^T.
+    std::vector<char> placed(std::size_t(n), 0);
+    std::vector<Eigen::Matrix3d> R(std::size_t(n), Eigen::Matrix3d::Identity());
+    placed[std::size_t(reference)] = 1;
+    for (int added = 1; added < n; ++added) {
+      int from = -1, to = -1, top = 0;
+      for (int a = 0; a < n; ++a)
+        for (int b = 0; b < n; ++b)
+          if (placed[std::size_t(a)] && !placed[std::size_t(b)] && g.rotations.count[std::size_t(a)][std::size_t(b)] > top)
+            top = g.rotations.count[std::size_t(a)][std::size_t(b)], from = a, to = b;
+      if (to < 0) break;
+      R[std::size_t(to)] = R[std::size_t(from)] * g.rotations.Q[std::size_t(from)][std::size_t(to)].transpose();
+      placed[std::size_t(to)] = 1;
+    }
+    if (std::count(placed.begin(), placed.end(), 1) < n) {
+      why_not = "at a guessed " + std::to_string(int(g.fov)) + "-degree fisheye lens, not every camera shares matched "
+                "rays with the others";
+      continue;
+    }
+    for (int i = 0; i < n; ++i) g.rough.cameras[std::size_t(i)].set_R(R[std::size_t(i)]);
+    try {
+      CalibrationResult r = calibrate_from_rig(g.rough, sets, o);
+      const double error = r.rotation_heldout_px > 0 ? r.rotation_heldout_px : r.ba_rms_after_px;
+      if (r.refined_cameras < n || !(error > 0) || !(error < best_error)) continue;
+      best_error = error;
+      best_fov = g.fov;
+      best = std::move(r);
+    } catch (const CalibrationCancelled&) {
+      throw;
+    } catch (const std::exception& e) {
+      why_not = e.what();
+      continue;
+    }
+    if (best_error < 0.7) break;  // the guess was close enough
+  }
+  if (best && !(best_error < kFullFrameFisheyeFitMaxPx)) {
+    why_not = "the best full-frame fisheye fit leaves " + std::to_string(best_error) + " px held out";
+    best.reset();
+  }
+  if (!best) return std::nullopt;
+  // A barrel lens of a normal field of view (a phone's k1 -0.35 over 66 degrees) fits the
+  // fisheye model too, but it is the radtan lens fit's (lens_fit_starts; the elements' lens job).
+  double widest = 0;
+  for (const auto& c : best->rig.cameras) {
+    Eigen::Vector3d left, right;
+    if (lens_unproject(c, {0.0, c.cy}, left) && lens_unproject(c, {c.width - 1.0, c.cy}, right))
+      widest = std::max(widest, std::acos(std::clamp(left.normalized().dot(right.normalized()), -1.0, 1.0)) * 180 / kPi);
+  }
+  if (widest < kFullFrameFisheyeMinFovDeg) {
+    why_not = "the fisheye fit sees " + std::to_string(int(widest)) + " degrees across, a normal lens";
+    return std::nullopt;
+  }
+  best->warnings.erase(std::remove_if(best->warnings.begin(), best->warnings.end(),
+                                      [](const std::string& w) {
+                                        return w.find("given the fisheye model") != std::string::npos;
+                                      }),
+                       best->warnings.end());
+  best->warnings.push_back("the cameras fit poorly as rectilinear (pinhole) cameras: calibrated as " + std::to_string(n) +
+                           " full-frame fisheye lenses (wide action-camera lenses; field of view first guessed " +
+                           std::to_string(int(best_fov)) + " degrees across; focal lengths, lenses and rotations "
+                           "estimated; held-out error " + std::to_string(best_error) + " px); give a rig-file to set them");
+  return best;
+}
+
 bool lens_evidence_wins(double pinhole_px, double lens_px) {
   return pinhole_px > 0 && lens_px >= 0 && lens_px < kLensEvidenceRatio * pinhole_px && pinhole_px - lens_px > kLensEvidenceMinPx;
 }
@@ -2416,6 +2587,28 @@ CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vecto
 }
 
 constexpr double kFisheyeFallbackPoorPx = 1.5;
+// The full-frame fisheye attempt of calibrate_from_images: when the pinhole path failed
+// (pin null) or left more than kWideLensPoorPinholePx held out, and the matched rays fit a
+// guessed fisheye clearly better than its rectilinear cameras (calibrate_full_frame_fisheyes);
+// kept only when it wins by the lens evidence rule (lens_evidence_wins). Pixels alone do not tell: a row of 3 x 140 degrees
+// at 384 px held 1.1 px out with homographies, its seams 40-130 px at 1280.
+constexpr double kWideLensPoorPinholePx = 0.3;
+static std::optional<CalibrationResult> full_frame_fisheyes_instead(const std::vector<std::vector<ImageView>>& sets,
+                                                                    int reference, const CalibrationOptions& o,
+                                                                    const CalibrationResult* pin, double pinhole_px,
+                                                                    std::string& why_not) {
+  if (!o.full_frame_fisheyes || sets.empty() || sets[0].size() < 2) return std::nullopt;
+  // A pinhole fit that holds within a third of a pixel is not bent by a wide lens.
+  if (pin && !(pinhole_px > kWideLensPoorPinholePx)) return std::nullopt;
+  std::optional<CalibrationResult> wide = calibrate_full_frame_fisheyes(sets, reference, o, pin ? &pin->rig : nullptr, why_not);
+  const double error = !wide ? -1 : wide->rotation_heldout_px > 0 ? wide->rotation_heldout_px : wide->ba_rms_after_px;
+  if (std::getenv("STITCH_DEBUG_WIDE"))
+    std::fprintf(stderr, "full-frame fisheyes: pinhole %.3f px, fisheye %.3f px; %s\n", pinhole_px, error, why_not.c_str());
+  if (!wide) return std::nullopt;
+  if (pin && !lens_evidence_wins(pinhole_px, error)) return std::nullopt;  // as any lens from the images
+  return wide;
+}
+
 CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>>& sets, int reference,
                                         const CalibrationOptions& o) {
   // Circles that no fisheye rig fits (a spotlit stage in a dark room?) fall back to the pinhole
@@ -2432,8 +2625,20 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   try {
     pin = calibrate_from_images_pinhole(sets, reference, o);
   } catch (const RigError& e) {
-    if (fisheye_error.empty()) throw;
+    if (fisheye_error.empty()) {
+      std::string why_not;
+      if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, nullptr, -1, why_not)) return *wide;
+      // Said only when a fisheye rig got as far as a fit: cameras that share no matches either
+      // way (a textureless view) keep the pinhole path's error alone.
+      if (why_not.empty() || why_not.rfind("at a guessed", 0) == 0) throw;
+      throw RigError(std::string(e.what()) + "; as full-frame fisheyes: " + why_not);
+    }
     throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
+  }
+  if (fisheye_error.empty()) {
+    std::string why_not;
+    const double held = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
+    if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, &pin, held, why_not)) return *wide;
   }
   // Image circles that no fisheye rig fitted, and a pinhole fit that is poor too (a fisheye ring
   // the guesses missed: 40 px held out): say so rather than hand back a panorama of discs

@@ -46,6 +46,11 @@ struct CalibrationOptions {
   // a 360 camera) are calibrated as fisheyes on a spherical canvas, two back to back or N in a
   // ring (fisheye_guess.hpp), instead of as pinhole cameras that cannot see them.
   bool circular_fisheyes = true;
+  // calibrate_from_images: frames without an image circle that the pinhole path cannot calibrate,
+  // or calibrates poorly (action cameras: a rectangle cut from a fisheye image, 120-170 degrees
+  // across), are tried as full-frame fisheyes: rotations read from matched rays through a guessed
+  // equidistant lens, then lenses and focal lengths estimated (calibrate_full_frame_fisheyes).
+  bool full_frame_fisheyes = true;
   // Lenses being estimated (issue 15): once the adjustment is close, fit again on
   // correspondences located photometrically all over each overlap (dense_matches.hpp) rather
   // than on the SIFT keypoints alone, whose ~0.25 px noise extrapolated to 1-2 px at the frame
