@@ -344,6 +344,10 @@ static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad
   GstStitchSync* self = GST_STITCH_SYNC(agg);
   /* our own stand-in for a silent input (gststitchsyncwatch.cpp) is no frame */
   const bool gap = is_standin_gap(buf);
+  if (pad->segment.format != GST_FORMAT_TIME) {  /* its segment was refused (sink_event): an error is out */
+    gst_buffer_unref(buf);
+    return NULL;
+  }
   if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
   GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
   if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
@@ -414,6 +418,21 @@ static const char* caps_refusal(GstCaps* caps) {
 static gboolean gst_stitch_sync_sink_event(GstAggregator* agg, GstAggregatorPad* pad,
                                            GstEvent* event) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
+  if (GST_EVENT_TYPE(event) == GST_EVENT_SEGMENT) {
+    /* frames are paired by running time: a segment in bytes (appsrc's default format) has
+     * none, and GstVideoAggregator would abort the process on it (an assertion) */
+    const GstSegment* segment = NULL;
+    gst_event_parse_segment(event, &segment);
+    if (segment->format != GST_FORMAT_TIME) {
+      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
+                        ("Input %s sends a %s segment, not a time one: stitchsync pairs the cameras' frames by their timestamps",
+                         GST_PAD_NAME(pad), gst_format_get_name(segment->format)),
+                        ("an appsrc camera needs format=time (its default is bytes); a parser or decoder "
+                         "belongs between a byte source and stitchsync"));
+      gst_event_unref(event);
+      return FALSE;
+    }
+  }
   if (GST_EVENT_TYPE(event) == GST_EVENT_SEGMENT || GST_EVENT_TYPE(event) == GST_EVENT_STREAM_START) {
     /* a new segment or a restarted camera: its running times start afresh */
     std::lock_guard<std::mutex> guard(self->state->lock);
@@ -926,6 +945,72 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   return GST_FLOW_OK;
 }
 
+/* Before the first bundle of a non-live stream, on the aggregate thread (no lock of ours held):
+ * - a frame without a timestamp cannot be paired (GstVideoAggregator would stop the stream with
+ *   a bare flow error, reported by the source as "Internal data stream error"): a clear error;
+ * - inputs whose timestamps all start far from zero (an application's capture clock, a
+ *   recording's wall-clock PTS) would give bundles without any frame up to the first one, every
+ *   camera "dropped out" and, non-live, calibration-timeout spent on empty bundles in a moment:
+ *   the output starts at the earliest frame instead. A start closer than dropout-timeout is
+ *   left as it was (the first bundle at zero takes the first frames, as before). */
+static GstFlowReturn check_first_frames(GstStitchSync* self) {
+  GstAggregator* agg = GST_AGGREGATOR(self);
+  if (GST_CLOCK_TIME_IS_VALID(self->state->started)) return GST_FLOW_OK;
+  GstClockTime earliest = GST_CLOCK_TIME_NONE;
+  bool every_pad_known = true;
+  std::vector<GstPad*> pads;
+  GST_OBJECT_LOCK(self);
+  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) pads.push_back(GST_PAD(gst_object_ref(l->data)));
+  GST_OBJECT_UNLOCK(self);
+  std::string untimed;
+  for (GstPad* p : pads) {
+    GstAggregatorPad* apad = GST_AGGREGATOR_PAD(p);
+    GstBuffer* buf = gst_aggregator_pad_peek_buffer(apad);
+    if (!buf) {
+      every_pad_known = every_pad_known && gst_aggregator_pad_is_eos(apad);
+    } else if (!GST_BUFFER_PTS_IS_VALID(buf)) {
+      if (untimed.empty()) untimed = GST_PAD_NAME(p);
+    } else if (!is_standin_gap(buf)) {
+      GST_OBJECT_LOCK(p);
+      const GstClockTime rt = gst_segment_to_running_time(&apad->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(buf));
+      GST_OBJECT_UNLOCK(p);
+      if (GST_CLOCK_TIME_IS_VALID(rt) && (!GST_CLOCK_TIME_IS_VALID(earliest) || rt < earliest)) earliest = rt;
+    }
+    if (buf) gst_buffer_unref(buf);
+    gst_object_unref(p);
+  }
+  if (!untimed.empty()) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
+                      ("Input %s sends frames without a timestamp (PTS): stitchsync pairs the cameras' frames by their timestamps",
+                       untimed.c_str()),
+                      ("set each buffer's PTS (and duration); an appsrc camera can stamp them itself with "
+                       "is-live=true do-timestamp=true"));
+    return GST_FLOW_ERROR;
+  }
+  const bool live = GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(agg));
+  if (live || !every_pad_known || !GST_CLOCK_TIME_IS_VALID(earliest)) return GST_FLOW_OK;
+  GST_OBJECT_LOCK(agg);
+  GstSegment* out = &GST_AGGREGATOR_PAD(agg->srcpad)->segment;
+  const GstClockTime position = GST_CLOCK_TIME_IS_VALID(out->position) ? MAX(out->position, out->start) : out->start;
+  const GstClockTime out_rt = gst_segment_to_running_time(out, GST_FORMAT_TIME, position);
+  if (GST_CLOCK_TIME_IS_VALID(out_rt) && earliest > out_rt + self->dropout_timeout) {
+    const GstClockTime to = gst_segment_position_from_running_time(out, GST_FORMAT_TIME, earliest);
+    if (GST_CLOCK_TIME_IS_VALID(to)) {
+      GST_INFO_OBJECT(self, "the inputs' first frame is at running time %" GST_TIME_FORMAT ": the output starts there, not at %" GST_TIME_FORMAT,
+                      GST_TIME_ARGS(earliest), GST_TIME_ARGS(out_rt));
+      out->position = to;
+    }
+  }
+  GST_OBJECT_UNLOCK(agg);
+  return GST_FLOW_OK;
+}
+
+static GstFlowReturn gst_stitch_sync_aggregate(GstAggregator* agg, gboolean timeout) {
+  const GstFlowReturn ret = check_first_frames(GST_STITCH_SYNC(agg));
+  if (ret != GST_FLOW_OK) return ret;
+  return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->aggregate(agg, timeout);
+}
+
 static gboolean gst_stitch_sync_start(GstAggregator* agg) {
   if (!GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->start(agg)) return FALSE;
   watch_start(GST_STITCH_SYNC(agg));
@@ -1138,6 +1223,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_sync_set_context);
   agg_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_event);
   agg_class->clip = GST_DEBUG_FUNCPTR(gst_stitch_sync_clip);
+  agg_class->aggregate = GST_DEBUG_FUNCPTR(gst_stitch_sync_aggregate);
   agg_class->sink_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_query);
   agg_class->src_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_src_query);
   agg_class->fixate_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_fixate_src_caps);
