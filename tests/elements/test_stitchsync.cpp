@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <random>
 #include <string>
 #include <thread>
@@ -1107,6 +1108,75 @@ TEST_F(StitchSyncTest, LoadFileTimeOffsetAndPadOffset) {
     EXPECT_EQ(decode_frame(read_view(outputs[k], 1), 1), int(k) - 2) << k;
     EXPECT_EQ(decode_frame(read_view(outputs[k], 2), 2), int(k) - 1) << k;
   }
+}
+
+// An application's camera, as it first writes it: a bytes segment (appsrc's default format) or
+// frames without timestamps. Each gives an error that names the input (GstVideoAggregator
+// aborted the process on the bytes segment, and stopped with a bare flow error on the frames).
+class StitchSyncBadTiming : public StitchSyncTest {
+ protected:
+  // Pushes `frames` frames into both inputs from their own threads; input 1's go through
+  // `change` first. Returns the first error's message.
+  std::string push_and_error(const std::function<void(GstBuffer*)>& change, int frames = 3) {
+    const Input in = rgba_input(rgba_caps(30), frames_at(30, frames));
+    std::vector<std::thread> pushers;
+    for (int i = 0; i < 2; ++i)
+      pushers.emplace_back([this, &in, &change, i]() {
+        for (const Frame& f : in.frames) {
+          GstBuffer* b = make_buffer(in, i, f);
+          if (i == 1) change(b);
+          if (gst_harness_push(harnesses[std::size_t(i)], b) != GST_FLOW_OK) break;
+        }
+      });
+    const auto [message, debug] = pop_error(5.0);
+    gst_element_set_state(element, GST_STATE_NULL);  // unblocks the pushers
+    for (auto& t : pushers) t.join();
+    return message + " | " + debug;
+  }
+};
+
+TEST_F(StitchSyncBadTiming, ABytesSegmentIsAnErrorNamingTheInput) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_src_caps_str(h, rgba_caps(30).c_str());
+  GstSegment bytes;
+  gst_segment_init(&bytes, GST_FORMAT_BYTES);
+  gst_pad_push_event(harnesses[1]->srcpad, gst_event_new_segment(&bytes));
+  const std::string error = push_and_error([](GstBuffer*) {});
+  EXPECT_NE(error.find("sink_1"), std::string::npos) << error;
+  EXPECT_NE(error.find("bytes segment"), std::string::npos) << error;
+  EXPECT_NE(error.find("format=time"), std::string::npos) << error;
+}
+
+TEST_F(StitchSyncBadTiming, FramesWithoutTimestampsAreAnErrorNamingTheInput) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_src_caps_str(h, rgba_caps(30).c_str());
+  const std::string error = push_and_error([](GstBuffer* b) {
+    GST_BUFFER_PTS(b) = GST_CLOCK_TIME_NONE;
+    GST_BUFFER_DURATION(b) = GST_CLOCK_TIME_NONE;
+  });
+  EXPECT_NE(error.find("sink_1"), std::string::npos) << error;
+  EXPECT_NE(error.find("without a timestamp"), std::string::npos) << error;
+}
+
+// Non-live cameras whose timestamps all start at 100 s (an application's capture clock): the
+// output starts at their first frame. It started at zero: 100 s of bundles without any frame,
+// every camera "dropped out", and stitchcalib's calibration-timeout spent on them in a moment.
+TEST_F(StitchSyncTest, NonLiveInputsStartingLateStartTheOutputAtTheirFirstFrame) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_live(h, FALSE);  // (a harness says live by default)
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 10, 100 * GST_SECOND));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 10, 100 * GST_SECOND + 5 * GST_MSECOND));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  ASSERT_EQ(outputs.size(), 11u);  // input 1 ends 5 ms after input 0: one more output covers it
+  EXPECT_EQ(GST_BUFFER_PTS(outputs[0]), 100 * GST_SECOND);
+  const GstStitchBundleMeta* bm = bundle_meta(outputs[1]);
+  ASSERT_NE(bm, nullptr);
+  EXPECT_EQ(bm->missing_mask, 0u);
+  EXPECT_EQ(decode_frame(read_view(outputs[1], 0), 0), 1);
+  const int other = decode_frame(read_view(outputs[1], 1), 1);  // its frame 0 or 1 (5 ms later)
+  EXPECT_TRUE(other == 0 || other == 1) << other;
 }
 
 }  // namespace
