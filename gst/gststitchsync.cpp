@@ -956,7 +956,8 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
 static GstFlowReturn check_first_frames(GstStitchSync* self) {
   GstAggregator* agg = GST_AGGREGATOR(self);
   if (GST_CLOCK_TIME_IS_VALID(self->state->started)) return GST_FLOW_OK;
-  GstClockTime earliest = GST_CLOCK_TIME_NONE;
+  GstClockTime earliest = GST_CLOCK_TIME_NONE, latest = GST_CLOCK_TIME_NONE;
+  std::string latest_pad;
   bool every_pad_known = true;
   std::vector<GstPad*> pads;
   GST_OBJECT_LOCK(self);
@@ -975,6 +976,10 @@ static GstFlowReturn check_first_frames(GstStitchSync* self) {
       const GstClockTime rt = gst_segment_to_running_time(&apad->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(buf));
       GST_OBJECT_UNLOCK(p);
       if (GST_CLOCK_TIME_IS_VALID(rt) && (!GST_CLOCK_TIME_IS_VALID(earliest) || rt < earliest)) earliest = rt;
+      if (GST_CLOCK_TIME_IS_VALID(rt) && (!GST_CLOCK_TIME_IS_VALID(latest) || rt > latest)) {
+        latest = rt;
+        latest_pad = GST_PAD_NAME(p);
+      }
     }
     if (buf) gst_buffer_unref(buf);
     gst_object_unref(p);
@@ -988,7 +993,20 @@ static GstFlowReturn check_first_frames(GstStitchSync* self) {
     return GST_FLOW_ERROR;
   }
   const bool live = GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(agg));
+  GST_DEBUG_OBJECT(self, "first frames: earliest %" GST_TIME_FORMAT " latest %" GST_TIME_FORMAT " (%s), every pad known %d, live %d",
+                   GST_TIME_ARGS(earliest), GST_TIME_ARGS(latest), latest_pad.c_str(), every_pad_known, live);
   if (live || !every_pad_known || !GST_CLOCK_TIME_IS_VALID(earliest)) return GST_FLOW_OK;
+  /* a camera late by this much is more likely stamped by another clock than started late */
+  constexpr GstClockTime kFarApart = 10 * GST_SECOND;
+  if (latest > earliest + kFarApart && !self->state->far_start_warned) {
+    self->state->far_start_warned = true;
+    GST_ELEMENT_WARNING(self, STREAM, FAILED,
+                        ("Input %s's first frame is at running time %.3f s, %.3f s after the earliest input's: its "
+                         "timestamps may come from another clock; the cameras are paired by running time",
+                         latest_pad.c_str(), double(latest) / GST_SECOND, double(latest - earliest) / GST_SECOND),
+                        ("give every camera the same time base, or shift this one (gst_pad_set_offset on its "
+                         "stitchsync pad, time_offset_ns in load-file, or time-alignment=auto)"));
+  }
   GST_OBJECT_LOCK(agg);
   GstSegment* out = &GST_AGGREGATOR_PAD(agg->srcpad)->segment;
   const GstClockTime position = GST_CLOCK_TIME_IS_VALID(out->position) ? MAX(out->position, out->start) : out->start;

@@ -1179,4 +1179,25 @@ TEST_F(StitchSyncTest, NonLiveInputsStartingLateStartTheOutputAtTheirFirstFrame)
   EXPECT_TRUE(other == 0 || other == 1) << other;
 }
 
+// One non-live camera stamped by another clock (its frames start 100 s after the other's): a
+// warning names it and says how to shift it (before, only "no frame since the start").
+TEST_F(StitchSyncTest, AnInputStartingFarAfterTheOthersIsNamedInAWarning) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_live(h, FALSE);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 3));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 3, 100 * GST_SECOND));
+  run(in, {}, 2.0);
+  std::string warnings;
+  while (GstMessage* m = gst_bus_pop_filtered(bus, GST_MESSAGE_WARNING)) {
+    GError* err = nullptr;
+    gst_message_parse_warning(m, &err, nullptr);
+    warnings += std::string(err ? err->message : "") + "\n";
+    g_clear_error(&err);
+    gst_message_unref(m);
+  }
+  EXPECT_NE(warnings.find("Input sink_1's first frame is at running time 100.000 s"), std::string::npos) << warnings;
+  EXPECT_NE(warnings.find("another clock"), std::string::npos) << warnings;
+}
+
 }  // namespace
