@@ -504,8 +504,37 @@ static gboolean gst_stitch_sync_sink_query(GstAggregator* agg, GstAggregatorPad*
   }
 }
 
+/* Seekable in time when every input is. The base class answers "not seekable" for any
+ * aggregator, and players then disable their seek bar, although a flushing seek works: it goes
+ * to every input, and the stages reset on the flush. The range spans the inputs' (the output
+ * lasts as long as the longest input, input-eos=repeat-last). */
+static gboolean answer_seeking(GstStitchSync* self, GstQuery* query) {
+  GstFormat format = GST_FORMAT_UNDEFINED;
+  gst_query_parse_seeking(query, &format, NULL, NULL, NULL);
+  std::vector<GstPad*> pads;
+  GST_OBJECT_LOCK(self);
+  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) pads.push_back(GST_PAD(gst_object_ref(l->data)));
+  GST_OBJECT_UNLOCK(self);
+  bool seekable = format == GST_FORMAT_TIME && !pads.empty();
+  gint64 start = -1, end = -1;
+  for (GstPad* p : pads) {
+    GstQuery* q = gst_query_new_seeking(GST_FORMAT_TIME);
+    gboolean yes = FALSE;
+    gint64 s = -1, e = -1;
+    if (seekable && gst_pad_peer_query(p, q)) gst_query_parse_seeking(q, NULL, &yes, &s, &e);
+    seekable = seekable && yes;
+    if (s >= 0) start = start < 0 ? s : MIN(start, s);
+    if (e >= 0) end = MAX(end, e);
+    gst_query_unref(q);
+    gst_object_unref(p);
+  }
+  gst_query_set_seeking(query, format, seekable, seekable ? MAX(start, gint64(0)) : 0, seekable ? end : -1);
+  return TRUE;
+}
+
 static gboolean gst_stitch_sync_src_query(GstAggregator* agg, GstQuery* query) {
   if (GST_STITCH_SYNC(agg)->state->cuda.handle_query(GST_ELEMENT(agg), query)) return TRUE;
+  if (GST_QUERY_TYPE(query) == GST_QUERY_SEEKING) return answer_seeking(GST_STITCH_SYNC(agg), query);
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->src_query(agg, query);
 }
 

@@ -1200,4 +1200,29 @@ TEST_F(StitchSyncTest, AnInputStartingFarAfterTheOthersIsNamedInAWarning) {
   EXPECT_NE(warnings.find("another clock"), std::string::npos) << warnings;
 }
 
+// A player asks whether it may seek: seekable when every input is (GstAggregator says "no" for
+// any aggregator, and players grey out their seek bar although seeks work), not when one is not.
+bool pipeline_seekable(const std::string& description) {
+  GstElement* pipe = gst_parse_launch(description.c_str(), nullptr);
+  if (!pipe) return false;
+  gst_element_set_state(pipe, GST_STATE_PAUSED);
+  gst_element_get_state(pipe, nullptr, nullptr, 5 * GST_SECOND);
+  GstQuery* q = gst_query_new_seeking(GST_FORMAT_TIME);
+  gboolean seekable = FALSE;
+  if (gst_element_query(pipe, q)) gst_query_parse_seeking(q, nullptr, &seekable, nullptr, nullptr);
+  gst_query_unref(q);
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_object_unref(pipe);
+  return seekable;
+}
+
+TEST(StitchSyncQueries, SeekableWhenEveryInputIs) {
+  const std::string caps = " ! video/x-raw,width=64,height=48 ! ";
+  EXPECT_TRUE(pipeline_seekable("stitchsync name=s ! fakesink videotestsrc num-buffers=30" + caps +
+                                "s.sink_0 videotestsrc num-buffers=30 pattern=ball" + caps + "s.sink_1"));
+  EXPECT_FALSE(pipeline_seekable("stitchsync name=s ! fakesink videotestsrc num-buffers=30" + caps +
+                                 "s.sink_0 appsrc caps=video/x-raw,format=RGBA,width=64,height=48,framerate=30/1 "
+                                 "format=time ! s.sink_1"));
+}
+
 }  // namespace
