@@ -1,7 +1,8 @@
 # BENCHMARKS.md, "probe5": the middle camera of karthik_3cam_house changes resolution mid-stream.
-import sys
+import os, sys
 sys.argv = ['x', 'caps3_middle']
-exec(open(__import__('os').path.join(__import__('os').path.dirname(__import__('os').path.abspath(__file__)), 'probe.py')).read().split("if __name__")[0])
+HERE = os.path.dirname(os.path.abspath(__file__))
+exec(open(os.path.join(HERE, 'probe.py')).read().split("if __name__")[0])  # probe.py's helpers
 d = ('stitchbin name=b' + TAIL + ' ' + dec(H3[0], 'b.sink_0 ') +
      dec(H3[1], 'videoscale ! capsfilter name=cf caps=video/x-raw,width=640,height=480 ! b.sink_1 ') + dec(H3[2], 'b.sink_2'))
 r = Run('caps3_middle', d)
