@@ -238,7 +238,7 @@ def case_pause_resume(live):
     r.state(Gst.State.PLAYING, 20)
     print(' ', r.loop(30, until_frames=30)); n0 = len(r.frames)
     r.state(Gst.State.PAUSED, 10)
-    time.sleep(2); r.poll_bus()
+    time.sleep(float(os.environ.get("PAUSE_S", "2"))); r.poll_bus()  # PAUSE_S: how long PAUSED lasts
     r.state(Gst.State.PLAYING, 10)
     print(' ', r.loop(20, until_frames=n0 + 20))
     print('  pts around pause:', ['%.2f' % pts_s(f) for f in r.frames[n0 - 3:n0 + 5]])
