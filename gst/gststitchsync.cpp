@@ -974,14 +974,13 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   return GST_FLOW_OK;
 }
 
-/* Before the first bundle of a non-live stream, on the aggregate thread (no lock of ours held):
+/* Before the first bundle, on the aggregate thread (no lock of ours held), from every input's
+ * first frame:
  * - a frame without a timestamp cannot be paired (GstVideoAggregator would stop the stream with
  *   a bare flow error, reported by the source as "Internal data stream error"): a clear error;
- * - inputs whose timestamps all start far from zero (an application's capture clock, a
- *   recording's wall-clock PTS) would give bundles without any frame up to the first one, every
- *   camera "dropped out" and, non-live, calibration-timeout spent on empty bundles in a moment:
- *   the output starts at the earliest frame instead. A start closer than dropout-timeout is
- *   left as it was (the first bundle at zero takes the first frames, as before). */
+ * - non-live inputs whose timestamps all start far from zero (an application's capture clock)
+ *   start the output at their first frame, and one input that starts far after the others is
+ *   named in a warning (stitch::sync::first_output_at, starts_far_apart). */
 static GstFlowReturn check_first_frames(GstStitchSync* self) {
   GstAggregator* agg = GST_AGGREGATOR(self);
   if (GST_CLOCK_TIME_IS_VALID(self->state->started)) return GST_FLOW_OK;
@@ -1025,9 +1024,7 @@ static GstFlowReturn check_first_frames(GstStitchSync* self) {
   GST_DEBUG_OBJECT(self, "first frames: earliest %" GST_TIME_FORMAT " latest %" GST_TIME_FORMAT " (%s), every pad known %d, live %d",
                    GST_TIME_ARGS(earliest), GST_TIME_ARGS(latest), latest_pad.c_str(), every_pad_known, live);
   if (live || !every_pad_known || !GST_CLOCK_TIME_IS_VALID(earliest)) return GST_FLOW_OK;
-  /* a camera late by this much is more likely stamped by another clock than started late */
-  constexpr GstClockTime kFarApart = 10 * GST_SECOND;
-  if (latest > earliest + kFarApart && !self->state->far_start_warned) {
+  if (stitch::sync::starts_far_apart(as_time(earliest), as_time(latest)) && !self->state->far_start_warned) {
     self->state->far_start_warned = true;
     GST_ELEMENT_WARNING(self, STREAM, FAILED,
                         ("Input %s's first frame is at running time %.3f s, %.3f s after the earliest input's: its "
@@ -1040,8 +1037,9 @@ static GstFlowReturn check_first_frames(GstStitchSync* self) {
   GstSegment* out = &GST_AGGREGATOR_PAD(agg->srcpad)->segment;
   const GstClockTime position = GST_CLOCK_TIME_IS_VALID(out->position) ? MAX(out->position, out->start) : out->start;
   const GstClockTime out_rt = gst_segment_to_running_time(out, GST_FORMAT_TIME, position);
-  if (GST_CLOCK_TIME_IS_VALID(out_rt) && earliest > out_rt + self->dropout_timeout) {
-    const GstClockTime to = gst_segment_position_from_running_time(out, GST_FORMAT_TIME, earliest);
+  const gint64 start_rt = stitch::sync::first_output_at(as_time(earliest), as_time(out_rt), gint64(self->dropout_timeout));
+  if (start_rt != stitch::sync::kNoTime) {
+    const GstClockTime to = gst_segment_position_from_running_time(out, GST_FORMAT_TIME, GstClockTime(start_rt));
     if (GST_CLOCK_TIME_IS_VALID(to)) {
       GST_INFO_OBJECT(self, "the inputs' first frame is at running time %" GST_TIME_FORMAT ": the output starts there, not at %" GST_TIME_FORMAT,
                       GST_TIME_ARGS(earliest), GST_TIME_ARGS(out_rt));
