@@ -348,7 +348,7 @@ static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad
     gst_buffer_unref(buf);
     return NULL;
   }
-  if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
+  if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;  /* an error, from the aggregate thread */
   GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
   if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
   GST_OBJECT_LOCK(pad);
@@ -975,15 +975,12 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
 }
 
 /* Before the first bundle, on the aggregate thread (no lock of ours held), from every input's
- * first frame:
- * - a frame without a timestamp cannot be paired (GstVideoAggregator would stop the stream with
- *   a bare flow error, reported by the source as "Internal data stream error"): a clear error;
- * - non-live inputs whose timestamps all start far from zero (an application's capture clock)
- *   start the output at their first frame, and one input that starts far after the others is
- *   named in a warning (stitch::sync::first_output_at, starts_far_apart). */
-static GstFlowReturn check_first_frames(GstStitchSync* self) {
+ * first frame: non-live inputs whose timestamps all start far from zero (an application's
+ * capture clock) start the output at their first frame, and one input that starts far after the
+ * others is named in a warning (stitch::sync::first_output_at, starts_far_apart). */
+static void check_first_frames(GstStitchSync* self) {
   GstAggregator* agg = GST_AGGREGATOR(self);
-  if (GST_CLOCK_TIME_IS_VALID(self->state->started)) return GST_FLOW_OK;
+  if (GST_CLOCK_TIME_IS_VALID(self->state->started)) return;
   GstClockTime earliest = GST_CLOCK_TIME_NONE, latest = GST_CLOCK_TIME_NONE;
   std::string latest_pad;
   bool every_pad_known = true;
@@ -991,15 +988,12 @@ static GstFlowReturn check_first_frames(GstStitchSync* self) {
   GST_OBJECT_LOCK(self);
   for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) pads.push_back(GST_PAD(gst_object_ref(l->data)));
   GST_OBJECT_UNLOCK(self);
-  std::string untimed;
   for (GstPad* p : pads) {
     GstAggregatorPad* apad = GST_AGGREGATOR_PAD(p);
     GstBuffer* buf = gst_aggregator_pad_peek_buffer(apad);
     if (!buf) {
       every_pad_known = every_pad_known && gst_aggregator_pad_is_eos(apad);
-    } else if (!GST_BUFFER_PTS_IS_VALID(buf)) {
-      if (untimed.empty()) untimed = GST_PAD_NAME(p);
-    } else if (!is_standin_gap(buf)) {
+    } else if (GST_BUFFER_PTS_IS_VALID(buf) && !is_standin_gap(buf)) {
       GST_OBJECT_LOCK(p);
       const GstClockTime rt = gst_segment_to_running_time(&apad->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(buf));
       GST_OBJECT_UNLOCK(p);
@@ -1012,18 +1006,10 @@ static GstFlowReturn check_first_frames(GstStitchSync* self) {
     if (buf) gst_buffer_unref(buf);
     gst_object_unref(p);
   }
-  if (!untimed.empty()) {
-    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
-                      ("Input %s sends frames without a timestamp (PTS): stitchsync pairs the cameras' frames by their timestamps",
-                       untimed.c_str()),
-                      ("set each buffer's PTS (and duration); an appsrc camera can stamp them itself with "
-                       "is-live=true do-timestamp=true"));
-    return GST_FLOW_ERROR;
-  }
   const bool live = GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(agg));
   GST_DEBUG_OBJECT(self, "first frames: earliest %" GST_TIME_FORMAT " latest %" GST_TIME_FORMAT " (%s), every pad known %d, live %d",
                    GST_TIME_ARGS(earliest), GST_TIME_ARGS(latest), latest_pad.c_str(), every_pad_known, live);
-  if (live || !every_pad_known || !GST_CLOCK_TIME_IS_VALID(earliest)) return GST_FLOW_OK;
+  if (live || !every_pad_known || !GST_CLOCK_TIME_IS_VALID(earliest)) return;
   if (stitch::sync::starts_far_apart(as_time(earliest), as_time(latest)) && !self->state->far_start_warned) {
     self->state->far_start_warned = true;
     GST_ELEMENT_WARNING(self, STREAM, FAILED,
@@ -1047,12 +1033,34 @@ static GstFlowReturn check_first_frames(GstStitchSync* self) {
     }
   }
   GST_OBJECT_UNLOCK(agg);
-  return GST_FLOW_OK;
 }
 
+/* A frame without a timestamp cannot be paired: GstVideoAggregator would stop the stream with a
+ * bare flow error (the source then says "Internal data stream error"); this one names the input.
+ * Then the first frames' checks, before the base class makes the bundle. */
 static GstFlowReturn gst_stitch_sync_aggregate(GstAggregator* agg, gboolean timeout) {
-  const GstFlowReturn ret = check_first_frames(GST_STITCH_SYNC(agg));
-  if (ret != GST_FLOW_OK) return ret;
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
+  std::vector<GstPad*> pads;
+  GST_OBJECT_LOCK(self);
+  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) pads.push_back(GST_PAD(gst_object_ref(l->data)));
+  GST_OBJECT_UNLOCK(self);
+  std::string untimed;
+  for (GstPad* p : pads) {
+    if (GstBuffer* buf = gst_aggregator_pad_peek_buffer(GST_AGGREGATOR_PAD(p))) {  /* (clipped: the frame that goes next) */
+      if (!GST_BUFFER_PTS_IS_VALID(buf) && untimed.empty()) untimed = GST_PAD_NAME(p);
+      gst_buffer_unref(buf);
+    }
+    gst_object_unref(p);
+  }
+  if (!untimed.empty()) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
+                      ("Input %s sends frames without a timestamp (PTS): stitchsync pairs the cameras' frames by their timestamps",
+                       untimed.c_str()),
+                      ("set each buffer's PTS (and duration); an appsrc camera can stamp them itself with "
+                       "is-live=true do-timestamp=true"));
+    return GST_FLOW_ERROR;
+  }
+  check_first_frames(self);
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->aggregate(agg, timeout);
 }
 

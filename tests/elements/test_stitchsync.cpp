@@ -1158,6 +1158,20 @@ TEST_F(StitchSyncBadTiming, FramesWithoutTimestampsAreAnErrorNamingTheInput) {
   EXPECT_NE(error.find("without a timestamp"), std::string::npos) << error;
 }
 
+// The same when the timestamps stop mid-stream (after bundles were made).
+TEST_F(StitchSyncBadTiming, FramesLosingTheirTimestampsMidStreamAreAnErrorNamingTheInput) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_src_caps_str(h, rgba_caps(30).c_str());
+  int seen = 0;
+  const std::string error = push_and_error(
+      [&seen](GstBuffer* b) {
+        if (++seen > 5) GST_BUFFER_PTS(b) = GST_CLOCK_TIME_NONE;
+      },
+      10);
+  EXPECT_NE(error.find("sink_1"), std::string::npos) << error;
+  EXPECT_NE(error.find("without a timestamp"), std::string::npos) << error;
+}
+
 // Non-live cameras whose timestamps all start at 100 s (an application's capture clock): the
 // output starts at their first frame. It started at zero: 100 s of bundles without any frame,
 // every camera "dropped out", and stitchcalib's calibration-timeout spent on them in a moment.
