@@ -511,22 +511,18 @@ static gboolean gst_stitch_sync_sink_query(GstAggregator* agg, GstAggregatorPad*
 static gboolean answer_seeking(GstStitchSync* self, GstQuery* query) {
   GstFormat format = GST_FORMAT_UNDEFINED;
   gst_query_parse_seeking(query, &format, NULL, NULL, NULL);
-  std::vector<GstPad*> pads;
-  GST_OBJECT_LOCK(self);
-  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) pads.push_back(GST_PAD(gst_object_ref(l->data)));
-  GST_OBJECT_UNLOCK(self);
-  bool seekable = format == GST_FORMAT_TIME && !pads.empty();
+  SortedPads sorted(self);
+  bool seekable = format == GST_FORMAT_TIME && !sorted.pads.empty();
   gint64 start = -1, end = -1;
-  for (GstPad* p : pads) {
+  for (GstVideoAggregatorPad* p : sorted.pads) {
     GstQuery* q = gst_query_new_seeking(GST_FORMAT_TIME);
     gboolean yes = FALSE;
     gint64 s = -1, e = -1;
-    if (seekable && gst_pad_peer_query(p, q)) gst_query_parse_seeking(q, NULL, &yes, &s, &e);
+    if (seekable && gst_pad_peer_query(GST_PAD(p), q)) gst_query_parse_seeking(q, NULL, &yes, &s, &e);
     seekable = seekable && yes;
     if (s >= 0) start = start < 0 ? s : MIN(start, s);
     if (e >= 0) end = MAX(end, e);
     gst_query_unref(q);
-    gst_object_unref(p);
   }
   gst_query_set_seeking(query, format, seekable, seekable ? MAX(start, gint64(0)) : 0, seekable ? end : -1);
   return TRUE;
@@ -984,11 +980,8 @@ static void check_first_frames(GstStitchSync* self) {
   GstClockTime earliest = GST_CLOCK_TIME_NONE, latest = GST_CLOCK_TIME_NONE;
   std::string latest_pad;
   bool every_pad_known = true;
-  std::vector<GstPad*> pads;
-  GST_OBJECT_LOCK(self);
-  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) pads.push_back(GST_PAD(gst_object_ref(l->data)));
-  GST_OBJECT_UNLOCK(self);
-  for (GstPad* p : pads) {
+  SortedPads sorted(self);
+  for (GstVideoAggregatorPad* p : sorted.pads) {
     GstAggregatorPad* apad = GST_AGGREGATOR_PAD(p);
     GstBuffer* buf = gst_aggregator_pad_peek_buffer(apad);
     if (!buf) {
@@ -1004,7 +997,6 @@ static void check_first_frames(GstStitchSync* self) {
       }
     }
     if (buf) gst_buffer_unref(buf);
-    gst_object_unref(p);
   }
   const bool live = GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(agg));
   GST_DEBUG_OBJECT(self, "first frames: earliest %" GST_TIME_FORMAT " latest %" GST_TIME_FORMAT " (%s), every pad known %d, live %d",
@@ -1040,17 +1032,14 @@ static void check_first_frames(GstStitchSync* self) {
  * Then the first frames' checks, before the base class makes the bundle. */
 static GstFlowReturn gst_stitch_sync_aggregate(GstAggregator* agg, gboolean timeout) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
-  std::vector<GstPad*> pads;
-  GST_OBJECT_LOCK(self);
-  for (GList* l = GST_ELEMENT(self)->sinkpads; l; l = l->next) pads.push_back(GST_PAD(gst_object_ref(l->data)));
-  GST_OBJECT_UNLOCK(self);
   std::string untimed;
-  for (GstPad* p : pads) {
-    if (GstBuffer* buf = gst_aggregator_pad_peek_buffer(GST_AGGREGATOR_PAD(p))) {  /* (clipped: the frame that goes next) */
-      if (!GST_BUFFER_PTS_IS_VALID(buf) && untimed.empty()) untimed = GST_PAD_NAME(p);
-      gst_buffer_unref(buf);
-    }
-    gst_object_unref(p);
+  {
+    SortedPads sorted(self);
+    for (GstVideoAggregatorPad* p : sorted.pads)
+      if (GstBuffer* buf = gst_aggregator_pad_peek_buffer(GST_AGGREGATOR_PAD(p))) {  /* (clipped: the frame that goes next) */
+        if (!GST_BUFFER_PTS_IS_VALID(buf) && untimed.empty()) untimed = GST_PAD_NAME(p);
+        gst_buffer_unref(buf);
+      }
   }
   if (!untimed.empty()) {
     GST_ELEMENT_ERROR(self, STREAM, FORMAT,
