@@ -344,7 +344,11 @@ static GstBuffer* gst_stitch_sync_clip(GstAggregator* agg, GstAggregatorPad* pad
   GstStitchSync* self = GST_STITCH_SYNC(agg);
   /* our own stand-in for a silent input (gststitchsyncwatch.cpp) is no frame */
   const bool gap = is_standin_gap(buf);
-  if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;
+  if (pad->segment.format != GST_FORMAT_TIME) {  /* its segment was refused (sink_event): an error is out */
+    gst_buffer_unref(buf);
+    return NULL;
+  }
+  if (!GST_BUFFER_PTS_IS_VALID(buf)) return buf;  /* an error, from the aggregate thread */
   GstClockTime pts = GST_BUFFER_PTS(buf), end = pts;
   if (GST_BUFFER_DURATION_IS_VALID(buf)) end += GST_BUFFER_DURATION(buf);
   GST_OBJECT_LOCK(pad);
@@ -414,6 +418,21 @@ static const char* caps_refusal(GstCaps* caps) {
 static gboolean gst_stitch_sync_sink_event(GstAggregator* agg, GstAggregatorPad* pad,
                                            GstEvent* event) {
   GstStitchSync* self = GST_STITCH_SYNC(agg);
+  if (GST_EVENT_TYPE(event) == GST_EVENT_SEGMENT) {
+    /* frames are paired by running time: a segment in bytes (appsrc's default format) has
+     * none, and GstVideoAggregator would abort the process on it (an assertion) */
+    const GstSegment* segment = NULL;
+    gst_event_parse_segment(event, &segment);
+    if (segment->format != GST_FORMAT_TIME) {
+      GST_ELEMENT_ERROR(agg, STREAM, FORMAT,
+                        ("Input %s sends a %s segment, not a time one: stitchsync pairs the cameras' frames by their timestamps",
+                         GST_PAD_NAME(pad), gst_format_get_name(segment->format)),
+                        ("an appsrc camera needs format=time (its default is bytes); a parser or decoder "
+                         "belongs between a byte source and stitchsync"));
+      gst_event_unref(event);
+      return FALSE;
+    }
+  }
   if (GST_EVENT_TYPE(event) == GST_EVENT_SEGMENT || GST_EVENT_TYPE(event) == GST_EVENT_STREAM_START) {
     /* a new segment or a restarted camera: its running times start afresh */
     std::lock_guard<std::mutex> guard(self->state->lock);
@@ -485,8 +504,33 @@ static gboolean gst_stitch_sync_sink_query(GstAggregator* agg, GstAggregatorPad*
   }
 }
 
+/* Seekable in time when every input is. The base class answers "not seekable" for any
+ * aggregator, and players then disable their seek bar, although a flushing seek works: it goes
+ * to every input, and the stages reset on the flush. The range spans the inputs' (the output
+ * lasts as long as the longest input, input-eos=repeat-last). */
+static gboolean answer_seeking(GstStitchSync* self, GstQuery* query) {
+  GstFormat format = GST_FORMAT_UNDEFINED;
+  gst_query_parse_seeking(query, &format, NULL, NULL, NULL);
+  SortedPads sorted(self);
+  bool seekable = format == GST_FORMAT_TIME && !sorted.pads.empty();
+  gint64 start = -1, end = -1;
+  for (GstVideoAggregatorPad* p : sorted.pads) {
+    GstQuery* q = gst_query_new_seeking(GST_FORMAT_TIME);
+    gboolean yes = FALSE;
+    gint64 s = -1, e = -1;
+    if (seekable && gst_pad_peer_query(GST_PAD(p), q)) gst_query_parse_seeking(q, NULL, &yes, &s, &e);
+    seekable = seekable && yes;
+    if (s >= 0) start = start < 0 ? s : MIN(start, s);
+    if (e >= 0) end = MAX(end, e);
+    gst_query_unref(q);
+  }
+  gst_query_set_seeking(query, format, seekable, seekable ? MAX(start, gint64(0)) : 0, seekable ? end : -1);
+  return TRUE;
+}
+
 static gboolean gst_stitch_sync_src_query(GstAggregator* agg, GstQuery* query) {
   if (GST_STITCH_SYNC(agg)->state->cuda.handle_query(GST_ELEMENT(agg), query)) return TRUE;
+  if (GST_QUERY_TYPE(query) == GST_QUERY_SEEKING) return answer_seeking(GST_STITCH_SYNC(agg), query);
   return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->src_query(agg, query);
 }
 
@@ -926,6 +970,89 @@ static GstFlowReturn gst_stitch_sync_aggregate_frames(GstVideoAggregator* vagg, 
   return GST_FLOW_OK;
 }
 
+/* Before the first bundle, on the aggregate thread (no lock of ours held), from every input's
+ * first frame: non-live inputs whose timestamps all start far from zero (an application's
+ * capture clock) start the output at their first frame, and one input that starts far after the
+ * others is named in a warning (stitch::sync::first_output_at, starts_far_apart). */
+static void check_first_frames(GstStitchSync* self) {
+  GstAggregator* agg = GST_AGGREGATOR(self);
+  if (GST_CLOCK_TIME_IS_VALID(self->state->started)) return;
+  GstClockTime earliest = GST_CLOCK_TIME_NONE, latest = GST_CLOCK_TIME_NONE;
+  std::string latest_pad;
+  bool every_pad_known = true;
+  SortedPads sorted(self);
+  for (GstVideoAggregatorPad* p : sorted.pads) {
+    GstAggregatorPad* apad = GST_AGGREGATOR_PAD(p);
+    GstBuffer* buf = gst_aggregator_pad_peek_buffer(apad);
+    if (!buf) {
+      every_pad_known = every_pad_known && gst_aggregator_pad_is_eos(apad);
+    } else if (GST_BUFFER_PTS_IS_VALID(buf) && !is_standin_gap(buf)) {
+      GST_OBJECT_LOCK(p);
+      const GstClockTime rt = gst_segment_to_running_time(&apad->segment, GST_FORMAT_TIME, GST_BUFFER_PTS(buf));
+      GST_OBJECT_UNLOCK(p);
+      if (GST_CLOCK_TIME_IS_VALID(rt) && (!GST_CLOCK_TIME_IS_VALID(earliest) || rt < earliest)) earliest = rt;
+      if (GST_CLOCK_TIME_IS_VALID(rt) && (!GST_CLOCK_TIME_IS_VALID(latest) || rt > latest)) {
+        latest = rt;
+        latest_pad = GST_PAD_NAME(p);
+      }
+    }
+    if (buf) gst_buffer_unref(buf);
+  }
+  const bool live = GST_CLOCK_TIME_IS_VALID(gst_aggregator_get_latency(agg));
+  GST_DEBUG_OBJECT(self, "first frames: earliest %" GST_TIME_FORMAT " latest %" GST_TIME_FORMAT " (%s), every pad known %d, live %d",
+                   GST_TIME_ARGS(earliest), GST_TIME_ARGS(latest), latest_pad.c_str(), every_pad_known, live);
+  if (live || !every_pad_known || !GST_CLOCK_TIME_IS_VALID(earliest)) return;
+  if (stitch::sync::starts_far_apart(as_time(earliest), as_time(latest)) && !self->state->far_start_warned) {
+    self->state->far_start_warned = true;
+    GST_ELEMENT_WARNING(self, STREAM, FAILED,
+                        ("Input %s's first frame is at running time %.3f s, %.3f s after the earliest input's: its "
+                         "timestamps may come from another clock; the cameras are paired by running time",
+                         latest_pad.c_str(), double(latest) / GST_SECOND, double(latest - earliest) / GST_SECOND),
+                        ("give every camera the same time base, or shift this one (gst_pad_set_offset on its "
+                         "stitchsync pad, time_offset_ns in load-file, or time-alignment=auto)"));
+  }
+  GST_OBJECT_LOCK(agg);
+  GstSegment* out = &GST_AGGREGATOR_PAD(agg->srcpad)->segment;
+  const GstClockTime position = GST_CLOCK_TIME_IS_VALID(out->position) ? MAX(out->position, out->start) : out->start;
+  const GstClockTime out_rt = gst_segment_to_running_time(out, GST_FORMAT_TIME, position);
+  const gint64 start_rt = stitch::sync::first_output_at(as_time(earliest), as_time(out_rt), gint64(self->dropout_timeout));
+  if (start_rt != stitch::sync::kNoTime) {
+    const GstClockTime to = gst_segment_position_from_running_time(out, GST_FORMAT_TIME, GstClockTime(start_rt));
+    if (GST_CLOCK_TIME_IS_VALID(to)) {
+      GST_INFO_OBJECT(self, "the inputs' first frame is at running time %" GST_TIME_FORMAT ": the output starts there, not at %" GST_TIME_FORMAT,
+                      GST_TIME_ARGS(earliest), GST_TIME_ARGS(out_rt));
+      out->position = to;
+    }
+  }
+  GST_OBJECT_UNLOCK(agg);
+}
+
+/* A frame without a timestamp cannot be paired: GstVideoAggregator would stop the stream with a
+ * bare flow error (the source then says "Internal data stream error"); this one names the input.
+ * Then the first frames' checks, before the base class makes the bundle. */
+static GstFlowReturn gst_stitch_sync_aggregate(GstAggregator* agg, gboolean timeout) {
+  GstStitchSync* self = GST_STITCH_SYNC(agg);
+  std::string untimed;
+  {
+    SortedPads sorted(self);
+    for (GstVideoAggregatorPad* p : sorted.pads)
+      if (GstBuffer* buf = gst_aggregator_pad_peek_buffer(GST_AGGREGATOR_PAD(p))) {  /* (clipped: the frame that goes next) */
+        if (!GST_BUFFER_PTS_IS_VALID(buf) && untimed.empty()) untimed = GST_PAD_NAME(p);
+        gst_buffer_unref(buf);
+      }
+  }
+  if (!untimed.empty()) {
+    GST_ELEMENT_ERROR(self, STREAM, FORMAT,
+                      ("Input %s sends frames without a timestamp (PTS): stitchsync pairs the cameras' frames by their timestamps",
+                       untimed.c_str()),
+                      ("set each buffer's PTS (and duration); an appsrc camera can stamp them itself with "
+                       "is-live=true do-timestamp=true"));
+    return GST_FLOW_ERROR;
+  }
+  check_first_frames(self);
+  return GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->aggregate(agg, timeout);
+}
+
 static gboolean gst_stitch_sync_start(GstAggregator* agg) {
   if (!GST_AGGREGATOR_CLASS(gst_stitch_sync_parent_class)->start(agg)) return FALSE;
   watch_start(GST_STITCH_SYNC(agg));
@@ -1138,6 +1265,7 @@ static void gst_stitch_sync_class_init(GstStitchSyncClass* klass) {
   element_class->set_context = GST_DEBUG_FUNCPTR(gst_stitch_sync_set_context);
   agg_class->sink_event = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_event);
   agg_class->clip = GST_DEBUG_FUNCPTR(gst_stitch_sync_clip);
+  agg_class->aggregate = GST_DEBUG_FUNCPTR(gst_stitch_sync_aggregate);
   agg_class->sink_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_sink_query);
   agg_class->src_query = GST_DEBUG_FUNCPTR(gst_stitch_sync_src_query);
   agg_class->fixate_src_caps = GST_DEBUG_FUNCPTR(gst_stitch_sync_fixate_src_caps);

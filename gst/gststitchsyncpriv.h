@@ -118,6 +118,8 @@ struct StitchSyncState {
   /* the first bundle's dropout tracking is still to come: the pads then present count from
    * `started`, those requested later from the output they first take part in */
   bool tracks_from_start = false;
+  /* the warning about inputs whose first frames lie far apart was posted (aggregate thread) */
+  bool far_start_warned = false;
   /* time-alignment=auto (aggregate thread) */
   std::unique_ptr<stitch::sync::OffsetTracker> tracker;
   /* the cameras' audio (stitchsyncaudio's streaming threads; its own lock, taken alone or inside
@@ -143,6 +145,7 @@ struct StitchSyncState {
     started = GST_CLOCK_TIME_NONE;
     first_ready_us = -1;
     tracks_from_start = false;
+    far_start_warned = false;
     first_data_us = -1;
     if (tracker) tracker->reset();
     std::lock_guard<std::mutex> guard(audio_lock);

@@ -106,6 +106,20 @@ TEST(SyncPolicy, StartWaitsForEveryRequestedPad) {
   EXPECT_EQ(may_start({late, late}, 600 * kMs, 500 * kMs), StartDecision::Wait);
 }
 
+// Non-live cameras stamped from 100 s start the output there; a start within the timeout (or
+// before the output) leaves it where it was; one camera 10 s or more after the others is far apart.
+TEST(SyncPolicy, OutputStartsAtTheFirstFramesOnlyWhenTheyAreFarAhead) {
+  const int64_t s = 1'000'000'000, timeout = s / 2;
+  EXPECT_EQ(first_output_at(100 * s, 0, timeout), 100 * s);
+  EXPECT_EQ(first_output_at(s / 4, 0, timeout), kNoTime);
+  EXPECT_EQ(first_output_at(0, 0, timeout), kNoTime);
+  EXPECT_EQ(first_output_at(3 * s, 4 * s, timeout), kNoTime);
+  EXPECT_EQ(first_output_at(kNoTime, 0, timeout), kNoTime);
+  EXPECT_TRUE(starts_far_apart(0, 100 * s));
+  EXPECT_FALSE(starts_far_apart(0, 3 * s));
+  EXPECT_FALSE(starts_far_apart(kNoTime, 100 * s));
+}
+
 TEST(SyncPolicy, RateLimitHoldsBackRepeats) {
   RateLimit r(1000 * kMs);
   uint64_t held = 99;

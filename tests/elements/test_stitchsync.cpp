@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <random>
 #include <string>
 #include <thread>
@@ -1107,6 +1108,135 @@ TEST_F(StitchSyncTest, LoadFileTimeOffsetAndPadOffset) {
     EXPECT_EQ(decode_frame(read_view(outputs[k], 1), 1), int(k) - 2) << k;
     EXPECT_EQ(decode_frame(read_view(outputs[k], 2), 2), int(k) - 1) << k;
   }
+}
+
+// An application's camera, as it first writes it: a bytes segment (appsrc's default format) or
+// frames without timestamps. Each gives an error that names the input (GstVideoAggregator
+// aborted the process on the bytes segment, and stopped with a bare flow error on the frames).
+class StitchSyncBadTiming : public StitchSyncTest {
+ protected:
+  // Pushes `frames` frames into both inputs from their own threads; input 1's go through
+  // `change` first. Returns the first error's message.
+  std::string push_and_error(const std::function<void(GstBuffer*)>& change, int frames = 3) {
+    const Input in = rgba_input(rgba_caps(30), frames_at(30, frames));
+    std::vector<std::thread> pushers;
+    for (int i = 0; i < 2; ++i)
+      pushers.emplace_back([this, &in, &change, i]() {
+        for (const Frame& f : in.frames) {
+          GstBuffer* b = make_buffer(in, i, f);
+          if (i == 1) change(b);
+          if (gst_harness_push(harnesses[std::size_t(i)], b) != GST_FLOW_OK) break;
+        }
+      });
+    const auto [message, debug] = pop_error(5.0);
+    gst_element_set_state(element, GST_STATE_NULL);  // unblocks the pushers
+    for (auto& t : pushers) t.join();
+    return message + " | " + debug;
+  }
+};
+
+TEST_F(StitchSyncBadTiming, ABytesSegmentIsAnErrorNamingTheInput) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_src_caps_str(h, rgba_caps(30).c_str());
+  GstSegment bytes;
+  gst_segment_init(&bytes, GST_FORMAT_BYTES);
+  gst_pad_push_event(harnesses[1]->srcpad, gst_event_new_segment(&bytes));
+  const std::string error = push_and_error([](GstBuffer*) {});
+  EXPECT_NE(error.find("sink_1"), std::string::npos) << error;
+  EXPECT_NE(error.find("bytes segment"), std::string::npos) << error;
+  EXPECT_NE(error.find("format=time"), std::string::npos) << error;
+}
+
+TEST_F(StitchSyncBadTiming, FramesWithoutTimestampsAreAnErrorNamingTheInput) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_src_caps_str(h, rgba_caps(30).c_str());
+  const std::string error = push_and_error([](GstBuffer* b) {
+    GST_BUFFER_PTS(b) = GST_CLOCK_TIME_NONE;
+    GST_BUFFER_DURATION(b) = GST_CLOCK_TIME_NONE;
+  });
+  EXPECT_NE(error.find("sink_1"), std::string::npos) << error;
+  EXPECT_NE(error.find("without a timestamp"), std::string::npos) << error;
+}
+
+// The same when the timestamps stop mid-stream (after bundles were made).
+TEST_F(StitchSyncBadTiming, FramesLosingTheirTimestampsMidStreamAreAnErrorNamingTheInput) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_src_caps_str(h, rgba_caps(30).c_str());
+  int seen = 0;
+  const std::string error = push_and_error(
+      [&seen](GstBuffer* b) {
+        if (++seen > 5) GST_BUFFER_PTS(b) = GST_CLOCK_TIME_NONE;
+      },
+      10);
+  EXPECT_NE(error.find("sink_1"), std::string::npos) << error;
+  EXPECT_NE(error.find("without a timestamp"), std::string::npos) << error;
+}
+
+// Non-live cameras whose timestamps all start at 100 s (an application's capture clock): the
+// output starts at their first frame. It started at zero: 100 s of bundles without any frame,
+// every camera "dropped out", and stitchcalib's calibration-timeout spent on them in a moment.
+TEST_F(StitchSyncTest, NonLiveInputsStartingLateStartTheOutputAtTheirFirstFrame) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_live(h, FALSE);  // (a harness says live by default)
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 10, 100 * GST_SECOND));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 10, 100 * GST_SECOND + 5 * GST_MSECOND));
+  run(in);
+  EXPECT_TRUE(got_eos);
+  ASSERT_EQ(outputs.size(), 11u);  // input 1 ends 5 ms after input 0: one more output covers it
+  EXPECT_EQ(GST_BUFFER_PTS(outputs[0]), 100 * GST_SECOND);
+  const GstStitchBundleMeta* bm = bundle_meta(outputs[1]);
+  ASSERT_NE(bm, nullptr);
+  EXPECT_EQ(bm->missing_mask, 0u);
+  EXPECT_EQ(decode_frame(read_view(outputs[1], 0), 0), 1);
+  const int other = decode_frame(read_view(outputs[1], 1), 1);  // its frame 0 or 1 (5 ms later)
+  EXPECT_TRUE(other == 0 || other == 1) << other;
+}
+
+// One non-live camera stamped by another clock (its frames start 100 s after the other's): a
+// warning names it and says how to shift it (before, only "no frame since the start").
+TEST_F(StitchSyncTest, AnInputStartingFarAfterTheOthersIsNamedInAWarning) {
+  attach(2);
+  for (GstHarness* h : harnesses) gst_harness_set_live(h, FALSE);
+  std::vector<Input> in(2);
+  in[0] = rgba_input(rgba_caps(30), frames_at(30, 3));
+  in[1] = rgba_input(rgba_caps(30), frames_at(30, 3, 100 * GST_SECOND));
+  run(in, {}, 2.0);
+  std::string warnings;
+  while (GstMessage* m = gst_bus_pop_filtered(bus, GST_MESSAGE_WARNING)) {
+    GError* err = nullptr;
+    gst_message_parse_warning(m, &err, nullptr);
+    warnings += std::string(err ? err->message : "") + "\n";
+    g_clear_error(&err);
+    gst_message_unref(m);
+  }
+  EXPECT_NE(warnings.find("Input sink_1's first frame is at running time 100.000 s"), std::string::npos) << warnings;
+  EXPECT_NE(warnings.find("another clock"), std::string::npos) << warnings;
+}
+
+// A player asks whether it may seek: seekable when every input is (GstAggregator says "no" for
+// any aggregator, and players grey out their seek bar although seeks work), not when one is not.
+bool pipeline_seekable(const std::string& description) {
+  GstElement* pipe = gst_parse_launch(description.c_str(), nullptr);
+  if (!pipe) return false;
+  gst_element_set_state(pipe, GST_STATE_PAUSED);
+  gst_element_get_state(pipe, nullptr, nullptr, 5 * GST_SECOND);
+  GstQuery* q = gst_query_new_seeking(GST_FORMAT_TIME);
+  gboolean seekable = FALSE;
+  if (gst_element_query(pipe, q)) gst_query_parse_seeking(q, nullptr, &seekable, nullptr, nullptr);
+  gst_query_unref(q);
+  gst_element_set_state(pipe, GST_STATE_NULL);
+  gst_object_unref(pipe);
+  return seekable;
+}
+
+TEST(StitchSyncQueries, SeekableWhenEveryInputIs) {
+  const std::string caps = " ! video/x-raw,width=64,height=48 ! ";
+  EXPECT_TRUE(pipeline_seekable("stitchsync name=s ! fakesink videotestsrc num-buffers=30" + caps +
+                                "s.sink_0 videotestsrc num-buffers=30 pattern=ball" + caps + "s.sink_1"));
+  EXPECT_FALSE(pipeline_seekable("stitchsync name=s ! fakesink videotestsrc num-buffers=30" + caps +
+                                 "s.sink_0 appsrc caps=video/x-raw,format=RGBA,width=64,height=48,framerate=30/1 "
+                                 "format=time ! s.sink_1"));
 }
 
 }  // namespace

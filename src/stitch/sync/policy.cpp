@@ -45,6 +45,11 @@ bool update_dropout(DropoutTrack& track, const InputFacts& in, int64_t now, int6
   return true;
 }
 
+int64_t first_output_at(int64_t earliest, int64_t output, int64_t timeout) {
+  if (earliest == kNoTime || output == kNoTime) return kNoTime;
+  return earliest > output + timeout ? earliest : kNoTime;
+}
+
 StartDecision may_start(const std::vector<InputFacts>& inputs, int64_t waited, int64_t timeout) {
   int negotiated = 0;
   for (const InputFacts& in : inputs) negotiated += in.negotiated ? 1 : 0;

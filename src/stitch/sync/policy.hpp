@@ -55,6 +55,19 @@ enum class StartDecision {
 // passed since the first input was ready (`waited`).
 StartDecision may_start(const std::vector<InputFacts>& inputs, int64_t waited, int64_t timeout);
 
+// Where a non-live output starts, from the inputs' first frames (running times; `earliest` and
+// `latest` over the inputs, `output` where the output would start): at `earliest` when it lies
+// more than `timeout` after `output` (cameras stamped by a capture clock: all start at, say, 100 s,
+// and bundles without a frame up to there would make every camera "dropped out"); otherwise
+// kNoTime, the output starts where it was going to (a closer start keeps the first bundle at zero).
+int64_t first_output_at(int64_t earliest, int64_t output, int64_t timeout);
+// One camera whose first frame comes this long after the earliest camera's is more likely
+// stamped by another clock than started late (late cameras are a few seconds at most).
+constexpr int64_t kFarApartStart = 10'000'000'000;
+inline bool starts_far_apart(int64_t earliest, int64_t latest) {
+  return earliest != kNoTime && latest != kNoTime && latest > earliest + kFarApartStart;
+}
+
 // A non-live input that has delivered nothing holds GstAggregator, which waits for data on every
 // non-live pad: the other cameras would never go on. Once `timeout` has passed since the first
 // input delivered (`since_first`, any clock), the element stands in for it with gaps (GAP events:
