@@ -25,7 +25,7 @@ struct AreaAlignOptions {
   double min_strip_ncc = 0.3;     // the whole overlap's correlation at its best shift (a third of a
                                   // predicted overlap may lie beyond the true one)
   int peak_exclusion_px = 4;      // the runner-up shift is sought this far from the best
-  double min_peak_margin = 0.1;   // and must correlate this much less (a distinct shift)
+  double min_peak_margin = 0.05;  // and must correlate this much less (a distinct shift)
   double local_search_px = 8;     // patches are then sought this far around that shift
   int min_agreeing = 8;    // patches that agree on one motion, to call the pair measured
   double agree_px = 2.0;   // RANSAC tolerance of that motion

@@ -512,14 +512,15 @@ PairData rematch_pair_near(const FeatureSets& feats, int a, int b, const Calibra
 
 // Whether the rig's rotations overlap pinhole views a and b (a 9 x 9 grid of A, at least 3
 // points in B).
-bool rotations_overlap(const Rig& rig, int a, int b) {
+bool rotations_overlap(const Rig& rig, int a, int b, double margin_px = 0) {
   const Camera &A = rig.cameras[std::size_t(a)], &B = rig.cameras[std::size_t(b)];
   const Eigen::Matrix3d Hab = B.K() * B.R().transpose() * A.R() * A.K().inverse();
   int seen = 0;
   for (int gy = 0; gy < 9; ++gy)
     for (int gx = 0; gx < 9; ++gx) {
       const Eigen::Vector3d q = Hab * Eigen::Vector3d((A.width - 1) * gx / 8.0, (A.height - 1) * gy / 8.0, 1.0);
-      if (q.z() > 1e-9 && q.x() >= 0 && q.y() >= 0 && q.x() <= (B.width - 1) * q.z() && q.y() <= (B.height - 1) * q.z())
+      if (q.z() > 1e-9 && q.x() >= -margin_px * q.z() && q.y() >= -margin_px * q.z() &&
+          q.x() <= (B.width - 1 + margin_px) * q.z() && q.y() <= (B.height - 1 + margin_px) * q.z())
         ++seen;
     }
   return seen >= 3;
@@ -546,8 +547,9 @@ bool rescue_pairs_by_rotations(const Rig& rig, const FeatureSets& feats, std::ve
 
 // Ring closure (area_align.hpp). The search range: closure errors of 20-50 px were measured on
 // 640 px views (probe4: 4 x hfov 100, 6 x hfov 65), so an eighth of the wider view.
-constexpr double kAreaSearchFraction = 0.125;
+constexpr double kAreaSearchFraction = 0.2;
 constexpr double kAreaRefineSearchPx = 8.0;  // the second pass, through the refit
+constexpr double kTiedSearchPx = 16.0;       // checking a pair that feature matches tie
 // A pair this far off where the views overlap is reported (a seam a viewer sees); a rig joined on
 // a looser pass (bridge_sparse_pairs) is kept only when every overlap is within kVerifiedPx.
 constexpr double kMisalignedPx = 3.0, kVerifiedPx = 2.0;
@@ -599,8 +601,10 @@ bool close_pairs_by_area(const Rig& rig, const std::vector<cv::Mat>& gray, std::
   bool any = false;
   for (auto& p : pairs) {
     throw_if_cancelled(o);
-    if (p.ok || p.rays || !rotations_overlap(rig, p.a, p.b)) continue;
-    const AreaAlignment al = align_pair_by_area(rig, p.a, p.b, gray, area_search_px(rig, p.a, p.b));
+    // Within the search range: a ring that does not close may predict its closing views apart.
+    const double search = area_search_px(rig, p.a, p.b);
+    if (p.ok || p.rays || !rotations_overlap(rig, p.a, p.b, search)) continue;
+    const AreaAlignment al = align_pair_by_area(rig, p.a, p.b, gray, search);
     if (!al.measured) continue;
     p = pair_from_area(p.a, p.b, al, o, p.matches);
     any = true;
@@ -635,7 +639,9 @@ std::vector<OverlapCheck> check_overlaps(const Rig& rig, const std::vector<cv::M
     OverlapCheck c;
     c.a = p.a;
     c.b = p.b;
-    c.al = align_pair_by_area(rig, p.a, p.b, gray, area_search_px(rig, p.a, p.b));
+    // A pair the features tie cannot be far off: a narrow search (the wide one's template, most
+    // of it beyond a thin overlap, correlates weakly).
+    c.al = align_pair_by_area(rig, p.a, p.b, gray, p.ok && !p.area ? kTiedSearchPx : area_search_px(rig, p.a, p.b));
     out.push_back(std::move(c));
   }
   return out;
