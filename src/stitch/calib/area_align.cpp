@@ -50,6 +50,83 @@ void resample(const LocalCylinder& cyl, const Camera& c, const cv::Mat& gray, cv
   cv::remap(gray, out, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
 }
 
+// The whole overlap's correlation map: its best shift `at`, when it stands out (min_strip_ncc, and
+// the runner-up, the best other local maximum, min_peak_margin below it; a broad peak has none).
+bool distinct_peak(cv::Mat& score, const AreaAlignOptions& o, cv::Point& at) {
+  // Windows with no variance (a flat fill) give NaN or infinity.
+  cv::patchNaNs(score, -1);
+  score.setTo(-1, (score > 1.001) | (score < -1.001));
+  double best = 0;
+  cv::minMaxLoc(score, nullptr, &best, nullptr, &at);
+  cv::Mat dil, rest = score.clone();
+  cv::dilate(score, dil, cv::Mat::ones(5, 5, CV_8U));
+  rest.setTo(-1, score < dil);
+  cv::circle(rest, at, o.peak_exclusion_px, cv::Scalar(-1), cv::FILLED);
+  double second = -1;
+  cv::minMaxLoc(rest, nullptr, &second);
+  return best >= o.min_strip_ncc && second <= best - o.min_peak_margin;
+}
+
+// Textured patches of `from_img` (centres where `centres` is set) located in `to_img` near
+// the shift (gx, gy), to a sub-pixel by a parabola per axis.
+void locate_patches(const cv::Mat& from_img, const cv::Mat& to_img, const cv::Mat& centres, int gx, int gy,
+                    const AreaAlignOptions& o, std::vector<cv::Point2f>& from, std::vector<cv::Point2f>& to) {
+  const int r = o.patch_radius, L = int(std::ceil(o.local_search_px));
+  std::vector<cv::Point2f> corners;
+  cv::goodFeaturesToTrack(from_img, corners, o.max_patches, 0.02, r, centres, 7);
+  cv::Mat score;
+  for (const cv::Point2f& c : corners) {
+    const int cx = int(std::lround(c.x)), cy = int(std::lround(c.y));
+    const cv::Rect tr(cx - r, cy - r, 2 * r + 1, 2 * r + 1);
+    cv::Rect near(cx + gx - r - L, cy + gy - r - L, 2 * (r + L) + 1, 2 * (r + L) + 1);
+    near &= cv::Rect(0, 0, to_img.cols, to_img.rows);
+    if (near.width < tr.width + 2 || near.height < tr.height + 2) continue;
+    cv::matchTemplate(to_img(near), from_img(tr), score, cv::TM_CCOEFF_NORMED);
+    double best = 0;
+    cv::Point at;
+    cv::minMaxLoc(score, nullptr, &best, nullptr, &at);
+    if (!(best >= o.min_ncc)) continue;
+    double dx = 0, dy = 0;
+    if (at.x > 0 && at.x < score.cols - 1) {
+      const float l = score.at<float>(at.y, at.x - 1), m = score.at<float>(at), rr = score.at<float>(at.y, at.x + 1);
+      const double den = l - 2 * m + rr;
+      if (den < 0) dx = std::clamp(0.5 * (l - rr) / den, -0.5, 0.5);
+    }
+    if (at.y > 0 && at.y < score.rows - 1) {
+      const float u = score.at<float>(at.y - 1, at.x), m = score.at<float>(at), d = score.at<float>(at.y + 1, at.x);
+      const double den = u - 2 * m + d;
+      if (den < 0) dy = std::clamp(0.5 * (u - d) / den, -0.5, 0.5);
+    }
+    from.emplace_back(float(cx), float(cy));
+    to.emplace_back(float(near.x + at.x + r + dx), float(near.y + at.y + r + dy));
+  }
+}
+
+// The patches that agree on one near-rigid motion (a rotation error over a seam is nearly a
+// shift; a focal error adds a small scale): `inl`.
+bool agree_on_one_motion(const std::vector<cv::Point2f>& from, const std::vector<cv::Point2f>& to,
+                         const AreaAlignOptions& o, std::vector<uchar>& inl) {
+  if (int(from.size()) < std::max(3, o.min_agreeing)) return false;
+  const cv::Mat M = cv::estimateAffinePartial2D(from, to, inl, cv::RANSAC, o.agree_px, 2000, 0.995, 10);
+  if (M.empty()) return false;
+  const double scale = std::hypot(M.at<double>(0, 0), M.at<double>(1, 0));
+  return scale > 0.9 && scale < 1.1;
+}
+
+// Measured when most of the patches that correlated agree (chance agreement of a few in a plain
+// or repeated texture is not a measurement): the offset is their median distance.
+void conclude(AreaAlignment& out, std::vector<double> dist, const AreaAlignOptions& o) {
+  out.agreeing = int(dist.size());
+  if (out.agreeing < o.min_agreeing || out.agreeing * 5 < out.patches * 2) {
+    out.pa.clear();
+    out.pb.clear();
+    return;
+  }
+  std::nth_element(dist.begin(), dist.begin() + dist.size() / 2, dist.end());
+  out.offset_px = dist[dist.size() / 2];
+  out.measured = true;
+}
+
 // In b's own pixels (a rotation error is a shift there away from wide lenses' edges): the
 // first try, measured on every probe4 rig but one.
 AreaAlignment align_in_b_frame(const Camera& a, const Camera& b, const cv::Mat& gray_a, const cv::Mat& gray_b,
@@ -101,60 +178,16 @@ AreaAlignment align_in_b_frame(const Camera& a, const Camera& b, const cv::Mat& 
   cv::Mat score;
   cv::matchTemplate(padded(cv::Rect(box.x, box.y, box.width + 2 * S, box.height + 2 * S)), a_in_b(box), score,
                     cv::TM_CCOEFF_NORMED, valid(box));
-  cv::patchNaNs(score, -1);
-  double best = 0;
   cv::Point at;
-  cv::minMaxLoc(score, nullptr, &best, nullptr, &at);
-  {
-    // The runner-up: the best other local maximum (a broad peak has none near it).
-    cv::Mat dil, rest = score.clone();
-    cv::dilate(score, dil, cv::Mat::ones(5, 5, CV_8U));
-    rest.setTo(-1, score < dil);
-    cv::circle(rest, at, o.peak_exclusion_px, cv::Scalar(-1), cv::FILLED);
-    double second = -1;
-    cv::minMaxLoc(rest, nullptr, &second);
-    if (!(best >= o.min_strip_ncc) || second > best - o.min_peak_margin) return out;
-  }
+  if (!distinct_peak(score, o, at)) return out;
   const int gx = at.x - S, gy = at.y - S;
   // 2. Textured patches located near that shift: the correspondences.
-  std::vector<cv::Point2f> corners;
-  cv::goodFeaturesToTrack(a_in_b, corners, o.max_patches, 0.02, r, inner, 7);
-  const int L = int(std::ceil(o.local_search_px));
   std::vector<cv::Point2f> from, to;
-  for (const cv::Point2f& c : corners) {
-    const int cx = int(std::lround(c.x)), cy = int(std::lround(c.y));
-    const cv::Rect tr(cx - r, cy - r, 2 * r + 1, 2 * r + 1);
-    cv::Rect win(cx + gx - r - L, cy + gy - r - L, 2 * (r + L) + 1, 2 * (r + L) + 1);
-    win &= cv::Rect(0, 0, gray_b.cols, gray_b.rows);
-    if (win.width < tr.width + 2 || win.height < tr.height + 2) continue;
-    cv::matchTemplate(gray_b(win), a_in_b(tr), score, cv::TM_CCOEFF_NORMED);
-    cv::minMaxLoc(score, nullptr, &best, nullptr, &at);
-    if (!(best >= o.min_ncc)) continue;
-    // Sub-pixel peak (a parabola per axis) where the peak is inside the score map.
-    double dx = 0, dy = 0;
-    if (at.x > 0 && at.x < score.cols - 1) {
-      const float l = score.at<float>(at.y, at.x - 1), m = score.at<float>(at), rr = score.at<float>(at.y, at.x + 1);
-      const double den = l - 2 * m + rr;
-      if (den < 0) dx = std::clamp(0.5 * (l - rr) / den, -0.5, 0.5);
-    }
-    if (at.y > 0 && at.y < score.rows - 1) {
-      const float u = score.at<float>(at.y - 1, at.x), m = score.at<float>(at), d = score.at<float>(at.y + 1, at.x);
-      const double den = u - 2 * m + d;
-      if (den < 0) dy = std::clamp(0.5 * (u - d) / den, -0.5, 0.5);
-    }
-    from.emplace_back(float(cx), float(cy));
-    to.emplace_back(float(win.x + at.x + r + dx), float(win.y + at.y + r + dy));
-  }
+  locate_patches(a_in_b, gray_b, inner, gx, gy, o, from, to);
   out.patches = int(from.size());
 
-  if (out.patches < std::max(3, o.min_agreeing)) return out;
-  // The patches that agree on one near-rigid motion (a rotation error over a seam is nearly a
-  // shift; a focal error adds a small scale).
   std::vector<uchar> inl;
-  const cv::Mat M = cv::estimateAffinePartial2D(from, to, inl, cv::RANSAC, o.agree_px, 2000, 0.995, 10);
-  if (M.empty()) return out;
-  const double scale = std::hypot(M.at<double>(0, 0), M.at<double>(1, 0));
-  if (!(scale > 0.9 && scale < 1.1)) return out;
+  if (!agree_on_one_motion(from, to, o, inl)) return out;
   std::vector<double> dist;
   for (std::size_t k = 0; k < from.size(); ++k) {
     if (!inl[k]) continue;
@@ -163,17 +196,7 @@ AreaAlignment align_in_b_frame(const Camera& a, const Camera& b, const cv::Mat& 
     out.pb.emplace_back(to[k].x, to[k].y);
     dist.push_back(std::hypot(to[k].x - from[k].x, to[k].y - from[k].y));
   }
-  out.agreeing = int(dist.size());
-  // Most of the patches that correlated: chance agreement of a few in a plain or repeated
-  // texture is not a measurement.
-  if (out.agreeing < o.min_agreeing || out.agreeing * 5 < out.patches * 2) {
-    out.pa.clear();
-    out.pb.clear();
-    return out;
-  }
-  std::nth_element(dist.begin(), dist.begin() + dist.size() / 2, dist.end());
-  out.offset_px = dist[dist.size() / 2];
-  out.measured = true;
+  conclude(out, dist, o);
   return out;
 }
 
@@ -225,22 +248,8 @@ AreaAlignment align_on_local_cylinder(const Camera& a, const Camera& b, const cv
   const cv::Rect win(box.x, box.y, box.width + 2 * S, box.height + 2 * S);  // padded coordinates
   cv::Mat score;
   cv::matchTemplate(padded(win), ca(box), score, cv::TM_CCOEFF_NORMED, tmask(box));
-  // Windows with no variance (b's flat fill) give NaN or infinity.
-  cv::patchNaNs(score, -1);
-  score.setTo(-1, (score > 1.001) | (score < -1.001));
-  double best = 0;
   cv::Point at;
-  cv::minMaxLoc(score, nullptr, &best, nullptr, &at);
-  {
-    // The runner-up: the best other local maximum (a broad peak has none near it).
-    cv::Mat dil, rest = score.clone();
-    cv::dilate(score, dil, cv::Mat::ones(5, 5, CV_8U));
-    rest.setTo(-1, score < dil);
-    cv::circle(rest, at, o.peak_exclusion_px, cv::Scalar(-1), cv::FILLED);
-    double second = -1;
-    cv::minMaxLoc(rest, nullptr, &second);
-    if (!(best >= o.min_strip_ncc) || second > best - o.min_peak_margin) return out;
-  }
+  if (!distinct_peak(score, o, at)) return out;
   const int gx = at.x - S, gy = at.y - S;
   // 2. Textured patches of a located near that shift in b: the correspondences.
   cv::Mat inner_a, inner_b;
@@ -255,44 +264,12 @@ AreaAlignment align_on_local_cylinder(const Camera& a, const Camera& b, const cv
     cv::bitwise_and(inner_a, shifted, inner_a);
   }
   if (cv::countNonZero(inner_a) == 0) return out;
-  std::vector<cv::Point2f> corners;
-  cv::goodFeaturesToTrack(ca, corners, o.max_patches, 0.02, r, inner_a, 7);
-  const int L = int(std::ceil(o.local_search_px));
   std::vector<cv::Point2f> from, to;
-  for (const cv::Point2f& c : corners) {
-    const int cx = int(std::lround(c.x)), cy = int(std::lround(c.y));
-    const cv::Rect tr(cx - r, cy - r, 2 * r + 1, 2 * r + 1);
-    cv::Rect near(cx + gx - r - L, cy + gy - r - L, 2 * (r + L) + 1, 2 * (r + L) + 1);
-    near &= cv::Rect(0, 0, cb.cols, cb.rows);
-    if (near.width < tr.width + 2 || near.height < tr.height + 2) continue;
-    cv::matchTemplate(cb(near), ca(tr), score, cv::TM_CCOEFF_NORMED);
-    cv::minMaxLoc(score, nullptr, &best, nullptr, &at);
-    if (!(best >= o.min_ncc)) continue;
-    // Sub-pixel peak (a parabola per axis) where the peak is inside the score map.
-    double dx = 0, dy = 0;
-    if (at.x > 0 && at.x < score.cols - 1) {
-      const float l = score.at<float>(at.y, at.x - 1), m = score.at<float>(at), rr = score.at<float>(at.y, at.x + 1);
-      const double den = l - 2 * m + rr;
-      if (den < 0) dx = std::clamp(0.5 * (l - rr) / den, -0.5, 0.5);
-    }
-    if (at.y > 0 && at.y < score.rows - 1) {
-      const float u = score.at<float>(at.y - 1, at.x), m = score.at<float>(at), d = score.at<float>(at.y + 1, at.x);
-      const double den = u - 2 * m + d;
-      if (den < 0) dy = std::clamp(0.5 * (u - d) / den, -0.5, 0.5);
-    }
-    from.emplace_back(float(cx), float(cy));
-    to.emplace_back(float(near.x + at.x + r + dx), float(near.y + at.y + r + dy));
-  }
+  locate_patches(ca, cb, inner_a, gx, gy, o, from, to);
   out.patches = int(from.size());
 
-  if (out.patches < std::max(3, o.min_agreeing)) return out;
-  // The patches that agree on one near-rigid motion (a rotation error over a seam is nearly a
-  // shift; a focal error adds a small scale).
   std::vector<uchar> inl;
-  const cv::Mat M = cv::estimateAffinePartial2D(from, to, inl, cv::RANSAC, o.agree_px, 2000, 0.995, 10);
-  if (M.empty()) return out;
-  const double scale = std::hypot(M.at<double>(0, 0), M.at<double>(1, 0));
-  if (!(scale > 0.9 && scale < 1.1)) return out;
+  if (!agree_on_one_motion(from, to, o, inl)) return out;
   // Back to camera pixels: a's patch centre in a; where b sees it, and where the rig predicts it
   // (the offset, b pixels).
   std::vector<double> dist;
@@ -306,17 +283,7 @@ AreaAlignment align_on_local_cylinder(const Camera& a, const Camera& b, const cv
     out.pb.push_back(pb);
     dist.push_back((pb - predicted).norm());
   }
-  out.agreeing = int(dist.size());
-  // Most of the patches that correlated: chance agreement of a few in a plain or repeated
-  // texture is not a measurement.
-  if (out.agreeing < o.min_agreeing || out.agreeing * 5 < out.patches * 2) {
-    out.pa.clear();
-    out.pb.clear();
-    return out;
-  }
-  std::nth_element(dist.begin(), dist.begin() + dist.size() / 2, dist.end());
-  out.offset_px = dist[dist.size() / 2];
-  out.measured = true;
+  conclude(out, dist, o);
   return out;
 }
 
