@@ -7,6 +7,7 @@
 #include <regex>
 #include <sstream>
 
+#include "stitch/calib/area_align.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 
@@ -466,7 +467,25 @@ RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets
           cam_matches += rep.matches;
         }
       }
-      if (p.matches == 0) continue;
+      if (p.matches == 0) {
+        // No feature matches to measure by (a plain or thin overlap, a ring's closing pair):
+        // the overlap aligned by area (area_align.hpp), so that a seam far off there is in the
+        // figure too. Its patches count as matches; camera pixels stand for canvas pixels.
+        for (const auto& set : sets) {
+          if (int(set.images.size()) != n) continue;
+          const auto views = set.views();
+          cv::Mat ga, gb;
+          cv::cvtColor(as_mat(views[std::size_t(a)]), ga, cv::COLOR_RGBA2GRAY);
+          cv::cvtColor(as_mat(views[std::size_t(b)]), gb, cv::COLOR_RGBA2GRAY);
+          const AreaAlignment al = align_overlap_by_area(rig.cameras[std::size_t(a)], rig.cameras[std::size_t(b)], ga, gb);
+          if (!al.measured) continue;
+          p.matches = al.agreeing;
+          pair_sum = pair_cam_sum = al.offset_px * al.agreeing;
+          cam_matches = al.agreeing;
+          break;
+        }
+        if (p.matches == 0) continue;
+      }
       p.median_px = pair_sum / p.matches;
       if (cam_matches > 0) {
         p.median_camera_px = pair_cam_sum / cam_matches;

@@ -1,5 +1,6 @@
 #include "stitch/calib/calibrator.hpp"
 
+#include <functional>
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -14,6 +15,7 @@
 #include <random>
 #include <set>
 
+#include "stitch/calib/area_align.hpp"
 #include "stitch/calib/bundle_adjust.hpp"
 #include "stitch/calib/dense_matches.hpp"
 #include "stitch/calib/fisheye_guess.hpp"
@@ -363,6 +365,8 @@ struct PairData {
   // Ray path (wide lenses): pa/pb hold the raw pixels too, H is unused; residuals go through
   // the lenses (raw pixel -> ray -> raw pixel).
   bool rays = false;
+  // Correspondences from an area alignment of the overlap (close_pairs_by_area), not features.
+  bool area = false;
   int held_count() const { return int(std::count(held.begin(), held.end(), 1)); }
 };
 
@@ -506,6 +510,22 @@ PairData rematch_pair_near(const FeatureSets& feats, int a, int b, const Calibra
   return p;
 }
 
+// Whether the rig's rotations overlap pinhole views a and b (a 9 x 9 grid of A, at least 3
+// points in B).
+bool rotations_overlap(const Rig& rig, int a, int b, double margin_px = 0) {
+  const Camera &A = rig.cameras[std::size_t(a)], &B = rig.cameras[std::size_t(b)];
+  const Eigen::Matrix3d Hab = B.K() * B.R().transpose() * A.R() * A.K().inverse();
+  int seen = 0;
+  for (int gy = 0; gy < 9; ++gy)
+    for (int gx = 0; gx < 9; ++gx) {
+      const Eigen::Vector3d q = Hab * Eigen::Vector3d((A.width - 1) * gx / 8.0, (A.height - 1) * gy / 8.0, 1.0);
+      if (q.z() > 1e-9 && q.x() >= -margin_px * q.z() && q.y() >= -margin_px * q.z() &&
+          q.x() <= (B.width - 1 + margin_px) * q.z() && q.y() <= (B.height - 1 + margin_px) * q.z())
+        ++seen;
+    }
+  return seen >= 3;
+}
+
 // Every refused pinhole pair whose views the fitted rotations overlap, matched again near that
 // geometry (rematch_pair_near); true when one was kept.
 bool rescue_pairs_by_rotations(const Rig& rig, const FeatureSets& feats, std::vector<PairData>& pairs,
@@ -516,21 +536,115 @@ bool rescue_pairs_by_rotations(const Rig& rig, const FeatureSets& feats, std::ve
     const Camera &A = rig.cameras[std::size_t(p.a)], &B = rig.cameras[std::size_t(p.b)];
     if (!A.lens.pinhole() || !B.lens.pinhole()) continue;
     const Eigen::Matrix3d Hab = B.K() * B.R().transpose() * A.R() * A.K().inverse();
-    // Only views the fitted rotations overlap (a 9 x 9 grid of A, at least 3 points in B).
-    int seen = 0;
-    for (int gy = 0; gy < 9; ++gy)
-      for (int gx = 0; gx < 9; ++gx) {
-        const Eigen::Vector3d q = Hab * Eigen::Vector3d((A.width - 1) * gx / 8.0, (A.height - 1) * gy / 8.0, 1.0);
-        if (q.z() > 1e-9 && q.x() >= 0 && q.y() >= 0 && q.x() <= (B.width - 1) * q.z() && q.y() <= (B.height - 1) * q.z())
-          ++seen;
-      }
-    if (seen < 3) continue;
+    if (!rotations_overlap(rig, p.a, p.b)) continue;
     PairData q = rematch_pair_near(feats, p.a, p.b, o, Hab, kRescueTolerancePx);
     if (!q.ok) continue;
     p = std::move(q);
     any = true;
   }
   return any;
+}
+
+// Ring closure (area_align.hpp). The search range: closure errors of 20-50 px were measured on
+// 640 px views (probe4: 4 x hfov 100, 6 x hfov 65), so an eighth of the wider view.
+constexpr double kAreaSearchFraction = 0.2;
+constexpr double kAreaRefineSearchPx = 8.0;  // the second pass, through the refit
+constexpr double kTiedSearchPx = 16.0;       // checking a pair that feature matches tie
+// A pair this far off where the views overlap is reported (a seam a viewer sees); a rig joined on
+// a looser pass (bridge_sparse_pairs) is kept only when every overlap is within kVerifiedPx.
+constexpr double kMisalignedPx = 3.0, kVerifiedPx = 2.0;
+
+AreaAlignment align_pair_by_area(const Rig& rig, int a, int b, const std::vector<cv::Mat>& gray, double search_px) {
+  AreaAlignOptions ao;
+  ao.search_px = search_px;
+  return align_overlap_by_area(rig.cameras[std::size_t(a)], rig.cameras[std::size_t(b)], gray[std::size_t(a)],
+                               gray[std::size_t(b)], ao);
+}
+double area_search_px(const Rig& rig, int a, int b) {
+  return kAreaSearchFraction * std::max(rig.cameras[std::size_t(a)].width, rig.cameras[std::size_t(b)].width);
+}
+
+// An area alignment's correspondences as a usable pair (fitted like feature matches).
+PairData pair_from_area(int a, int b, const AreaAlignment& al, const CalibrationOptions& o, int feature_matches) {
+  PairData p;
+  p.a = a;
+  p.b = b;
+  p.matches = feature_matches;
+  p.inliers = al.agreeing;
+  p.area = true;
+  p.pa = al.pa;
+  p.pb = al.pb;
+  std::vector<cv::Point2f> s, d;
+  for (std::size_t k = 0; k < al.pa.size(); ++k) {
+    s.emplace_back(float(al.pa[k].x()), float(al.pa[k].y()));
+    d.emplace_back(float(al.pb[k].x()), float(al.pb[k].y()));
+  }
+  const cv::Mat H = s.size() >= 8 ? cv::findHomography(s, d, 0) : cv::Mat();
+  if (!H.empty()) p.H = to_eigen(H);
+  const int every = std::max(o.holdout_every, 0);
+  for (std::size_t k = 0; k < al.pa.size(); ++k) {
+    p.weight.push_back(1.0);
+    p.held.push_back(every >= 2 && int(k) % every == every / 2);
+  }
+  p.ok = true;
+  p.note = "kept: the overlap aligned by area (" + std::to_string(al.agreeing) + " patches agree, " +
+           std::to_string(al.offset_px).substr(0, 5) + " px off the rotations the other pairs fit)";
+  return p;
+}
+
+// Every refused pinhole pair whose views the fitted rotations overlap, aligned by area over a
+// range wide enough for a ring's closure error; the measured ones become usable pairs. A 360-degree
+// ring's closing pair then ties its seam and the shared focal length follows the closure. True
+// when one was kept.
+bool close_pairs_by_area(const Rig& rig, const std::vector<cv::Mat>& gray, std::vector<PairData>& pairs,
+                         const CalibrationOptions& o) {
+  bool any = false;
+  for (auto& p : pairs) {
+    throw_if_cancelled(o);
+    // Within the search range: a ring that does not close may predict its closing views apart.
+    const double search = area_search_px(rig, p.a, p.b);
+    if (p.ok || p.rays || !rotations_overlap(rig, p.a, p.b, search)) continue;
+    const AreaAlignment al = align_pair_by_area(rig, p.a, p.b, gray, search);
+    if (!al.measured) continue;
+    p = pair_from_area(p.a, p.b, al, o, p.matches);
+    any = true;
+  }
+  return any;
+}
+
+// The area pairs placed again through a refit (the patches warped with the better geometry,
+// searched near it): their correspondences then hold to a fraction of a pixel.
+void refresh_area_pairs(const Rig& rig, const std::vector<cv::Mat>& gray, std::vector<PairData>& pairs,
+                        const CalibrationOptions& o) {
+  for (auto& p : pairs) {
+    if (!p.area || !p.ok) continue;
+    const AreaAlignment al = align_pair_by_area(rig, p.a, p.b, gray, kAreaRefineSearchPx);
+    if (al.measured) p = pair_from_area(p.a, p.b, al, o, p.matches);
+  }
+}
+
+// How far off the rig is where the views of each pair overlap, measured on the pictures: every
+// pair that feature matches do not tie (`all`: every pair), whose views the rig overlaps.
+struct OverlapCheck {
+  int a = -1, b = -1;
+  AreaAlignment al;
+};
+std::vector<OverlapCheck> check_overlaps(const Rig& rig, const std::vector<cv::Mat>& gray,
+                                         const std::vector<PairData>& pairs, bool all) {
+  std::vector<OverlapCheck> out;
+  for (const auto& p : pairs) {
+    if (p.rays || (p.ok && !p.area && !all)) continue;
+    if (!rig.cameras[std::size_t(p.a)].lens.pinhole() || !rig.cameras[std::size_t(p.b)].lens.pinhole()) continue;
+    if (!rotations_overlap(rig, p.a, p.b)) continue;
+    OverlapCheck c;
+    c.a = p.a;
+    c.b = p.b;
+    // A pair the features tie cannot be far off: a narrow search (the wide one's template, most
+    // of it beyond a thin overlap, correlates weakly).
+    c.al = align_pair_by_area(rig, p.a, p.b, gray, p.ok && !p.area ? kTiedSearchPx : area_search_px(rig, p.a, p.b));
+    out.push_back(std::move(c));
+  }
+  return out;
 }
 
 Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& M);
@@ -836,6 +950,31 @@ void fill_reports(CalibrationResult& res, const std::vector<PairData>& pairs, bo
     if (r.camera_count[i]) res.cameras[i].rms_px = std::sqrt(r.camera_sum[i] / r.camera_count[i]);
 }
 
+// The overlap checks in the reports: each pair's measured offset, and a warning naming the two
+// cameras for a pair far off (never a silent wrong seam: the fitted pairs' residuals do not see it).
+void report_overlap_checks(CalibrationResult& res, const std::vector<OverlapCheck>& checks) {
+  for (const auto& c : checks) {
+    if (!c.al.measured) continue;
+    PairReport* rep = nullptr;
+    for (auto& r : res.pairs)
+      if (r.camera == c.b && r.neighbour == c.a) rep = &r;
+    if (!rep) {
+      res.pairs.push_back(PairReport{});
+      rep = &res.pairs.back();
+      rep->camera = c.b;
+      rep->neighbour = c.a;
+      rep->note = "no feature matches";
+    }
+    rep->overlap_px = c.al.offset_px;
+    if (c.al.offset_px > kMisalignedPx)
+      res.warnings.push_back("cameras " + std::to_string(c.a) + " and " + std::to_string(c.b) + " are " +
+                             std::to_string(c.al.offset_px).substr(0, 5) +
+                             " px apart where their views overlap (measured on the pictures; too few feature "
+                             "matches tie them): the seam between them will show it; give a rig-file or more "
+                             "texture in that overlap");
+  }
+}
+
 Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& M) {
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Matrix3d R = svd.matrixU() * svd.matrixV().transpose();
@@ -944,6 +1083,95 @@ RotationFit best_of(RotationFit a, RotationFit b) {
   if (!b.ok) return a;
   if (!a.ok || b.ba.rms_after_px < a.ba.rms_after_px) return b;
   return a;
+}
+
+// Cameras the match graph leaves apart (rings of small overlaps: 6-12% of a 640 px view gives
+// 8-15 consistent matches, under min_inliers, while pairs that see nothing in common reach 5-9
+// by chance): a looser first pass. The refused pinhole pairs between the graph's parts with at
+// least kBridgeMinInliers consistent matches, strongest first, join the parts (a spanning
+// forest); the rotation model is fitted on every usable pair, and each joining pair is kept only
+// when the fit explains its matches within kBridgePairPx rms (the rig's rms at most
+// kBridgeRigPx). A pair the fit does not explain is struck off and the next strongest tried.
+// Nothing changes on a graph that is already connected.
+constexpr int kBridgeMinInliers = 8;
+constexpr double kBridgePairPx = 1.5, kBridgeRigPx = 1.0;
+constexpr int kBridgeTries = 8;
+template <typename Fit>
+bool bridge_sparse_pairs(int n, std::vector<PairData>& pairs, const Fit& fit_rotations) {
+  std::vector<char> struck(pairs.size(), 0);
+  for (int attempt = 0; attempt < kBridgeTries; ++attempt) {
+    // The usable pairs' parts (union-find).
+    std::vector<int> part(static_cast<std::size_t>(n));
+    for (int i = 0; i < n; ++i) part[std::size_t(i)] = i;
+    std::function<int(int)> root = [&](int i) { return part[std::size_t(i)] == i ? i : part[std::size_t(i)] = root(part[std::size_t(i)]); };
+    int parts = n;
+    for (const auto& p : pairs)
+      if (p.ok && root(p.a) != root(p.b)) part[std::size_t(root(p.a))] = root(p.b), --parts;
+    if (parts <= 1) return false;  // nothing apart
+    std::vector<std::size_t> cand;
+    for (std::size_t i = 0; i < pairs.size(); ++i) {
+      const PairData& p = pairs[i];
+      if (p.ok || p.rays || struck[i] || int(p.pa.size()) < kBridgeMinInliers || p.pa.size() != p.held.size()) continue;
+      cand.push_back(i);
+    }
+    std::stable_sort(cand.begin(), cand.end(), [&](std::size_t x, std::size_t y) { return pairs[x].pa.size() > pairs[y].pa.size(); });
+    std::vector<std::size_t> added;
+    for (std::size_t i : cand) {
+      const int ra = root(pairs[i].a), rb = root(pairs[i].b);
+      if (ra == rb || !homography_sane_on(pairs[i].H, pairs[i].pa)) continue;  // joining pairs: a sane homography
+      part[std::size_t(ra)] = rb;
+      --parts;
+      added.push_back(i);
+    }
+    if (parts > 1 || added.empty()) return false;  // still apart: the caller says so
+    for (std::size_t i : added) pairs[i].ok = true;
+    const auto fit = fit_rotations(pairs);
+    bool all = fit.ok && fit.ba.rms_after_px <= kBridgeRigPx;
+    if (fit.ok) {
+      const Residuals r = residuals(fit.rig, pairs, true, false);
+      for (std::size_t i : added)
+        if (!(r.pair_rms[i] >= 0 && r.pair_rms[i] <= kBridgePairPx)) {
+          struck[i] = 1;
+          all = false;
+        }
+    }
+    if (all) {
+      for (std::size_t i : added)
+        pairs[i].note = "kept on a looser pass: " + std::to_string(pairs[i].pa.size()) +
+                        " consistent matches that the rotation fit explains";
+      // The other such pairs whose views the fit overlaps (a ring's closing pair: left out, the
+      // ring's whole closure error lands on its seam, 20-30 px on a 6-ring at 8% overlap), each
+      // kept when the refit explains it and still explains the joining pairs.
+      Rig rig = fit.rig;
+      for (std::size_t i : cand) {
+        if (pairs[i].ok || struck[i] || !rotations_overlap(rig, pairs[i].a, pairs[i].b)) continue;
+        pairs[i].ok = true;
+        const auto again = fit_rotations(pairs);
+        bool keep = again.ok && again.ba.rms_after_px <= kBridgeRigPx;
+        if (keep) {
+          const Residuals r = residuals(again.rig, pairs, true, false);
+          for (std::size_t j : added) keep &= r.pair_rms[j] >= 0 && r.pair_rms[j] <= kBridgePairPx;
+          keep &= r.pair_rms[i] >= 0 && r.pair_rms[i] <= kBridgePairPx;
+        }
+        if (!keep) {
+          pairs[i].ok = false;
+          continue;
+        }
+        pairs[i].note = "kept on a looser pass: " + std::to_string(pairs[i].pa.size()) +
+                        " consistent matches where the fitted rotations overlap the views, explained by the refit";
+        rig = again.rig;
+      }
+      return true;
+    }
+    for (std::size_t i : added) pairs[i].ok = false;
+    // A fit that failed as a whole strikes the weakest joining pair.
+    if (!fit.ok || fit.ba.rms_after_px > kBridgeRigPx) {
+      bool any_struck = false;
+      for (std::size_t i : added) any_struck |= bool(struck[i]);
+      if (!any_struck) struck[added.back()] = 1;
+    }
+  }
+  return false;
 }
 
 // Expresses every rotation relative to camera `ref` (its rotation becomes the identity).
@@ -2692,10 +2920,49 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
   }
   if (reference >= n) throw RigError("reference camera index out of range");
   const FeatureSets feats = detect_all(sets, n, o);
+  std::vector<cv::Mat> gray;  // area alignment (ring closure, overlap checks): the first instant
+  for (const ImageView& f : frames) gray.push_back(to_gray(f));
   std::vector<PairData> pairs;
   for (int a = 0; a < n; ++a)
     for (int b = a + 1; b < n; ++b)
       pairs.push_back(match_pair(feats, a, b, o, nullptr, 0));
+  // The rotation model's fit of the usable pairs: focal lengths from the pairwise homographies
+  // (median; sensible fields of view when they give none), rotations along the spanning tree,
+  // bundle adjustment.
+  auto fit_rotations = [&](const std::vector<PairData>& ps) {
+    Rig r0;
+    r0.reference = graph_centre(n, ps);
+    r0.projection = "plane";
+    for (int i = 0; i < n; ++i) {
+      Camera c;
+      c.width = frames[i].width;
+      c.height = frames[i].height;
+      c.cx = (c.width - 1) * 0.5;
+      c.cy = (c.height - 1) * 0.5;
+      r0.cameras.push_back(c);
+    }
+    auto start_with = [&](double hfov_deg, double f_px) {
+      Rig r = r0;
+      for (auto& c : r.cameras) c.fx = c.fy = f_px > 0 ? f_px : c.width / (2 * std::tan(hfov_deg * kPi / 360));
+      rotations_from_pairs(r, ps);
+      throw_if_cancelled(o);
+      BundleAdjustOptions bo;
+      bo.cancel = o.cancel;
+      bo.deadline = o.deadline;
+      return adjust(r, ps, bo);
+    };
+    RotationFit fit;
+    const std::vector<double> fs = focal_estimates(r0, ps);
+    if (!fs.empty()) fit = start_with(0, median_of(fs));
+    if (!fit.ok || fit.ba.rms_after_px > 1.0)
+      for (double hfov : {40.0, 60.0, 80.0, 100.0}) fit = best_of(fit, start_with(hfov, 0));
+    return fit;
+  };
+  // Cameras the pairs leave apart: refused pairs with a few consistent matches between them,
+  // kept when the rotation fit explains them (bridge_sparse_pairs).
+  // Such a rig is kept only when every overlap its fit gives is verified by area below.
+  std::string apart_error;
+  const bool bridged = effective_model(o) != CameraModel::Homography && bridge_sparse_pairs(n, pairs, fit_rotations);
   // Every camera must hang on the match graph.
   {
     std::vector<bool> reach(n, false);
@@ -2707,6 +2974,23 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
       for (const auto& p : pairs) any |= p.ok && (p.a == i || p.b == i);
       if (!any) alone.push_back(i);
       else if (!reach[i]) apart.push_back(i);
+    }
+    if (bridged) {
+      // The error the rig would have given without the looser pass (said when it is not verified).
+      std::vector<PairData> strict = pairs;
+      for (auto& p : strict)
+        if (p.note.rfind("kept on a looser pass", 0) == 0) p.ok = false;
+      std::vector<bool> r2(n, false);
+      r2[0] = true;
+      for (const auto& e : max_spanning_order(n, 0, match_edges(strict))) r2[e.first] = true;
+      for (int i = 0; i < n && apart_error.empty(); ++i) {
+        bool any = false;
+        for (const auto& p : strict) any |= p.ok && (p.a == i || p.b == i);
+        if (!any)
+          apart_error = "camera " + std::to_string(i) + " shares too few features with the other cameras";
+        else if (!r2[i])
+          apart_error = "camera " + std::to_string(i) + " matches no camera of the group that camera 0 belongs to";
+      }
     }
     if (!alone.empty())
       throw RigError("camera " + std::to_string(alone[0]) +
@@ -2729,31 +3013,7 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
   // of view when they give none), rotations along the spanning tree, bundle adjustment.
   RotationFit rot;
   if (model != CameraModel::Homography) {
-    Rig r0;
-    r0.reference = graph_centre(n, pairs);
-    r0.projection = "plane";
-    for (int i = 0; i < n; ++i) {
-      Camera c;
-      c.width = frames[i].width;
-      c.height = frames[i].height;
-      c.cx = (c.width - 1) * 0.5;
-      c.cy = (c.height - 1) * 0.5;
-      r0.cameras.push_back(c);
-    }
-    auto start_with = [&](double hfov_deg, double f_px) {
-      Rig r = r0;
-      for (auto& c : r.cameras) c.fx = c.fy = f_px > 0 ? f_px : c.width / (2 * std::tan(hfov_deg * kPi / 360));
-      rotations_from_pairs(r, pairs);
-      throw_if_cancelled(o);
-      BundleAdjustOptions bo;
-      bo.cancel = o.cancel;
-      bo.deadline = o.deadline;
-      return adjust(r, pairs, bo);
-    };
-    const std::vector<double> fs = focal_estimates(r0, pairs);
-    if (!fs.empty()) rot = start_with(0, median_of(fs));
-    if (!rot.ok || rot.ba.rms_after_px > 1.0)
-      for (double hfov : {40.0, 60.0, 80.0, 100.0}) rot = best_of(rot, start_with(hfov, 0));
+    rot = fit_rotations(pairs);
     // Refused pairs the fitted rotations overlap, matched again near them (rescue_pairs_by_
     // rotations); kept only when the refit explains them as well as the others.
     std::vector<PairData> before = pairs;
@@ -2765,7 +3025,39 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
       if (again.ok && again.ba.rms_after_px <= std::max(1.0, 1.5 * rot.ba.rms_after_px)) rot = again;
       else pairs = std::move(before);
     }
+    // Pairs still refused, aligned by area (close_pairs_by_area): a ring closes on its closing pair.
+    before = pairs;
+    if (rot.ok && rot.ba.rms_after_px <= 2.0 && close_pairs_by_area(rot.rig, gray, pairs, o)) {
+      BundleAdjustOptions bo;
+      bo.cancel = o.cancel;
+      bo.deadline = o.deadline;
+      RotationFit again = adjust(rot.rig, pairs, bo);
+      if (again.ok) {
+        refresh_area_pairs(again.rig, gray, pairs, o);
+        again = best_of(again, adjust(again.rig, pairs, bo));
+      }
+      if (again.ok && again.ba.rms_after_px <= std::max(1.0, 1.5 * rot.ba.rms_after_px)) rot = again;
+      else pairs = std::move(before);
+    }
   }
+  // Every overlap feature matches do not tie, measured on the pictures (a rig joined on a looser
+  // pass: every overlap). Far off: said; a looser pass that does not hold everywhere: refused.
+  std::vector<OverlapCheck> checks;
+  if (rot.ok) checks = check_overlaps(rot.rig, gray, pairs, bridged);
+  if (bridged) {
+    std::string why;
+    for (const auto& c : checks)
+      if (why.empty() && !(c.al.measured && c.al.offset_px <= kVerifiedPx))
+        why = "cameras " + std::to_string(c.a) + " and " + std::to_string(c.b) +
+              (c.al.measured ? " are " + std::to_string(c.al.offset_px).substr(0, 5) + " px apart where they overlap"
+                             : " overlap where nothing could be verified");
+    if (!rot.ok) why = "the rotation model does not fit the few matches";
+    if (!why.empty())
+      throw RigError(apart_error + " (no overlap, a textureless view, or too small an overlap; joined on fewer "
+                     "matches, " + why + "): give a rig-file");
+  }
+  for (const auto& p : pairs)
+    if (p.ok && p.area) held += p.held_count();
   CalibrationResult res;
   res.heldout_matches = held;
   Projection projection = o.projection ? *o.projection : Projection::Plane;
@@ -2856,6 +3148,7 @@ CalibrationResult calibrate_from_images_pinhole(const std::vector<std::vector<Im
   }
   res.refined_cameras = res.rig.planar() ? n - 1 : n;  // the plane is the reference's image plane
   fill_reports(res, pairs, use_rotation);
+  if (use_rotation) report_overlap_checks(res, checks);
   return res;
 }
 }  // namespace

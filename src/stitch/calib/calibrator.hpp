@@ -103,6 +103,10 @@ struct PairReport {
                           // the homography model forced: the chain's fit residual, canvas pixels
   bool accepted = false;
   std::string note;
+  // The pair's views overlap and feature matches alone did not tie them (or a looser pass did):
+  // how far off the calibration is there, measured by area alignment of the overlap (camera b
+  // pixels, median over the agreeing patches); -1 when not measured.
+  double overlap_px = -1;
 };
 
 struct CameraReport {
