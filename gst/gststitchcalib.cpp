@@ -93,7 +93,8 @@
  * mean square of the overlapping pairs' median misalignment, canvas pixels, by independent
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `alignment-camera-px` and
- * `previous-camera-px` (the same in camera pixels, what the judge compares), `coverage` and
+ * `previous-camera-px` (the same in camera pixels, what the judge compares; over 5 camera px
+ * a warning names the worst pair: the seams will show), `coverage` and
  * `previous-coverage` (the share of the canvas the cameras cover; pooled calibrations and
  * recalibrations), `lens` (the cameras' lens models: `pinhole`, `radtan`, `fisheye`, ...) with
  * `lens-k1` and `lens-k2` (per camera) when they have lenses, `fit-rms-px`, `inliers`, ... It is

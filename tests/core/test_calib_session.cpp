@@ -1413,3 +1413,18 @@ TEST(CalibSession, TheSameSourceTwiceIsSaid) {
       said += e.type == SessionEvent::Type::Warning && e.text.find("camera 0 and camera 1 show the same picture") != std::string::npos;
   EXPECT_EQ(said, 1);
 }
+
+// A calibration whose overlaps stay far apart is said, naming the worst pair (probe-lens: a
+// strong barrel phone row calibrated pinhole left 17.5 camera px and said nothing).
+TEST(CalibSession, PoorAlignmentIsSaidNamingTheWorstPair) {
+  RigResiduals r;
+  r.pairs = {{0, 1, 20.0, 14.0, 300}, {1, 2, 30.0, 21.9, 250}};
+  r.median_camera_px = 17.5;
+  const std::string text = poor_alignment_text(r, kPoorAlignmentCameraPx);
+  EXPECT_NE(text.find("17.5 camera px apart"), std::string::npos) << text;
+  EXPECT_NE(text.find("worst cameras 1 and 2, 21.9 px"), std::string::npos) << text;
+  r.median_camera_px = 1.8;  // the real clips with parallax: 0.5-1.8
+  EXPECT_TRUE(poor_alignment_text(r, kPoorAlignmentCameraPx).empty());
+  r.median_camera_px = -1;  // nothing measured
+  EXPECT_TRUE(poor_alignment_text(r, kPoorAlignmentCameraPx).empty());
+}

@@ -856,6 +856,32 @@ void CalibSession::note_time(double t) {
   have_t_ = true;
 }
 
+std::string poor_alignment_text(const RigResiduals& r, double limit_camera_px) {
+  const double px = r.median_camera_px;
+  if (px < 0 || px <= limit_camera_px) return {};
+  const PairResidual* worst = nullptr;
+  for (const auto& p : r.pairs)
+    if (p.median_camera_px >= 0 && (!worst || p.median_camera_px > worst->median_camera_px)) worst = &p;
+  return "The calibration leaves the overlaps " + fmt(px) + " camera px apart (independent matches" +
+         (worst ? "; worst cameras " + std::to_string(worst->a) + " and " + std::to_string(worst->b) + ", " +
+                      fmt(worst->median_camera_px) + " px"
+                : std::string()) +
+         "): the seams will show. Likely a lens stronger than the model found (fisheye, strong barrel, mixed "
+         "lenses), near objects with cameras far apart, or too little overlap; a rig-file with each camera's "
+         "lens and rough placement helps";
+}
+
+void CalibSession::say_poor_alignment(const CalibReport& rep) {
+  // A loaded file that does not fit is said by its own check (the pairs it misaligns).
+  if (rep.source == "file" || rep.residuals.median_camera_px < 0) return;
+  const std::string text = poor_alignment_text(rep.residuals, kPoorAlignmentCameraPx);
+  if (text.empty()) poor_alignment_said_ = false;
+  else if (!poor_alignment_said_) {
+    poor_alignment_said_ = true;
+    warn(text);
+  }
+}
+
 void CalibSession::warn(const std::string& s) {
   SessionEvent e = make_event(SessionEvent::Type::Warning, s);
   events_.push_back(e);
@@ -1154,6 +1180,7 @@ void CalibSession::install(CalibReport rep, CalibrationResult* result) {
   panorama_h_ = current_->canvas_height;
   last_calibration_at_ = now_;
   if (rep.residuals.median_px >= 0) baseline_px_ = rep.residuals.median_px;
+  say_poor_alignment(rep);
   if (!config_.save_file.empty() && any_left_out(*current_)) {
     warn("save-file: not written while a camera is left out of the calibration");
   } else if (!config_.save_file.empty()) {

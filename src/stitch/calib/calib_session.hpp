@@ -161,6 +161,13 @@ struct RigResiduals {
   int matches = 0;
 };
 RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets, const std::atomic<bool>* cancel);
+// An installed calibration whose overlaps stay this far apart (camera px, independent matches)
+// is said in a warning: real clips with parallax measure 0.5-1.8, a strong barrel lens left
+// pinhole 17.5 (probe-lens).
+constexpr double kPoorAlignmentCameraPx = 5.0;
+// The warning for residuals over `limit_camera_px` (their match-weighted median, camera px),
+// naming the worst pair; empty within it or when nothing was measured.
+std::string poor_alignment_text(const RigResiduals& residuals, double limit_camera_px);
 
 // How much of the canvas each camera covers (its share of the canvas area; 0 when left out or
 // off the canvas) and all of them together, on a grid of ~160 cells across.
@@ -401,6 +408,8 @@ class CalibSession {
   bool torn_only_ = false;    // last_bundle_torn_only()
   bool accept_torn_ = false;  // accept_torn_pictures()
   static constexpr double kTearIsContentAfterS = 3.0;
+  bool poor_alignment_said_ = false;  // said again only after a calibration within the limit
+  void say_poor_alignment(const CalibReport& rep);
   std::optional<Rig> rough_;
   std::string rough_from_;
   std::vector<std::array<int, 2>> rough_sizes_;  // the view sizes rough_ was adapted to
