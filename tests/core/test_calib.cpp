@@ -352,6 +352,13 @@ static double ring_seam_2_3(const Rig& rig, const Eigen::Matrix3d& K, int x0) {
   return err[err.size() / 2];
 }
 
+// The rendered ring calibrated from its frames with default options.
+static CalibrationResult calibrate_ring(std::vector<cv::Mat>& frames) {
+  std::vector<ImageView> views;
+  for (auto& m : frames) views.push_back(as_view(m));
+  return calibrate_from_images(views, 0, CalibrationOptions{});
+}
+
 TEST_F(CalibOnRealPhoto, ARingPairWithFewMatchesIsMatchedAgainNearTheFittedRotations) {
   const int w = 480, h = 360;
   Eigen::Matrix3d K;
@@ -362,9 +369,7 @@ TEST_F(CalibOnRealPhoto, ARingPairWithFewMatchesIsMatchedAgainNearTheFittedRotat
     blurred.rowRange(0, 95).copyTo(overlap.rowRange(0, 95));
     blurred.rowRange(230, h).copyTo(overlap.rowRange(230, h));
   }
-  std::vector<ImageView> views;
-  for (auto& m : frames) views.push_back(as_view(m));
-  const CalibrationResult r = calibrate_from_images(views, 0, CalibrationOptions{});
+  const CalibrationResult r = calibrate_ring(frames);
   ASSERT_FALSE(r.rig.planar());
   // Camera 2's pixels in the overlap carried into camera 3, by the calibration and the truth.
   const double median = ring_seam_2_3(r.rig, K, 400);
@@ -385,9 +390,7 @@ TEST_F(CalibOnRealPhoto, ARingPairWithoutFeatureMatchesIsClosedByAreaAlignment) 
     cv::GaussianBlur(overlap, blurred, cv::Size(), 3);
     blurred.copyTo(overlap);
   }
-  std::vector<ImageView> views;
-  for (auto& m : frames) views.push_back(as_view(m));
-  const CalibrationResult r = calibrate_from_images(views, 0, CalibrationOptions{});
+  const CalibrationResult r = calibrate_ring(frames);
   ASSERT_FALSE(r.rig.planar());
   const double median = ring_seam_2_3(r.rig, K, 400);
   std::printf("ring pair 2-3 seam (closed by area): median %.2f px\n", median);

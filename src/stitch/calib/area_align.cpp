@@ -8,9 +8,9 @@
 
 namespace stitch {
 
-constexpr double kPiArea = 3.14159265358979323846;
-
 namespace {
+
+constexpr double kPi = 3.14159265358979323846;
 
 // A local cylindrical projection around the direction midway between two cameras' axes: there a
 // rotation error between them is (nearly) a shift, also at the edges of wide lenses where in
@@ -215,7 +215,7 @@ AreaAlignment align_on_local_cylinder(const Camera& a, const Camera& b, const cv
     cyl.f = std::sqrt(b.fx * b.fy);
     cyl.S = int(std::ceil(o.search_px));
     // Wide enough for both views' overlap and the search; at most a half turn.
-    const double half = std::min(0.5 * kPiArea, 0.5 * rel.angle() + 0.25 * kPiArea);
+    const double half = std::min(0.5 * kPi, 0.5 * rel.angle() + 0.25 * kPi);
     const int w = int(std::ceil(2 * half * cyl.f)), h = int(std::ceil(1.2 * std::max(a.height, b.height)));
     cyl.size = cv::Size(std::max(w, 8), std::max(h, 8));
     cyl.cu = 0.5 * (cyl.size.width - 1);
