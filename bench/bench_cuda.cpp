@@ -142,7 +142,6 @@ int main(int argc, char** argv) {
       const double tex_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_compose_tex(c.cameras, geo.data(), tex.data(), nullptr, out, stream.get());
       });
-      for (auto t : tex) stitch_cuda::destroy_texture(t);
       const double color_compose_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_compose(c.cameras, geo.data(), frames.data(), color.data(), out, stream.get());
       });
@@ -156,9 +155,16 @@ int main(int argc, char** argv) {
         warped.push_back(device_image(rois.back().data(), r.width, r.height));
         roi_bytes += std::size_t(r.width) * r.height * 4;
       }
+      // The warp as the compositor runs it: every view in one launch, the texture units' bilinear
+      // taps; and one launch per view with gathers, for comparison.
       const double warp_ms = time_ms(stream.get(), [&] {
+        stitch_cuda::launch_warps(c.cameras, frames.data(), geo.data(), warped.data(), nullptr, tex.data(), stream.get());
+      });
+      const double warp_gathers_ms = time_ms(stream.get(), [&] {
         for (int i = 0; i < c.cameras; ++i) stitch_cuda::launch_warp(frames[i], geo[i], warped[i], stream.get());
       });
+      std::printf("  warp with gathers, a launch per view: %.4f ms\n", warp_gathers_ms);
+      for (auto t : tex) stitch_cuda::destroy_texture(t);
       // The fuse as the compositor runs it: with its tiles (made once per geometry), and without.
       DeviceBuffer tiles(stitch_cuda::fuse_tile_count(out.width, out.height));
       stitch_cuda::launch_fuse_tiles(c.cameras, geo.data(), out.width, out.height, tiles.data(), stream.get());

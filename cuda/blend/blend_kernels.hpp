@@ -37,6 +37,11 @@ void launch_halve(const DeviceImage& src, const DeviceImage& dst, cudaStream_t s
 // the seam finder, in the same pass (it would read the warped view again).
 void launch_warp(const DeviceImage& src, const ViewGeometry& view, const DeviceImage& dst, cudaStream_t stream,
                  uint8_t* luma = nullptr);
+// The same for n views in one launch: srcs[i] into dsts[i] (view i's roi; data == nullptr: left
+// out), lumas (optional; lumas[i] may be nullptr). textures (optional, create_rgba_texture of
+// srcs[i]; 0 for a left-out view): the hardware's bilinear taps, used only when every warped view has one.
+void launch_warps(int n, const DeviceImage* srcs, const ViewGeometry* views, const DeviceImage* dsts, uint8_t* const* lumas,
+                  const unsigned long long* textures, cudaStream_t stream);
 
 // Position-weighted mean of views already warped into their rois; warped[i].data == nullptr
 // leaves view i out. Uncovered pixels are opaque black. With labels and mix (out.width wide, the

@@ -17,6 +17,7 @@
 #ifdef STITCH_HAVE_CUDA
 #include <cuda_runtime_api.h>
 
+#include "stitch/blend/seam_math.hpp"
 #include "stitch/cuda/view_geometry.hpp"
 #endif
 
@@ -178,6 +179,87 @@ TEST(Cuda, PrewarpedFuseMatchesCpu) {
 // The fuse's tiles (a tile one view covers alone is copied from it) give the bytes of the
 // per-pixel weighted mean: plain, with the consensus mix, with a view missing, and on a
 // spherical canvas; and they do skip work (some tiles are one view's alone, some are mixed).
+// The blend's warp of every view in one launch (launch_warps), with gathers and with the texture
+// units' bilinear taps, into rows that take 16-byte stores and rows that do not (the rectangles'
+// own widths), with the seam finder's luma: the CPU warper's pixels, the luma of the written ones.
+TEST(Cuda, OneLaunchWarpOfEveryViewMatchesTheCpu) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  for (const char* projection : {"plane", "spherical"}) {
+    SCOPED_TRACE(projection);
+    RigScene s = rig_scene();
+    if (std::string(projection) != "plane") {
+      s.rig.projection = projection;
+      s.rig.canvas_scale = 0;
+      rig_layout_canvas(s.rig);
+    }
+    const OutputGeometry g = canvas_geometry(s.rig);
+    const std::vector<ViewPlacement> views = place_views(s.rig, g);
+    auto cpu = Warper::create(Backend::Cpu);
+    cpu->prepare(views);
+    std::vector<std::unique_ptr<DeviceMat>> frames;
+    std::vector<stitch_cuda::DeviceImage> srcs;
+    std::vector<stitch_cuda::ViewGeometry> geometry;
+    std::vector<unsigned long long> textures;
+    std::vector<cv::Mat> expected;
+    for (int i = 0; i < 3; ++i) {
+      const Rect& r = views[std::size_t(i)].roi;
+      expected.emplace_back(r.height, r.width, CV_8UC4, cv::Scalar::all(0));
+      cpu->warp(i, as_view(s.frames[std::size_t(i)]), as_view(expected.back()));
+      frames.push_back(std::make_unique<DeviceMat>(s.frames[std::size_t(i)]));
+      srcs.push_back(to_device_image(frames.back()->view()));
+      geometry.push_back(to_device_geometry(views[std::size_t(i)]));
+      textures.push_back(stitch_cuda::create_rgba_texture(srcs.back()));
+      ASSERT_NE(textures.back(), 0u) << "pitched device frames take textures";
+    }
+    for (int textured = 0; textured < 2; ++textured)
+      for (int packed = 0; packed < 2; ++packed) {
+        SCOPED_TRACE(testing::Message() << "textured " << textured << " packed " << packed);
+        std::vector<DeviceBuffer> rects, lumas;
+        std::vector<stitch_cuda::DeviceImage> dsts;
+        std::vector<uint8_t*> luma_ptrs;
+        for (int i = 0; i < 3; ++i) {
+          const Rect& r = views[std::size_t(i)].roi;
+          // packed: rows of exactly the width (16-byte stores only where the width allows);
+          // else rows padded to 64 bytes.
+          const std::size_t pitch = packed ? std::size_t(r.width) * 4 : (std::size_t(r.width) * 4 + 63) / 64 * 64;
+          rects.emplace_back(pitch * std::size_t(r.height));
+          lumas.emplace_back(std::size_t(r.width) * r.height);
+          ASSERT_EQ(cudaMemset(rects.back().data(), 77, pitch * std::size_t(r.height)), cudaSuccess);  // poisoned
+          stitch_cuda::DeviceImage d;
+          d.data = rects.back().data();
+          d.pitch = pitch;
+          d.width = r.width;
+          d.height = r.height;
+          dsts.push_back(d);
+          luma_ptrs.push_back(lumas.back().data());
+        }
+        stitch_cuda::launch_warps(3, srcs.data(), geometry.data(), dsts.data(), luma_ptrs.data(),
+                                  textured ? textures.data() : nullptr, nullptr);
+        ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
+        for (int i = 0; i < 3; ++i) {
+          const stitch_cuda::DeviceImage& d = dsts[std::size_t(i)];
+          cv::Mat got(d.height, d.width, CV_8UC4), luma(d.height, d.width, CV_8UC1);
+          ASSERT_EQ(cudaMemcpy2D(got.data, got.step, d.data, d.pitch, std::size_t(d.width) * 4, std::size_t(d.height),
+                                 cudaMemcpyDeviceToHost),
+                    cudaSuccess);
+          ASSERT_EQ(cudaMemcpy(luma.data, luma_ptrs[std::size_t(i)], luma.total(), cudaMemcpyDeviceToHost), cudaSuccess);
+          const double psnr = testdata::psnr_rgb(got, expected[std::size_t(i)]);
+          std::printf("one-launch warp (%s, %s, %s rows) view %d: CUDA vs CPU PSNR %.2f dB\n", projection,
+                      textured ? "texture" : "gathers", packed ? "packed" : "padded", i, psnr);
+          EXPECT_GT(psnr, 45.0) << "view " << i;
+          int luma_off = 0;
+          for (int y = 0; y < d.height; ++y)
+            for (int x = 0; x < d.width; ++x)
+              luma_off += luma.at<uint8_t>(y, x) != stitch::seam::luma(got.ptr<uint8_t>(y) + 4 * x);
+          EXPECT_EQ(luma_off, 0) << "view " << i;
+        }
+      }
+    for (auto t : textures) stitch_cuda::destroy_texture(t);
+  }
+#endif
+}
+
 TEST(Cuda, FuseTilesGiveTheSameBytesAsTheWeightedMean) {
   REQUIRE_CUDA();
 #ifdef STITCH_HAVE_CUDA

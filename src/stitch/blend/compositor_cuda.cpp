@@ -1,6 +1,8 @@
 #include "stitch/blend/compositor_cuda.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <stdexcept>
 
 #include "../../../cuda/blend/seam_kernels.hpp"
@@ -16,9 +18,16 @@ struct CudaComposer::State {
   std::vector<DeviceBuffer> inputs;
   DeviceBuffer output, canvas;
   int out_w = 0, out_h = 0;
-  // Texture objects over the input frames, kept while a frame's buffer stays the same.
-  std::vector<unsigned long long> textures;
-  std::vector<stitch_cuda::DeviceImage> textured;
+  // Texture objects over the input frames, a few per view: buffer pools hand frames round a
+  // few buffers, and making a texture object costs host time on every frame otherwise.
+  struct CachedTexture {
+    stitch_cuda::DeviceImage image;
+    unsigned long long texture = 0;
+    std::uint64_t used = 0;
+  };
+  static constexpr std::size_t kTexturesPerView = 8;
+  std::vector<std::vector<CachedTexture>> textures;
+  std::uint64_t texture_clock = 0;
   // Multiband: the blender, and the camera frames warped into their rectangles.
   BlendMode mode = BlendMode::Weighted;
   int bands = MultibandBlender::kDefaultBands;
@@ -68,24 +77,36 @@ struct CudaComposer::State {
   }
 
   ~State() {
-    for (auto t : textures) stitch_cuda::destroy_texture(t);
+    for (auto& view : textures)
+      for (auto& t : view) stitch_cuda::destroy_texture(t.texture);
+  }
+  unsigned long long texture_of(std::size_t view, const stitch_cuda::DeviceImage& d) {
+    std::vector<CachedTexture>& cache = textures[view];
+    ++texture_clock;
+    for (CachedTexture& t : cache) {
+      const stitch_cuda::DeviceImage& k = t.image;
+      if (k.data == d.data && k.pitch == d.pitch && k.width == d.width && k.height == d.height) {
+        t.used = texture_clock;
+        return t.texture;
+      }
+    }
+    if (cache.size() == kTexturesPerView) {  // the least recently used goes
+      auto oldest = std::min_element(cache.begin(), cache.end(),
+                                     [](const CachedTexture& a, const CachedTexture& b) { return a.used < b.used; });
+      stitch_cuda::destroy_texture(oldest->texture);
+      cache.erase(oldest);
+    }
+    cache.push_back({d, stitch_cuda::create_rgba_texture(d), texture_clock});
+    return cache.back().texture;
   }
   // Textures for every present frame, or false when one cannot have a texture (alignment).
   bool texture_all(const std::vector<stitch_cuda::DeviceImage>& images, std::vector<unsigned long long>& out) {
-    textures.resize(images.size(), 0);
-    textured.resize(images.size());
+    textures.resize(images.size());
     out.assign(images.size(), 0);
     for (std::size_t i = 0; i < images.size(); ++i) {
-      const stitch_cuda::DeviceImage& d = images[i];
-      if (!d.data) continue;
-      stitch_cuda::DeviceImage& k = textured[i];
-      if (!textures[i] || k.data != d.data || k.pitch != d.pitch || k.width != d.width || k.height != d.height) {
-        stitch_cuda::destroy_texture(textures[i]);
-        textures[i] = stitch_cuda::create_rgba_texture(d);
-        k = d;
-      }
-      if (!textures[i]) return false;
-      out[i] = textures[i];
+      if (!images[i].data) continue;
+      out[i] = texture_of(i, images[i]);
+      if (!out[i]) return false;
     }
     return true;
   }
@@ -176,20 +197,26 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
   if (s_->needs_rects()) {
     if (color) throw std::invalid_argument("multiband or seam compose takes no color matrices");
     std::vector<ImageView> warped(frames.size());
+    std::vector<stitch_cuda::DeviceImage> rects(frames.size());
+    std::vector<uint8_t*> lumas(frames.size(), nullptr);
     for (std::size_t i = 0; i < frames.size(); ++i) {
       const stitch_cuda::ViewGeometry& g = s_->views[i];
       if (!images[i].data) continue;
-      stitch_cuda::DeviceImage w;
+      stitch_cuda::DeviceImage& w = rects[i];
       w.width = g.roi_w;
       w.height = g.roi_h;
       w.pitch = std::size_t(g.roi_w) * 4;
       s_->warped[i].resize(w.pitch * w.height);
       w.data = s_->warped[i].data();
       // The seam finder's luma of the view in the same pass: find() then need not read it again.
-      uint8_t* luma = s_->seam ? s_->seam->luma_for_next_find(i) : nullptr;
-      stitch_cuda::launch_warp(images[i], g, w, s_->stream.get(), luma);
+      lumas[i] = s_->seam ? s_->seam->luma_for_next_find(i) : nullptr;
       warped[i] = s_->device_view(w);
     }
+    // Every view in one launch, with the texture units' bilinear taps where the frames allow them.
+    std::vector<unsigned long long> tex;
+    const bool textured = s_->texture_all(images, tex);
+    stitch_cuda::launch_warps(int(frames.size()), images.data(), s_->views.data(), rects.data(), lumas.data(),
+                              textured ? tex.data() : nullptr, s_->stream.get());
     s_->rect_fuse(warped, s_->device_view(d));
     s_->finish(out, d);
     return;
