@@ -62,6 +62,17 @@ RigScene rig_scene() {
   return s;
 }
 
+// The same scene on `projection`'s canvas, laid out from the rotations as a calibration leaves it.
+RigScene rig_scene_on(const std::string& projection) {
+  RigScene s = rig_scene();
+  if (projection != "plane") {
+    s.rig.projection = projection;
+    s.rig.canvas_scale = 0;
+    rig_layout_canvas(s.rig);
+  }
+  return s;
+}
+
 }  // namespace
 
 TEST(Cuda, WarpMatchesCpu) {
@@ -187,12 +198,7 @@ TEST(Cuda, OneLaunchWarpOfEveryViewMatchesTheCpu) {
 #ifdef STITCH_HAVE_CUDA
   for (const char* projection : {"plane", "spherical"}) {
     SCOPED_TRACE(projection);
-    RigScene s = rig_scene();
-    if (std::string(projection) != "plane") {
-      s.rig.projection = projection;
-      s.rig.canvas_scale = 0;
-      rig_layout_canvas(s.rig);
-    }
+    RigScene s = rig_scene_on(projection);
     const OutputGeometry g = canvas_geometry(s.rig);
     const std::vector<ViewPlacement> views = place_views(s.rig, g);
     auto cpu = Warper::create(Backend::Cpu);
@@ -265,12 +271,7 @@ TEST(Cuda, FuseTilesGiveTheSameBytesAsTheWeightedMean) {
 #ifdef STITCH_HAVE_CUDA
   for (const char* projection : {"plane", "spherical"}) {
     SCOPED_TRACE(projection);
-    RigScene s = rig_scene();
-    if (std::string(projection) != "plane") {
-      s.rig.projection = projection;
-      s.rig.canvas_scale = 0;
-      rig_layout_canvas(s.rig);  // a curved canvas from the rotations (as a calibration leaves it)
-    }
+    RigScene s = rig_scene_on(projection);
     Compositor cpu(Backend::Cpu);
     cpu.prepare(s.rig, CompositorSettings{}, CompositorInput::Prewarped);
     const std::vector<ViewPlacement>& placements = cpu.prewarped_placements();
