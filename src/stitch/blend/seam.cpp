@@ -265,6 +265,10 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
     y = std::min(std::max(y, r.y), r.y + r.height - 1);
     return int(l[std::size_t(y - r.y) * r.width + (x - r.x)]);
   };
+  // (x, y) and its four neighbours lie inside r.
+  auto inside_by_one = [](const Rect& r, int x, int y) {
+    return x > r.x && y > r.y && x + 1 < r.x + r.width && y + 1 < r.y + r.height;
+  };
   static const bool profiling = StageProfile::enabled_for("seams");
   StageProfile profile("seams", profiling);
   const seam::Weights w = weights();
@@ -319,12 +323,23 @@ void SeamFinder::cut_all(const std::vector<int>& cut, const std::vector<ImageVie
         continue;
       }
       const int x = p.box.x + bx, y = p.box.y + by;
-      const int a = luma(la, ra, x, y), b = luma(lb, rb, x, y);
-      const int gradients = std::abs(luma(la, ra, x + 1, y) - luma(la, ra, x - 1, y)) +
-                            std::abs(luma(la, ra, x, y + 1) - luma(la, ra, x, y - 1)) +
-                            std::abs(luma(lb, rb, x + 1, y) - luma(lb, rb, x - 1, y)) +
-                            std::abs(luma(lb, rb, x, y + 1) - luma(lb, rb, x, y - 1));
-      const int motion = std::abs(a - luma(pa, ra, x, y)) + std::abs(b - luma(pb, rb, x, y));
+      int a, b, gradients, motion;
+      if (inside_by_one(ra, x, y) && inside_by_one(rb, x, y)) {
+        // Every neighbour inside both rectangles (nearly every cell): no clamping, the same values.
+        const std::size_t ia = std::size_t(y - ra.y) * ra.width + (x - ra.x), ib = std::size_t(y - rb.y) * rb.width + (x - rb.x);
+        const uint8_t *ca = la.data() + ia, *cb = lb.data() + ib;
+        a = ca[0], b = cb[0];
+        gradients = std::abs(ca[1] - ca[-1]) + std::abs(ca[ra.width] - ca[-ra.width]) + std::abs(cb[1] - cb[-1]) +
+                    std::abs(cb[rb.width] - cb[-rb.width]);
+        motion = std::abs(a - pa[ia]) + std::abs(b - pb[ib]);
+      } else {
+        a = luma(la, ra, x, y), b = luma(lb, rb, x, y);
+        gradients = std::abs(luma(la, ra, x + 1, y) - luma(la, ra, x - 1, y)) +
+                    std::abs(luma(la, ra, x, y + 1) - luma(la, ra, x, y - 1)) +
+                    std::abs(luma(lb, rb, x + 1, y) - luma(lb, rb, x - 1, y)) +
+                    std::abs(luma(lb, rb, x, y + 1) - luma(lb, rb, x, y - 1));
+        motion = std::abs(a - luma(pa, ra, x, y)) + std::abs(b - luma(pb, rb, x, y));
+      }
       const uint8_t* pixel_a = warped[std::size_t(p.a)].row(y - ra.y) + 4 * (x - ra.x);
       const uint8_t* pixel_b = warped[std::size_t(p.b)].row(y - rb.y) + 4 * (x - rb.x);
       const float v = p.costs[at] =
