@@ -66,9 +66,13 @@ void apply_color_row(uint8_t* row, int n, const float* M, int knee, const uint8_
     const auto transformed = [&](const cv::v_uint32x4& p) {
       return cv::v_round(cv::v_matmul(cv::v_cvt_f32(cv::v_reinterpret_as_s32(p)), c0, c1, c2, c3));
     };
+    const cv::v_uint8x16 rgb(255, 255, 255, 0, 255, 255, 255, 0, 255, 255, 255, 0, 255, 255, 255, 0),
+        knee_level = cv::v_setall_u8(uint8_t(knee));
     for (; x + 4 <= n; x += 4) {
       uint8_t* o = row + 4 * x;
       const cv::v_uint8x16 in = cv::v_load(o);
+      // The roll-off only where a colour channel of one of the four is above the knee.
+      const bool hot = knee < 255 && cv::v_check_any((in & rgb) > knee_level);
       cv::v_uint16x8 lo, hi;
       cv::v_expand(in, lo, hi);
       cv::v_uint32x4 p0, p1, p2, p3;
@@ -76,9 +80,9 @@ void apply_color_row(uint8_t* row, int n, const float* M, int knee, const uint8_
       cv::v_expand(hi, p2, p3);
       const cv::v_uint8x16 out =
           cv::v_pack_u(cv::v_pack(transformed(p0), transformed(p1)), cv::v_pack(transformed(p2), transformed(p3)));
-      if (knee < 255) cv::v_store(input, in);
+      if (hot) cv::v_store(input, in);
       cv::v_store(o, out);
-      if (knee < 255)
+      if (hot)
         for (int k = 0; k < 4; ++k) {
           const uint8_t* q = input + 4 * k;
           const int m = std::max({q[0], q[1], q[2]});
