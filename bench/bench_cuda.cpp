@@ -134,16 +134,27 @@ int main(int argc, char** argv) {
         color[9 * i + 8] = 1.02f;
         color[9 * i + 1] = 0.01f;
       }
+      // The compose as the compositor runs it: with the fuse's tiles (made once per geometry);
+      // and without, for comparison.
+      DeviceBuffer tiles(stitch_cuda::fuse_tile_count(out.width, out.height));
+      stitch_cuda::launch_fuse_tiles(c.cameras, geo.data(), out.width, out.height, tiles.data(), stream.get());
       const double compose_ms = time_ms(stream.get(), [&] {
+        stitch_cuda::launch_compose(c.cameras, geo.data(), frames.data(), nullptr, out, stream.get(), tiles.data());
+      });
+      const double compose_untiled_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_compose(c.cameras, geo.data(), frames.data(), nullptr, out, stream.get());
       });
       std::vector<unsigned long long> tex;
       for (auto& f : frames) tex.push_back(stitch_cuda::create_rgba_texture(f));
       const double tex_ms = time_ms(stream.get(), [&] {
+        stitch_cuda::launch_compose_tex(c.cameras, geo.data(), tex.data(), nullptr, out, stream.get(), tiles.data());
+      });
+      const double tex_untiled_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_compose_tex(c.cameras, geo.data(), tex.data(), nullptr, out, stream.get());
       });
+      std::printf("  compose without tiles: %.4f ms (gathers), %.4f ms (texture)\n", compose_untiled_ms, tex_untiled_ms);
       const double color_compose_ms = time_ms(stream.get(), [&] {
-        stitch_cuda::launch_compose(c.cameras, geo.data(), frames.data(), color.data(), out, stream.get());
+        stitch_cuda::launch_compose(c.cameras, geo.data(), frames.data(), color.data(), out, stream.get(), tiles.data());
       });
       // The unfused stages, for comparison: warp each view into its roi, then fuse.
       std::vector<DeviceBuffer> rois;
@@ -165,9 +176,7 @@ int main(int argc, char** argv) {
       });
       std::printf("  warp with gathers, a launch per view: %.4f ms\n", warp_gathers_ms);
       for (auto t : tex) stitch_cuda::destroy_texture(t);
-      // The fuse as the compositor runs it: with its tiles (made once per geometry), and without.
-      DeviceBuffer tiles(stitch_cuda::fuse_tile_count(out.width, out.height));
-      stitch_cuda::launch_fuse_tiles(c.cameras, geo.data(), out.width, out.height, tiles.data(), stream.get());
+      // The fuse as the compositor runs it: with its tiles, and without.
       const double fuse_ms = time_ms(stream.get(), [&] {
         stitch_cuda::launch_fuse(c.cameras, geo.data(), warped.data(), out, stream.get(), nullptr, nullptr, tiles.data());
       });

@@ -25,7 +25,7 @@ struct ComposeParams {
   // (the CPU: seam.hpp apply_seam_mix).
   const uint8_t* labels;
   const uint8_t* mix;
-  const uint8_t* tiles;  // fuse only (nullptr: none): launch_fuse_tiles' classes, one per block
+  const uint8_t* tiles;  // nullptr: none; launch_fuse_tiles' classes, one per block
   int vector_rows;       // out's rows start on 16 bytes
 };
 
@@ -139,6 +139,17 @@ __device__ __forceinline__ uchar4 blend_pixel(const ComposeParams& p, int x, int
     }
     return p.mix ? mixed_pixel(p, x, y, o) : o;
   }
+  if (kMode == 1 && alone >= 0) {
+    // One view alone (its position weight > 0 on the whole tile): its sample, w c / w without
+    // the weight (a tie may round the other way: one level, rarely).
+    if (alone == kFuseTileEmpty) return make_uchar4(0, 0, 0, 255);
+    float u, v;
+    view_to_camera<kCurved>(p.views[alone], float(x), float(y), u, v);
+    const DeviceImage& s = p.src[alone];
+    float4 c = sample_bilinear(s.data, s.pitch, s.width, s.height, u, v);
+    if (p.has_color) apply_color(c, p.color[alone]);
+    return mean_pixel(c.x, c.y, c.z, 1.f);
+  }
   float r = 0.f, g = 0.f, b = 0.f, wsum = 0.f;
   for (int i = 0; i < p.n; ++i) {
     const ViewGeometry& vg = p.views[i];
@@ -194,7 +205,7 @@ __global__ void blend_kernel(const ComposeParams p) {
   const int x0 = (blockIdx.x * blockDim.x + threadIdx.x) * kPixels, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x0 >= p.out.width || y >= p.out.height) return;
   int alone = -1;
-  if (kMode == 0 && p.tiles) {
+  if (p.tiles) {
     const int tile = p.tiles[blockIdx.y * gridDim.x + blockIdx.x];  // the block is the tile
     if ((tile < p.n && p.src[tile].data) || tile == kFuseTileEmpty) alone = tile;
   }
@@ -241,21 +252,35 @@ struct TexComposeParams {
   float color[kMaxViews][9];
   int has_color;
   DeviceImage out;
+  const uint8_t* tiles;  // nullptr: none (launch_compose_tex)
 };
 
+// Texture units' sample of view i at camera pixel (u, v), 0..255, with its colour matrix.
+__device__ __forceinline__ float4 tex_sample(const TexComposeParams& p, int i, float u, float v) {
+  // Texel centres sit at +0.5 in texture coordinates; normalised reads return [0, 1].
+  float4 c = tex2D<float4>(p.tex[i], u + 0.5f, v + 0.5f);
+  c.x *= 255.f;
+  c.y *= 255.f;
+  c.z *= 255.f;
+  if (p.has_color) apply_color(c, p.color[i]);
+  return c;
+}
+
 template <bool kCurved>
-__device__ __forceinline__ uchar4 compose_tex_pixel(const TexComposeParams& p, int x, int y) {
+__device__ __forceinline__ uchar4 compose_tex_pixel(const TexComposeParams& p, int x, int y, int alone) {
+  if (alone >= 0) {  // as blend_pixel's one-view tiles
+    if (alone == kFuseTileEmpty) return make_uchar4(0, 0, 0, 255);
+    float u, v;
+    view_to_camera<kCurved>(p.views[alone], float(x), float(y), u, v);
+    const float4 c = tex_sample(p, alone, u, v);
+    return mean_pixel(c.x, c.y, c.z, 1.f);
+  }
   float r = 0.f, g = 0.f, b = 0.f, wsum = 0.f;
   for (int i = 0; i < p.n; ++i) {
     float u, v;
     const float w = p.tex[i] ? view_weight<kCurved>(p.views[i], x, y, u, v) : 0.f;
     if (w <= 0.f) continue;
-    // Texel centres sit at +0.5 in texture coordinates; normalised reads return [0, 1].
-    float4 c = tex2D<float4>(p.tex[i], u + 0.5f, v + 0.5f);
-    c.x *= 255.f;
-    c.y *= 255.f;
-    c.z *= 255.f;
-    if (p.has_color) apply_color(c, p.color[i]);
+    const float4 c = tex_sample(p, i, u, v);
     r += w * c.x;
     g += w * c.y;
     b += w * c.z;
@@ -268,7 +293,12 @@ template <bool kCurved>
 __global__ void compose_tex_kernel(const TexComposeParams p) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= p.out.width || y >= p.out.height) return;
-  const uchar4 o = compose_tex_pixel<kCurved>(p, x, y);
+  int alone = -1;
+  if (p.tiles) {
+    const int tile = p.tiles[blockIdx.y * gridDim.x + blockIdx.x];  // the block is the tile
+    if ((tile < p.n && p.tex[tile]) || tile == kFuseTileEmpty) alone = tile;
+  }
+  const uchar4 o = compose_tex_pixel<kCurved>(p, x, y, alone);
   store_pixels<kComposePixels>(p.out, false, x, y, &o);
 }
 
@@ -399,8 +429,9 @@ void launch_fuse_tiles(int n, const ViewGeometry* views, int width, int height, 
 }
 
 void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames, const float* color,
-                    const DeviceImage& out, cudaStream_t stream) {
+                    const DeviceImage& out, cudaStream_t stream, const uint8_t* tiles) {
   ComposeParams p = params_of(n, views, frames, out);
+  p.tiles = tiles;
   if (color) {
     p.has_color = 1;
     for (int i = 0; i < n; ++i)
@@ -413,7 +444,7 @@ void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames,
 }
 
 void launch_compose_tex(int n, const ViewGeometry* views, const unsigned long long* textures, const float* color,
-                        const DeviceImage& out, cudaStream_t stream) {
+                        const DeviceImage& out, cudaStream_t stream, const uint8_t* tiles) {
   if (n < 0 || n > kMaxViews) throw std::invalid_argument("at most 16 views on the GPU");
   TexComposeParams p{};
   p.n = n;
@@ -425,6 +456,7 @@ void launch_compose_tex(int n, const ViewGeometry* views, const unsigned long lo
   }
   p.has_color = color != nullptr;
   p.out = out;
+  p.tiles = tiles;
   const dim3 block = tile_block<kComposePixels>(), grid = tile_grid(out.width, out.height);
   if (any_curved(views, n)) compose_tex_kernel<true><<<grid, block, 0, stream>>>(p);
   else compose_tex_kernel<false><<<grid, block, 0, stream>>>(p);

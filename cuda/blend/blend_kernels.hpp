@@ -67,8 +67,10 @@ void launch_fuse_tiles(int n, const ViewGeometry* views, int width, int height, 
 // Warp + optional 3x3 color matrix per view + blend in one pass: every input pixel is read
 // about once and the output written once. frames[i].data == nullptr leaves camera i out;
 // color == nullptr: no color matrix (out_c = sum_k in_k M[k][c], row-major 3x3 per view).
+// tiles (optional, launch_fuse_tiles of this geometry and output size): where one view covers
+// a tile alone, its pixels are that view's sample, without the per-view weights (w c / w).
 void launch_compose(int n, const ViewGeometry* views, const DeviceImage* frames, const float* color,
-                    const DeviceImage& out, cudaStream_t stream);
+                    const DeviceImage& out, cudaStream_t stream, const uint8_t* tiles = nullptr);
 
 // dst(p) = src sampled (bilinear) at inverse_affine · p (row-major 2x3, dst pixel -> src
 // pixel); opaque black outside src. Crops and scales a fused canvas into the output.
@@ -79,7 +81,7 @@ void launch_resample_affine(const DeviceImage& src, const float* inverse_affine,
 // transparent border): one fetch per sample instead of four gathers. textures[i] == 0 leaves
 // camera i out.
 void launch_compose_tex(int n, const ViewGeometry* views, const unsigned long long* textures, const float* color,
-                        const DeviceImage& out, cudaStream_t stream);
+                        const DeviceImage& out, cudaStream_t stream, const uint8_t* tiles = nullptr);
 
 // A texture object over an RGBA pitched image (linear filtering, zero border, unnormalised
 // coordinates); 0 when the image's address or pitch does not meet the texture alignment.

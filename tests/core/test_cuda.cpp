@@ -73,6 +73,33 @@ RigScene rig_scene_on(const std::string& projection) {
   return s;
 }
 
+#ifdef STITCH_HAVE_CUDA
+// That scene's frames on the device (pitched: they take textures), their geometry and textures.
+struct DeviceScene {
+  RigScene scene;
+  OutputGeometry canvas;
+  std::vector<ViewPlacement> views;
+  std::vector<std::unique_ptr<DeviceMat>> frames;
+  std::vector<stitch_cuda::DeviceImage> images;
+  std::vector<stitch_cuda::ViewGeometry> geometry;
+  std::vector<unsigned long long> textures;
+  explicit DeviceScene(const std::string& projection) : scene(rig_scene_on(projection)) {
+    canvas = canvas_geometry(scene.rig);
+    views = place_views(scene.rig, canvas);
+    for (std::size_t i = 0; i < scene.frames.size(); ++i) {
+      frames.push_back(std::make_unique<DeviceMat>(scene.frames[i]));
+      images.push_back(to_device_image(frames.back()->view()));
+      geometry.push_back(to_device_geometry(views[i]));
+      textures.push_back(stitch_cuda::create_rgba_texture(images.back()));
+      EXPECT_NE(textures.back(), 0u) << "pitched device frames take textures";
+    }
+  }
+  ~DeviceScene() {
+    for (auto t : textures) stitch_cuda::destroy_texture(t);
+  }
+};
+#endif
+
 }  // namespace
 
 TEST(Cuda, WarpMatchesCpu) {
@@ -198,25 +225,16 @@ TEST(Cuda, OneLaunchWarpOfEveryViewMatchesTheCpu) {
 #ifdef STITCH_HAVE_CUDA
   for (const char* projection : {"plane", "spherical"}) {
     SCOPED_TRACE(projection);
-    RigScene s = rig_scene_on(projection);
-    const OutputGeometry g = canvas_geometry(s.rig);
-    const std::vector<ViewPlacement> views = place_views(s.rig, g);
+    DeviceScene d(projection);
+    const std::vector<ViewPlacement>& views = d.views;
+    const std::vector<stitch_cuda::DeviceImage>& srcs = d.images;
     auto cpu = Warper::create(Backend::Cpu);
     cpu->prepare(views);
-    std::vector<std::unique_ptr<DeviceMat>> frames;
-    std::vector<stitch_cuda::DeviceImage> srcs;
-    std::vector<stitch_cuda::ViewGeometry> geometry;
-    std::vector<unsigned long long> textures;
     std::vector<cv::Mat> expected;
     for (int i = 0; i < 3; ++i) {
       const Rect& r = views[std::size_t(i)].roi;
       expected.emplace_back(r.height, r.width, CV_8UC4, cv::Scalar::all(0));
-      cpu->warp(i, as_view(s.frames[std::size_t(i)]), as_view(expected.back()));
-      frames.push_back(std::make_unique<DeviceMat>(s.frames[std::size_t(i)]));
-      srcs.push_back(to_device_image(frames.back()->view()));
-      geometry.push_back(to_device_geometry(views[std::size_t(i)]));
-      textures.push_back(stitch_cuda::create_rgba_texture(srcs.back()));
-      ASSERT_NE(textures.back(), 0u) << "pitched device frames take textures";
+      cpu->warp(i, as_view(d.scene.frames[std::size_t(i)]), as_view(expected.back()));
     }
     for (int textured = 0; textured < 2; ++textured)
       for (int packed = 0; packed < 2; ++packed) {
@@ -232,22 +250,22 @@ TEST(Cuda, OneLaunchWarpOfEveryViewMatchesTheCpu) {
           rects.emplace_back(pitch * std::size_t(r.height));
           lumas.emplace_back(std::size_t(r.width) * r.height);
           ASSERT_EQ(cudaMemset(rects.back().data(), 77, pitch * std::size_t(r.height)), cudaSuccess);  // poisoned
-          stitch_cuda::DeviceImage d;
-          d.data = rects.back().data();
-          d.pitch = pitch;
-          d.width = r.width;
-          d.height = r.height;
-          dsts.push_back(d);
+          stitch_cuda::DeviceImage rect;
+          rect.data = rects.back().data();
+          rect.pitch = pitch;
+          rect.width = r.width;
+          rect.height = r.height;
+          dsts.push_back(rect);
           luma_ptrs.push_back(lumas.back().data());
         }
-        stitch_cuda::launch_warps(3, srcs.data(), geometry.data(), dsts.data(), luma_ptrs.data(),
-                                  textured ? textures.data() : nullptr, nullptr);
+        stitch_cuda::launch_warps(3, srcs.data(), d.geometry.data(), dsts.data(), luma_ptrs.data(),
+                                  textured ? d.textures.data() : nullptr, nullptr);
         ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
         for (int i = 0; i < 3; ++i) {
-          const stitch_cuda::DeviceImage& d = dsts[std::size_t(i)];
-          cv::Mat got(d.height, d.width, CV_8UC4), luma(d.height, d.width, CV_8UC1);
-          ASSERT_EQ(cudaMemcpy2D(got.data, got.step, d.data, d.pitch, std::size_t(d.width) * 4, std::size_t(d.height),
-                                 cudaMemcpyDeviceToHost),
+          const stitch_cuda::DeviceImage& rect = dsts[std::size_t(i)];
+          cv::Mat got(rect.height, rect.width, CV_8UC4), luma(rect.height, rect.width, CV_8UC1);
+          ASSERT_EQ(cudaMemcpy2D(got.data, got.step, rect.data, rect.pitch, std::size_t(rect.width) * 4,
+                                 std::size_t(rect.height), cudaMemcpyDeviceToHost),
                     cudaSuccess);
           ASSERT_EQ(cudaMemcpy(luma.data, luma_ptrs[std::size_t(i)], luma.total(), cudaMemcpyDeviceToHost), cudaSuccess);
           const double psnr = testdata::psnr_rgb(got, expected[std::size_t(i)]);
@@ -255,13 +273,54 @@ TEST(Cuda, OneLaunchWarpOfEveryViewMatchesTheCpu) {
                       textured ? "texture" : "gathers", packed ? "packed" : "padded", i, psnr);
           EXPECT_GT(psnr, 45.0) << "view " << i;
           int luma_off = 0;
-          for (int y = 0; y < d.height; ++y)
-            for (int x = 0; x < d.width; ++x)
+          for (int y = 0; y < rect.height; ++y)
+            for (int x = 0; x < rect.width; ++x)
               luma_off += luma.at<uint8_t>(y, x) != stitch::seam::luma(got.ptr<uint8_t>(y) + 4 * x);
           EXPECT_EQ(luma_off, 0) << "view " << i;
         }
       }
-    for (auto t : textures) stitch_cuda::destroy_texture(t);
+  }
+#endif
+}
+
+// The compose on the fuse's tiles: a tile one view covers alone takes that view's sample without
+// the weights. Against the untiled compose: one level at most (w c / w may round a tie the other
+// way), on a sliver of the pixels; gathers and texture, colour matrices, each view missing in turn.
+TEST(Cuda, ComposeTilesGiveTheWeightedMeanWithinOneLevel) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  for (const char* projection : {"plane", "spherical"}) {
+    SCOPED_TRACE(projection);
+    DeviceScene d(projection);
+    const OutputGeometry& g = d.canvas;
+    const float color[27] = {1.05f, 0.01f, 0, 0, 0.97f, 0, 0, 0.02f, 1.02f, 1, 0, 0, 0, 1, 0, 0, 0, 1,
+                             0.9f, 0, 0.03f, 0, 1.1f, 0, 0, 0, 0.95f};
+    DeviceBuffer tiles(stitch_cuda::fuse_tile_count(g.width, g.height));
+    stitch_cuda::launch_fuse_tiles(3, d.geometry.data(), g.width, g.height, tiles.data(), nullptr);
+    for (int missing = -1; missing < 3; ++missing)
+      for (int textured = 0; textured < 2; ++textured) {
+        SCOPED_TRACE(testing::Message() << "missing " << missing << " textured " << textured);
+        std::vector<stitch_cuda::DeviceImage> present = d.images;
+        std::vector<unsigned long long> present_tex = d.textures;
+        if (missing >= 0) present[std::size_t(missing)].data = nullptr, present_tex[std::size_t(missing)] = 0;
+        DeviceMat plain(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(77)));
+        DeviceMat tiled(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(78)));
+        for (int use_tiles = 0; use_tiles < 2; ++use_tiles) {
+          const stitch_cuda::DeviceImage out = to_device_image((use_tiles ? tiled : plain).view());
+          const uint8_t* t = use_tiles ? tiles.data() : nullptr;
+          if (textured) stitch_cuda::launch_compose_tex(3, d.geometry.data(), present_tex.data(), color, out, nullptr, t);
+          else stitch_cuda::launch_compose(3, d.geometry.data(), present.data(), color, out, nullptr, t);
+        }
+        ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
+        const cv::Mat a = plain.download(), b = tiled.download();
+        cv::Mat diff;
+        cv::absdiff(a, b, diff);
+        EXPECT_LE(cv::norm(diff, cv::NORM_INF), 1.0);
+        const double off = double(cv::countNonZero(diff.reshape(1))) / double(diff.total() * 4);
+        std::printf("compose tiles (%s, %s, missing %d): %.4f%% of channels one level off\n", projection,
+                    textured ? "texture" : "gathers", missing, 100 * off);
+        EXPECT_LT(off, 0.01);
+      }
   }
 #endif
 }

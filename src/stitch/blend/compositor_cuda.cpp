@@ -222,10 +222,12 @@ void CudaComposer::compose(const std::vector<ImageView>& frames, const ImageView
     return;
   }
   std::vector<unsigned long long> tex;
+  // Tiles one view covers alone take its sample without the weights (the fuse's tiles).
+  const uint8_t* tiles = d.width == s_->out_w && d.height == s_->out_h ? s_->fuse_tiles() : nullptr;
   if (s_->texture_all(images, tex))
-    stitch_cuda::launch_compose_tex(int(images.size()), s_->views.data(), tex.data(), color, d, s_->stream.get());
+    stitch_cuda::launch_compose_tex(int(images.size()), s_->views.data(), tex.data(), color, d, s_->stream.get(), tiles);
   else
-    stitch_cuda::launch_compose(int(images.size()), s_->views.data(), images.data(), color, d, s_->stream.get());
+    stitch_cuda::launch_compose(int(images.size()), s_->views.data(), images.data(), color, d, s_->stream.get(), tiles);
   s_->finish(out, d);
 }
 
