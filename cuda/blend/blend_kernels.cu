@@ -30,10 +30,10 @@ struct ComposeParams {
 };
 
 // Every view's warp in one launch (blockIdx.z: the view), kWarpPixels consecutive pixels of a row
-// per thread: the per-thread index arithmetic and the stores are shared (one 16-byte store where
+// per thread: the per-thread index arithmetic and the stores are shared (one 8-byte store where
 // the rows allow it). With a texture the hardware does the bilinear taps (8-bit weights: within
 // 2 grey levels of the gathers, 60 dB; the CPU's fixed-point remap is 1/32 px); without, gathers.
-constexpr int kWarpPixels = 4;
+constexpr int kWarpPixels = 2;  // 2 beat 4 at four of the five sizes measured (BENCHMARKS)
 struct WarpBatch {
   ViewGeometry views[kMaxViews];
   DeviceImage src[kMaxViews], dst[kMaxViews];
@@ -70,13 +70,11 @@ __global__ void warp_views_kernel(const __grid_constant__ WarpBatch b) {
   uint8_t* row = dst.data + size_t(y) * dst.pitch + size_t(x0) * 4;
   uint8_t* luma = b.luma[i] ? b.luma[i] + size_t(y) * dst.width + x0 : nullptr;
   if ((b.vector_rows >> i & 1u) && x0 + kWarpPixels <= dst.width) {
-    static_assert(kWarpPixels == 4, "one uint4 of pixels, one uchar4 of luma");
-    *reinterpret_cast<uint4*>(row) = make_uint4(*reinterpret_cast<const unsigned*>(&o[0]), *reinterpret_cast<const unsigned*>(&o[1]),
-                                                *reinterpret_cast<const unsigned*>(&o[2]), *reinterpret_cast<const unsigned*>(&o[3]));
+    static_assert(kWarpPixels == 2, "one uint2 of pixels, one uchar2 of luma");
+    *reinterpret_cast<uint2*>(row) = make_uint2(*reinterpret_cast<const unsigned*>(&o[0]), *reinterpret_cast<const unsigned*>(&o[1]));
     if (luma)
-      *reinterpret_cast<uchar4*>(luma) =
-          make_uchar4(stitch::seam::luma(reinterpret_cast<const uint8_t*>(&o[0])), stitch::seam::luma(reinterpret_cast<const uint8_t*>(&o[1])),
-                      stitch::seam::luma(reinterpret_cast<const uint8_t*>(&o[2])), stitch::seam::luma(reinterpret_cast<const uint8_t*>(&o[3])));
+      *reinterpret_cast<uchar2*>(luma) =
+          make_uchar2(stitch::seam::luma(reinterpret_cast<const uint8_t*>(&o[0])), stitch::seam::luma(reinterpret_cast<const uint8_t*>(&o[1])));
     return;
   }
 #pragma unroll
@@ -371,8 +369,10 @@ void launch_warps(int n, const DeviceImage* srcs, const ViewGeometry* views, con
     b.luma[i] = lumas ? lumas[i] : nullptr;
     if (textures) b.tex[i] = textures[i];
     texture = texture && (textures[i] || !b.dst[i].width);
-    const auto aligned = [](const void* p, size_t step) { return reinterpret_cast<uintptr_t>(p) % 16 == 0 && step % 16 == 0; };
-    if (aligned(b.dst[i].data, b.dst[i].pitch) && (!b.luma[i] || (reinterpret_cast<uintptr_t>(b.luma[i]) % 4 == 0 && b.dst[i].width % 4 == 0)))
+    constexpr size_t kRowBytes = 4 * kWarpPixels;  // one vector store of pixels, kWarpPixels bytes of luma
+    const auto aligned = [](const void* p, size_t step, size_t to) { return reinterpret_cast<uintptr_t>(p) % to == 0 && step % to == 0; };
+    if (aligned(b.dst[i].data, b.dst[i].pitch, kRowBytes) &&
+        (!b.luma[i] || aligned(b.luma[i], size_t(b.dst[i].width), kWarpPixels)))
       b.vector_rows |= 1u << i;
     width = std::max(width, b.dst[i].width);
     height = std::max(height, b.dst[i].height);

@@ -218,7 +218,7 @@ TEST(Cuda, PrewarpedFuseMatchesCpu) {
 // per-pixel weighted mean: plain, with the consensus mix, with a view missing, and on a
 // spherical canvas; and they do skip work (some tiles are one view's alone, some are mixed).
 // The blend's warp of every view in one launch (launch_warps), with gathers and with the texture
-// units' bilinear taps, into rows that take 16-byte stores and rows that do not (the rectangles'
+// units' bilinear taps, into rows that take vector stores and rows that do not (the rectangles'
 // own widths), with the seam finder's luma: the CPU warper's pixels, the luma of the written ones.
 TEST(Cuda, OneLaunchWarpOfEveryViewMatchesTheCpu) {
   REQUIRE_CUDA();
@@ -244,7 +244,7 @@ TEST(Cuda, OneLaunchWarpOfEveryViewMatchesTheCpu) {
         std::vector<uint8_t*> luma_ptrs;
         for (int i = 0; i < 3; ++i) {
           const Rect& r = views[std::size_t(i)].roi;
-          // packed: rows of exactly the width (16-byte stores only where the width allows);
+          // packed: rows of exactly the width (vector stores only where the width allows);
           // else rows padded to 64 bytes.
           const std::size_t pitch = packed ? std::size_t(r.width) * 4 : (std::size_t(r.width) * 4 + 63) / 64 * 64;
           rects.emplace_back(pitch * std::size_t(r.height));
