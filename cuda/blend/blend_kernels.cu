@@ -172,17 +172,18 @@ __device__ __forceinline__ uchar4 blend_pixel(const ComposeParams& p, int x, int
   return kMode == 0 && p.mix ? mixed_pixel(p, x, y, o) : o;
 }
 
-// kPixels consecutive pixels of a row to a thread (4: one 16-byte store where the output rows
-// allow); a block of kFuseTileW / kPixels x kFuseTileH threads is one fuse tile. The fuse takes 4
-// (1080p and up: 8-18% faster, measured); the compose 1 (its per-pixel work over every view
-// dominates, and small outputs lose parallelism with 4).
-constexpr int kFusePixels = 4, kComposePixels = 1;
+// kPixels consecutive pixels of a row to a thread (one vector store where the output rows
+// allow); a block of kFuseTileW / kPixels x kFuseTileH threads is one fuse tile. The fuse takes 2
+// (measured against 1 and 4: fastest from 2 x 1080p up); the compose 1 (its per-pixel work over
+// every view dominates, and small outputs lose parallelism with more).
+constexpr int kFusePixels = 2, kComposePixels = 1;
 template <int kPixels>
 __device__ __forceinline__ void store_pixels(const DeviceImage& out, bool vector_rows, int x0, int y, const uchar4* o) {
   uint8_t* row = out.data + size_t(y) * out.pitch + size_t(x0) * 4;
-  if (kPixels == 4 && vector_rows && x0 + kPixels <= out.width) {
-    *reinterpret_cast<uint4*>(row) = make_uint4(*reinterpret_cast<const unsigned*>(&o[0]), *reinterpret_cast<const unsigned*>(&o[1]),
-                                                *reinterpret_cast<const unsigned*>(&o[2]), *reinterpret_cast<const unsigned*>(&o[3]));
+  if (kPixels > 1 && vector_rows && x0 + kPixels <= out.width) {
+    const unsigned* u = reinterpret_cast<const unsigned*>(o);
+    if (kPixels == 4) *reinterpret_cast<uint4*>(row) = make_uint4(u[0], u[1], u[2], u[3]);
+    else *reinterpret_cast<uint2*>(row) = make_uint2(u[0], u[1]);
     return;
   }
 #pragma unroll
@@ -191,7 +192,7 @@ __device__ __forceinline__ void store_pixels(const DeviceImage& out, bool vector
 }
 template <int kPixels>
 dim3 tile_block() {
-  static_assert(kFuseTileW % kPixels == 0, "a block is one fuse tile");
+  static_assert(kFuseTileW % kPixels == 0 && (kPixels == 1 || kPixels == 2 || kPixels == 4), "a block is one fuse tile");
   return dim3(kFuseTileW / kPixels, kFuseTileH);
 }
 inline dim3 tile_grid(int width, int height) {
