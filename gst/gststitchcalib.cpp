@@ -51,12 +51,19 @@
  *   window again; the result must beat the current calibration on held-out frames, or it is
  *   reported in a `stitchcalib-rejected` message and kept out. A recalibration keeps the
  *   panorama size: its canvas is fitted into the current one.
- * - Until a calibration exists, bundles are dropped, a `stitchcalib-pending` message
- *   (`reason`, naming the cameras that hold it up, and `waited-s`) is posted at most once a
- *   second, and QoS messages are rate-limited (the first drop, at most one a second, and the
- *   total before the first bundle passes). After `calibration-timeout` seconds of running time
- *   it stops with an error; a stream that ends before any calibration is an error. With non-live
- *   inputs (files), a bundle that lacks a camera which has not started yet is held before it is
+ * - Until a calibration exists, a `stitchcalib-pending` message (`reason`, naming the cameras
+ *   that hold it up, and `waited-s`) is posted at most once a second. With live inputs the
+ *   bundles are dropped meanwhile, QoS messages rate-limited (the first drop, at most one a
+ *   second, and the total before the first bundle passes), and a failed attempt is tried again
+ *   0.5 s later. With non-live inputs (files) no frame is lost: the complete bundles that come
+ *   before the first calibration are held (copies, 512 MiB at most: beyond, the oldest are
+ *   dropped and a warning says so) and go out with it, in order, so that every frame set gets a
+ *   panorama; a failed attempt is tried again on the next bundle, then 2, 4, 8, ... bundles
+ *   later (0.5 s of running time at most), on the newest `calibration-frames` frame sets tried
+ *   pooled (a 6-camera ring at 8% overlap whose first frame set left a camera a few matches
+ *   short gave 20 panoramas of 20 instead of 5). After `calibration-timeout` seconds of running
+ *   time it stops with an error; a stream that ends before any calibration is an error. With
+ *   non-live inputs, a bundle that lacks a camera which has not started yet is held before it is
  *   dropped (200 ms, doubling to 1 s; 10 s of wall time in all), so the cameras that started do
  *   not run ahead and end before a late one joins.
  * - A camera that has delivered no frame, or only dark ones, for `leave-out-after` seconds of

@@ -503,7 +503,7 @@ class CalibSession {
   // first calibration
   double next_attempt_at_ = 0;
   // Files (non-live): after a failed first attempt the next comes on the next usable bundles
-  // (1, 2, 4, ... bundles later, retry_interval_s at most), pooled with the frame sets tried
+  // (the next bundle, then 2, 4, 8, ... bundles later, retry_interval_s at most), pooled with the frame sets tried
   // before (the newest calibration_frames): nothing is lost meanwhile (EarlyBundles), and a
   // pooled attempt succeeds where one noisy frame set leaves a camera a few matches short.
   int failed_first_attempts_ = 0, bundles_to_next_attempt_ = 0;
