@@ -60,8 +60,9 @@
  *   dropped and a warning says so) and go out with it, in order, so that every frame set gets a
  *   panorama; a failed attempt is tried again on the next bundle, then 2, 4, 8, ... bundles
  *   later (0.5 s of running time at most), on the newest `calibration-frames` frame sets tried
- *   pooled (a 6-camera ring at 8% overlap whose first frame set left a camera a few matches
- *   short gave 20 panoramas of 20 instead of 5). After `calibration-timeout` seconds of running
+ *   pooled, and once more on the last bundle when the stream ends before one succeeds (a
+ *   6-camera ring at 8% overlap whose first frame set left a camera a few matches short gave 20
+ *   panoramas of 20 instead of 5). After `calibration-timeout` seconds of running
  *   time it stops with an error; a stream that ends before any calibration is an error. With
  *   non-live inputs, a bundle that lacks a camera which has not started yet is held before it is
  *   dropped (200 ms, doubling to 1 s; 10 s of wall time in all), so the cameras that started do
@@ -861,6 +862,16 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
         st->last_torn = nullptr;
         st->session.accept_torn_pictures();
         GST_INFO_OBJECT(self, "the stream ended on torn pictures: taken as the cameras' own");
+        if (gst_stitch_calib_transform_ip(trans, last) == GST_FLOW_OK)
+          gst_pad_push(GST_BASE_TRANSFORM_SRC_PAD(trans), last);
+        else
+          gst_buffer_unref(last);
+      }
+      if (!st->session.current() && !st->session.failed() && !st->early.empty() && st->session.retry_at_end()) {
+        /* Files that end uncalibrated after a failed attempt and bundles the back-off skipped: the
+         * last one is tried once more, pooled with those tried (a short clip gets its panoramas). */
+        GstBuffer* last = *st->early.take_newest();
+        GST_INFO_OBJECT(self, "the stream ended uncalibrated: one more attempt on its last bundle");
         if (gst_stitch_calib_transform_ip(trans, last) == GST_FLOW_OK)
           gst_pad_push(GST_BASE_TRANSFORM_SRC_PAD(trans), last);
         else

@@ -459,6 +459,25 @@ TEST(StitchCalib, FilesGetAPanoramaForEveryFrameWhenTheFirstAttemptFails) {
   EXPECT_FALSE(r.warning_contains("are held until the first calibration"));
 }
 
+// A short file whose first frames all fail (camera 2 shows another picture: it matches no other
+// camera) and whose last frame would calibrate: the back-off skipped that frame (attempts on
+// frames 0 and 1), so at the end of the stream it is tried once more, pooled, and every frame
+// gets a panorama. Before: none, and "Could not calibrate before the stream ended".
+TEST(StitchCalib, ShortFileWhoseLastFrameCalibratesGetsEveryPanorama) {
+  const std::vector<cv::Mat> good = crops();
+  std::vector<cv::Mat> foreign = good;
+  cv::Mat aero = testdata::load_rgba(testdata::repo_path("data/photos/aero1.jpg"));
+  foreign[2] = cv::Mat();  // a picture of its own
+  cv::resize(aero, foreign[2], cv::Size(640, 480), 0, 0, cv::INTER_AREA);
+  constexpr int kFrames = 3;
+  gsttest::RunResult r;  // pools of two frame sets: failed attempts are slow (seconds each)
+  gsttest::run_pipeline_frames(chain("calibration-frames=2", 3), [&](int f) { return f == kFrames - 1 ? good : foreign; },
+                               kFrames, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  EXPECT_EQ(count_messages(r, "stitchcalib"), 1);
+  EXPECT_EQ(r.frames.size(), std::size_t(kFrames));
+}
+
 // The same, when the stream ends on torn pictures (the last bundle is calibrated on at the
 // end): every frame held before comes out once, the last one too.
 TEST(StitchCalib, FilesEndingOnTornPicturesGetEveryFrameOnce) {

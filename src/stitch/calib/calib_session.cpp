@@ -1410,6 +1410,13 @@ std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::
   return absent;
 }
 
+bool CalibSession::retry_at_end() {
+  if (current_ || failed_ || job_in_flight_ || failed_first_attempts_ == 0 || untried_bundles_ == 0) return false;
+  bundles_to_next_attempt_ = 0;
+  next_attempt_at_ = now_;
+  return true;
+}
+
 bool CalibSession::wants_pixels(const Frame& frame) {
   if (failed_) return false;
   if (!current_ || (!sizes_.empty() && frame.sizes != sizes_)) {
@@ -1457,6 +1464,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     // Files: a failed attempt is followed on the next bundles (see failed_first_attempts_).
     const bool files_retry_now = !frame.live && failed_first_attempts_ > 0 && --bundles_to_next_attempt_ <= 0;
     if (now_ < next_attempt_at_ && !files_retry_now) {
+      ++untried_bundles_;
       pending(last_problem_);
       return nullptr;
     }
@@ -1476,6 +1484,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
              " show the same picture (the same source given twice?): they overlap completely and are stitched as one view");
         identical_warned_ = true;
       }
+    untried_bundles_ = 0;
     auto job = make_job(JobKind::First);
     if (have_pixels) {
       job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));

@@ -400,6 +400,10 @@ class CalibSession {
   // tears as the pictures' own for the next bundle.
   bool last_bundle_torn_only() const { return torn_only_; }
   void accept_torn_pictures() { accept_torn_ = true; }
+  // Files that end before the first calibration, after a failed attempt and bundles that were not
+  // tried (the back-off skipped them): whether the last bundle is worth one more attempt; when it
+  // is, the next on_frame makes it at once (the element gives it the last held bundle again).
+  bool retry_at_end();
   // Stop: forgets everything (and any job in flight).
   void reset();
 
@@ -506,7 +510,7 @@ class CalibSession {
   // (the next bundle, then 2, 4, 8, ... bundles later, retry_interval_s at most), pooled with the frame sets tried
   // before (the newest calibration_frames): nothing is lost meanwhile (EarlyBundles), and a
   // pooled attempt succeeds where one noisy frame set leaves a camera a few matches short.
-  int failed_first_attempts_ = 0, bundles_to_next_attempt_ = 0;
+  int failed_first_attempts_ = 0, bundles_to_next_attempt_ = 0, untried_bundles_ = 0;
   std::vector<FrameSet> tried_sets_;
   std::uint64_t tried_leave_ = 0;
   std::string last_problem_;
