@@ -51,12 +51,20 @@
  *   window again; the result must beat the current calibration on held-out frames, or it is
  *   reported in a `stitchcalib-rejected` message and kept out. A recalibration keeps the
  *   panorama size: its canvas is fitted into the current one.
- * - Until a calibration exists, bundles are dropped, a `stitchcalib-pending` message
- *   (`reason`, naming the cameras that hold it up, and `waited-s`) is posted at most once a
- *   second, and QoS messages are rate-limited (the first drop, at most one a second, and the
- *   total before the first bundle passes). After `calibration-timeout` seconds of running time
- *   it stops with an error; a stream that ends before any calibration is an error. With non-live
- *   inputs (files), a bundle that lacks a camera which has not started yet is held before it is
+ * - Until a calibration exists, a `stitchcalib-pending` message (`reason`, naming the cameras
+ *   that hold it up, and `waited-s`) is posted at most once a second. With live inputs the
+ *   bundles are dropped meanwhile, QoS messages rate-limited (the first drop, at most one a
+ *   second, and the total before the first bundle passes), and a failed attempt is tried again
+ *   0.5 s later. With non-live inputs (files) no frame is lost: the complete bundles that come
+ *   before the first calibration are held (copies, 512 MiB at most: beyond, the oldest are
+ *   dropped and a warning says so) and go out with it, in order, so that every frame set gets a
+ *   panorama; a failed attempt is tried again on the next bundle, then 2, 4, 8, ... bundles
+ *   later (0.5 s of running time at most), on the newest `calibration-frames` frame sets tried
+ *   pooled, and once more on the last bundle when the stream ends before one succeeds (a
+ *   6-camera ring at 8% overlap whose first frame set left a camera a few matches short gave 20
+ *   panoramas of 20 instead of 5). After `calibration-timeout` seconds of running
+ *   time it stops with an error; a stream that ends before any calibration is an error. With
+ *   non-live inputs, a bundle that lacks a camera which has not started yet is held before it is
  *   dropped (200 ms, doubling to 1 s; 10 s of wall time in all), so the cameras that started do
  *   not run ahead and end before a late one joins.
  * - A camera that has delivered no frame, or only dark ones, for `leave-out-after` seconds of
@@ -275,6 +283,12 @@ struct CalibState {
   /* bundles held while a first calibration waits for a late camera (streaming thread only) */
   stitch::LateCameraHold late_hold;
   int upstream_live = -1;  /* -1: not asked yet */
+  /* Non-live inputs: the bundles before the first calibration, deep copies (they would hold the
+   * upstream pools' buffers), pushed with it (streaming thread only) */
+  stitch::EarlyBundles<GstBuffer*> early;
+  void drop_early() {
+    for (GstBuffer* b : early.take()) gst_buffer_unref(b);
+  }
 
   void forget_saved() {
     offsets = saved_offsets = TimeOffsets();
@@ -662,6 +676,63 @@ static void snapshot_settings(CalibState* st) {
   st->session.set_config(config);
 }
 
+/* The calibration on a bundle; a camera calibrated without (never delivered, or dark) is a
+ * missing view downstream. */
+static void attach_rig(GstStitchCalib* self, GstBuffer* buf, const std::shared_ptr<const stitch::Rig>& rig) {
+  gst_buffer_add_stitch_rig_meta(buf, rig, self->state->session.version());
+  if (!stitch::any_left_out(*rig)) return;
+  GstStitchBundleMeta* writable = gst_buffer_get_stitch_bundle_meta(buf);
+  for (std::size_t i = 0; writable && i < rig->cameras.size() && i < 64; ++i)
+    if (rig->cameras[i].left_out) writable->missing_mask |= guint64(1) << i;
+}
+
+/* Non-live inputs, no calibration yet: keeps a copy of the bundle to go out with the first
+ * calibration (EarlyBundles). FALSE when it cannot be held (the caller drops it). */
+static gboolean hold_early_bundle(GstStitchCalib* self, GstBuffer* buf, const stitch::CalibSession::Frame& frame) {
+  CalibState* st = self->state;
+  st->early.set_max_bytes(st->session.config().hold_before_first_bytes);
+  GstBuffer* copy = gst_buffer_copy_deep(buf);
+  if (!copy) {
+    GST_DEBUG_OBJECT(self, "cannot copy a bundle before the first calibration: dropped");
+    return FALSE;
+  }
+  for (GstBuffer* old : st->early.keep(copy, gst_buffer_get_size(copy), frame.sizes)) {
+    note_drop(self, old);
+    gst_buffer_unref(old);
+    st->session.bundle_dropped();
+  }
+  if (st->early.bound_reached())
+    GST_ELEMENT_WARNING(self, STREAM, FAILED,
+                        ("%u bundles (%.0f MiB) are held until the first calibration, the most it keeps: the oldest "
+                         "are dropped, and the panorama starts later than the inputs",
+                         guint(st->early.count()), double(st->early.bytes()) / (1 << 20)),
+                        ("non-live inputs: the bundles before the first calibration go out with it, up to %.0f MiB",
+                         double(st->early.max_bytes()) / (1 << 20)));
+  GST_LOG_OBJECT(self, "holding %u bundles (%.1f MiB) until the first calibration", guint(st->early.count()),
+                 double(st->early.bytes()) / (1 << 20));
+  return TRUE;
+}
+
+/* The first calibration is installed: the bundles held before it go out with it, in order. */
+static GstFlowReturn push_early_bundles(GstStitchCalib* self, const std::shared_ptr<const stitch::Rig>& rig) {
+  CalibState* st = self->state;
+  const std::vector<GstBuffer*> held = st->early.take();
+  if (!held.empty())
+    GST_INFO_OBJECT(self, "the %u bundles held until the first calibration go out with it", guint(held.size()));
+  GstFlowReturn ret = GST_FLOW_OK;
+  for (GstBuffer* b : held) {
+    if (ret != GST_FLOW_OK) {
+      gst_buffer_unref(b);
+      continue;
+    }
+    attach_rig(self, b, rig);
+    st->passed_any = true;
+    st->session.bundle_passed();
+    ret = gst_pad_push(GST_BASE_TRANSFORM_SRC_PAD(self), b);
+  }
+  return ret;
+}
+
 static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstBuffer* buf) {
   GstStitchCalib* self = GST_STITCH_CALIB(trans);
   CalibState* st = self->state;
@@ -727,19 +798,22 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     if (!rig && !hold_for_late_camera(self, frame)) return GST_FLOW_FLUSHING;
     if (!rig && st->session.last_bundle_torn_only()) gst_buffer_replace(&st->last_torn, buf);
     else st->forget_torn();
+    if (!rig && stitch::EarlyBundles<GstBuffer*>::holds(frame.live, st->session.failed(), frame.missing_mask) &&
+        hold_early_bundle(self, buf, frame)) {
+      post_events(self);
+      return GST_BASE_TRANSFORM_FLOW_DROPPED;
+    }
     note_drop(self, buf);
     st->session.bundle_dropped();
     post_events(self);
     return GST_BASE_TRANSFORM_FLOW_DROPPED;
   }
   st->forget_torn();
-  gst_buffer_add_stitch_rig_meta(buf, rig, st->session.version());
-  if (stitch::any_left_out(*rig)) {
-    /* a camera calibrated without (never delivered, or dark): downstream, its view is missing */
-    GstStitchBundleMeta* writable = gst_buffer_get_stitch_bundle_meta(buf);
-    for (std::size_t i = 0; writable && i < rig->cameras.size() && i < 64; ++i)
-      if (rig->cameras[i].left_out) writable->missing_mask |= guint64(1) << i;
+  if (!st->early.empty()) {
+    const GstFlowReturn pushed = push_early_bundles(self, rig);
+    if (pushed != GST_FLOW_OK) return pushed;
   }
+  attach_rig(self, buf, rig);
   st->passed_any = true;
   st->session.bundle_passed();
   post_events(self);
@@ -755,6 +829,7 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
     case GST_EVENT_FLUSH_STOP:
       st->unblock = false;
       st->forget_torn();
+      st->drop_early();
       break;
     case GST_EVENT_EOS:
       /* Serialized: the streaming thread owns the session here. A calibration in flight is
@@ -776,6 +851,9 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
       }
       if (st->worker && wait_for_worker(st)) collect_outcome(st);
       if (!st->session.current() && !st->session.failed() && st->last_torn) {
+        /* the held copy of the last bundle: it is calibrated on and output below */
+        if (!st->early.empty() && GST_BUFFER_PTS(st->early.newest()) == GST_BUFFER_PTS(st->last_torn))
+          gst_buffer_unref(*st->early.take_newest());
         /* The stream ended on torn pictures alone: no later frame can replace them (a photo, a
          * camera's last frame), so they are taken as the pictures' own and the last bundle is
          * calibrated on and output (two photos of a bridge as one-frame streams made no
@@ -789,7 +867,20 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
         else
           gst_buffer_unref(last);
       }
+      if (!st->session.current() && !st->session.failed() && !st->early.empty() && st->session.retry_at_end()) {
+        /* Files that end uncalibrated after a failed attempt and bundles the back-off skipped: the
+         * last one is tried once more, pooled with those tried (a short clip gets its panoramas). */
+        GstBuffer* last = *st->early.take_newest();
+        GST_INFO_OBJECT(self, "the stream ended uncalibrated: one more attempt on its last bundle");
+        if (gst_stitch_calib_transform_ip(trans, last) == GST_FLOW_OK)
+          gst_pad_push(GST_BASE_TRANSFORM_SRC_PAD(trans), last);
+        else
+          gst_buffer_unref(last);
+      }
       st->forget_torn();
+      /* the first calibration came with the last bundle's job: what it held goes out before the end */
+      if (std::shared_ptr<const stitch::Rig> rig = st->session.current()) push_early_bundles(self, rig);
+      st->drop_early();
       st->session.on_eos();
       post_events(self);
       save_moved_offsets(self, st->now_s, true);
@@ -818,6 +909,7 @@ static gboolean gst_stitch_calib_start(GstBaseTransform* trans) {
   st->unblock = false;
   st->late_hold.reset();
   st->upstream_live = -1;
+  st->drop_early();
   return TRUE;
 }
 
@@ -836,6 +928,7 @@ static gboolean gst_stitch_calib_stop(GstBaseTransform* trans) {
   st->cancel_worker();
   st->session.reset();
   st->forget_torn();
+  st->drop_early();
   return TRUE;
 }
 
@@ -947,6 +1040,7 @@ static void gst_stitch_calib_finalize(GObject* object) {
   GstStitchCalib* self = GST_STITCH_CALIB(object);
   self->state->cancel_worker();  // the worker owns what it reads: nothing to wait for
   self->state->forget_torn();
+  self->state->drop_early();
   delete self->state;
   G_OBJECT_CLASS(gst_stitch_calib_parent_class)->finalize(object);
 }

@@ -1428,3 +1428,115 @@ TEST(CalibSession, PoorAlignmentIsSaidNamingTheWorstPair) {
   r.median_camera_px = -1;  // nothing measured
   EXPECT_TRUE(poor_alignment_text(r, kPoorAlignmentCameraPx).empty());
 }
+
+// ---- files: no frame set lost to a failed first attempt (first-frames) ------------------------
+
+namespace {
+// Three crops whose camera 2 shows its picture mirrored: it passes the quality checks (sharp,
+// textured) but matches no other camera, so a calibration on it fails ("camera 2 shares too few
+// features"), as the first frame set of a 6-camera ring at 8% overlap did.
+std::vector<cv::Mat> mirrored_camera2() {
+  auto v = crops(3);
+  cv::flip(v[2].clone(), v[2], 1);
+  return v;
+}
+
+// Feeds frame f (live or not) and runs any job; returns the job's frame sets (0: no job).
+int feed_counting_sets(CalibSession& s, int f, const std::vector<cv::Mat>& frames, bool live) {
+  CalibSession::Frame fr;
+  fr.time_s = f / 30.0;
+  fr.live = live;
+  for (const auto& m : frames) fr.sizes.push_back({m.cols, m.rows});
+  auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+  if (!job) return 0;
+  std::atomic<bool> cancel{false};
+  s.on_outcome(run_calib_job(*job, cancel));
+  return int(job->calib_sets.size());
+}
+}  // namespace
+
+// Files: the failed first attempt is tried again on the very next bundle (the bundles between
+// are held by the element, nothing is lost), pooled with the frame set tried before; live
+// cameras keep retry_interval_s (0.5 s) between attempts. Without the change the file stream
+// waited 15 bundles, all dropped.
+TEST(CalibSession, FilesRetryAFailedFirstAttemptOnTheNextBundlePooled) {
+  for (const bool live : {false, true}) {
+    SessionConfig c;
+    c.calibration_frames = 3;
+    CalibSession s;
+    s.set_config(c);
+    EXPECT_EQ(feed_counting_sets(s, 0, mirrored_camera2(), live), 1);
+    ASSERT_FALSE(s.current());
+    const auto events = s.take_events();
+    const SessionEvent* p = find(events, SessionEvent::Type::Pending);
+    ASSERT_NE(p, nullptr);
+    EXPECT_NE(p->text.find("camera 2"), std::string::npos) << p->text;
+    int f = 1, sets = 0;
+    for (; f < 30 && !s.current(); ++f) sets = std::max(sets, feed_counting_sets(s, f, crops(3), live));
+    ASSERT_TRUE(s.current()) << (live ? "live" : "files");
+    if (live) {
+      EXPECT_GE(f - 1, 15);  // 0.5 s at 30 fps: the bundles between are dropped
+      EXPECT_EQ(sets, 1);
+    } else {
+      EXPECT_EQ(f - 1, 1);  // calibrated on frame 1
+      EXPECT_EQ(sets, 2);   // frame 0's set pooled with frame 1's
+    }
+  }
+}
+
+// Files whose attempts keep failing are tried again 1, 2, 4, 8 bundles apart and then at the
+// live pace (retry_interval_s): a clip that never calibrates costs no more attempts than today.
+// The pool holds the newest calibration_frames sets.
+TEST(CalibSession, FilesBackOffBetweenFailedFirstAttempts) {
+  SessionConfig c;
+  c.calibration_frames = 3;
+  c.calibration_timeout_s = 0;
+  CalibSession s;
+  s.set_config(c);
+  std::vector<int> attempts, sets;
+  const auto frames = crops(3);
+  for (int f = 0; f < 60; ++f) {
+    CalibSession::Frame fr;
+    fr.time_s = f / 30.0;
+    fr.live = false;
+    fr.sizes.assign(3, {640, 480});
+    auto job = s.on_frame(fr, s.wants_pixels(fr) ? views_of(frames) : std::vector<ImageView>());
+    if (!job) continue;
+    attempts.push_back(f);
+    sets.push_back(int(job->calib_sets.size()));
+    CalibOutcome failed;  // every attempt fails (not run: a failed calibration takes seconds)
+    failed.kind = job->kind;
+    failed.serial = job->serial;
+    failed.error = "camera 2 shares too few features with the other cameras";
+    s.on_outcome(failed);
+  }
+  EXPECT_FALSE(s.current());
+  ASSERT_GE(attempts.size(), 6u);
+  EXPECT_EQ(std::vector<int>(attempts.begin(), attempts.begin() + 5), (std::vector<int>{0, 1, 3, 7, 15}));
+  for (std::size_t i = 5; i < attempts.size(); ++i) EXPECT_GE(attempts[i] - attempts[i - 1], 14);
+  EXPECT_EQ(sets.front(), 1);
+  EXPECT_EQ(sets.back(), 3);
+}
+
+// The element's hold of the bundles before the first calibration: in order, within the bound
+// (the oldest dropped beyond, said once), a layout change drops the older ones, live holds none.
+TEST(EarlyBundles, HoldsInOrderWithinTheBound) {
+  EXPECT_TRUE(EarlyBundles<int>::holds(false, false, 0));
+  EXPECT_FALSE(EarlyBundles<int>::holds(true, false, 0));   // live: today's behaviour
+  EXPECT_FALSE(EarlyBundles<int>::holds(false, true, 0));   // the session failed
+  EXPECT_FALSE(EarlyBundles<int>::holds(false, false, 2));  // a camera missing
+  const std::vector<std::array<int, 2>> vga = {{640, 480}, {640, 480}}, hd = {{1280, 720}, {1280, 720}};
+  EarlyBundles<int> b(300);
+  for (int i = 0; i < 3; ++i) EXPECT_TRUE(b.keep(i, 100, vga).empty());
+  EXPECT_FALSE(b.bound_reached());
+  EXPECT_EQ(b.keep(3, 100, vga), std::vector<int>{0});  // over 300 bytes: the oldest goes
+  EXPECT_TRUE(b.bound_reached());
+  EXPECT_EQ(b.keep(4, 100, vga), std::vector<int>{1});
+  EXPECT_FALSE(b.bound_reached());  // said once
+  EXPECT_EQ(b.bytes(), 300u);
+  EXPECT_EQ(b.keep(5, 100, hd), (std::vector<int>{2, 3, 4}));  // another layout
+  EXPECT_EQ(b.keep(6, 1000, hd), std::vector<int>{5});         // one bundle over the bound stays
+  EXPECT_EQ(b.take(), std::vector<int>{6});
+  EXPECT_TRUE(b.empty());
+  EXPECT_EQ(b.bytes(), 0u);
+}

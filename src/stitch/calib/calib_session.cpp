@@ -1059,6 +1059,8 @@ void CalibSession::forget_calibration() {
   lens_wanted_ = lens_due_ = false;
   last_calib_sets_.clear();
   last_holdout_sets_.clear();
+  failed_first_attempts_ = 0;
+  tried_sets_.clear();
   ++serial_;
   first_frame_at_ = now_;
   next_attempt_at_ = now_;
@@ -1408,6 +1410,13 @@ std::uint64_t CalibSession::cameras_to_leave_out(const Frame& frame, const std::
   return absent;
 }
 
+bool CalibSession::retry_at_end() {
+  if (current_ || failed_ || job_in_flight_ || failed_first_attempts_ == 0 || untried_bundles_ == 0) return false;
+  bundles_to_next_attempt_ = 0;
+  next_attempt_at_ = now_;
+  return true;
+}
+
 bool CalibSession::wants_pixels(const Frame& frame) {
   if (failed_) return false;
   if (!current_ || (!sizes_.empty() && frame.sizes != sizes_)) {
@@ -1452,7 +1461,10 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
     }
     if (!load_rough()) return nullptr;
     if (job_in_flight_) return nullptr;
-    if (now_ < next_attempt_at_) {
+    // Files: a failed attempt is followed on the next bundles (see failed_first_attempts_).
+    const bool files_retry_now = !frame.live && failed_first_attempts_ > 0 && --bundles_to_next_attempt_ <= 0;
+    if (now_ < next_attempt_at_ && !files_retry_now) {
+      ++untried_bundles_;
       pending(last_problem_);
       return nullptr;
     }
@@ -1472,6 +1484,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
              " show the same picture (the same source given twice?): they overlap completely and are stitched as one view");
         identical_warned_ = true;
       }
+    untried_bundles_ = 0;
     auto job = make_job(JobKind::First);
     if (have_pixels) {
       job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));
@@ -1479,6 +1492,15 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       std::vector<cv::Mat> grey;  // refine=none: the frames are not read
       for (const auto& sz : kept_items(frame.sizes, leave)) grey.push_back(cv::Mat(sz[1], sz[0], CV_8UC4, cv::Scalar(0, 0, 0, 255)));
       job->calib_sets.push_back({grey});
+    }
+    if (have_pixels && !frame.live) {
+      // Files: pooled with the newest frame sets tried before (of the same cameras).
+      if (leave != tried_leave_) tried_sets_.clear();
+      tried_leave_ = leave;
+      const std::size_t keep = std::size_t(std::max(1, config_.calibration_frames)) - 1;
+      if (tried_sets_.size() > keep) tried_sets_.erase(tried_sets_.begin(), tried_sets_.end() - std::ptrdiff_t(keep));
+      tried_sets_.push_back(job->calib_sets.back());  // cv::Mat headers: shared, not copied
+      job->calib_sets = tried_sets_;
     }
     leave_out_of_job(*job, leave, frame.sizes, config_.reference);
     return job;
@@ -1592,9 +1614,15 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
           return;
         }
         next_attempt_at_ = now_ + config_.retry_interval_s;
+        // Files lose no frame meanwhile (EarlyBundles): tried again 1, 2, 4, ... bundles later,
+        // on the frame sets pooled so far, and at the live pace at least.
+        ++failed_first_attempts_;
+        bundles_to_next_attempt_ = 1 << std::min(failed_first_attempts_ - 1, 20);
         pending("calibration attempt failed (" + o.error + ")");
         return;
       }
+      failed_first_attempts_ = 0;
+      tried_sets_.clear();
       CalibrationResult r = *o.result;
       CalibReport rep;
       rep.source = rough_ ? "rig" : "images";

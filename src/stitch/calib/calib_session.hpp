@@ -14,6 +14,7 @@
 #include <opencv2/core.hpp>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "stitch/calib/calibrator.hpp"
@@ -77,7 +78,10 @@ struct SessionConfig {
   double recalibrate_interval_s = 0;   // 0: only on request
   double drift_threshold_px = 0;       // 0: no drift watch
   double drift_check_interval_s = 5;
-  double retry_interval_s = 0.5;       // between failed first attempts
+  double retry_interval_s = 0.5;       // between failed first attempts (live; files: see FirstAttempts)
+  // Files (non-live): the bundles that arrive before the first calibration are held (at most
+  // this many bytes) and go out with it (EarlyBundles).
+  std::size_t hold_before_first_bytes = std::size_t(512) << 20;
   double pending_interval_s = 1;       // pending messages at most this often
   double qos_interval_s = 1;           // QoS messages for dropped bundles at most this often
   double load_misfit_px = 4;           // a loaded calibration worse than this warns
@@ -268,6 +272,78 @@ class LateCameraHold {
   std::int64_t spent_us_ = 0, slice_us_ = kSliceUs;
 };
 
+// Files (non-live inputs) are stitched to the frame: a panorama for every frame set, however long
+// the first calibration takes or however many attempts fail before one succeeds (a 6-camera ring
+// at 8% overlap failed its first attempt on frame 1 and gave its first panorama at frame 16 of
+// 20). The bundles that come before the first calibration are held, oldest first, and go out
+// with it, in order. Bounded: `max_bytes` of held bundles (the oldest are dropped beyond, said
+// once: bound_reached), and the calibration timeout (the stream then stops with an error). Only
+// complete bundles of one layout are held (a bundle that lacks a camera is not stitched with a
+// calibration made of every camera; a size change drops the older ones). Live inputs hold
+// nothing: their panorama must not stall behind a backlog. `T` is the element's bundle handle
+// (GstBuffer*): what comes out of keep() and take() is the caller's to release.
+template <class T>
+class EarlyBundles {
+ public:
+  explicit EarlyBundles(std::size_t max_bytes = std::size_t(512) << 20) : max_bytes_(max_bytes) {}
+  void set_max_bytes(std::size_t max_bytes) { max_bytes_ = max_bytes; }
+  // Whether a bundle that no calibration covers yet is held rather than dropped.
+  static bool holds(bool live, bool session_failed, std::uint64_t missing_mask) {
+    return !live && !session_failed && missing_mask == 0;
+  }
+  // Holds `item` (`bytes` of pixels, views of `sizes`); returns what no longer fits, oldest first
+  // (held bundles of other sizes, then the oldest beyond max_bytes), for the caller to drop.
+  std::vector<T> keep(T item, std::size_t bytes, const std::vector<std::array<int, 2>>& sizes) {
+    std::vector<T> out;
+    if (!held_.empty() && sizes != sizes_) out = take();
+    sizes_ = sizes;
+    held_.push_back({item, bytes});
+    bytes_ += bytes;
+    while (bytes_ > max_bytes_ && held_.size() > 1) {
+      out.push_back(held_.front().item);
+      bytes_ -= held_.front().bytes;
+      held_.erase(held_.begin());
+      if (!bound_said_) bound_reached_ = bound_said_ = true;
+    }
+    return out;
+  }
+  // Everything held, oldest first (the first calibration is installed, or a flush, a stop).
+  std::vector<T> take() {
+    std::vector<T> out;
+    for (const auto& h : held_) out.push_back(h.item);
+    held_.clear();
+    bytes_ = 0;
+    return out;
+  }
+  // The newest held bundle (the stream ended on it: the caller calibrates on it, see
+  // CalibSession::accept_torn_pictures); nullopt when none.
+  const T& newest() const { return held_.back().item; }
+  std::optional<T> take_newest() {
+    if (held_.empty()) return std::nullopt;
+    T item = held_.back().item;
+    bytes_ -= held_.back().bytes;
+    held_.pop_back();
+    return item;
+  }
+  // True once, after keep() first dropped a bundle for the bound (to be said on the bus).
+  bool bound_reached() { return std::exchange(bound_reached_, false); }
+  std::size_t count() const { return held_.size(); }
+  std::size_t bytes() const { return bytes_; }
+  std::size_t max_bytes() const { return max_bytes_; }
+  bool empty() const { return held_.empty(); }
+
+ private:
+  struct Held {
+    T item;
+    std::size_t bytes;
+  };
+  std::size_t max_bytes_;
+  std::vector<Held> held_;
+  std::size_t bytes_ = 0;
+  std::vector<std::array<int, 2>> sizes_;
+  bool bound_reached_ = false, bound_said_ = false;
+};
+
 class CalibSession {
  public:
   struct Frame {
@@ -324,6 +400,10 @@ class CalibSession {
   // tears as the pictures' own for the next bundle.
   bool last_bundle_torn_only() const { return torn_only_; }
   void accept_torn_pictures() { accept_torn_ = true; }
+  // Files that end before the first calibration, after a failed attempt and bundles that were not
+  // tried (the back-off skipped them): whether the last bundle is worth one more attempt; when it
+  // is, the next on_frame makes it at once (the element gives it the last held bundle again).
+  bool retry_at_end();
   // Stop: forgets everything (and any job in flight).
   void reset();
 
@@ -426,6 +506,13 @@ class CalibSession {
   bool ever_installed_ = false, failed_ = false;
   // first calibration
   double next_attempt_at_ = 0;
+  // Files (non-live): after a failed first attempt the next comes on the next usable bundles
+  // (the next bundle, then 2, 4, 8, ... bundles later, retry_interval_s at most), pooled with the frame sets tried
+  // before (the newest calibration_frames): nothing is lost meanwhile (EarlyBundles), and a
+  // pooled attempt succeeds where one noisy frame set leaves a camera a few matches short.
+  int failed_first_attempts_ = 0, bundles_to_next_attempt_ = 0, untried_bundles_ = 0;
+  std::vector<FrameSet> tried_sets_;
+  std::uint64_t tried_leave_ = 0;
   std::string last_problem_;
   double last_pending_at_ = -1e9;
   // windows
