@@ -274,6 +274,7 @@ TEST(CalibSessionLensShortFile, NonLiveFirstCalibrationHasTheLens) {
                 o.lens_tried ? "tried" : "not tried", o.lens_not_kept.empty() ? "" : (": " + o.lens_not_kept).c_str(),
                 o.lens_precheck ? o.lens_precheck->describe().c_str() : "-");
     d.s.on_outcome(o);
+    for (auto& e : d.s.take_events()) d.events.push_back(e);
     ran = job->kind;
   }
   ASSERT_TRUE(ran) << "no first calibration";
@@ -286,4 +287,21 @@ TEST(CalibSessionLensShortFile, NonLiveFirstCalibrationHasTheLens) {
   ASSERT_EQ(rig_lens_summary(rig), "radtan") << "the first calibration of a non-live barrel row is pinhole";
   for (const auto& c : rig.cameras) EXPECT_NEAR(c.lens.k1, k1, 0.1 * std::abs(k1));
   EXPECT_LT(seams, 0.5);
+  for (const auto& j : d.events) EXPECT_FALSE(j.type == SessionEvent::Type::Installed && j.report.source == "lens");
+
+  // Live cameras must not stall: their first calibration stays pinhole (the fit follows in the
+  // background, JobKind::Lens).
+  CalibSession live;
+  SessionConfig c;
+  live.set_config(c);
+  for (int i = 0; i < 10; ++i) {
+    CalibSession::Frame fr;
+    fr.time_s = i / 30.0;
+    std::vector<cv::Mat> m = row(i);
+    for (const auto& x : m) fr.sizes.push_back({x.cols, x.rows});
+    if (auto job = live.on_frame(fr, live.wants_pixels(fr) ? views_of(m) : std::vector<ImageView>())) {
+      EXPECT_FALSE(job->lens_before_output);
+      break;
+    }
+  }
 }

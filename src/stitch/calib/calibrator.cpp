@@ -2566,47 +2566,22 @@ std::vector<Rig> lens_fit_guessed_starts(const Rig& pin) {
       c.cy = 0.5 * (c.height - 1);
     }
     const Eigen::Matrix3d Kr = r.cameras[std::size_t(ref)].K();
-    // Mixed lenses (a 0.5x ultra-wide beside a 1x camera): each camera's own focal length, the
-    // one that makes its map to the reference most nearly a rotation (Kr^-1 H K(f): equal
-    // singular values), over a log grid of 1/4..4x the guess. Taken as a start of its own, first,
-    // when a camera's is over 1.6x off the guess (barrel rows of one lens: 1.1-1.3x).
-    Rig mixed = r;
-    bool differ = false;
     for (int i = 0; i < n; ++i) {
-      if (i == ref) continue;
-      Camera& c = mixed.cameras[std::size_t(i)];
-      const double guess = c.fx;
-      double best_f = guess, best_ratio = std::numeric_limits<double>::infinity();
-      for (int k = 0; k <= 80; ++k) {
-        c.fx = c.fy = guess * std::pow(16.0, k / 80.0) / 4;
-        const Eigen::JacobiSVD<Eigen::Matrix3d> svd(Kr.inverse() * to_ref[std::size_t(i)] * c.K());
-        const double ratio = svd.singularValues()(0) / std::max(1e-12, svd.singularValues()(2));
-        if (ratio < best_ratio) best_ratio = ratio, best_f = c.fx;
-      }
-      c.fx = c.fy = best_f;
-      differ |= best_f > 1.6 * guess || best_f < guess / 1.6;
+      Camera& c = r.cameras[std::size_t(i)];
+      c.set_R(nearest_rotation(Kr.inverse() * to_ref[std::size_t(i)] * c.K()));
+      c.homography.reset();
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
     }
-    std::vector<Rig*> made{&r};
-    if (differ) made.insert(made.begin(), &mixed);
-    for (Rig* m : made)
-      for (int i = 0; i < n; ++i) {
-        Camera& c = m->cameras[std::size_t(i)];
-        c.set_R(nearest_rotation(Kr.inverse() * to_ref[std::size_t(i)] * c.K()));
-        c.homography.reset();
-        c.lens = Lens{};
-        c.lens.model = Lens::Model::Radtan;
-        c.lens.estimate = true;
-      }
     // The pinhole fit's canvas may not hold the views at the fitted focal length (3 strong
     // barrel phones 45 degrees apart: 170 degrees across at 80, a "degenerate" plane canvas):
     // the one their field of view asks for at half the guessed focal length (a fit moves it by
     // up to 2x, CalibrationResult::lens_ran_off); a projection given in the options still wins.
-    for (Rig* m : made) {
-      Rig wide = *m;
-      for (auto& c : wide.cameras) c.fx *= 0.5, c.fy *= 0.5;
-      m->projection = projection_name(choose_projection(field_of_view(wide)));
-      starts.push_back(*m);
-    }
+    Rig wide = r;
+    for (auto& c : wide.cameras) c.fx *= 0.5, c.fy *= 0.5;
+    r.projection = projection_name(choose_projection(field_of_view(wide)));
+    starts.push_back(r);
   }
   return starts;
 }
