@@ -849,7 +849,9 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     lens_job.current = std::make_shared<const Rig>(rig);
     lens_job.calib_sets = job.calib_sets;
     lens_job.holdout_sets = job.holdout_sets;
-    CalibOutcome lens = run_lens_job(lens_job, cancel, false, o.candidate.median_camera_px);
+    // From scratch mid-stream (fit_width set), the panorama keeps its size: the lens rig is fitted
+    // into the pinhole one's canvas, which was fitted into it.
+    CalibOutcome lens = run_lens_job(lens_job, cancel, job.fit_width > 0 && job.fit_height > 0, o.candidate.median_camera_px);
     if (cancelled()) return o;
     o.lens_tried = true;
     o.lens_precheck = lens.lens_precheck;
