@@ -89,8 +89,11 @@
  *   undistorted cameras stay pinhole. Not run with a rig-file or load-file (the file states the
  *   lenses: absent is pinhole), `camera-model=homography`, cameras that already have lenses
  *   (fisheyes), a camera left out, or when the pinhole residual is already within 0.2 camera
- *   px. It never delays the stream: it gives way to a recalibration and is cancelled at the end
- *   of the stream. A cheap test runs first (about a second of a core: a k1 adjustment of sparse
+ *   px. With live cameras it never delays the stream: it gives way to a recalibration and is
+ *   cancelled at the end of the stream. With cameras that are not live (files) the same fit runs
+ *   inside the first calibration, which the stream waits for: a short file gets its lens from the
+ *   first panorama on (a pinhole fit more than 5 camera px off skips the cheap test; a lens that
+ *   still leaves over 1 camera px is said in a warning). A cheap test runs first (about a second of a core: a k1 adjustment of sparse
  *   matches against a pinhole one, held out); without a sign of distortion the fit is not run
  *   (every real clip measured). Once a lens is installed, later calibrations from the images
  *   (recalibrations, the pooled window after a resize of the same aspect or a camera that came

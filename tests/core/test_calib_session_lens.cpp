@@ -241,3 +241,67 @@ TEST(CalibSessionLensRecal, RecalibrationsKeepTheLens) {
   EXPECT_EQ(lens_jobs, 1) << "the lens fit ran again";
   EXPECT_GT(d.s.version(), lens_version);
 }
+
+// A short file of a strong barrel phone row (branch lens-short): 3 x radtan k1 -0.40 k2 0.16, 80
+// degrees across the width, 45 degrees apart (probe-lens's phone3_k040 at 320 x 180). The cameras
+// are not live, so the first calibration itself carries the lens fit: the first panorama (and every
+// one after it: a 20-30 frame file ends before a background fit) has the lens. Before, the first
+// calibration was pinhole (homographies on a plane, 1280 px: 22 px seams) and the background lens
+// fit was cancelled at the end of the file.
+TEST(CalibSessionLensShortFile, NonLiveFirstCalibrationHasTheLens) {
+  const double k1 = -0.40, k2 = 0.16;
+  const int w = 320, h = 180;
+  const double f = 0.5 * w / std::tan(40.0 * 3.14159265358979 / 180);
+  const Rig truth = testdata::radtan_trio(w, h, f, 45.0, k1, k2, true, "spherical", 0.0);
+  Driver d;
+  const auto row = [&](int frame) { return frames_of("barrel row", truth, frame); };
+  std::optional<JobKind> ran;
+  for (int i = 0; i < 10 && !ran; ++i) {
+    CalibSession::Frame fr;
+    fr.time_s = d.frame / 30.0;
+    fr.live = false;
+    std::vector<cv::Mat> m = row(d.frame++);
+    for (const auto& x : m) fr.sizes.push_back({x.cols, x.rows});
+    auto job = d.s.on_frame(fr, d.s.wants_pixels(fr) ? views_of(m) : std::vector<ImageView>());
+    if (!job) continue;
+    ASSERT_EQ(job->kind, JobKind::First);
+    EXPECT_TRUE(job->lens_before_output);
+    std::atomic<bool> cancel{false};
+    const auto t0 = std::chrono::steady_clock::now();
+    const CalibOutcome o = run_calib_job(*job, cancel);
+    std::printf("first calibration: %.2f s, lens fit %s%s; precheck %s\n",
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                o.lens_tried ? "tried" : "not tried", o.lens_not_kept.empty() ? "" : (": " + o.lens_not_kept).c_str(),
+                o.lens_precheck ? o.lens_precheck->describe().c_str() : "-");
+    d.s.on_outcome(o);
+    for (auto& e : d.s.take_events()) d.events.push_back(e);
+    ran = job->kind;
+  }
+  ASSERT_TRUE(ran) << "no first calibration";
+  ASSERT_TRUE(d.s.current()) << "nothing installed";
+  const Rig& rig = *d.s.current();
+  const double seams = seam_px(rig, row(0));
+  std::printf("installed: %s, k1 %+.3f %+.3f %+.3f, fx %.1f (true %.1f), seams %.3f camera px\n",
+              rig_lens_summary(rig).c_str(), rig.cameras[0].lens.k1, rig.cameras[1].lens.k1, rig.cameras[2].lens.k1,
+              rig.cameras[1].fx, f, seams);
+  ASSERT_EQ(rig_lens_summary(rig), "radtan") << "the first calibration of a non-live barrel row is pinhole";
+  for (const auto& c : rig.cameras) EXPECT_NEAR(c.lens.k1, k1, 0.1 * std::abs(k1));
+  EXPECT_LT(seams, 0.5);
+  for (const auto& j : d.events) EXPECT_FALSE(j.type == SessionEvent::Type::Installed && j.report.source == "lens");
+
+  // Live cameras must not stall: their first calibration stays pinhole (the fit follows in the
+  // background, JobKind::Lens).
+  CalibSession live;
+  SessionConfig c;
+  live.set_config(c);
+  for (int i = 0; i < 10; ++i) {
+    CalibSession::Frame fr;
+    fr.time_s = i / 30.0;
+    std::vector<cv::Mat> m = row(i);
+    for (const auto& x : m) fr.sizes.push_back({x.cols, x.rows});
+    if (auto job = live.on_frame(fr, live.wants_pixels(fr) ? views_of(m) : std::vector<ImageView>())) {
+      EXPECT_FALSE(job->lens_before_output);
+      break;
+    }
+  }
+}

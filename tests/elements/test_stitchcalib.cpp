@@ -170,7 +170,7 @@ TEST(StitchCalib, CalibratesFromImagesAlone) {
   ASSERT_NE(m, nullptr);
   EXPECT_STREQ(gst_structure_get_string(m, "source"), "images");
   // What lenses the cameras have (issue 15): crops of one photo have none; the first calibration
-  // is pinhole anyway (a lens is fitted in the background, calib_session.hpp).
+  // is pinhole (a non-live first calibration tries the lens fit and finds no evidence).
   EXPECT_STREQ(gst_structure_get_string(m, "lens"), "pinhole");
   EXPECT_FALSE(gst_structure_has_field(m, "lens-k1"));
   ASSERT_FALSE(r.frames.empty());
@@ -827,7 +827,8 @@ TEST(StitchCalib, DarkReferenceCameraIsLeftOutOfARigFileCalibration) {
 // rendered from the photo, stitchcalib with default properties and no rig-file. The first
 // calibration is pinhole; the background lens fit then installs radtan lenses (a second
 // `stitchcalib` message, source lens, with lens-k1 per camera near the truth) and the seams
-// close. The frames flow at a live pace until it is in (at most ~40 s).
+// close. The frames flow at a live pace until it is in (at most ~40 s). Live cameras: non-live
+// ones get the lens in the first calibration (branch lens-short, CalibSessionLensShortFile).
 TEST(StitchCalib, DistortedCamerasGetALensInTheBackground) {
   static std::atomic<bool> lens_in;
   lens_in = false;
@@ -838,7 +839,10 @@ TEST(StitchCalib, DistortedCamerasGetALensInTheBackground) {
   frames.clear();
   for (const auto& c : truth.cameras) frames.push_back(testdata::render_camera_from_equirect(photo, c));
   gsttest::RunResult r;
-  gsttest::run_pipeline(chain("", 3), frames, 330, r, nullptr, [](GstElement* pipe, int f) {
+  std::string live_chain = chain("", 3);
+  for (std::size_t at = 0; (at = live_chain.find(" ! queue", at)) != std::string::npos; at += 20)
+    live_chain.insert(at, " is-live=true");
+  gsttest::run_pipeline(live_chain, frames, 330, r, nullptr, [](GstElement* pipe, int f) {
     if (f == 0) {
       GstBus* bus = gst_element_get_bus(pipe);
       gst_bus_set_sync_handler(
@@ -877,5 +881,6 @@ TEST(StitchCalib, DistortedCamerasGetALensInTheBackground) {
   gst_structure_get_double(lens, "previous-camera-px", &before);
   std::printf("lens installed: %.3f camera px (pinhole %.3f)\n", now, before);
   EXPECT_LT(now, 0.7 * before);
-  EXPECT_EQ(r.frames.size(), 330u);
+  // Live: the aggregator also puts out a panorama when the held-back inputs are late.
+  EXPECT_GE(r.frames.size(), 330u);
 }

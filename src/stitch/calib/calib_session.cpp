@@ -621,6 +621,19 @@ Judgement judge_candidate(const RigResiduals& cand, const RigResiduals& cur, con
   return j;
 }
 
+Judgement judge_lens_candidate(const RigResiduals& candidate, const RigResiduals& current,
+                               const RigCoverage& candidate_cover, const RigCoverage& current_cover) {
+  Judgement verdict = judge_candidate(candidate, current, candidate_cover, current_cover);
+  const double lens_px = candidate.median_camera_px, pin_px = current.median_camera_px;
+  if (verdict.install && !lens_evidence_wins(pin_px, lens_px)) {
+    verdict.install = false;
+    verdict.reason = "no clear evidence of lens distortion: " + fmt(lens_px, 2) + " camera px with radtan k1/k2 against " +
+                     fmt(pin_px, 2) + " pinhole (a lens needs below " + fmt(100 * kLensEvidenceRatio, 0) + "% and " +
+                     fmt(kLensEvidenceMinPx, 2) + " px less)";
+  }
+  return verdict;
+}
+
 namespace {
 
 // The background lens-from-evidence fit (JobKind::Lens): radtan k1/k2 for every camera, from the
@@ -630,7 +643,16 @@ namespace {
 // (CalibrationOptions::cancel) and is checked between the starts.
 constexpr std::size_t kLensFitSets = 2;
 constexpr int kLensJobBudgetS = 90;
-CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) {
+constexpr double kLensFitGoodPx = 0.5;
+// A lens fit installed before the output that leaves more than this (camera px) is said to be poor.
+constexpr double kLensFitFairPx = 1.0;
+// `fit_current_canvas`: the lens rig is fitted into the installed panorama's size (a background
+// fit mid-stream); false (a first calibration): laid out as a first calibration's canvas.
+// `pinhole_camera_px`: the installed calibration's measured residual when known (-1: not): past
+// kPoorAlignmentCameraPx the pinhole fit is plainly wrong and the cheap test is skipped (its
+// errors are capped at 3 px: a k1 -0.40 row at 17.5 px showed 2.8 -> 2.7 px there, "no sign").
+CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, bool fit_current_canvas = true,
+                          double pinhole_camera_px = -1) {
   CalibOutcome o;
   o.kind = job.kind;
   o.serial = job.serial;
@@ -662,7 +684,7 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
   // one, a fraction of a second): on cameras without distortion the whole fit below found nothing
   // in 3-143 s of a core (every real clip measured).
   try {
-    o.lens_precheck = lens_precheck(*job.current, sets, lo);
+    if (pinhole_camera_px <= kPoorAlignmentCameraPx) o.lens_precheck = lens_precheck(*job.current, sets, lo);
   } catch (const CalibrationCancelled&) {
     if (cancelled()) return o;
     o.error = "no lens evidence within " + std::to_string(kLensJobBudgetS) + " s";
@@ -671,25 +693,31 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
     o.error = std::string("no lens evidence: ") + e.what();
     return o;
   }
-  if (!o.lens_precheck->plausible) {
+  if (o.lens_precheck && !o.lens_precheck->plausible) {
     o.error = "no sign of lens distortion in the matches (" + o.lens_precheck->describe() + ")";
     return o;
   }
   std::optional<CalibrationResult> best;
-  bool ran_off = false;  // a fit's focal lengths ran off (CalibrationResult::lens_ran_off)
   bool out_of_time = false;
   const auto fit_from = [&](const std::vector<Rig>& starts) {
     for (const Rig& start : starts) {
-      if (cancelled() || out_of_time) return;
+      // A start that fits within half a pixel held out is the lens: the others cost a whole fit each.
+      if (cancelled() || out_of_time || (best && best->rotation_heldout_px < kLensFitGoodPx)) return;
       try {
         CalibrationResult r = calibrate_from_rig(start, sets, lo);
-        ran_off |= r.lens_ran_off;
+        if (std::getenv("STITCH_DEBUG_LENS")) {
+          std::fprintf(stderr, "lens job start fx %.0f %s: usable %d held %.3f k1 %.3f fx %.0f\n", start.cameras[0].fx,
+                       start.projection.c_str(), int(lens_fit_usable(r)), r.rotation_heldout_px, r.rig.cameras[0].lens.k1,
+                       r.rig.cameras[0].fx);
+          for (const auto& w : r.warnings) std::fprintf(stderr, "   warn: %s\n", w.c_str());
+        }
         if (lens_fit_usable(r) && (!best || r.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(r);
       } catch (const CalibrationCancelled&) {
         if (cancelled()) return;
         out_of_time = true;  // the budget: the best start so far, if any, is still judged
         return;
-      } catch (const std::exception&) {
+      } catch (const std::exception& e) {
+        if (std::getenv("STITCH_DEBUG_LENS")) std::fprintf(stderr, "lens job start fx %.0f: %s\n", start.cameras[0].fx, e.what());
         // no usable lens fit from this start
       }
     }
@@ -698,35 +726,11 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
   // The pinhole fit of distorted cameras can hold focal lengths far off (a k1 -0.23 trio on a
   // plane canvas: 594 px for a true 260), and the lens fit from there runs off (the calibrator
   // keeps the rough rig). Then from focal lengths guessed from the frame width (60, 45, 80
-  // degrees across), rotations read from the homographies (planar) or kept. Only then: on the
-  // real house clip (no distortion) three more starts cost ~80 s of a core for nothing.
-  if (!best && ran_off && !out_of_time && model == CameraModel::Rotation) {
-    const Rig& cur = *job.current;
-    bool homographies = cur.planar();
-    for (const auto& c : cur.cameras) homographies &= bool(c.homography);
-    std::vector<Rig> guessed;
-    if (homographies) {
-      guessed = lens_fit_starts(cur, CameraModel::Homography);
-    } else {
-      for (const double hfov : {60.0, 45.0, 80.0}) {
-        Rig r = cur;
-        r.canvas_width = r.canvas_height = 0;
-        r.canvas_scale = 0;
-        r.canvas_wrap = false;
-        for (auto& c : r.cameras) {
-          c.fx = c.fy = 0.5 * c.width / std::tan(0.5 * hfov * kPi / 180.0);
-          c.cx = 0.5 * (c.width - 1);
-          c.cy = 0.5 * (c.height - 1);
-          c.homography.reset();
-          c.lens = Lens{};
-          c.lens.model = Lens::Model::Radtan;
-          c.lens.estimate = true;
-        }
-        guessed.push_back(r);
-      }
-    }
-    fit_from(guessed);
-  }
+  // degrees across), rotations read from the pinhole fit's pixel maps through them
+  // (lens_fit_guessed_starts; a k1 -0.40 row: 3700 px for a true 763, no fit from there). Only
+  // then, and only past the cheap test: on the real house clip (no distortion) three more starts
+  // cost ~80 s of a core for nothing.
+  if (!best && !out_of_time && model == CameraModel::Rotation) fit_from(lens_fit_guessed_starts(*job.current));
   if (cancelled()) return o;
   if (!best) {
     o.error = out_of_time ? "no usable lens fit within " + std::to_string(kLensJobBudgetS) + " s" : "no usable lens fit";
@@ -734,7 +738,12 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel) 
   }
   o.result = std::move(best);
   Rig& rig = o.result->rig;
-  fit_canvas(rig, job.current->canvas_width, job.current->canvas_height);
+  if (fit_current_canvas) {
+    fit_canvas(rig, job.current->canvas_width, job.current->canvas_height);
+  } else {
+    shrink_canvas_to_output(rig, job.config.output_width, job.config.output_height, job.config.output_crop);
+    make_canvas_even(rig);
+  }
   const bool heldout = !job.holdout_sets.empty();
   const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
   o.residual_source = heldout ? "held-out" : "calibration frames";
@@ -828,6 +837,52 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     o.current = measure_residuals(*job.current, judge, &cancel);
     o.candidate_cover = rig_coverage(rig);
     o.current_cover = rig_coverage(*job.current);
+  }
+  if (job.kind == JobKind::First && job.lens_before_output && !job.left_out && !job.rough && !o.kept_lenses &&
+      o.candidate.median_camera_px > kLensEvidenceMinPx && rig_lens_summary(rig) == "pinhole") {
+    // The lens fit before the output starts (CalibJob::lens_before_output): the background job's
+    // own fit, on this job's frames, from this pinhole calibration, judged the same way.
+    CalibJob lens_job;
+    lens_job.kind = JobKind::Lens;
+    lens_job.serial = job.serial;
+    lens_job.config = job.config;
+    lens_job.current = std::make_shared<const Rig>(rig);
+    lens_job.calib_sets = job.calib_sets;
+    lens_job.holdout_sets = job.holdout_sets;
+    // From scratch mid-stream (fit_width set), the panorama keeps its size: the lens rig is fitted
+    // into the pinhole one's canvas, which was fitted into it.
+    CalibOutcome lens = run_lens_job(lens_job, cancel, job.fit_width > 0 && job.fit_height > 0, o.candidate.median_camera_px);
+    if (cancelled()) return o;
+    o.lens_tried = true;
+    o.lens_precheck = lens.lens_precheck;
+    if (std::getenv("STITCH_DEBUG_LENS"))
+      std::fprintf(stderr, "inline lens: %s; precheck %s; candidate %.3f vs %.3f\n", lens.error.c_str(),
+                   lens.lens_precheck ? lens.lens_precheck->describe().c_str() : "-", lens.candidate.median_camera_px,
+                   o.candidate.median_camera_px);
+    if (!lens.result || !lens.error.empty()) {
+      o.lens_not_kept = lens.error.empty() ? "no usable lens fit" : lens.error;
+    } else {
+      lens.candidate_cover = rig_coverage(lens.result->rig);
+      lens.current_cover = rig_coverage(rig);
+      const Judgement verdict =
+          judge_lens_candidate(lens.candidate, o.candidate, lens.candidate_cover, lens.current_cover);
+      if (verdict.install) {
+        // Better is not good: a fisheye beside a 1x camera went 13.7 -> 4.7 camera px with two radtan
+        // lenses, still 19 px off the truth (under the poor-alignment warning's 5 px): said.
+        const double left = lens.candidate.median_camera_px;
+        lens.result->warnings.push_back(
+            "lens distortion found in the images (" + fmt(o.candidate.median_camera_px, 2) + " camera px pinhole, " +
+            fmt(left, 2) + " with radtan k1/k2): the cameras get radtan lenses" +
+            (left > kLensFitFairPx ? "; the overlaps still stay " + fmt(left, 2) +
+                                         " camera px apart: the seams will show (a fisheye or mixed lenses?); a "
+                                         "rig-file with the lenses helps"
+                                   : std::string()));
+        o.result = std::move(lens.result);
+        o.candidate = lens.candidate;
+      } else {
+        o.lens_not_kept = verdict.reason;
+      }
+    }
   }
   if (job.left_out) with_left_out_cameras(rig, o.candidate, job.left_out, job.sizes);
   cancelled();
@@ -1486,6 +1541,11 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       }
     untried_bundles_ = 0;
     auto job = make_job(JobKind::First);
+    // Files wait for the first calibration: the lens fit goes in it (CalibJob::lens_before_output).
+    const CalibrationOptions& co = config_.options;
+    job->lens_before_output = !frame.live && have_pixels && co.lens_from_evidence && !rough_ && !leave &&
+                              config_.rig_file.empty() && config_.load_file.empty() && job->lenses.empty() &&
+                              !(co.model == CameraModel::Homography && !co.bundle_adjust);
     if (have_pixels) {
       job->calib_sets.push_back(FrameSet::copy_of(kept_items(views, leave)));
     } else {
@@ -1644,7 +1704,7 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       if (pool) start_window(JobKind::Pooled);
       // Then the lens from evidence, in the background: after the pooled window, on its frames,
       // or on a window of its own.
-      lens_wanted_ = lens_skip_reason(o.candidate.median_camera_px).empty();
+      lens_wanted_ = !o.lens_tried && lens_skip_reason(o.candidate.median_camera_px).empty();
       if (lens_wanted_ && !pool) start_window(JobKind::Lens);
       next_drift_check_at_ = now_ + config_.drift_check_interval_s;
       return;
@@ -1697,14 +1757,8 @@ void CalibSession::on_outcome(const CalibOutcome& o) {
       if (!o.current_cover.camera_share.empty()) rep.previous_coverage = o.current_cover.share;
       // Judged as any candidate, and it must win by the evidence rule of calibrate_from_images
       // (a lens only where the images show distortion), in camera pixels on the same frames.
-      Judgement verdict = judge_candidate(o.candidate, o.current, o.candidate_cover, o.current_cover);
+      const Judgement verdict = judge_lens_candidate(o.candidate, o.current, o.candidate_cover, o.current_cover);
       const double lens_px = o.candidate.median_camera_px, pin_px = o.current.median_camera_px;
-      if (verdict.install && !lens_evidence_wins(pin_px, lens_px)) {
-        verdict.install = false;
-        verdict.reason = "no clear evidence of lens distortion: " + fmt(lens_px, 2) + " camera px with radtan k1/k2 against " +
-                         fmt(pin_px, 2) + " pinhole (a lens needs below " + fmt(100 * kLensEvidenceRatio, 0) + "% and " +
-                         fmt(kLensEvidenceMinPx, 2) + " px less)";
-      }
       rep.rejected_because = verdict.reason;
       if (verdict.install) {
         CalibrationResult r = *o.result;

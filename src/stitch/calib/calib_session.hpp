@@ -137,6 +137,11 @@ struct CalibJob {
   // Cameras calibrated without (their frames are not in calib_sets, nor in `rough`): the result
   // holds a left-out placeholder for each (Camera::left_out), sized from `sizes` (every camera's).
   std::uint64_t left_out = 0;
+  // First, from the images, cameras not live: the lens-from-evidence fit (as JobKind::Lens) runs
+  // inside this job, and its lens, when it wins, is the first calibration's. A file waits for it,
+  // so a short clip (20-30 frames, over before the background fit) is stitched with the lens
+  // from its first panorama on; a live stream gets the fit in the background (it must not stall).
+  bool lens_before_output = false;
   std::vector<std::array<int, 2>> sizes;
   // The cameras' known lenses (intrinsics and lens, per camera; empty: none known): a calibration
   // from the images (First, Pooled, Recalibration) keeps them (calibrate_from_images_with_lenses)
@@ -196,6 +201,12 @@ struct Judgement {
 };
 Judgement judge_candidate(const RigResiduals& candidate, const RigResiduals& current, const RigCoverage& candidate_cover,
                           const RigCoverage& current_cover);
+// A lens fit's candidate (JobKind::Lens, or the one a non-live first calibration runs): judged
+// as any candidate, and it must win by the evidence rule of calibrate_from_images
+// (lens_evidence_wins: a lens only where the images show distortion), in camera pixels on the
+// same frames.
+Judgement judge_lens_candidate(const RigResiduals& candidate, const RigResiduals& current,
+                               const RigCoverage& candidate_cover, const RigCoverage& current_cover);
 
 struct CalibOutcome {
   JobKind kind = JobKind::First;
@@ -212,6 +223,10 @@ struct CalibOutcome {
   bool kept_lenses = false;
   std::string lens_error;
   std::optional<LensPrecheck> lens_precheck;  // Lens: the cheap test before the fit (lens_precheck)
+  // First with CalibJob::lens_before_output: whether the lens fit ran (installed or not, it is
+  // not run again in the background), and why it was not kept (empty when it was).
+  bool lens_tried = false;
+  std::string lens_not_kept;
 };
 
 // The work of one job; pure, may run in any thread. Catches nothing: the caller does.

@@ -2540,39 +2540,64 @@ bool lens_fit_usable(const CalibrationResult& lens) {
   return usable;
 }
 
+std::vector<Rig> lens_fit_guessed_starts(const Rig& pin) {
+  std::vector<Rig> starts;
+  const int n = int(pin.cameras.size());
+  if (n == 0) return starts;
+  const int ref = std::clamp(pin.reference, 0, n - 1);
+  bool homographies = pin.planar();
+  for (const auto& c : pin.cameras) homographies &= bool(c.homography);
+  // Each camera's pixels -> the reference's, as the pinhole fit maps them (what its matches hold).
+  const Camera& rc = pin.cameras[std::size_t(ref)];
+  std::vector<Eigen::Matrix3d> to_ref(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i) {
+    const Camera& c = pin.cameras[std::size_t(i)];
+    to_ref[std::size_t(i)] = homographies ? Eigen::Matrix3d(rc.homography->inverse() * *c.homography)
+                                          : Eigen::Matrix3d(rc.K() * rc.R().transpose() * c.R() * c.K().inverse());
+  }
+  for (const double hfov : {60.0, 45.0, 80.0}) {
+    Rig r = pin;
+    r.canvas_width = r.canvas_height = 0;
+    r.canvas_scale = 0;
+    r.canvas_wrap = false;
+    for (auto& c : r.cameras) {
+      c.fx = c.fy = 0.5 * rc.width / std::tan(0.5 * hfov * kPi / 180.0) * double(c.width) / rc.width;
+      c.cx = 0.5 * (c.width - 1);
+      c.cy = 0.5 * (c.height - 1);
+    }
+    const Eigen::Matrix3d Kr = r.cameras[std::size_t(ref)].K();
+    for (int i = 0; i < n; ++i) {
+      Camera& c = r.cameras[std::size_t(i)];
+      c.set_R(nearest_rotation(Kr.inverse() * to_ref[std::size_t(i)] * c.K()));
+      c.homography.reset();
+      c.lens = Lens{};
+      c.lens.model = Lens::Model::Radtan;
+      c.lens.estimate = true;
+    }
+    // The pinhole fit's canvas may not hold the views at the fitted focal length (3 strong
+    // barrel phones 45 degrees apart: 170 degrees across at 80, a "degenerate" plane canvas):
+    // the one their field of view asks for at half the guessed focal length (a fit moves it by
+    // up to 2x, CalibrationResult::lens_ran_off); a projection given in the options still wins.
+    Rig wide = r;
+    for (auto& c : wide.cameras) c.fx *= 0.5, c.fy *= 0.5;
+    r.projection = projection_name(choose_projection(field_of_view(wide)));
+    starts.push_back(r);
+  }
+  return starts;
+}
+
 std::vector<Rig> lens_fit_starts(const Rig& pin, CameraModel model) {
   // Rough rigs of a lens fit (radtan, coefficients estimated): the pinhole rotation rig; or, when
   // homographies won (strong distortion, k1 -0.35, bends the rotation model more than a free
   // homography: 3.3 px vs 1.5 px held out, and its focal lengths run off, ~9700 px for a true
   // 554; branch probe360), rotations read from those homographies through a few guessed focal
-  // lengths (50-90 degrees across the reference's width).
-  std::vector<Rig> starts;
-  if (model == CameraModel::Rotation) {
-    starts.push_back(pin);
-  } else if (pin.planar() && !pin.cameras.empty()) {
-    const Rig& h = pin;
-    const Camera& ref = h.cameras[std::size_t(std::clamp(h.reference, 0, int(h.cameras.size()) - 1))];
-    bool all = true;
-    for (const auto& c : h.cameras) all &= bool(c.homography);
-    if (all)
-      for (const double hfov : {60.0, 45.0, 80.0}) {
-        Rig r = h;
-        r.canvas_width = r.canvas_height = 0;
-        r.canvas_scale = 0;
-        for (auto& c : r.cameras) {
-          c.fx = c.fy = 0.5 * ref.width / std::tan(0.5 * hfov * kPi / 180.0) * double(c.width) / ref.width;
-          c.cx = 0.5 * (c.width - 1);
-          c.cy = 0.5 * (c.height - 1);
-        }
-        const Eigen::Matrix3d Kr = r.cameras[std::size_t(h.reference)].K();
-        for (std::size_t i = 0; i < r.cameras.size(); ++i) {
-          const Eigen::Matrix3d rel = ref.homography->inverse() * *h.cameras[i].homography;  // i -> reference pixels
-          r.cameras[i].set_R(nearest_rotation(Kr.inverse() * rel * r.cameras[i].K()));
-        }
-        for (auto& c : r.cameras) c.homography.reset();
-        starts.push_back(r);
-      }
+  // lengths (lens_fit_guessed_starts).
+  if (model != CameraModel::Rotation) {
+    bool all = pin.planar() && !pin.cameras.empty();
+    for (const auto& c : pin.cameras) all &= bool(c.homography);
+    return all ? lens_fit_guessed_starts(pin) : std::vector<Rig>{};
   }
+  std::vector<Rig> starts{pin};
   for (Rig& rough : starts)
     for (auto& c : rough.cameras) {
       c.lens = Lens{};
@@ -2657,10 +2682,12 @@ LensPrecheck lens_precheck(const Rig& pin, const std::vector<std::vector<ImageVi
   // a guessed focal length too (lens_fit_starts: a pinhole fit of distorted cameras on a plane
   // can hold focal lengths 20x the truth, from where k1 is not found).
   std::vector<Rig> starts{pin};
-  if (homographies) {
+  {
     // One guess (60 degrees across) is enough: the adjustment's distortion sweep fits the focal
-    // for each candidate, and 45 / 80 degrees led to the same fit on every rendered rig.
-    std::vector<Rig> guessed = lens_fit_starts(pin, CameraModel::Homography);
+    // for each candidate, and 45 / 80 degrees led to the same fit on every rendered rig. A
+    // rotation rig gets it too: a pinhole fit of strong barrel lenses holds focal lengths 5x off
+    // (a k1 -0.40 row at 1280 px: 3700 for a true 763).
+    std::vector<Rig> guessed = lens_fit_guessed_starts(pin);
     // (A homography-model rig's own K and R are that guess already: not twice.)
     bool same = !guessed.empty();
     for (std::size_t i = 0; same && i < pin.cameras.size(); ++i)
@@ -2889,8 +2916,14 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
       lens = calibrate_from_rig(rough, sets, lo);
     } catch (const CalibrationCancelled&) {
       throw;
-    } catch (const std::exception&) {
+    } catch (const std::exception& e) {
+      if (std::getenv("STITCH_DEBUG_LENS")) std::fprintf(stderr, "lens start fx %.0f: %s\n", rough.cameras[0].fx, e.what());
       continue;  // no usable lens fit from this start
+    }
+    if (std::getenv("STITCH_DEBUG_LENS")) {
+      std::fprintf(stderr, "lens start fx %.0f: usable %d held %.3f (pin %.3f) model %d\n", rough.cameras[0].fx, int(lens_fit_usable(lens)), lens.rotation_heldout_px, hp, int(lens.model));
+      for (const auto& c : lens.rig.cameras) std::fprintf(stderr, "   fx %.1f k1 %.3f k2 %.3f est %d problem '%s'\n", c.fx, c.lens.k1, c.lens.k2, int(c.lens.estimate), lens_problem(c).c_str());
+      for (const auto& w : lens.warnings) std::fprintf(stderr, "   warn: %s\n", w.c_str());
     }
     if (lens_fit_usable(lens) && (!best || lens.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(lens);
   }

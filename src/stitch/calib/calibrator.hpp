@@ -166,6 +166,12 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
 // from the homographies through a few guessed focal lengths (strong distortion bends the
 // rotation model more than a free homography). Empty when there is nothing to start from.
 std::vector<Rig> lens_fit_starts(const Rig& pinhole, CameraModel model);
+// Rough rigs of a lens fit read from a pinhole fit whose focal lengths cannot be trusted: for a
+// few guessed fields of view (60, 45, 80 degrees across the reference's width), every camera's
+// rotation read from the pinhole fit's own pixel maps to the reference (its homographies, or
+// K R of a rotation rig) through the guessed focal lengths; radtan lenses to estimate; the
+// projection chosen from the start's field of view.
+std::vector<Rig> lens_fit_guessed_starts(const Rig& pinhole);
 // A lens fit (calibrate_from_rig of a start, rotation model) that can be compared: rotation
 // model, a held-out error, every lens estimated and sane.
 bool lens_fit_usable(const CalibrationResult& lens);
