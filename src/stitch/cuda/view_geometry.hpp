@@ -41,13 +41,19 @@ inline stitch_cuda::DeviceImage to_device_image(const ImageView& v) {
   return d;
 }
 
+// Rows of a device copy start on 256 bytes: a texture object binds any width then (the
+// compositor's warp and compose sample through the texture units; rows of width * 4 bytes bind
+// only when that is a multiple of the device's texture pitch alignment, 32 or 64 bytes).
+inline std::size_t device_row_pitch(int width) { return (std::size_t(width) * 4 + 255) / 256 * 256; }
+
 // The device image of `v`: `v` itself when it is in device memory, else a copy uploaded into
 // `staging` (grown once, reused every frame) on `stream`.
 inline stitch_cuda::DeviceImage device_image_of(const ImageView& v, DeviceBuffer& staging, cudaStream_t stream) {
   if (v.on_device) return to_device_image(v);
-  const std::size_t pitch = std::size_t(v.width) * 4;
+  const std::size_t pitch = device_row_pitch(v.width);
   staging.resize(pitch * v.height);
-  STITCH_CUDA(cudaMemcpy2DAsync(staging.data(), pitch, v.data, v.pitch, pitch, v.height, cudaMemcpyHostToDevice, stream));
+  STITCH_CUDA(cudaMemcpy2DAsync(staging.data(), pitch, v.data, v.pitch, std::size_t(v.width) * 4, v.height,
+                                cudaMemcpyHostToDevice, stream));
   stitch_cuda::DeviceImage d;
   d.data = staging.data();
   d.pitch = pitch;
@@ -65,7 +71,7 @@ inline stitch_cuda::DeviceImage reduce_on_device(stitch_cuda::DeviceImage d, int
     stitch_cuda::DeviceImage h;
     h.width = (d.width + 1) / 2;
     h.height = (d.height + 1) / 2;
-    h.pitch = std::size_t(h.width) * 4;
+    h.pitch = device_row_pitch(h.width);
     scratch[std::size_t(l)].resize(h.pitch * std::size_t(h.height));
     h.data = scratch[std::size_t(l)].data();
     stitch_cuda::launch_halve(d, h, stream);
