@@ -199,15 +199,20 @@ inline dim3 tile_grid(int width, int height) {
   return dim3((width + kFuseTileW - 1) / kFuseTileW, (height + kFuseTileH - 1) / kFuseTileH);
 }
 
+// This block's tile (the block is the tile; tiles: launch_fuse_tiles', nullptr: none): the view
+// that covers it alone when `present(view)`, or kFuseTileEmpty; -1: map every view.
+template <class Present>
+__device__ __forceinline__ int alone_in_tile(const uint8_t* tiles, int n, const Present& present) {
+  if (!tiles) return -1;
+  const int tile = tiles[blockIdx.y * gridDim.x + blockIdx.x];
+  return (tile < n && present(tile)) || tile == kFuseTileEmpty ? tile : -1;
+}
+
 template <int kMode, bool kCurved, int kPixels>
 __global__ void blend_kernel(const ComposeParams p) {
   const int x0 = (blockIdx.x * blockDim.x + threadIdx.x) * kPixels, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x0 >= p.out.width || y >= p.out.height) return;
-  int alone = -1;
-  if (p.tiles) {
-    const int tile = p.tiles[blockIdx.y * gridDim.x + blockIdx.x];  // the block is the tile
-    if ((tile < p.n && p.src[tile].data) || tile == kFuseTileEmpty) alone = tile;
-  }
+  const int alone = alone_in_tile(p.tiles, p.n, [&](int view) { return p.src[view].data != nullptr; });
   uchar4 o[kPixels];
 #pragma unroll
   for (int k = 0; k < kPixels; ++k)
@@ -292,11 +297,7 @@ template <bool kCurved>
 __global__ void compose_tex_kernel(const TexComposeParams p) {
   const int x = blockIdx.x * blockDim.x + threadIdx.x, y = blockIdx.y * blockDim.y + threadIdx.y;
   if (x >= p.out.width || y >= p.out.height) return;
-  int alone = -1;
-  if (p.tiles) {
-    const int tile = p.tiles[blockIdx.y * gridDim.x + blockIdx.x];  // the block is the tile
-    if ((tile < p.n && p.tex[tile]) || tile == kFuseTileEmpty) alone = tile;
-  }
+  const int alone = alone_in_tile(p.tiles, p.n, [&](int view) { return p.tex[view] != 0; });
   const uchar4 o = compose_tex_pixel<kCurved>(p, x, y, alone);
   store_pixels<kComposePixels>(p.out, false, x, y, &o);
 }

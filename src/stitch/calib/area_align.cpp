@@ -113,6 +113,16 @@ bool agree_on_one_motion(const std::vector<cv::Point2f>& from, const std::vector
   return scale > 0.9 && scale < 1.1;
 }
 
+// Textured patches located (locate_patches; their count in out.patches), and whether they agree
+// on one motion (agree_on_one_motion; `inl` marks those that do).
+bool patches_on_one_motion(const cv::Mat& from_img, const cv::Mat& to_img, const cv::Mat& centres, int gx, int gy,
+                           const AreaAlignOptions& o, AreaAlignment& out, std::vector<cv::Point2f>& from,
+                           std::vector<cv::Point2f>& to, std::vector<uchar>& inl) {
+  locate_patches(from_img, to_img, centres, gx, gy, o, from, to);
+  out.patches = int(from.size());
+  return agree_on_one_motion(from, to, o, inl);
+}
+
 // Measured when most of the patches that correlated agree (chance agreement of a few in a plain
 // or repeated texture is not a measurement): the offset is their median distance.
 void conclude(AreaAlignment& out, std::vector<double> dist, const AreaAlignOptions& o) {
@@ -183,11 +193,8 @@ AreaAlignment align_in_b_frame(const Camera& a, const Camera& b, const cv::Mat& 
   const int gx = at.x - S, gy = at.y - S;
   // 2. Textured patches located near that shift: the correspondences.
   std::vector<cv::Point2f> from, to;
-  locate_patches(a_in_b, gray_b, inner, gx, gy, o, from, to);
-  out.patches = int(from.size());
-
   std::vector<uchar> inl;
-  if (!agree_on_one_motion(from, to, o, inl)) return out;
+  if (!patches_on_one_motion(a_in_b, gray_b, inner, gx, gy, o, out, from, to, inl)) return out;
   std::vector<double> dist;
   for (std::size_t k = 0; k < from.size(); ++k) {
     if (!inl[k]) continue;
@@ -265,11 +272,8 @@ AreaAlignment align_on_local_cylinder(const Camera& a, const Camera& b, const cv
   }
   if (cv::countNonZero(inner_a) == 0) return out;
   std::vector<cv::Point2f> from, to;
-  locate_patches(ca, cb, inner_a, gx, gy, o, from, to);
-  out.patches = int(from.size());
-
   std::vector<uchar> inl;
-  if (!agree_on_one_motion(from, to, o, inl)) return out;
+  if (!patches_on_one_motion(ca, cb, inner_a, gx, gy, o, out, from, to, inl)) return out;
   // Back to camera pixels: a's patch centre in a; where b sees it, and where the rig predicts it
   // (the offset, b pixels).
   std::vector<double> dist;

@@ -705,19 +705,12 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, 
       if (cancelled() || out_of_time || (best && best->rotation_heldout_px < kLensFitGoodPx)) return;
       try {
         CalibrationResult r = calibrate_from_rig(start, sets, lo);
-        if (std::getenv("STITCH_DEBUG_LENS")) {
-          std::fprintf(stderr, "lens job start fx %.0f %s: usable %d held %.3f k1 %.3f fx %.0f\n", start.cameras[0].fx,
-                       start.projection.c_str(), int(lens_fit_usable(r)), r.rotation_heldout_px, r.rig.cameras[0].lens.k1,
-                       r.rig.cameras[0].fx);
-          for (const auto& w : r.warnings) std::fprintf(stderr, "   warn: %s\n", w.c_str());
-        }
         if (lens_fit_usable(r) && (!best || r.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(r);
       } catch (const CalibrationCancelled&) {
         if (cancelled()) return;
         out_of_time = true;  // the budget: the best start so far, if any, is still judged
         return;
-      } catch (const std::exception& e) {
-        if (std::getenv("STITCH_DEBUG_LENS")) std::fprintf(stderr, "lens job start fx %.0f: %s\n", start.cameras[0].fx, e.what());
+      } catch (const std::exception&) {
         // no usable lens fit from this start
       }
     }
@@ -855,10 +848,6 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     if (cancelled()) return o;
     o.lens_tried = true;
     o.lens_precheck = lens.lens_precheck;
-    if (std::getenv("STITCH_DEBUG_LENS"))
-      std::fprintf(stderr, "inline lens: %s; precheck %s; candidate %.3f vs %.3f\n", lens.error.c_str(),
-                   lens.lens_precheck ? lens.lens_precheck->describe().c_str() : "-", lens.candidate.median_camera_px,
-                   o.candidate.median_camera_px);
     if (!lens.result || !lens.error.empty()) {
       o.lens_not_kept = lens.error.empty() ? "no usable lens fit" : lens.error;
     } else {

@@ -2905,8 +2905,7 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
   else
     fisheye_error.clear();
   if (!o.lens_from_evidence || o.model == CameraModel::Homography || !(pin.rotation_heldout_px > 0)) return pin;
-  const double hp = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
-  if (!(hp > 0)) return pin;
+  if (!(pin_heldout > 0)) return pin;
   std::optional<CalibrationResult> best;
   for (const Rig& rough : lens_fit_starts(pin.rig, pin.model)) {
     CalibrationResult lens;
@@ -2916,23 +2915,17 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
       lens = calibrate_from_rig(rough, sets, lo);
     } catch (const CalibrationCancelled&) {
       throw;
-    } catch (const std::exception& e) {
-      if (std::getenv("STITCH_DEBUG_LENS")) std::fprintf(stderr, "lens start fx %.0f: %s\n", rough.cameras[0].fx, e.what());
+    } catch (const std::exception&) {
       continue;  // no usable lens fit from this start
-    }
-    if (std::getenv("STITCH_DEBUG_LENS")) {
-      std::fprintf(stderr, "lens start fx %.0f: usable %d held %.3f (pin %.3f) model %d\n", rough.cameras[0].fx, int(lens_fit_usable(lens)), lens.rotation_heldout_px, hp, int(lens.model));
-      for (const auto& c : lens.rig.cameras) std::fprintf(stderr, "   fx %.1f k1 %.3f k2 %.3f est %d problem '%s'\n", c.fx, c.lens.k1, c.lens.k2, int(c.lens.estimate), lens_problem(c).c_str());
-      for (const auto& w : lens.warnings) std::fprintf(stderr, "   warn: %s\n", w.c_str());
     }
     if (lens_fit_usable(lens) && (!best || lens.rotation_heldout_px < best->rotation_heldout_px)) best = std::move(lens);
   }
   if (!best) return pin;
   CalibrationResult& lens = *best;
   const double hl = lens.rotation_heldout_px;
-  if (lens_evidence_wins(hp, hl)) {
+  if (lens_evidence_wins(pin_heldout, hl)) {
     if (!fisheye_error.empty()) lens.warnings.insert(lens.warnings.begin(), pin.warnings.back());
-    lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(hp) + " px pinhole, " +
+    lens.warnings.push_back("lens distortion found in the images (held-out error " + std::to_string(pin_heldout) + " px pinhole, " +
                             std::to_string(hl) + " px with radtan k1/k2): the cameras get radtan lenses");
     return lens;
   }
