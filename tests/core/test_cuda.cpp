@@ -165,6 +165,44 @@ TEST(Cuda, ComposeMatchesCpuFromSystemAndDeviceMemory) {
 #endif
 }
 
+// The compositor keeps a few texture objects per view, keyed by buffer (a buffer pool cycles a
+// few): frames from more buffers than it keeps, each with its own picture, then the first buffers
+// again with new pictures, must each give the CPU's panorama of that frame.
+TEST(Cuda, ComposeFromManyBuffersSamplesEachFramesOwnPicture) {
+  REQUIRE_CUDA();
+#ifdef STITCH_HAVE_CUDA
+  RigScene s = rig_scene();
+  Compositor cpu(Backend::Cpu), gpu(Backend::Cuda);
+  cpu.prepare(s.rig, CompositorSettings{});
+  gpu.prepare(s.rig, CompositorSettings{});
+  const OutputGeometry& g = cpu.geometry();
+  std::vector<std::unique_ptr<DeviceMat>> buffers;  // kept: every frame set in buffers of its own
+  for (int k = 0; k < 14; ++k) {
+    SCOPED_TRACE(testing::Message() << "frame " << k);
+    std::vector<cv::Mat> frames;
+    std::vector<ImageView> host, device;
+    for (std::size_t i = 0; i < s.frames.size(); ++i) {
+      frames.push_back(s.frames[i] + cv::Scalar(7 * k, 3 * k, 11 * k, 0));  // a picture of its own
+      host.push_back(as_view(frames.back()));
+      if (k < 12) {
+        buffers.push_back(std::make_unique<DeviceMat>(frames.back()));
+      } else {  // the first frame set's buffers again, with this frame's picture
+        DeviceMat& b = *buffers[i];
+        ASSERT_EQ(cudaMemcpy2D(b.ptr, b.pitch, frames.back().data, frames.back().step, std::size_t(b.width) * 4,
+                               std::size_t(b.height), cudaMemcpyHostToDevice),
+                  cudaSuccess);
+      }
+      device.push_back((k < 12 ? *buffers.back() : *buffers[i]).view());
+    }
+    cv::Mat expected(g.height, g.width, CV_8UC4);
+    cpu.compose(host, as_view(expected));
+    DeviceMat out(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(77)));
+    gpu.compose(device, out.view());
+    EXPECT_GE(testdata::psnr_rgb(out.download(), expected), 45.0);
+  }
+#endif
+}
+
 TEST(Cuda, PrewarpedFuseMatchesCpu) {
   REQUIRE_CUDA();
 #ifdef STITCH_HAVE_CUDA
