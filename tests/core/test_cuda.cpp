@@ -358,6 +358,19 @@ TEST(Cuda, ComposeTilesGiveTheWeightedMeanWithinOneLevel) {
         std::printf("compose tiles (%s, %s, missing %d): %.4f%% of channels one level off\n", projection,
                     textured ? "texture" : "gathers", missing, 100 * off);
         EXPECT_LT(off, 0.01);
+        // Two pixels a thread: an odd output width and rows off 16 bytes (no vector stores)
+        // give the same bytes on the columns they cover and leave the next column alone.
+        const int odd_w = g.width % 2 ? g.width - 2 : g.width - 3;  // a spare column after it
+        DeviceMat narrow(cv::Mat(g.height, g.width, CV_8UC4, cv::Scalar::all(79)));
+        stitch_cuda::DeviceImage nout = to_device_image(narrow.view());
+        nout.data += 4;  // rows start 4 bytes in: off 16
+        nout.width = odd_w;
+        if (textured) stitch_cuda::launch_compose_tex(3, d.geometry.data(), present_tex.data(), color, nout, nullptr);
+        else stitch_cuda::launch_compose(3, d.geometry.data(), present.data(), color, nout, nullptr);
+        ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
+        const cv::Mat n = narrow.download();
+        EXPECT_EQ(cv::norm(n(cv::Rect(1, 0, odd_w, g.height)), a(cv::Rect(0, 0, odd_w, g.height)), cv::NORM_INF), 0.0);
+        EXPECT_EQ(cv::norm(n.col(odd_w + 1), cv::Mat(g.height, 1, CV_8UC4, cv::Scalar::all(79)), cv::NORM_INF), 0.0);
       }
   }
 #endif
