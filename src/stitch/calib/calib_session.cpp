@@ -278,6 +278,17 @@ const char* job_kind_name(JobKind k) {
   return "?";
 }
 
+const char* job_stage_name(JobStage s) {
+  switch (s) {
+    case JobStage::Estimating: return "matching features and estimating the cameras";
+    case JobStage::Measuring: return "measuring the alignment";
+    case JobStage::LensTest: return "testing for lens distortion";
+    case JobStage::LensFit: return "lens fit";
+    case JobStage::LensJudging: return "judging the lens fit";
+  }
+  return "?";
+}
+
 std::string rig_lens_summary(const Rig& rig) {
   std::vector<std::string> models;
   bool any = false;
@@ -683,7 +694,11 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, 
   // The cheap test first (lens_precheck: a k1 adjustment of sparse matches against a pinhole
   // one, a fraction of a second): on cameras without distortion the whole fit below found nothing
   // in 3-143 s of a core (every real clip measured).
+  const auto stage = [&](JobStage st) {
+    if (job.progress) job.progress->stage = st;
+  };
   try {
+    stage(JobStage::LensTest);
     if (pinhole_camera_px <= kPoorAlignmentCameraPx) o.lens_precheck = lens_precheck(*job.current, sets, lo);
   } catch (const CalibrationCancelled&) {
     if (cancelled()) return o;
@@ -699,6 +714,7 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, 
   }
   std::optional<CalibrationResult> best;
   bool out_of_time = false;
+  stage(JobStage::LensFit);
   const auto fit_from = [&](const std::vector<Rig>& starts) {
     for (const Rig& start : starts) {
       // A start that fits within half a pixel held out is the lens: the others cost a whole fit each.
@@ -737,6 +753,7 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, 
     shrink_canvas_to_output(rig, job.config.output_width, job.config.output_height, job.config.output_crop);
     make_canvas_even(rig);
   }
+  stage(JobStage::LensJudging);
   const bool heldout = !job.holdout_sets.empty();
   const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
   o.residual_source = heldout ? "held-out" : "calibration frames";
@@ -782,6 +799,7 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
   };
   SessionConfig config = job.config;
   config.options.cancel = &cancel;  // a cancelled job stops at the calibrator's next stage
+  if (job.progress) job.progress->stage = JobStage::Estimating;
   try {
     if (!job.lenses.empty() && !job.rough && !job.left_out) {
       // Cameras whose lenses are known keep them; when the refit with them fails (another camera
@@ -823,6 +841,7 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
   }
   const bool heldout = !job.holdout_sets.empty();
   const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
+  if (job.progress) job.progress->stage = JobStage::Measuring;
   o.residual_source = heldout ? "held-out" : "calibration frames";
   o.candidate = measure_residuals(rig, judge, &cancel);
   if (cancelled()) return o;
@@ -842,6 +861,7 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     lens_job.current = std::make_shared<const Rig>(rig);
     lens_job.calib_sets = job.calib_sets;
     lens_job.holdout_sets = job.holdout_sets;
+    lens_job.progress = job.progress;  // the stream that waits says which stage
     // From scratch mid-stream (fit_width set), the panorama keeps its size: the lens rig is fitted
     // into the pinhole one's canvas, which was fitted into it.
     CalibOutcome lens = run_lens_job(lens_job, cancel, job.fit_width > 0 && job.fit_height > 0, o.candidate.median_camera_px);
@@ -1530,6 +1550,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       }
     untried_bundles_ = 0;
     auto job = make_job(JobKind::First);
+    job->attempt = failed_first_attempts_ + 1;
     // Files wait for the first calibration: the lens fit goes in it (CalibJob::lens_before_output).
     const CalibrationOptions& co = config_.options;
     job->lens_before_output = !frame.live && have_pixels && co.lens_from_evidence && !rough_ && !leave &&

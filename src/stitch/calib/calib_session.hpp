@@ -126,9 +126,20 @@ struct FrameSet {
   static FrameSet copy_of(const std::vector<ImageView>& views);
 };
 
+// What a running job is doing, for a stream that waits for it (stitchcalib-pending while a file
+// waits for its first calibration): written by the worker, read by the element's streaming thread.
+enum class JobStage { Estimating, Measuring, LensTest, LensFit, LensJudging };
+const char* job_stage_name(JobStage s);  // "estimating the cameras", "lens fit", ...
+struct JobProgress {
+  std::atomic<JobStage> stage{JobStage::Estimating};
+};
+
 struct CalibJob {
   JobKind kind = JobKind::First;
   std::uint64_t serial = 0;
+  // First: which attempt this is (1: the first; files retry a failed one on the next bundles).
+  int attempt = 1;
+  std::shared_ptr<JobProgress> progress = std::make_shared<JobProgress>();
   SessionConfig config;
   std::optional<Rig> rough;                 // from the rig-file (sizes adapted)
   std::shared_ptr<const Rig> current;       // the calibration to beat (or to check)
@@ -429,6 +440,8 @@ class CalibSession {
   std::uint64_t version() const { return version_; }
   bool job_in_flight() const { return job_in_flight_; }
   bool failed() const { return failed_; }  // a fatal error was reported
+  // Running time since the first bundle, while nothing is calibrated (pending messages' waited-s).
+  double waited_s() const { return first_frame_at_ < 0 ? 0 : now_ - first_frame_at_; }
   std::vector<SessionEvent> take_events();
 
  private:
