@@ -108,7 +108,9 @@
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `alignment-camera-px` and
  * `previous-camera-px` (the same in camera pixels, what the judge compares; over 5 camera px
- * a warning names the worst pair: the seams will show), `coverage` and
+ * a warning names the worst pair: the seams will show), `unverified-pairs` (camera pairs, flattened:
+ * overlaps that nothing could measure, no feature matching there and too plain to align by area;
+ * the figures leave them out, and a warning names them: the seam there may be off), `coverage` and
  * `previous-coverage` (the share of the canvas the cameras cover; pooled calibrations and
  * recalibrations), `lens` (the cameras' lens models: `pinhole`, `radtan`, `fisheye`, ...) with
  * `lens-k1` and `lens-k2` (per camera) when they have lenses, `fit-rms-px`, `inliers`, ... It is
@@ -451,6 +453,13 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
   }
   GValue cams = value_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
+  if (!r.residuals.unverified.empty()) {
+    /* overlaps no figure above covers (nothing could measure them): camera pairs, flattened */
+    std::vector<int> pairs;
+    for (const auto& p : r.residuals.unverified) pairs.push_back(p.first), pairs.push_back(p.second);
+    GValue unverified = value_array(pairs);
+    gst_structure_take_value(s, "unverified-pairs", &unverified);
+  }
   std::vector<int> left_out;  // the cameras calibrated without (no frame, or a dark one)
   for (std::size_t i = 0; i < rig.cameras.size(); ++i)
     if (rig.cameras[i].left_out) left_out.push_back(int(i));
