@@ -1577,3 +1577,25 @@ TEST(CalibSession, AnOverlapNothingCouldMeasureIsListedAndSaid) {
   const std::string text = unverified_overlap_text(r);
   EXPECT_NE(text.find("overlap of cameras 1-2 could not be verified"), std::string::npos) << text;
 }
+
+// The calibrator keeps recent frames' detections (a file's retried first attempts pool the frame
+// sets tried before, and the lens test detects on them again): by content, so that other pixels
+// in the same buffers (a frame pool reused) get their own features. Crops 400 px apart, then
+// crops 300 px apart written into the same buffers: each calibration fits its own pictures.
+TEST(CalibSession, CachedDetectionsFollowThePixelsNotTheBuffers) {
+  CalibrationOptions o;
+  o.model = CameraModel::Homography;
+  std::vector<cv::Mat> frames = crops(2, 400);
+  const CalibrationResult first = calibrate_from_images(views_of(frames), 0, o);
+  const CalibrationResult again = calibrate_from_images(views_of(frames), 0, o);  // detections reused
+  EXPECT_LT(measure_alignment(first.rig, views_of(frames)).median_px, 1.0);
+  EXPECT_LT(measure_alignment(again.rig, views_of(frames)).median_px, 1.0);
+  const std::vector<cv::Mat> other = crops(2, 300);
+  const uchar* buffer = frames[0].data;
+  for (std::size_t i = 0; i < frames.size(); ++i) other[i].copyTo(frames[i]);
+  ASSERT_EQ(frames[0].data, buffer) << "not the same buffers";
+  const CalibrationResult moved = calibrate_from_images(views_of(frames), 0, o);
+  const AlignmentReport fit = measure_alignment(moved.rig, views_of(frames));
+  EXPECT_LT(fit.median_px, 1.0) << "the calibration of new pixels used the old pixels' features";
+  EXPECT_GT(measure_alignment(first.rig, views_of(frames)).median_px, 10.0) << "the test tests nothing";
+}
