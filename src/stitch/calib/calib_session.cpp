@@ -697,11 +697,7 @@ constexpr int kLensJobBudgetS = 90;
 constexpr double kLensFitGoodPx = 0.5;
 // A lens fit installed before the output that leaves more than this (camera px) is said to be poor.
 constexpr double kLensFitFairPx = 1.0;
-// `fit_current_canvas`: the lens rig is fitted into the installed panorama's size (a background
-// fit mid-stream); false (a first calibration): laid out as a first calibration's canvas.
-// `pinhole_camera_px`: the installed calibration's measured residual when known (-1: not): past
-// kPoorAlignmentCameraPx the pinhole fit is plainly wrong and the cheap test is skipped (its
-// errors are capped at 3 px: a k1 -0.40 row at 17.5 px showed 2.8 -> 2.7 px there, "no sign").
+
 // The frame sets a job's result is measured on: its held-out ones; without any (a first
 // calibration), the newest kFirstResidualSets of its calibration sets. A file's failed first
 // attempt is retried on up to calibration-frames pooled sets, and measuring every pair on each
@@ -714,6 +710,11 @@ std::vector<FrameSet> residual_sets(const CalibJob& job) {
   return std::vector<FrameSet>(job.calib_sets.end() - std::ptrdiff_t(keep), job.calib_sets.end());
 }
 
+// `fit_current_canvas`: the lens rig is fitted into the installed panorama's size (a background
+// fit mid-stream); false (a first calibration): laid out as a first calibration's canvas.
+// `pinhole_camera_px`: the installed calibration's measured residual when known (-1: not): past
+// kPoorAlignmentCameraPx the pinhole fit is plainly wrong and the cheap test is skipped (its
+// errors are capped at 3 px: a k1 -0.40 row at 17.5 px showed 2.8 -> 2.7 px there, "no sign").
 CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, bool fit_current_canvas = true,
                           double pinhole_camera_px = -1) {
   CalibOutcome o;
