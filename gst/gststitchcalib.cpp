@@ -616,10 +616,11 @@ static void collect_outcome(CalibState* st) {
 static void post_calibrating(GstStitchCalib* self, const WorkerChannel& ch) {
   const double job_s = double(g_get_monotonic_time() - ch.started_us) / G_USEC_PER_SEC;
   const char* stage = stitch::job_stage_name(ch.progress ? ch.progress->stage.load() : stitch::JobStage::Estimating);
-  gchar* reason = g_strdup_printf(
-      "calibrating the first frames (attempt %d, %d frame set%s of %d cameras): %s, %.0f s so far; the stream waits "
-      "for it and no frame is lost",
-      ch.attempt, ch.frame_sets, ch.frame_sets == 1 ? "" : "s", ch.cameras, stage, job_s);
+  /* live cameras' bundles are dropped meanwhile; files' are held (EarlyBundles) */
+  const char* meanwhile = self->state->upstream_live == 1 ? "no panorama until then" : "the stream waits for it and no frame is lost";
+  gchar* reason = g_strdup_printf("calibrating the first frames (attempt %d, %d frame set%s of %d cameras): %s, %.0f s so far; %s",
+                                  ch.attempt, ch.frame_sets, ch.frame_sets == 1 ? "" : "s", ch.cameras, stage, job_s,
+                                  meanwhile);
   GST_DEBUG_OBJECT(self, "%s", reason);
   gst_element_post_message(
       GST_ELEMENT(self),
