@@ -52,7 +52,10 @@
  *   reported in a `stitchcalib-rejected` message and kept out. A recalibration keeps the
  *   panorama size: its canvas is fitted into the current one.
  * - Until a calibration exists, a `stitchcalib-pending` message (`reason`, naming the cameras
- *   that hold it up, and `waited-s`) is posted at most once a second. With live inputs the
+ *   that hold it up, and `waited-s`) is posted at most once a second; while the stream waits for
+ *   a first calibration in flight (files: it may include the lens fit, a minute or more), it comes
+ *   once a second of wall time with what the worker is doing: `stage` (e.g. "lens fit"),
+ *   `attempt` and `calibrating-s` (wall seconds of that attempt). With live inputs the
  *   bundles are dropped meanwhile, QoS messages rate-limited (the first drop, at most one a
  *   second, and the total before the first bundle passes), and a failed attempt is tried again
  *   0.5 s later. With non-live inputs (files) no frame is lost: the complete bundles that come
@@ -105,7 +108,9 @@
  * matches on `residual-source` frames), `alignment-px` (their mean), `camera-px` (per camera),
  * `previous-px` (the calibration it replaced, same frames), `alignment-camera-px` and
  * `previous-camera-px` (the same in camera pixels, what the judge compares; over 5 camera px
- * a warning names the worst pair: the seams will show), `coverage` and
+ * a warning names the worst pair: the seams will show), `unverified-pairs` (camera pairs, flattened:
+ * overlaps that nothing could measure, no feature matching there and too plain to align by area;
+ * the figures leave them out, and a warning names them: the seam there may be off), `coverage` and
  * `previous-coverage` (the share of the canvas the cameras cover; pooled calibrations and
  * recalibrations), `lens` (the cameras' lens models: `pinhole`, `radtan`, `fisheye`, ...) with
  * `lens-k1` and `lens-k2` (per camera) when they have lenses, `fit-rms-px`, `inliers`, ... It is
@@ -229,6 +234,10 @@ struct WorkerChannel {
   std::mutex m;  // only for the condition variable: never held while computing
   std::condition_variable cv;
   stitch::CalibOutcome outcome;  // written before `done`
+  /* for the pending messages of a stream that waits for it */
+  std::shared_ptr<const stitch::JobProgress> progress;
+  int attempt = 1, frame_sets = 1, cameras = 0;
+  gint64 started_us = 0;
 };
 
 /* Live workers: the plugin's static teardown (process exit) waits a little for them. */
@@ -444,6 +453,13 @@ static GstStructure* report_structure(const char* name, const stitch::CalibRepor
   }
   GValue cams = value_array(r.residuals.camera_px);
   gst_structure_take_value(s, "camera-px", &cams);
+  if (!r.residuals.unverified.empty()) {
+    /* overlaps no figure above covers (nothing could measure them): camera pairs, flattened */
+    std::vector<int> pairs;
+    for (const auto& p : r.residuals.unverified) pairs.push_back(p.first), pairs.push_back(p.second);
+    GValue unverified = value_array(pairs);
+    gst_structure_take_value(s, "unverified-pairs", &unverified);
+  }
   std::vector<int> left_out;  // the cameras calibrated without (no frame, or a dark one)
   for (std::size_t i = 0; i < rig.cameras.size(); ++i)
     if (rig.cameras[i].left_out) left_out.push_back(int(i));
@@ -541,6 +557,11 @@ static void start_worker(CalibState* st, std::shared_ptr<stitch::CalibJob> job) 
   st->cancel_worker();  /* one the session forgot (a resize, a lens fit that gave way): stop it */
   auto ch = std::make_shared<WorkerChannel>();
   ch->kind = job->kind;
+  ch->progress = job->progress;
+  ch->attempt = job->attempt;
+  ch->frame_sets = int(job->calib_sets.size());
+  ch->cameras = job->calib_sets.empty() ? 0 : int(job->calib_sets.front().images.size());
+  ch->started_us = g_get_monotonic_time();
   {
     std::lock_guard<std::mutex> g(workers_lock);
     ++workers_alive;
@@ -582,17 +603,53 @@ static void collect_outcome(CalibState* st) {
   if (!st->worker || !st->worker->done.load()) return;
   std::shared_ptr<WorkerChannel> ch = std::move(st->worker);
   st->worker.reset();
+  GST_INFO("%s job (attempt %d, %d frame sets) done in %.2f s: %s", stitch::job_kind_name(ch->kind), ch->attempt,
+           ch->frame_sets, double(g_get_monotonic_time() - ch->started_us) / G_USEC_PER_SEC,
+           ch->outcome.cancelled ? "cancelled" : ch->outcome.error.empty() ? "ok" : ch->outcome.error.c_str());
   st->session.on_outcome(ch->outcome);
 }
 
+/* While the stream waits for its first calibration (files: the lens fit may take a minute), a
+ * stitchcalib-pending message about once a second of wall time says what the worker is doing:
+ * the stream is not frozen. Running time stands still meanwhile, so calibration-timeout does not
+ * run out during it. */
+static void post_calibrating(GstStitchCalib* self, const WorkerChannel& ch) {
+  const double job_s = double(g_get_monotonic_time() - ch.started_us) / G_USEC_PER_SEC;
+  const char* stage = stitch::job_stage_name(ch.progress ? ch.progress->stage.load() : stitch::JobStage::Estimating);
+  /* live cameras' bundles are dropped meanwhile; files' are held (EarlyBundles) */
+  const char* meanwhile = self->state->upstream_live == 1 ? "no panorama until then" : "the stream waits for it and no frame is lost";
+  gchar* reason = g_strdup_printf("calibrating the first frames (attempt %d, %d frame set%s of %d cameras): %s, %.0f s so far; %s",
+                                  ch.attempt, ch.frame_sets, ch.frame_sets == 1 ? "" : "s", ch.cameras, stage, job_s,
+                                  meanwhile);
+  GST_DEBUG_OBJECT(self, "%s", reason);
+  gst_element_post_message(
+      GST_ELEMENT(self),
+      gst_message_new_element(GST_OBJECT(self),
+                              gst_structure_new("stitchcalib-pending", "reason", G_TYPE_STRING, reason, "waited-s",
+                                                G_TYPE_DOUBLE, self->state->session.waited_s(), "stage", G_TYPE_STRING,
+                                                stage, "attempt", G_TYPE_INT, ch.attempt, "calibrating-s",
+                                                G_TYPE_DOUBLE, job_s, NULL)));
+  g_free(reason);
+}
+
 /* The first calibration: nothing can be output before it, so the streaming thread waits for the
- * worker (holding no lock), and gives up as soon as the element flushes or stops. */
-static gboolean wait_for_worker(CalibState* st) {
+ * worker (holding no lock), and gives up as soon as the element flushes or stops. Until a
+ * calibration exists it says so once a second (post_calibrating). */
+static gboolean wait_for_worker(GstStitchCalib* self) {
+  CalibState* st = self->state;
   std::shared_ptr<WorkerChannel> ch = st->worker;
+  const bool say = !st->session.current() && ch->kind == stitch::JobKind::First && !ch->cancel.load();
+  gint64 next_say_us = g_get_monotonic_time() + G_USEC_PER_SEC;
   std::unique_lock<std::mutex> g(ch->m);
   while (!ch->done.load()) {
     if (st->unblock.load()) return FALSE;
     ch->cv.wait_for(g, std::chrono::milliseconds(20));
+    if (say && !ch->done.load() && g_get_monotonic_time() >= next_say_us) {
+      g.unlock();  /* posted outside every lock: a bus handler may do anything */
+      post_calibrating(self, *ch);
+      g.lock();
+      next_say_us = g_get_monotonic_time() + G_USEC_PER_SEC;
+    }
   }
   return TRUE;
 }
@@ -782,7 +839,7 @@ static GstFlowReturn gst_stitch_calib_transform_ip(GstBaseTransform* trans, GstB
     if (job) start_worker(st, job);
     if (st->worker && !st->session.failed() &&
         stitch::stream_waits_for_job(st->worker->kind, st->session.current() != nullptr, frame.live)) {
-      if (!wait_for_worker(st)) {
+      if (!wait_for_worker(self)) {
         flushing = true;
         return;
       }
@@ -848,11 +905,11 @@ static gboolean gst_stitch_calib_sink_event(GstBaseTransform* trans, GstEvent* e
         /* It stops at the calibrator's next stage (a detection, a pair: well under a second).
          * Waited for all the same: a process that exits while it runs OpenCV crashes in the
          * thread pool's teardown. */
-        wait_for_worker(st);
+        wait_for_worker(self);
         st->worker.reset();
         st->session.abandon_job();
       }
-      if (st->worker && wait_for_worker(st)) collect_outcome(st);
+      if (st->worker && wait_for_worker(self)) collect_outcome(st);
       if (!st->session.current() && !st->session.failed() && st->last_torn) {
         /* the held copy of the last bundle: it is calibrated on and output below */
         if (!st->early.empty() && GST_BUFFER_PTS(st->early.newest()) == GST_BUFFER_PTS(st->last_torn))

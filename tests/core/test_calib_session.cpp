@@ -1540,3 +1540,62 @@ TEST(EarlyBundles, HoldsInOrderWithinTheBound) {
   EXPECT_TRUE(b.empty());
   EXPECT_EQ(b.bytes(), 0u);
 }
+
+// ---- a seam nothing measured is said (calib-wait) --------------------------------------------
+
+// Three pinhole cameras 35 degrees apart whose overlap 1-2 shows a plain wall (flat grey with
+// sensor noise, like the duct of a 5-camera ring at 8% overlap): no feature matches there and
+// area alignment finds nothing, so the residuals leave the pair out. It is listed as unverified
+// (and said); the textured overlap 0-1 is measured, and the same rig on the textured photo has
+// nothing unverified. Camera 0 and 2 (70 degrees apart, 63 across each) do not overlap: not
+// listed.
+TEST(CalibSession, AnOverlapNothingCouldMeasureIsListedAndSaid) {
+  Rig truth = testdata::radtan_trio(320, 240, 260, 35.0, 0, 0, false, "spherical", 0.0);
+  rig_layout_canvas(truth);
+  cv::Mat plain = photo().clone();
+  const int from = plain.cols / 2, to = plain.cols / 2 + plain.cols * 40 / 360;  // yaw 0..40 degrees
+  plain.colRange(from, to).setTo(cv::Scalar(150, 150, 150, 255));
+  std::vector<cv::Mat> textured_views, plain_views;
+  for (const auto& c : truth.cameras) {
+    textured_views.push_back(testdata::render_camera_from_equirect(photo(), c));
+    plain_views.push_back(testdata::render_camera_from_equirect(plain, c));
+  }
+  const auto set_of = [](const std::vector<cv::Mat>& clean) {
+    return std::vector<FrameSet>{FrameSet::copy_of(views_of(testdata::with_sensor_noise(clean, 1, 2.0, true)))};
+  };
+  const RigResiduals textured = measure_residuals(truth, set_of(textured_views), nullptr);
+  EXPECT_TRUE(textured.unverified.empty());
+  EXPECT_EQ(textured.pairs.size(), 2u);
+  EXPECT_TRUE(unverified_overlap_text(textured).empty());
+
+  const RigResiduals r = measure_residuals(truth, set_of(plain_views), nullptr);
+  ASSERT_EQ(r.unverified.size(), 1u) << "the plain overlap went unnoticed";
+  EXPECT_EQ(r.unverified[0], std::make_pair(1, 2));
+  ASSERT_EQ(r.pairs.size(), 1u);
+  EXPECT_EQ(r.pairs[0].a, 0);
+  EXPECT_EQ(r.pairs[0].b, 1);
+  const std::string text = unverified_overlap_text(r);
+  EXPECT_NE(text.find("overlap of cameras 1-2 could not be verified"), std::string::npos) << text;
+}
+
+// The calibrator keeps recent frames' detections (a file's retried first attempts pool the frame
+// sets tried before, and the lens test detects on them again): by content, so that other pixels
+// in the same buffers (a frame pool reused) get their own features. Crops 400 px apart, then
+// crops 300 px apart written into the same buffers: each calibration fits its own pictures.
+TEST(CalibSession, CachedDetectionsFollowThePixelsNotTheBuffers) {
+  CalibrationOptions o;
+  o.model = CameraModel::Homography;
+  std::vector<cv::Mat> frames = crops(2, 400);
+  const CalibrationResult first = calibrate_from_images(views_of(frames), 0, o);
+  const CalibrationResult again = calibrate_from_images(views_of(frames), 0, o);  // detections reused
+  EXPECT_LT(measure_alignment(first.rig, views_of(frames)).median_px, 1.0);
+  EXPECT_LT(measure_alignment(again.rig, views_of(frames)).median_px, 1.0);
+  const std::vector<cv::Mat> other = crops(2, 300);
+  const uchar* buffer = frames[0].data;
+  for (std::size_t i = 0; i < frames.size(); ++i) other[i].copyTo(frames[i]);
+  ASSERT_EQ(frames[0].data, buffer) << "not the same buffers";
+  const CalibrationResult moved = calibrate_from_images(views_of(frames), 0, o);
+  const AlignmentReport fit = measure_alignment(moved.rig, views_of(frames));
+  EXPECT_LT(fit.median_px, 1.0) << "the calibration of new pixels used the old pixels' features";
+  EXPECT_GT(measure_alignment(first.rig, views_of(frames)).median_px, 10.0) << "the test tests nothing";
+}

@@ -1,5 +1,6 @@
 #include "stitch/calib/calib_session.hpp"
 
+#include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
 #include <opencv2/features2d.hpp>
@@ -278,6 +279,17 @@ const char* job_kind_name(JobKind k) {
   return "?";
 }
 
+const char* job_stage_name(JobStage s) {
+  switch (s) {
+    case JobStage::Estimating: return "matching features and estimating the cameras";
+    case JobStage::Measuring: return "measuring the alignment";
+    case JobStage::LensTest: return "testing for lens distortion";
+    case JobStage::LensFit: return "lens fit";
+    case JobStage::LensJudging: return "judging the lens fit";
+  }
+  return "?";
+}
+
 std::string rig_lens_summary(const Rig& rig) {
   std::vector<std::string> models;
   bool any = false;
@@ -395,8 +407,40 @@ void with_left_out_cameras(Rig& rig, RigResiduals& residuals, std::uint64_t left
   for (auto& p : residuals.pairs) p.a = idx[std::size_t(p.a)], p.b = idx[std::size_t(p.b)];
 }
 
+// Pinhole cameras whose optical axes lie further apart than their half diagonal fields of view
+// together (plus a margin) cannot see one ray: a 360-degree ring's cameras that are not
+// neighbours. Anything else (a lens, no intrinsics): they may overlap.
+bool views_cannot_overlap(const Camera& a, const Camera& b) {
+  if (!a.lens.pinhole() || !b.lens.pinhole() || a.fx <= 0 || a.fy <= 0 || b.fx <= 0 || b.fy <= 0) return false;
+  const auto half_diagonal = [](const Camera& c) {
+    return std::atan(std::hypot(0.5 * c.width / c.fx, 0.5 * c.height / c.fy));
+  };
+  const double cosine = std::clamp(a.R().col(2).dot(b.R().col(2)), -1.0, 1.0);
+  constexpr double kMarginRad = 5.0 * kPi / 180;
+  return std::acos(cosine) > half_diagonal(a) + half_diagonal(b) + kMarginRad;
+}
+
+// The share of b's frame that a sees too, through the rotations (pinhole cameras; 0 otherwise),
+// on a grid of 48 x 36 samples.
+double pinhole_overlap_share(const Camera& a, const Camera& b) {
+  if (!a.lens.pinhole() || !b.lens.pinhole() || a.fx <= 0 || b.fx <= 0 || b.width <= 0 || b.height <= 0) return 0;
+  const Eigen::Matrix3d Hba = a.K() * a.R().transpose() * b.R() * b.K().inverse();
+  constexpr int kX = 48, kY = 36;
+  int inside = 0;
+  for (int j = 0; j < kY; ++j)
+    for (int i = 0; i < kX; ++i) {
+      const Eigen::Vector3d h = Hba * Eigen::Vector3d((i + 0.5) * b.width / kX - 0.5, (j + 0.5) * b.height / kY - 0.5, 1);
+      if (!(h.z() > 1e-9)) continue;
+      const double u = h.x() / h.z(), v = h.y() / h.z();
+      inside += u >= 0 && v >= 0 && u <= a.width - 1 && v <= a.height - 1;
+    }
+  return double(inside) / (kX * kY);
+}
+
 bool boxes_overlap(const Rig& rig, int a, int b) {
-  if (rig.canvas_wrap) return true;  // across the wrap: let the matches decide
+  // Across the wrap the canvas boxes say nothing: the views' directions do (a 5-camera ring's
+  // first calibration measured its 5 pairs that cannot overlap too: 10 pairs on every frame set).
+  if (rig.canvas_wrap) return !views_cannot_overlap(rig.cameras[std::size_t(a)], rig.cameras[std::size_t(b)]);
   double box[2][4];
   for (int k = 0; k < 2; ++k) {
     box[k][0] = box[k][1] = 1e300;
@@ -471,6 +515,7 @@ RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets
         // No feature matches to measure by (a plain or thin overlap, a ring's closing pair):
         // the overlap aligned by area (area_align.hpp), so that a seam far off there is in the
         // figure too. Its patches count as matches; camera pixels stand for canvas pixels.
+        bool overlap = false;
         for (const auto& set : sets) {
           if (int(set.images.size()) != n) continue;
           const auto views = set.views();
@@ -478,13 +523,19 @@ RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets
           cv::cvtColor(as_mat(views[std::size_t(a)]), ga, cv::COLOR_RGBA2GRAY);
           cv::cvtColor(as_mat(views[std::size_t(b)]), gb, cv::COLOR_RGBA2GRAY);
           const AreaAlignment al = align_overlap_by_area(rig.cameras[std::size_t(a)], rig.cameras[std::size_t(b)], ga, gb);
+          overlap |= al.overlap;
           if (!al.measured) continue;
           p.matches = al.agreeing;
           pair_sum = pair_cam_sum = al.offset_px * al.agreeing;
           cam_matches = al.agreeing;
           break;
         }
-        if (p.matches == 0) continue;
+        if (p.matches == 0) {
+          const Camera &ca = rig.cameras[std::size_t(a)], &cb = rig.cameras[std::size_t(b)];
+          if (overlap && std::max(pinhole_overlap_share(ca, cb), pinhole_overlap_share(cb, ca)) >= kMinVerifiableOverlap)
+            r.unverified.emplace_back(a, b);
+          continue;
+        }
       }
       p.median_px = pair_sum / p.matches;
       if (cam_matches > 0) {
@@ -646,6 +697,19 @@ constexpr int kLensJobBudgetS = 90;
 constexpr double kLensFitGoodPx = 0.5;
 // A lens fit installed before the output that leaves more than this (camera px) is said to be poor.
 constexpr double kLensFitFairPx = 1.0;
+
+// The frame sets a job's result is measured on: its held-out ones; without any (a first
+// calibration), the newest kFirstResidualSets of its calibration sets. A file's failed first
+// attempt is retried on up to calibration-frames pooled sets, and measuring every pair on each
+// cost as much again (ering5ov8: 19 s of a 40 s attempt on 4 sets); the residual is the message's
+// and the lens test's gate, and the lens candidate is judged on the same sets.
+constexpr std::size_t kFirstResidualSets = 2;
+std::vector<FrameSet> residual_sets(const CalibJob& job) {
+  if (!job.holdout_sets.empty()) return job.holdout_sets;
+  const std::size_t n = job.calib_sets.size(), keep = std::min(n, kFirstResidualSets);
+  return std::vector<FrameSet>(job.calib_sets.end() - std::ptrdiff_t(keep), job.calib_sets.end());
+}
+
 // `fit_current_canvas`: the lens rig is fitted into the installed panorama's size (a background
 // fit mid-stream); false (a first calibration): laid out as a first calibration's canvas.
 // `pinhole_camera_px`: the installed calibration's measured residual when known (-1: not): past
@@ -683,7 +747,11 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, 
   // The cheap test first (lens_precheck: a k1 adjustment of sparse matches against a pinhole
   // one, a fraction of a second): on cameras without distortion the whole fit below found nothing
   // in 3-143 s of a core (every real clip measured).
+  const auto stage = [&](JobStage st) {
+    if (job.progress) job.progress->stage = st;
+  };
   try {
+    stage(JobStage::LensTest);
     if (pinhole_camera_px <= kPoorAlignmentCameraPx) o.lens_precheck = lens_precheck(*job.current, sets, lo);
   } catch (const CalibrationCancelled&) {
     if (cancelled()) return o;
@@ -699,6 +767,7 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, 
   }
   std::optional<CalibrationResult> best;
   bool out_of_time = false;
+  stage(JobStage::LensFit);
   const auto fit_from = [&](const std::vector<Rig>& starts) {
     for (const Rig& start : starts) {
       // A start that fits within half a pixel held out is the lens: the others cost a whole fit each.
@@ -737,8 +806,9 @@ CalibOutcome run_lens_job(const CalibJob& job, const std::atomic<bool>& cancel, 
     shrink_canvas_to_output(rig, job.config.output_width, job.config.output_height, job.config.output_crop);
     make_canvas_even(rig);
   }
+  stage(JobStage::LensJudging);
   const bool heldout = !job.holdout_sets.empty();
-  const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
+  const std::vector<FrameSet> judge = residual_sets(job);
   o.residual_source = heldout ? "held-out" : "calibration frames";
   o.candidate = measure_residuals(rig, judge, &cancel);
   if (cancelled()) return o;
@@ -782,6 +852,7 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
   };
   SessionConfig config = job.config;
   config.options.cancel = &cancel;  // a cancelled job stops at the calibrator's next stage
+  if (job.progress) job.progress->stage = JobStage::Estimating;
   try {
     if (!job.lenses.empty() && !job.rough && !job.left_out) {
       // Cameras whose lenses are known keep them; when the refit with them fails (another camera
@@ -822,7 +893,8 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     make_canvas_even(rig);
   }
   const bool heldout = !job.holdout_sets.empty();
-  const std::vector<FrameSet>& judge = heldout ? job.holdout_sets : job.calib_sets;
+  const std::vector<FrameSet> judge = residual_sets(job);
+  if (job.progress) job.progress->stage = JobStage::Measuring;
   o.residual_source = heldout ? "held-out" : "calibration frames";
   o.candidate = measure_residuals(rig, judge, &cancel);
   if (cancelled()) return o;
@@ -842,6 +914,7 @@ CalibOutcome run_calib_job(const CalibJob& job, const std::atomic<bool>& cancel)
     lens_job.current = std::make_shared<const Rig>(rig);
     lens_job.calib_sets = job.calib_sets;
     lens_job.holdout_sets = job.holdout_sets;
+    lens_job.progress = job.progress;  // the stream that waits says which stage
     // From scratch mid-stream (fit_width set), the panorama keeps its size: the lens rig is fitted
     // into the pinhole one's canvas, which was fitted into it.
     CalibOutcome lens = run_lens_job(lens_job, cancel, job.fit_width > 0 && job.fit_height > 0, o.candidate.median_camera_px);
@@ -913,6 +986,21 @@ std::string poor_alignment_text(const RigResiduals& r, double limit_camera_px) {
          "): the seams will show. Likely a lens stronger than the model found (fisheye, strong barrel, mixed "
          "lenses), near objects with cameras far apart, or too little overlap; a rig-file with each camera's "
          "lens and rough placement helps";
+}
+
+std::string unverified_overlap_text(const RigResiduals& r) {
+  if (r.unverified.empty()) return {};
+  std::string pairs;
+  for (std::size_t k = 0; k < r.unverified.size(); ++k)
+    pairs += (k ? (k + 1 == r.unverified.size() ? " and " : ", ") : "") + std::to_string(r.unverified[k].first) + "-" +
+             std::to_string(r.unverified[k].second);
+  const bool one = r.unverified.size() == 1;
+  return std::string("The overlap") + (one ? " of cameras " : "s of the camera pairs ") + pairs +
+         (one ? " could" : " could") +
+         " not be verified: no feature matched there and the picture is too plain to align by area, so the "
+         "alignment figures leave " + (one ? "it" : "them") + " out and the seam" + (one ? "" : "s") +
+         " there may be off by several pixels (a 360-degree ring's closure error lands on such a seam). More "
+         "texture in that overlap, a wider overlap, or a rig-file with the cameras' placement helps";
 }
 
 void CalibSession::say_poor_alignment(const CalibReport& rep) {
@@ -1227,6 +1315,10 @@ void CalibSession::install(CalibReport rep, CalibrationResult* result) {
   last_calibration_at_ = now_;
   if (rep.residuals.median_px >= 0) baseline_px_ = rep.residuals.median_px;
   say_poor_alignment(rep);
+  // A seam that no figure covers is said too (once for the same pairs).
+  const std::string unverified = rep.source == "file" ? std::string() : unverified_overlap_text(rep.residuals);
+  if (!unverified.empty() && unverified != unverified_said_) warn(unverified);
+  unverified_said_ = unverified;
   if (!config_.save_file.empty() && any_left_out(*current_)) {
     warn("save-file: not written while a camera is left out of the calibration");
   } else if (!config_.save_file.empty()) {
@@ -1530,6 +1622,7 @@ std::shared_ptr<CalibJob> CalibSession::on_frame(const Frame& frame, const std::
       }
     untried_bundles_ = 0;
     auto job = make_job(JobKind::First);
+    job->attempt = failed_first_attempts_ + 1;
     // Files wait for the first calibration: the lens fit goes in it (CalibJob::lens_before_output).
     const CalibrationOptions& co = config_.options;
     job->lens_before_output = !frame.live && have_pixels && co.lens_from_evidence && !rough_ && !leave &&

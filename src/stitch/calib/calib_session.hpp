@@ -126,9 +126,20 @@ struct FrameSet {
   static FrameSet copy_of(const std::vector<ImageView>& views);
 };
 
+// What a running job is doing, for a stream that waits for it (stitchcalib-pending while a file
+// waits for its first calibration): written by the worker, read by the element's streaming thread.
+enum class JobStage { Estimating, Measuring, LensTest, LensFit, LensJudging };
+const char* job_stage_name(JobStage s);  // "estimating the cameras", "lens fit", ...
+struct JobProgress {
+  std::atomic<JobStage> stage{JobStage::Estimating};
+};
+
 struct CalibJob {
   JobKind kind = JobKind::First;
   std::uint64_t serial = 0;
+  // First: which attempt this is (1: the first; files retry a failed one on the next bundles).
+  int attempt = 1;
+  std::shared_ptr<JobProgress> progress = std::make_shared<JobProgress>();
   SessionConfig config;
   std::optional<Rig> rough;                 // from the rig-file (sizes adapted)
   std::shared_ptr<const Rig> current;       // the calibration to beat (or to check)
@@ -168,7 +179,13 @@ struct RigResiduals {
   // shrinks every canvas-pixel residual with it).
   double median_camera_px = -1;
   int matches = 0;
+  // Pairs whose views overlap (pinhole cameras, kMinVerifiableOverlap of a frame or more) but
+  // that nothing measured: no feature matched there and the overlap is too plain to align by
+  // area (a duct, a sky). The figures above leave them out, so a seam there may be far off while
+  // they read well (a 5-camera ring at 8% overlap: 10.7 px off the truth at 0.25 camera px).
+  std::vector<std::pair<int, int>> unverified;
 };
+constexpr double kMinVerifiableOverlap = 0.03;
 RigResiduals measure_residuals(const Rig& rig, const std::vector<FrameSet>& sets, const std::atomic<bool>* cancel);
 // An installed calibration whose overlaps stay this far apart (camera px, independent matches)
 // is said in a warning: real clips with parallax measure 0.5-1.8, a strong barrel lens left
@@ -177,6 +194,8 @@ constexpr double kPoorAlignmentCameraPx = 5.0;
 // The warning for residuals over `limit_camera_px` (their match-weighted median, camera px),
 // naming the worst pair; empty within it or when nothing was measured.
 std::string poor_alignment_text(const RigResiduals& residuals, double limit_camera_px);
+// The warning for RigResiduals::unverified (empty when none).
+std::string unverified_overlap_text(const RigResiduals& residuals);
 
 // How much of the canvas each camera covers (its share of the canvas area; 0 when left out or
 // off the canvas) and all of them together, on a grid of ~160 cells across.
@@ -429,6 +448,8 @@ class CalibSession {
   std::uint64_t version() const { return version_; }
   bool job_in_flight() const { return job_in_flight_; }
   bool failed() const { return failed_; }  // a fatal error was reported
+  // Running time since the first bundle, while nothing is calibrated (pending messages' waited-s).
+  double waited_s() const { return first_frame_at_ < 0 ? 0 : now_ - first_frame_at_; }
   std::vector<SessionEvent> take_events();
 
  private:
@@ -505,6 +526,7 @@ class CalibSession {
   static constexpr double kTearIsContentAfterS = 3.0;
   bool poor_alignment_said_ = false;  // said again only after a calibration within the limit
   void say_poor_alignment(const CalibReport& rep);
+  std::string unverified_said_;  // the last unverified-overlap warning (not repeated)
   std::optional<Rig> rough_;
   std::string rough_from_;
   std::vector<std::array<int, 2>> rough_sizes_;  // the view sizes rough_ was adapted to

@@ -6,6 +6,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <deque>
+#include <mutex>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
@@ -372,10 +375,78 @@ struct PairData {
 
 using FeatureSets = std::vector<std::vector<Features>>;  // [set][camera]
 
+// Whole-frame detections of recent frames, by content and options: a file's failed first
+// attempt is retried on the frame sets tried before plus a new one, and the lens test and fit
+// detect on the first calibration's frames again (ering5ov8: 4 attempts on 1, 2, 3, 4 sets).
+// The same pixels and options give the same features. Bounded; the oldest are forgotten.
+class DetectionCache {
+ public:
+  static std::uint64_t key(const ImageView& v, const CalibrationOptions& o) {
+    std::uint64_t h = 1469598103934665603ull;  // FNV-1a over 64-bit words
+    const auto mix = [&h](std::uint64_t w) { h = (h ^ w) * 1099511628211ull; };
+    mix(std::uint64_t(v.width) << 32 | std::uint32_t(v.height));
+    mix(std::uint64_t(v.format));
+    mix(std::uint64_t(o.features) << 32 | std::uint32_t(o.max_features));
+    mix(std::uint64_t(o.feature_megapixels * 1e6));
+    const std::size_t row_bytes = std::size_t(v.width) * 4, words = row_bytes / 8;
+    for (int y = 0; y < v.height; ++y) {
+      const std::uint8_t* r = v.row(y);
+      std::uint64_t w;
+      for (std::size_t k = 0; k < words; ++k) {
+        std::memcpy(&w, r + 8 * k, 8);
+        mix(w);
+      }
+      for (std::size_t k = 8 * words; k < row_bytes; ++k) mix(r[k]);
+    }
+    return h;
+  }
+  std::optional<Features> find(std::uint64_t key) {
+    std::lock_guard<std::mutex> g(lock_);
+    for (const auto& e : entries_)
+      if (e.key == key) return e.features;
+    return std::nullopt;
+  }
+  void put(std::uint64_t key, const Features& f) {
+    std::lock_guard<std::mutex> g(lock_);
+    const std::size_t bytes = f.descriptors.total() * f.descriptors.elemSize() + f.keypoints.size() * sizeof(cv::KeyPoint);
+    entries_.push_back({key, f, bytes});
+    bytes_ += bytes;
+    while (bytes_ > kMaxBytes && entries_.size() > 1) {
+      bytes_ -= entries_.front().bytes;
+      entries_.pop_front();
+    }
+  }
+
+ private:
+  static constexpr std::size_t kMaxBytes = std::size_t(64) << 20;  // ~30 frames of 4000 SIFT features
+  struct Entry {
+    std::uint64_t key;
+    Features features;
+    std::size_t bytes;
+  };
+  std::mutex lock_;
+  std::deque<Entry> entries_;
+  std::size_t bytes_ = 0;
+};
+
 FeatureSets detect_all(const std::vector<std::vector<ImageView>>& sets, int n, const CalibrationOptions& o) {
+  static DetectionCache cache;
   FeatureSets feats(sets.size(), std::vector<Features>(n));
   for (std::size_t t = 0; t < sets.size(); ++t)
-    for (int i = 0; i < n; ++i) feats[t][i] = detect(to_gray(sets[t][i]), cv::Mat(), o);
+    for (int i = 0; i < n; ++i) {
+      const ImageView& v = sets[t][i];
+      const bool cacheable = !v.on_device && v.format == PixelFormat::RGBA8 && !v.empty();
+      const std::uint64_t key = cacheable ? DetectionCache::key(v, o) : 0;
+      if (cacheable) {
+        if (std::optional<Features> f = cache.find(key)) {
+          throw_if_cancelled(o);
+          feats[t][i] = std::move(*f);
+          continue;
+        }
+      }
+      feats[t][i] = detect(to_gray(v), cv::Mat(), o);
+      if (cacheable) cache.put(key, feats[t][i]);
+    }
   return feats;
 }
 
