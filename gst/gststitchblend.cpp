@@ -378,15 +378,21 @@ static gboolean fit_downstream(GstStitchBlend* self, const stitch::Rig& rig, sti
   if (!gst_caps_is_empty(peer) && !gst_caps_is_any(peer)) {
     peer = gst_caps_truncate(peer);
     GstStructure* s = gst_caps_get_structure(peer, 0);
+    /* a side downstream leaves open may be absent altogether (`video/x-raw,width=1001`) */
+    if (!gst_structure_has_field(s, "width")) gst_structure_set(s, "width", G_TYPE_INT, g.width, NULL);
     gst_structure_fixate_field_nearest_int(s, "width", g.width);
     gst_structure_get_int(s, "width", &w);
-    if (w > 0) gst_structure_fixate_field_nearest_int(s, "height", int(double(g.height) * w / g.width + 0.5));
+    const int aspect_height = w > 0 ? int(double(g.height) * w / g.width + 0.5) : 0;
+    if (w > 0 && !gst_structure_has_field(s, "height")) gst_structure_set(s, "height", G_TYPE_INT, aspect_height, NULL);
+    if (w > 0) gst_structure_fixate_field_nearest_int(s, "height", aspect_height);
     gst_structure_get_int(s, "height", &h);
   }
   stitch::OutputGeometry fitted;
   GstCaps* fitted_caps = nullptr;
   if (w > 0 && h > 0) {
-    fitted = stitch::plan_output(rig, w, h, settings.crop);
+    /* exactly the size downstream takes, odd or not (RGBA has no 4:2:0 constraint; probe6: a
+     * capsfilter's 1001x333 was refused because our own sizes are rounded to even ones) */
+    fitted = stitch::plan_output(rig, w, h, settings.crop, /*exact_size=*/true);
     fitted_caps = panorama_caps(st, fitted.width, fitted.height);
   }
   const gboolean ok = fitted_caps && fitted.width == w && fitted.height == h &&
@@ -395,14 +401,14 @@ static gboolean fit_downstream(GstStitchBlend* self, const stitch::Rig& rig, sti
     GST_INFO_OBJECT(self, "downstream takes no %dx%d panorama: fitted into its %dx%d", g.width, g.height, w, h);
     settings.output_width = w;
     settings.output_height = h;
+    settings.exact_output_size = true;
     g = fitted;
   } else {
     gchar* theirs = gst_caps_to_string(peer);
     GST_ELEMENT_ERROR(self, CORE, NEGOTIATION,
-                      ("Downstream takes neither the %dx%d panorama nor a size stitchblend can fit it into%s: put "
+                      ("Downstream takes neither the %dx%d panorama nor a size stitchblend can fit it into: put "
                        "videoconvert ! videoscale after stitchblend, or set output-width/output-height",
-                       g.width, g.height,
-                       w > 0 && h > 0 && (w % 2 || h % 2) ? " (panoramas have even sizes)" : ""),
+                       g.width, g.height),
                       ("downstream caps: %s", theirs));
     g_free(theirs);
   }
@@ -459,11 +465,13 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
      * or changed resolution) were calibrated from scratch: their canvas is the panorama. */
     effective.output_width = st->compositor->geometry().width;
     effective.output_height = st->compositor->geometry().height;
+    effective.exact_output_size = true;  /* it may be a size downstream fixed, odd */
   }
   if (refit) {
     /* the size downstream renegotiated to: the panorama is fitted into it (letterboxed) */
     effective.output_width = GST_VIDEO_INFO_WIDTH(&st->out_info);
     effective.output_height = GST_VIDEO_INFO_HEIGHT(&st->out_info);
+    effective.exact_output_size = true;
   }
   const bool device_memory = st->in_cuda || st->out_cuda;
   if (device_memory && settings.backend == stitch::Backend::Cpu)
@@ -471,7 +479,8 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
   const stitch::Rig& rig = **meta->rig;
   if (!rig.calibrated()) throw stitch::RigError("the rig carries no calibration (homographies and canvas)");
   /* The size first, then the memory: nothing is allocated for a panorama that cannot be. */
-  stitch::OutputGeometry planned = stitch::plan_output(rig, effective.output_width, effective.output_height, effective.crop);
+  stitch::OutputGeometry planned = stitch::plan_output(rig, effective.output_width, effective.output_height, effective.crop,
+                                                       effective.exact_output_size);
   if (!fit_downstream(self, rig, effective, planned)) return FALSE;
   const guint64 bytes = estimate_memory(rig, planned, effective, warped != nullptr);
   std::string too_big;

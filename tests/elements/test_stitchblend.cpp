@@ -196,15 +196,34 @@ TEST(StitchBlend, VideoscaleAfterTheBlendGetsThePanorama) {
   EXPECT_EQ(t.frames[5].rows, 480);
 }
 
-// A size that cannot be met (odd: panoramas have even sizes) fails with stitchblend's own message.
-TEST(StitchBlend, DownstreamSizeItCannotMakeIsAClearError) {
+// probe6: a size downstream fixes is made as it is, odd or not (RGBA has no 4:2:0 constraint).
+// `stitchblend ! video/x-raw,width=641,height=361` was an error ("panoramas have even sizes"),
+// and so was `video/x-raw,width=1001` alone (the height that keeps the aspect is odd).
+TEST(StitchBlend, DownstreamOddSizeIsMadeExactly) {
   Scene s = scene();
   gsttest::RunResult r;
-  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=641,height=361"),
-                        s.views, 2, r);
-  EXPECT_TRUE(r.error_contains("Downstream takes neither the 1040x480 panorama"))
-      << (r.errors.empty() ? "no error" : r.errors[0]);
-  EXPECT_TRUE(r.error_contains("even sizes")) << (r.errors.empty() ? "no error" : r.errors[0]);
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=641,height=361"), s.views, 2, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_EQ(r.frames.size(), 2u);
+  const cv::Mat& pano = r.frames[1];
+  ASSERT_EQ(pano.cols, 641);
+  ASSERT_EQ(pano.rows, 361);
+  // letterboxed like the even size: the scene in the middle rows, at the panorama's aspect
+  cv::Mat gray;
+  cv::cvtColor(pano, gray, cv::COLOR_RGBA2GRAY);
+  EXPECT_EQ(cv::countNonZero(gray.row(3)), 0);
+  EXPECT_GT(cv::countNonZero(gray.row(180)), 600) << "the scene is missing";
+  cv::Mat expected;
+  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(641, 296), 0, 0, cv::INTER_AREA);
+  const int top = (361 - 296) / 2;
+  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, 641, 280)), expected(cv::Rect(0, 4, 641, 280))), 22.0);
+
+  gsttest::RunResult w;
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=1001"), s.views, 2, w);
+  ASSERT_TRUE(w.errors.empty()) << w.errors[0];
+  ASSERT_EQ(w.frames.size(), 2u);
+  EXPECT_EQ(w.frames[1].cols, 1001);
+  EXPECT_EQ(w.frames[1].rows, 462);  // 480 * 1001 / 1040, nearest
 }
 
 namespace {
