@@ -355,6 +355,16 @@ static GstCaps* panorama_caps(const BlendState* st, gint width, gint height) {
   return caps;
 }
 
+/* Whether downstream takes `caps`: accept-caps alone is answered from a transform's template (a
+ * videoconvert between, as in stitchbin, takes any size), so downstream of it is asked too. */
+static gboolean downstream_takes(GstPad* src, GstCaps* caps) {
+  if (!gst_pad_peer_query_accept_caps(src, caps)) return FALSE;
+  GstCaps* peer = gst_pad_peer_query_caps(src, caps);
+  const gboolean takes = peer && !gst_caps_is_empty(peer);
+  if (peer) gst_caps_unref(peer);
+  return takes;
+}
+
 /* The panorama downstream takes: `g` when it accepts that size; otherwise the size it fixes
  * (a capsfilter, a sink of one size), or the one nearest `g` in its range, with the panorama
  * fitted inside, centred, at its own aspect (letterboxed, as output-width and output-height set
@@ -365,7 +375,7 @@ static gboolean fit_downstream(GstStitchBlend* self, const stitch::Rig& rig, sti
   if (g.width == GST_VIDEO_INFO_WIDTH(&st->out_info) && g.height == GST_VIDEO_INFO_HEIGHT(&st->out_info)) return TRUE;
   GstPad* src = GST_BASE_TRANSFORM_SRC_PAD(self);
   GstCaps* natural = panorama_caps(st, g.width, g.height);
-  const gboolean accepted = !gst_pad_is_linked(src) || gst_pad_peer_query_accept_caps(src, natural);
+  const gboolean accepted = !gst_pad_is_linked(src) || downstream_takes(src, natural);
   if (accepted) {
     gst_caps_unref(natural);
     return TRUE;
@@ -396,7 +406,7 @@ static gboolean fit_downstream(GstStitchBlend* self, const stitch::Rig& rig, sti
     fitted_caps = panorama_caps(st, fitted.width, fitted.height);
   }
   const gboolean ok = fitted_caps && fitted.width == w && fitted.height == h &&
-                      gst_pad_peer_query_accept_caps(src, fitted_caps);
+                      downstream_takes(src, fitted_caps);
   if (ok) {
     GST_INFO_OBJECT(self, "downstream takes no %dx%d panorama: fitted into its %dx%d", g.width, g.height, w, h);
     settings.output_width = w;

@@ -181,6 +181,16 @@ TEST(StitchBin, GivesTheFormatDownstreamAsksFor) {
   ASSERT_EQ(r.frames[1].cols, 1040);
   ASSERT_EQ(r.frames[1].rows, 480);
   EXPECT_GT(testdata::psnr_rgb(r.frames[1], photo(cv::Rect(0, 200, 1040, 480))), 30.0);  // 4:2:0 round trip
+  // A size downstream fixes still reaches stitchblend through the converter (which takes any
+  // size itself): the width alone keeps the panorama's aspect, 480 * 1001 / 1040 = 462.
+  gsttest::RunResult sized;
+  gsttest::run_pipeline("stitchbin name=s load-file=" + calib + " ! video/x-raw,width=1001 ! appsink name=out sync=false" +
+                            gsttest::appsrc_inputs(2),
+                        views, 2, sized);
+  ASSERT_TRUE(sized.errors.empty()) << sized.errors[0];
+  ASSERT_EQ(sized.frames.size(), 2u);
+  EXPECT_EQ(sized.frames[1].cols, 1001);
+  EXPECT_EQ(sized.frames[1].rows, 462);
   gsttest::init();
   GstElement* bin = gst_element_factory_make("stitchbin", nullptr);
   ASSERT_NE(bin, nullptr);
