@@ -226,6 +226,22 @@ TEST(StitchBlend, DownstreamOddSizeIsMadeExactly) {
   EXPECT_EQ(w.frames[1].rows, 462);  // 480 * 1001 / 1040, nearest
 }
 
+// probe6: a downstream that takes no square pixels (`video/x-raw,pixel-aspect-ratio=4/3`) failed
+// as "Internal data stream error ... not-negotiated" from the sources, naming no element of
+// ours. stitchblend says what is wrong and what to do.
+TEST(StitchBlend, NonSquarePixelsDownstreamIsAClearError) {
+  Scene s = scene();
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,pixel-aspect-ratio=4/3"), s.views, 2, r);
+  EXPECT_TRUE(r.frames.empty());
+  EXPECT_TRUE(r.error_contains("Downstream takes no square pixels")) << (r.errors.empty() ? "no error" : r.errors[0]);
+  // a pixel aspect ratio downstream merely allows besides square ones is no error
+  gsttest::RunResult any;
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,pixel-aspect-ratio=[1/2,2/1]"), s.views, 2, any);
+  ASSERT_TRUE(any.errors.empty()) << any.errors[0];
+  EXPECT_EQ(any.frames.size(), 2u);
+}
+
 namespace {
 
 // An application's meta with no tags: it describes the frame as a whole, so it must survive.
