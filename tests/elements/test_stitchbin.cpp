@@ -144,11 +144,7 @@ TEST(StitchBin, PropertiesReachTheChildren) {
 }
 
 TEST(StitchBin, StitchesRealCropsIntoThePanorama) {
-  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
-  std::vector<cv::Mat> views;
-  for (int i = 0; i < 2; ++i) views.push_back(photo(cv::Rect(400 * i, 200, 640, 480)).clone());
-  const std::string calib = testdata::temp_dir() + "/bin_exact.json";
-  rig_save(testdata::shifted_rig(2, 640, 480, 400), calib);
+  const auto [photo, views, calib] = testdata::boat_crops("bin_exact.json");
   gsttest::RunResult r;
   gsttest::run_pipeline("stitchbin name=s load-file=" + calib +
                             " mode=multiband seam=dp ! appsink name=out sync=false" + gsttest::appsrc_inputs(2),
@@ -166,11 +162,7 @@ TEST(StitchBin, StitchesRealCropsIntoThePanorama) {
 // link ("could not link s to x264enc0"). A videoconvert named convert after blend converts for
 // them (and passes RGBA through for the others).
 TEST(StitchBin, GivesTheFormatDownstreamAsksFor) {
-  const cv::Mat photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
-  std::vector<cv::Mat> views;
-  for (int i = 0; i < 2; ++i) views.push_back(photo(cv::Rect(400 * i, 200, 640, 480)).clone());
-  const std::string calib = testdata::temp_dir() + "/bin_format.json";
-  rig_save(testdata::shifted_rig(2, 640, 480, 400), calib);
+  const auto [photo, views, calib] = testdata::boat_crops("bin_exact.json");
   gsttest::RunResult r;
   gsttest::run_pipeline("stitchbin name=s load-file=" + calib +
                             " ! video/x-raw,format=I420 ! videoconvert ! video/x-raw,format=RGBA ! "

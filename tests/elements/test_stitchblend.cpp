@@ -16,27 +16,30 @@ using namespace stitch;
 
 namespace {
 
-struct Scene {
-  cv::Mat photo;
-  std::vector<cv::Mat> views;
-  std::string calib;
-};
+using Scene = testdata::BoatCrops;
 
 // Two crops 400 px apart and their exact calibration.
-Scene scene() {
-  Scene s;
-  s.photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
-  for (int i = 0; i < 2; ++i) s.views.push_back(s.photo(cv::Rect(400 * i, 200, 640, 480)).clone());
-  const Rig rig = testdata::shifted_rig(2, 640, 480, 400);
-  s.calib = testdata::temp_dir() + "/blend_exact.json";
-  rig_save(rig, s.calib);
-  return s;
-}
+Scene scene() { return testdata::boat_crops("blend_exact.json"); }
 
 // The calibrated chain: stitchsync ! stitchcalib (the exact calibration) ! `stages` ! appsink.
 std::string chain(const Scene& s, const std::string& stages, const std::string& sync = "stitchsync name=s") {
   return sync + " ! stitchcalib name=calib load-file=" + s.calib + " ! " + stages + " ! appsink name=out sync=false" +
          gsttest::appsrc_inputs(2);
+}
+
+// The panorama fitted into a taller frame (letterboxed): black bars above and below, the scene
+// resampled to `scene_rows` rows in between, centred.
+void expect_letterboxed(const Scene& s, const cv::Mat& pano, int scene_rows) {
+  cv::Mat gray;
+  cv::cvtColor(pano, gray, cv::COLOR_RGBA2GRAY);
+  EXPECT_EQ(cv::countNonZero(gray.row(3)), 0);
+  EXPECT_EQ(cv::countNonZero(gray.row(pano.rows - 4)), 0);
+  EXPECT_GT(cv::countNonZero(gray.row(pano.rows / 2)), 600) << "the scene is missing";
+  cv::Mat expected;
+  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(pano.cols, scene_rows), 0, 0, cv::INTER_AREA);
+  const int top = (pano.rows - scene_rows) / 2;
+  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, pano.cols, 280)), expected(cv::Rect(0, 4, pano.cols, 280))),
+            22.0);
 }
 
 }  // namespace
@@ -143,16 +146,7 @@ TEST(StitchBlend, DownstreamFixedSizeGetsThePanoramaFitted) {
   const cv::Mat& pano = r.frames[0];
   ASSERT_EQ(pano.cols, 640);
   ASSERT_EQ(pano.rows, 360);
-  // letterboxed: black bars above and below, the scene in between
-  cv::Mat rgb;
-  cv::cvtColor(pano, rgb, cv::COLOR_RGBA2GRAY);
-  EXPECT_EQ(cv::countNonZero(rgb.row(5)), 0);
-  EXPECT_EQ(cv::countNonZero(rgb.row(354)), 0);
-  EXPECT_GT(cv::countNonZero(rgb.row(180)), 600);
-  cv::Mat expected;
-  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(640, 295), 0, 0, cv::INTER_AREA);
-  const int top = (360 - 295) / 2;
-  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, 640, 280)), expected(cv::Rect(0, 4, 640, 280))), 22.0);
+  expect_letterboxed(s, pano, 295);
   // the same as asking for the size
   gsttest::RunResult asked;
   gsttest::run_pipeline(chain(s, "stitchblend output-width=640 output-height=360"),
@@ -208,15 +202,7 @@ TEST(StitchBlend, DownstreamOddSizeIsMadeExactly) {
   const cv::Mat& pano = r.frames[1];
   ASSERT_EQ(pano.cols, 641);
   ASSERT_EQ(pano.rows, 361);
-  // letterboxed like the even size: the scene in the middle rows, at the panorama's aspect
-  cv::Mat gray;
-  cv::cvtColor(pano, gray, cv::COLOR_RGBA2GRAY);
-  EXPECT_EQ(cv::countNonZero(gray.row(3)), 0);
-  EXPECT_GT(cv::countNonZero(gray.row(180)), 600) << "the scene is missing";
-  cv::Mat expected;
-  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(641, 296), 0, 0, cv::INTER_AREA);
-  const int top = (361 - 296) / 2;
-  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, 641, 280)), expected(cv::Rect(0, 4, 641, 280))), 22.0);
+  expect_letterboxed(s, pano, 296);  // like the even size, at the panorama's aspect
 
   gsttest::RunResult w;
   gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=1001"), s.views, 2, w);
