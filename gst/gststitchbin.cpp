@@ -12,7 +12,10 @@
  * `time-alignment=auto` (`audio_N` for the camera on `sink_N`; consumed by a stitchsyncaudio child
  * named audio, made with the first such pad). The children are named sync, calib, color,
  * flowwarp and blend (with a two-bundle queue named queue between calib and color, so that
- * stitchsync's uploads overlap the stages' work): gst_bin_get_by_name() finds them, and their properties can also be set
+ * stitchsync's uploads overlap the stages' work, and a videoconvert named convert after blend:
+ * it passes the RGBA panorama through, in system or CUDA memory, wherever downstream takes it,
+ * and converts it for a downstream that takes other formats, so that `stitchbin ! x264enc` or
+ * `stitchbin ! jpegenc` links): gst_bin_get_by_name() finds them, and their properties can also be set
  * through them (GstChildProxy), e.g. `stitchbin calib::features=orb color::window=5`. Control
  * bindings (GstController) go on the children (`gst_child_proxy_lookup`), which sync them per
  * frame: the bin does not.
@@ -323,7 +326,16 @@ static void gst_stitch_bin_constructed(GObject* object) {
     self->srcpad = nullptr;
     return;
   }
-  GstPad* target = gst_element_get_static_pad(self->children[kBlend], "src");
+  /* The bin's source pad advertises any raw video: a converter after stitchblend keeps that
+   * promise (probe6: `stitchbin ! x264enc`, `stitchbin ! jpegenc` and `stitchbin !
+   * video/x-raw,format=I420` did not link). Where downstream takes RGBA it is in passthrough. */
+  GstElement* last = self->children[kBlend];
+  if (GstElement* convert = gst_element_factory_make("videoconvert", "convert")) {
+    gst_bin_add(GST_BIN(self), convert);
+    if (gst_element_link(last, convert)) last = convert;
+    else gst_bin_remove(GST_BIN(self), convert);
+  }
+  GstPad* target = gst_element_get_static_pad(last, "src");
   self->srcpad = gst_ghost_pad_new_from_template(
       "src", target, gst_element_class_get_pad_template(GST_ELEMENT_GET_CLASS(self), "src"));
   gst_object_unref(target);

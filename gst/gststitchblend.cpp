@@ -216,7 +216,8 @@ static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadD
     gst_structure_set(s, "width", GST_TYPE_INT_RANGE, 1, 32767, "height", GST_TYPE_INT_RANGE, 1,
                       32767, NULL);
     if (direction == GST_PAD_SINK) {
-      gst_structure_remove_fields(s, "multiview-mode", "views", "multiview-flags", NULL);
+      /* the pixel aspect ratio too: fixate_caps sets square pixels, or says why it cannot */
+      gst_structure_remove_fields(s, "multiview-mode", "views", "multiview-flags", "pixel-aspect-ratio", NULL);
     } else {
       gst_structure_set(s, "multiview-mode", G_TYPE_STRING, "separated", "views",
                         GST_TYPE_INT_RANGE, 2, STITCH_MAX_VIEWS, NULL);
@@ -235,9 +236,34 @@ static GstCaps* gst_stitch_blend_transform_caps(GstBaseTransform* trans, GstPadD
   return out;
 }
 
+/* Whether some structure of `caps` takes square pixels (no pixel-aspect-ratio, or one that may be 1/1). */
+static bool takes_square_pixels(GstCaps* caps) {
+  for (guint i = 0; i < gst_caps_get_size(caps); ++i) {
+    GstStructure* s = gst_structure_copy(gst_caps_get_structure(caps, i));
+    gint n = 1, d = 1;
+    if (gst_structure_has_field(s, "pixel-aspect-ratio")) {
+      gst_structure_fixate_field_nearest_fraction(s, "pixel-aspect-ratio", 1, 1);
+      gst_structure_get_fraction(s, "pixel-aspect-ratio", &n, &d);
+    }
+    gst_structure_free(s);
+    if (n == d) return true;
+  }
+  return false;
+}
+
 static GstCaps* gst_stitch_blend_fixate_caps(GstBaseTransform* trans, GstPadDirection direction,
                                              GstCaps* caps, GstCaps* othercaps) {
   GstStitchBlend* self = GST_STITCH_BLEND(trans);
+  if (direction == GST_PAD_SINK && !gst_caps_is_empty(othercaps) && !takes_square_pixels(othercaps)) {
+    /* probe6: `stitchblend ! video/x-raw,pixel-aspect-ratio=4/3` failed as "not-negotiated" in the
+     * demuxers upstream, naming no element of ours */
+    gchar* theirs = gst_caps_to_string(othercaps);
+    GST_ELEMENT_ERROR(self, CORE, NEGOTIATION,
+                      ("Downstream takes no square pixels (pixel-aspect-ratio 1/1), and the panorama has them: put "
+                       "videoscale after stitchblend"),
+                      ("downstream caps: %s", theirs));
+    g_free(theirs);
+  }
   /* Prefer CUDA memory wherever downstream takes it, whatever order it lists it in. */
   othercaps = stitch_caps_prefer_cuda(othercaps, TRUE);
   if (direction != GST_PAD_SINK) return gst_caps_fixate(gst_caps_truncate(othercaps));
@@ -355,6 +381,16 @@ static GstCaps* panorama_caps(const BlendState* st, gint width, gint height) {
   return caps;
 }
 
+/* Whether downstream takes `caps`: accept-caps alone is answered from a transform's template (a
+ * videoconvert between, as in stitchbin, takes any size), so downstream of it is asked too. */
+static gboolean downstream_takes(GstPad* src, GstCaps* caps) {
+  if (!gst_pad_peer_query_accept_caps(src, caps)) return FALSE;
+  GstCaps* peer = gst_pad_peer_query_caps(src, caps);
+  const gboolean takes = peer && !gst_caps_is_empty(peer);
+  if (peer) gst_caps_unref(peer);
+  return takes;
+}
+
 /* The panorama downstream takes: `g` when it accepts that size; otherwise the size it fixes
  * (a capsfilter, a sink of one size), or the one nearest `g` in its range, with the panorama
  * fitted inside, centred, at its own aspect (letterboxed, as output-width and output-height set
@@ -365,7 +401,7 @@ static gboolean fit_downstream(GstStitchBlend* self, const stitch::Rig& rig, sti
   if (g.width == GST_VIDEO_INFO_WIDTH(&st->out_info) && g.height == GST_VIDEO_INFO_HEIGHT(&st->out_info)) return TRUE;
   GstPad* src = GST_BASE_TRANSFORM_SRC_PAD(self);
   GstCaps* natural = panorama_caps(st, g.width, g.height);
-  const gboolean accepted = !gst_pad_is_linked(src) || gst_pad_peer_query_accept_caps(src, natural);
+  const gboolean accepted = !gst_pad_is_linked(src) || downstream_takes(src, natural);
   if (accepted) {
     gst_caps_unref(natural);
     return TRUE;
@@ -378,31 +414,37 @@ static gboolean fit_downstream(GstStitchBlend* self, const stitch::Rig& rig, sti
   if (!gst_caps_is_empty(peer) && !gst_caps_is_any(peer)) {
     peer = gst_caps_truncate(peer);
     GstStructure* s = gst_caps_get_structure(peer, 0);
+    /* a side downstream leaves open may be absent altogether (`video/x-raw,width=1001`) */
+    if (!gst_structure_has_field(s, "width")) gst_structure_set(s, "width", G_TYPE_INT, g.width, NULL);
     gst_structure_fixate_field_nearest_int(s, "width", g.width);
     gst_structure_get_int(s, "width", &w);
-    if (w > 0) gst_structure_fixate_field_nearest_int(s, "height", int(double(g.height) * w / g.width + 0.5));
+    const int aspect_height = w > 0 ? int(double(g.height) * w / g.width + 0.5) : 0;
+    if (w > 0 && !gst_structure_has_field(s, "height")) gst_structure_set(s, "height", G_TYPE_INT, aspect_height, NULL);
+    if (w > 0) gst_structure_fixate_field_nearest_int(s, "height", aspect_height);
     gst_structure_get_int(s, "height", &h);
   }
   stitch::OutputGeometry fitted;
   GstCaps* fitted_caps = nullptr;
   if (w > 0 && h > 0) {
-    fitted = stitch::plan_output(rig, w, h, settings.crop);
+    /* exactly the size downstream takes, odd or not (RGBA has no 4:2:0 constraint; probe6: a
+     * capsfilter's 1001x333 was refused because our own sizes are rounded to even ones) */
+    fitted = stitch::plan_output(rig, w, h, settings.crop, /*exact_size=*/true);
     fitted_caps = panorama_caps(st, fitted.width, fitted.height);
   }
   const gboolean ok = fitted_caps && fitted.width == w && fitted.height == h &&
-                      gst_pad_peer_query_accept_caps(src, fitted_caps);
+                      downstream_takes(src, fitted_caps);
   if (ok) {
     GST_INFO_OBJECT(self, "downstream takes no %dx%d panorama: fitted into its %dx%d", g.width, g.height, w, h);
     settings.output_width = w;
     settings.output_height = h;
+    settings.exact_output_size = true;
     g = fitted;
   } else {
     gchar* theirs = gst_caps_to_string(peer);
     GST_ELEMENT_ERROR(self, CORE, NEGOTIATION,
-                      ("Downstream takes neither the %dx%d panorama nor a size stitchblend can fit it into%s: put "
+                      ("Downstream takes neither the %dx%d panorama nor a size stitchblend can fit it into: put "
                        "videoconvert ! videoscale after stitchblend, or set output-width/output-height",
-                       g.width, g.height,
-                       w > 0 && h > 0 && (w % 2 || h % 2) ? " (panoramas have even sizes)" : ""),
+                       g.width, g.height),
                       ("downstream caps: %s", theirs));
     g_free(theirs);
   }
@@ -459,11 +501,13 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
      * or changed resolution) were calibrated from scratch: their canvas is the panorama. */
     effective.output_width = st->compositor->geometry().width;
     effective.output_height = st->compositor->geometry().height;
+    effective.exact_output_size = true;  /* it may be a size downstream fixed, odd */
   }
   if (refit) {
     /* the size downstream renegotiated to: the panorama is fitted into it (letterboxed) */
     effective.output_width = GST_VIDEO_INFO_WIDTH(&st->out_info);
     effective.output_height = GST_VIDEO_INFO_HEIGHT(&st->out_info);
+    effective.exact_output_size = true;
   }
   const bool device_memory = st->in_cuda || st->out_cuda;
   if (device_memory && settings.backend == stitch::Backend::Cpu)
@@ -471,7 +515,8 @@ static gboolean update_geometry(GstStitchBlend* self, GstStitchRigMeta* meta, Gs
   const stitch::Rig& rig = **meta->rig;
   if (!rig.calibrated()) throw stitch::RigError("the rig carries no calibration (homographies and canvas)");
   /* The size first, then the memory: nothing is allocated for a panorama that cannot be. */
-  stitch::OutputGeometry planned = stitch::plan_output(rig, effective.output_width, effective.output_height, effective.crop);
+  stitch::OutputGeometry planned = stitch::plan_output(rig, effective.output_width, effective.output_height, effective.crop,
+                                                       effective.exact_output_size);
   if (!fit_downstream(self, rig, effective, planned)) return FALSE;
   const guint64 bytes = estimate_memory(rig, planned, effective, warped != nullptr);
   std::string too_big;

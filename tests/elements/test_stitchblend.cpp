@@ -16,27 +16,30 @@ using namespace stitch;
 
 namespace {
 
-struct Scene {
-  cv::Mat photo;
-  std::vector<cv::Mat> views;
-  std::string calib;
-};
+using Scene = testdata::BoatCrops;
 
 // Two crops 400 px apart and their exact calibration.
-Scene scene() {
-  Scene s;
-  s.photo = testdata::load_rgba(testdata::repo_path("data/photos/boat1_1600.jpg"));
-  for (int i = 0; i < 2; ++i) s.views.push_back(s.photo(cv::Rect(400 * i, 200, 640, 480)).clone());
-  const Rig rig = testdata::shifted_rig(2, 640, 480, 400);
-  s.calib = testdata::temp_dir() + "/blend_exact.json";
-  rig_save(rig, s.calib);
-  return s;
-}
+Scene scene() { return testdata::boat_crops("blend_exact.json"); }
 
 // The calibrated chain: stitchsync ! stitchcalib (the exact calibration) ! `stages` ! appsink.
 std::string chain(const Scene& s, const std::string& stages, const std::string& sync = "stitchsync name=s") {
   return sync + " ! stitchcalib name=calib load-file=" + s.calib + " ! " + stages + " ! appsink name=out sync=false" +
          gsttest::appsrc_inputs(2);
+}
+
+// The panorama fitted into a taller frame (letterboxed): black bars above and below, the scene
+// resampled to `scene_rows` rows in between, centred.
+void expect_letterboxed(const Scene& s, const cv::Mat& pano, int scene_rows) {
+  cv::Mat gray;
+  cv::cvtColor(pano, gray, cv::COLOR_RGBA2GRAY);
+  EXPECT_EQ(cv::countNonZero(gray.row(3)), 0);
+  EXPECT_EQ(cv::countNonZero(gray.row(pano.rows - 4)), 0);
+  EXPECT_GT(cv::countNonZero(gray.row(pano.rows / 2)), 600) << "the scene is missing";
+  cv::Mat expected;
+  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(pano.cols, scene_rows), 0, 0, cv::INTER_AREA);
+  const int top = (pano.rows - scene_rows) / 2;
+  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, pano.cols, 280)), expected(cv::Rect(0, 4, pano.cols, 280))),
+            22.0);
 }
 
 }  // namespace
@@ -143,16 +146,7 @@ TEST(StitchBlend, DownstreamFixedSizeGetsThePanoramaFitted) {
   const cv::Mat& pano = r.frames[0];
   ASSERT_EQ(pano.cols, 640);
   ASSERT_EQ(pano.rows, 360);
-  // letterboxed: black bars above and below, the scene in between
-  cv::Mat rgb;
-  cv::cvtColor(pano, rgb, cv::COLOR_RGBA2GRAY);
-  EXPECT_EQ(cv::countNonZero(rgb.row(5)), 0);
-  EXPECT_EQ(cv::countNonZero(rgb.row(354)), 0);
-  EXPECT_GT(cv::countNonZero(rgb.row(180)), 600);
-  cv::Mat expected;
-  cv::resize(s.photo(cv::Rect(0, 200, 1040, 480)), expected, cv::Size(640, 295), 0, 0, cv::INTER_AREA);
-  const int top = (360 - 295) / 2;
-  EXPECT_GT(testdata::psnr_rgb(pano(cv::Rect(0, top + 4, 640, 280)), expected(cv::Rect(0, 4, 640, 280))), 22.0);
+  expect_letterboxed(s, pano, 295);
   // the same as asking for the size
   gsttest::RunResult asked;
   gsttest::run_pipeline(chain(s, "stitchblend output-width=640 output-height=360"),
@@ -196,15 +190,42 @@ TEST(StitchBlend, VideoscaleAfterTheBlendGetsThePanorama) {
   EXPECT_EQ(t.frames[5].rows, 480);
 }
 
-// A size that cannot be met (odd: panoramas have even sizes) fails with stitchblend's own message.
-TEST(StitchBlend, DownstreamSizeItCannotMakeIsAClearError) {
+// probe6: a size downstream fixes is made as it is, odd or not (RGBA has no 4:2:0 constraint).
+// `stitchblend ! video/x-raw,width=641,height=361` was an error ("panoramas have even sizes"),
+// and so was `video/x-raw,width=1001` alone (the height that keeps the aspect is odd).
+TEST(StitchBlend, DownstreamOddSizeIsMadeExactly) {
   Scene s = scene();
   gsttest::RunResult r;
-  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=641,height=361"),
-                        s.views, 2, r);
-  EXPECT_TRUE(r.error_contains("Downstream takes neither the 1040x480 panorama"))
-      << (r.errors.empty() ? "no error" : r.errors[0]);
-  EXPECT_TRUE(r.error_contains("even sizes")) << (r.errors.empty() ? "no error" : r.errors[0]);
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=641,height=361"), s.views, 2, r);
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_EQ(r.frames.size(), 2u);
+  const cv::Mat& pano = r.frames[1];
+  ASSERT_EQ(pano.cols, 641);
+  ASSERT_EQ(pano.rows, 361);
+  expect_letterboxed(s, pano, 296);  // like the even size, at the panorama's aspect
+
+  gsttest::RunResult w;
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,width=1001"), s.views, 2, w);
+  ASSERT_TRUE(w.errors.empty()) << w.errors[0];
+  ASSERT_EQ(w.frames.size(), 2u);
+  EXPECT_EQ(w.frames[1].cols, 1001);
+  EXPECT_EQ(w.frames[1].rows, 462);  // 480 * 1001 / 1040, nearest
+}
+
+// probe6: a downstream that takes no square pixels (`video/x-raw,pixel-aspect-ratio=4/3`) failed
+// as "Internal data stream error ... not-negotiated" from the sources, naming no element of
+// ours. stitchblend says what is wrong and what to do.
+TEST(StitchBlend, NonSquarePixelsDownstreamIsAClearError) {
+  Scene s = scene();
+  gsttest::RunResult r;
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,pixel-aspect-ratio=4/3"), s.views, 2, r);
+  EXPECT_TRUE(r.frames.empty());
+  EXPECT_TRUE(r.error_contains("Downstream takes no square pixels")) << (r.errors.empty() ? "no error" : r.errors[0]);
+  // a pixel aspect ratio downstream merely allows besides square ones is no error
+  gsttest::RunResult any;
+  gsttest::run_pipeline(chain(s, "stitchblend ! video/x-raw,pixel-aspect-ratio=[1/2,2/1]"), s.views, 2, any);
+  ASSERT_TRUE(any.errors.empty()) << any.errors[0];
+  EXPECT_EQ(any.frames.size(), 2u);
 }
 
 namespace {

@@ -240,7 +240,7 @@ void Compositor::prepare(const Rig& rig, const CompositorSettings& settings, Com
     if (!problem.empty())
       throw RigError("camera " + std::to_string(i) + ": degenerate homography: " + problem);
   }
-  geometry_ = plan_output(rig, settings.output_width, settings.output_height, settings.crop);
+  geometry_ = plan_output(rig, settings.output_width, settings.output_height, settings.crop, settings.exact_output_size);
   // Seams cut multiband's masks; with the weighted mean they give the consensus blend (the
   // mean where the views agree, the seam's view where they disagree). Multiband needs no mix map.
   const bool find_seams = settings.seam != SeamMode::None;

@@ -23,6 +23,8 @@ enum class CompositorInput { CameraFrames, Prewarped };
 struct CompositorSettings {
   int output_width = 0;   // 0: from the canvas / crop
   int output_height = 0;
+  bool exact_output_size = false;  // both set: made as they are, odd or not (a size downstream fixed);
+                                   // otherwise rounded to even sizes for 4:2:0 encoders
   CropMode crop = CropMode::None;
   Backend backend = Backend::Auto;
   BlendMode blend = BlendMode::Weighted;

@@ -80,7 +80,7 @@ Rect largest_covered_rect(const Rig& rig) {
   return r;
 }
 
-OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, CropMode crop) {
+OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, CropMode crop, bool exact_size) {
   Rect src{0, 0, rig.canvas_width, rig.canvas_height};
   if (crop == CropMode::Auto) src = largest_covered_rect(rig);
   double sw = src.width, sh = src.height;
@@ -96,8 +96,9 @@ OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, Cro
     ow = sw * requested_h / sh;
   }
   OutputGeometry g;
-  g.width = even_at_least_2(ow);
-  g.height = even_at_least_2(oh);
+  const bool exact = exact_size && requested_w > 0 && requested_h > 0;
+  g.width = exact ? requested_w : even_at_least_2(ow);
+  g.height = exact ? requested_h : even_at_least_2(oh);
   // No size requested: 1:1 with the canvas, padded to even sizes (no resampling).
   const bool requested = requested_w > 0 || requested_h > 0;
   const double s = requested ? std::min(g.width / sw, g.height / sh) : 1.0;

@@ -83,8 +83,9 @@ float view_position_weight(const ViewPlacement& v, double u, double w);
 
 // Output size and canvas->output transform. requested_w/h = 0 keep the canvas (or crop) size;
 // one of them set keeps the aspect ratio; both set fit the canvas inside, centred.
-// Sizes are rounded to even numbers so that 4:2:0 encoders accept them.
-OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, CropMode crop);
+// Sizes are rounded to even numbers so that 4:2:0 encoders accept them, except with exact_size
+// and both sides requested: a size downstream fixed (a capsfilter's 1001x333) is made as it is.
+OutputGeometry plan_output(const Rig& rig, int requested_w, int requested_h, CropMode crop, bool exact_size = false);
 
 // The canvas itself, 1:1 (padded to even sizes): where stitchflowwarp pre-warps the views.
 inline OutputGeometry canvas_geometry(const Rig& rig) { return plan_output(rig, 0, 0, CropMode::None); }
