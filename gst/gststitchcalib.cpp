@@ -115,8 +115,9 @@
  * recalibrations), `lens` (the cameras' lens models: `pinhole`, `radtan`, `fisheye`, ...) with
  * `lens-k1` and `lens-k2` (per camera) when they have lenses, `fit-rms-px`, `inliers`, ... It is
  * written to `save-file` when set, with the time offsets stitchsync applies (time-alignment,
- * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (even sizes, as
- * stitchblend outputs them, and fitted into the current panorama on recalibration).
+ * its load-file, pad offsets) as each camera's `time_offset_ns` when there are any. The canvas is always the panorama size (as
+ * stitchblend outputs it: even unless downstream fixes an odd size; fitted into the current
+ * panorama on recalibration).
  *
  * Before a calibration from scratch, stitchcalib asks downstream (a custom query that queues,
  * stitchcolor and stitchflowwarp pass on) what panorama stitchblend will output: its
