@@ -151,6 +151,20 @@ double edge_bend_of(const Camera& c) {
   return (raw.x() - c.cx) / (ideal.x() - c.cx) - 1.0;
 }
 
+double judging_scale(int W, int H) { return std::min(1.0, std::sqrt(kMaxPixels / (double(W) * H))); }
+
+// The windows of the first and last frames (at most kMaxWindows, evenly picked).
+std::vector<Window> frame_windows(const std::vector<ImageView>& frames, double scale) {
+  std::vector<Window> wins;
+  for (std::size_t k = 0; k < frames.size() && k < 2; ++k) edge_windows(frames[k * (frames.size() - 1)], scale, wins);
+  if (wins.size() > kMaxWindows) {
+    std::vector<Window> kept;
+    for (std::size_t i = 0; i < kMaxWindows; ++i) kept.push_back(wins[i * wins.size() / kMaxWindows]);
+    wins.swap(kept);
+  }
+  return wins;
+}
+
 }  // namespace
 
 std::string PlumbLineLens::describe() const {
@@ -166,16 +180,9 @@ PlumbLineLens plumb_line_lens(const std::vector<ImageView>& frames) {
   PlumbLineLens out;
   if (frames.empty() || frames[0].width <= 0 || frames[0].height <= 0) return out;
   const int W = frames[0].width, H = frames[0].height;
-  const double scale = std::min(1.0, std::sqrt(kMaxPixels / (double(W) * H)));
+  const double scale = judging_scale(W, H);
   const int w = std::max(1, int(std::lround(W * scale))), h = std::max(1, int(std::lround(H * scale)));
-  std::vector<Window> wins;
-  for (std::size_t k = 0; k < frames.size() && k < 2; ++k)
-    edge_windows(frames[k * (frames.size() - 1)], scale, wins);
-  if (wins.size() > kMaxWindows) {
-    std::vector<Window> kept;
-    for (std::size_t i = 0; i < kMaxWindows; ++i) kept.push_back(wins[i * wins.size() / kMaxWindows]);
-    wins.swap(kept);
-  }
+  const std::vector<Window> wins = frame_windows(frames, scale);
   out.camera = centred(W, H, nominal_fx(W));
   // Coarse: two families, the one that straightens the most windows: the equidistant fisheye
   // from 0.3 rad at the half width (a 3% bend) to 1.6 (180 degrees across), and radtan k1 at the
@@ -246,6 +253,30 @@ PlumbLineLens plumb_line_lens(const std::vector<ImageView>& frames) {
   found.cx = 0.5 * (W - 1);
   found.cy = 0.5 * (H - 1);
   out.camera = found;
+  return out;
+}
+
+Camera plumb_line_fisheye_at(const std::vector<ImageView>& frames, const Camera& fisheye) {
+  if (frames.empty() || fisheye.lens.model != Lens::Model::Fisheye || frames[0].width != fisheye.width) return fisheye;
+  const double scale = judging_scale(fisheye.width, fisheye.height);
+  const int w = std::max(1, int(std::lround(fisheye.width * scale))), h = std::max(1, int(std::lround(fisheye.height * scale)));
+  const std::vector<Window> wins = frame_windows(frames, scale);
+  const double k1 = fisheye.lens.k1, u0 = 0.5 * fisheye.width / fisheye.fx;
+  // The windows straight near the start; then golden-section search of the field of view.
+  std::vector<char> mark;
+  if (straight_windows(fisheye_of(w, h, u0, k1), wins, &mark) < kPlumbMinWindows) return fisheye;
+  std::vector<const Window*> chosen;
+  for (std::size_t i = 0; i < wins.size(); ++i)
+    if (mark[i]) chosen.push_back(&wins[i]);
+  const auto cost = [&](double u) { return capped_cost(fisheye_of(w, h, u, k1), chosen); };
+  const double g = 0.5 * (std::sqrt(5.0) - 1);
+  double a = 0.8 * u0, b = 1.25 * u0, c = b - g * (b - a), d = a + g * (b - a), fc = cost(c), fd = cost(d);
+  for (int it = 0; it < 30; ++it) {
+    if (fc < fd) b = d, d = c, fd = fc, c = b - g * (b - a), fc = cost(c);
+    else a = c, c = d, fc = fd, d = a + g * (b - a), fd = cost(d);
+  }
+  Camera out = fisheye;
+  out.fx = out.fy = 0.5 * fisheye.width / (0.5 * (a + b));
   return out;
 }
 
