@@ -205,6 +205,9 @@ PlumbLineLens plumb_line_lens(const std::vector<ImageView>& frames) {
     }
   if (fe_count > best_count) best_count = fe_count, best = best_fe;
   if (rt_count > best_count) best_count = rt_count, best = best_rt;
+  if (std::getenv("STITCH_DEBUG_PLUMB"))
+    std::fprintf(stderr, "plumb: %zu windows; straight: pinhole %d, fisheye %d, radtan %d\n", wins.size(), out.pinhole_windows,
+                 fe_count, rt_count);
   if (best_count < kPlumbMinWindows) return out;
   out.found = true;
   std::vector<char> mark;
