@@ -2950,7 +2950,12 @@ static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::v
     if (any) starts.push_back(std::move(r));
   }
   std::optional<CalibrationResult> best;
+  bool found_again = false;
   for (const Rig& st : starts) {
+    // A start that ends at the best fit's held-out error (within 1%) found the same fit again (a
+    // fisheye beside a 1x camera: k1 -0.05 and -0.02 both end at k1 -0.020): the rest cost a
+    // whole fit each for nothing.
+    if (found_again) break;
     Rig rough = st;
     for (auto& c : rough.cameras) c.lens.estimate = !c.lens.pinhole();
     try {
@@ -2964,8 +2969,10 @@ static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::v
                        r.rig.cameras[i].lens.k2);
         std::fprintf(stderr, "\n");
       }
-      if (lens_fit_usable(r) && !r.lens_ran_off && (!best || r.rotation_heldout_px < best->rotation_heldout_px))
-        best = std::move(r);
+      if (!lens_fit_usable(r) || r.lens_ran_off) continue;
+      const double px = r.rotation_heldout_px;
+      found_again = best && std::abs(px - best->rotation_heldout_px) < 0.01 * px;
+      if (!best || px < best->rotation_heldout_px) best = std::move(r);
     } catch (const CalibrationCancelled&) {
       throw;
     } catch (const std::exception& e) {
