@@ -21,6 +21,7 @@ namespace stitch {
 const double kPlumbMixedBend = 0.08;
 // Straight windows at the best lens needed to judge a camera (a textureless view has none).
 const int kPlumbMinWindows = 12;
+const double kPlumbDistortedGain = 1.5;
 
 namespace {
 
@@ -143,12 +144,20 @@ double minimise(FamilyCost& f, cv::Mat& x, const cv::Mat& step) {
   return solver->minimize(x);
 }
 
+// The lens's largest relative move of a radius out to the middle of the frame's side edge (raw
+// radius over its pinhole one, minus 1), signed: a wide phone lens with a strong k2 bends the
+// middle of the field by -20% and straightens again by the edge.
 double edge_bend_of(const Camera& c) {
   if (c.lens.pinhole()) return 0;
-  const Eigen::Vector2d raw(c.width - 1.0, c.cy);
-  Eigen::Vector2d ideal;
-  if (!undistort_point(c, raw, ideal)) return -1;
-  return (raw.x() - c.cx) / (ideal.x() - c.cx) - 1.0;
+  double extreme = 0;
+  for (int k = 1; k <= 16; ++k) {
+    const Eigen::Vector2d raw(c.cx + (c.width - 1 - c.cx) * k / 16.0, c.cy);
+    Eigen::Vector2d ideal;
+    if (!undistort_point(c, raw, ideal)) return -1;
+    const double bend = (raw.x() - c.cx) / (ideal.x() - c.cx) - 1.0;
+    if (std::abs(bend) > std::abs(extreme)) extreme = bend;
+  }
+  return extreme;
 }
 
 double judging_scale(int W, int H) { return std::min(1.0, std::sqrt(kMaxPixels / (double(W) * H))); }
@@ -170,8 +179,8 @@ std::vector<Window> frame_windows(const std::vector<ImageView>& frames, double s
 std::string PlumbLineLens::describe() const {
   char b[200];
   const char* m = lens_model_name(camera.lens.model);
-  std::snprintf(b, sizeof b, "%s fx %.0f k1 %+.3f k2 %+.3f, edge bend %+.3f: %d straight edge windows (%d as they are), %.2f -> %.2f px",
-                m, camera.fx, camera.lens.k1, camera.lens.k2, edge_bend, windows, pinhole_windows, pinhole_residual_px,
+  std::snprintf(b, sizeof b, "%s%s fx %.0f k1 %+.3f k2 %+.3f, edge bend %+.3f: %d straight edge windows (%d as they are), %.2f -> %.2f px",
+                m, distorted || camera.lens.pinhole() ? "" : " (mild)", camera.fx, camera.lens.k1, camera.lens.k2, edge_bend, windows, pinhole_windows, pinhole_residual_px,
                 residual_px);
   return b;
 }
@@ -249,6 +258,7 @@ PlumbLineLens plumb_line_lens(const std::vector<ImageView>& frames) {
   out.residual_px = std::sqrt(std::min(fe_cost, rt_cost));
   out.windows = straight_windows(found, wins);
   out.edge_bend = edge_bend_of(found);
+  out.distorted = out.windows >= std::max(kPlumbDistortedGain * out.pinhole_windows, double(out.pinhole_windows + kPlumbMinWindows));
   // Back at the frame's size: the focal length scales, the coefficients (normalised) stay.
   found.width = W;
   found.height = H;
@@ -297,13 +307,14 @@ Camera plumb_line_rescaled(const Camera& plumb, double fx) {
 
 bool plumb_lenses_mixed(const std::vector<PlumbLineLens>& lenses) {
   if (lenses.size() < 2) return false;
-  double lo = lenses[0].edge_bend, hi = lo;
+  double lo = 1e9, hi = -1e9;
   bool distorted = false;
   for (const auto& l : lenses) {
     if (!l.found) return false;
-    lo = std::min(lo, l.edge_bend);
-    hi = std::max(hi, l.edge_bend);
-    distorted |= std::abs(l.edge_bend) > kPlumbMixedBend;
+    const double bend = l.distorted ? l.edge_bend : 0.0;
+    lo = std::min(lo, bend);
+    hi = std::max(hi, bend);
+    distorted |= std::abs(bend) > kPlumbMixedBend;
   }
   return distorted && hi - lo > kPlumbMixedBend;
 }

@@ -23,9 +23,14 @@ struct PlumbLineLens {
   // plumb_line_rescaled). Fisheye (equidistant, Kannala-Brandt with zero coefficients): fx is the
   // lens's own focal length (the curvature of its straight lines sets its field of view).
   Camera camera;
-  // How far the lens moves the middle of the frame's left / right edge, relative to its pinhole
-  // radius: 0 for a rectilinear lens, -0.3 for a strong barrel; comparable between models.
+  // The lens's largest relative move of a radius out to the middle of the frame's side edge
+  // (raw over pinhole radius, minus 1): 0 for a rectilinear lens, -0.14 for a 0.5x phone lens,
+  // -0.7 for an action camera; comparable between models.
   double edge_bend = 0;
+  // The lens straightens clearly more windows than none: at least kPlumbDistortedGain times as
+  // many and kPlumbMinWindows more. A mild lens (k1 -0.10 at 75 degrees: 348 vs 340 windows) or a
+  // small noisy frame (26 vs 22) keeps its reading as a start but does not make a rig mixed.
+  bool distorted = false;
   int windows = 0;             // straight edge windows at the estimate
   int pinhole_windows = 0;     // the same taken as they are (no lens)
   double residual_px = 0;      // their rms distance to their lines at the estimate (raw-scale px)
@@ -48,9 +53,10 @@ Camera plumb_line_fisheye_at(const std::vector<ImageView>& frames, const Camera&
 Camera plumb_line_rescaled(const Camera& plumb, double fx);
 
 // Whether the cameras' plumb-line lenses say the rig mixes lenses: every camera judged, at least
-// one distorted, and two whose edge bends differ by more than kPlumbMixedBend.
+// one clearly distorted (PlumbLineLens::distorted) by more than kPlumbMixedBend, and two whose
+// edge bends differ by more than that (a camera not clearly distorted counts as bend 0).
 bool plumb_lenses_mixed(const std::vector<PlumbLineLens>& lenses);
-extern const double kPlumbMixedBend;
+extern const double kPlumbMixedBend, kPlumbDistortedGain;
 extern const int kPlumbMinWindows;
 
 }  // namespace stitch
