@@ -2980,6 +2980,12 @@ static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::v
     }
   }
   if (!best) return std::nullopt;
+  // A camera whose fitted radtan lens moves its frame's corner by under a tenth of a pixel (a 1x
+  // camera the edges read a trace of distortion in) is a pinhole camera.
+  for (auto& c : best->rig.cameras) {
+    Eigen::Vector2d raw;
+    if (c.lens.model == Lens::Model::Radtan && distort_point(c, {0.0, 0.0}, raw) && raw.norm() < 0.1) c.lens = Lens{};
+  }
   best->projection_chosen = !o.projection;
   said = "the cameras' lenses differ (straight edges in each camera's own frames:";
   for (std::size_t i = 0; i < n; ++i) {
