@@ -2870,8 +2870,8 @@ static Camera pinhole_stand_in(const Camera& c) {
 // ideal pinhole pictures (calibrate_from_images_with_lenses's), those calibrated as pinhole
 // cameras (rotations, and each camera's focal length: a radtan lens's coefficients are rescaled
 // to it, plumb_line_rescaled), then everything refined on the raw frames with each lens
-// estimated from there (calibrate_from_rig); when that fit is not usable, again with the
-// plumb-line lenses held. nullopt when the cameras' lenses do not differ or no fit is usable.
+// estimated from there (calibrate_from_rig; fisheyes from a few k1 starts too). nullopt when the
+// cameras' lenses do not clearly differ (plumb_lenses_mixed) or no fit is usable.
 static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::vector<std::vector<ImageView>>& sets,
                                                                     int reference, const CalibrationOptions& o,
                                                                     std::string& said) {
