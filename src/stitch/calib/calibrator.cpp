@@ -23,6 +23,7 @@
 #include "stitch/calib/dense_matches.hpp"
 #include "stitch/calib/fisheye_guess.hpp"
 #include "stitch/calib/photometric_refine.hpp"
+#include "stitch/calib/plumb_line.hpp"
 #include "stitch/cv_interop.hpp"
 #include "stitch/rig/canvas_map.hpp"
 #include "stitch/rig/lens.hpp"
@@ -2827,6 +2828,37 @@ LensPrecheck lens_precheck(const Rig& pin, const std::vector<std::vector<ImageVi
   return done();
 }
 
+// Ideal pinhole pictures of the frames through each camera's known lens (same size, the camera's
+// fx, fy, cx, cy): each ideal pixel's raw pixel (cv::remap); black where the lens sees nothing.
+static void ideal_pictures(const Rig& known, const std::vector<std::vector<ImageView>>& sets,
+                           std::vector<std::vector<cv::Mat>>& ideal, std::vector<std::vector<ImageView>>& ideal_views) {
+  const std::size_t n = known.cameras.size();
+  std::vector<std::pair<cv::Mat, cv::Mat>> maps(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Camera& c = known.cameras[i];
+    cv::Mat mx(c.height, c.width, CV_32F), my(c.height, c.width, CV_32F);
+    for (int y = 0; y < c.height; ++y)
+      for (int x = 0; x < c.width; ++x) {
+        Eigen::Vector2d raw;
+        const bool ok = distort_point(c, Eigen::Vector2d(x, y), raw);
+        mx.at<float>(y, x) = ok ? float(raw.x()) : -1.f;
+        my.at<float>(y, x) = ok ? float(raw.y()) : -1.f;
+      }
+    maps[i] = {mx, my};
+  }
+  ideal.assign(sets.size(), {});
+  ideal_views.assign(sets.size(), {});
+  for (std::size_t t = 0; t < sets.size(); ++t) {
+    for (std::size_t i = 0; i < n; ++i) {
+      cv::Mat out;
+      cv::remap(as_mat(sets[t][i]), out, maps[i].first, maps[i].second, cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+                cv::Scalar(0, 0, 0, 255));
+      ideal[t].push_back(out);
+    }
+    for (auto& m : ideal[t]) ideal_views[t].push_back(as_view(m));
+  }
+}
+
 CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vector<ImageView>>& sets, int reference,
                                                     const std::vector<Camera>& lenses_in, const CalibrationOptions& o) {
   throw_if_cancelled(o);
@@ -2855,34 +2887,13 @@ CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vecto
   for (std::size_t i = 0; i < n; ++i)
     if (const std::string p = lens_problem(known.cameras[i]); !p.empty())
       throw RigError("camera " + std::to_string(i) + ": its known lens is unusable: " + p);
-  // Ideal pinhole pictures: each ideal pixel's raw pixel through the lens (cv::remap).
-  std::vector<std::pair<cv::Mat, cv::Mat>> maps(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const Camera& c = known.cameras[i];
-    cv::Mat mx(c.height, c.width, CV_32F), my(c.height, c.width, CV_32F);
-    for (int y = 0; y < c.height; ++y)
-      for (int x = 0; x < c.width; ++x) {
-        Eigen::Vector2d raw;
-        const bool ok = distort_point(c, Eigen::Vector2d(x, y), raw);
-        mx.at<float>(y, x) = ok ? float(raw.x()) : -1.f;
-        my.at<float>(y, x) = ok ? float(raw.y()) : -1.f;
-      }
-    maps[i] = {mx, my};
-  }
-  std::vector<std::vector<cv::Mat>> ideal(sets.size());
-  std::vector<std::vector<ImageView>> ideal_views(sets.size());
-  for (std::size_t t = 0; t < sets.size(); ++t) {
-    for (std::size_t i = 0; i < n; ++i) {
-      cv::Mat out;
-      cv::remap(as_mat(sets[t][i]), out, maps[i].first, maps[i].second, cv::INTER_LINEAR, cv::BORDER_CONSTANT,
-                cv::Scalar(0, 0, 0, 255));
-      ideal[t].push_back(out);
-    }
-    for (auto& m : ideal[t]) ideal_views[t].push_back(as_view(m));
-  }
+  std::vector<std::vector<cv::Mat>> ideal;
+  std::vector<std::vector<ImageView>> ideal_views;
+  ideal_pictures(known, sets, ideal, ideal_views);
   throw_if_cancelled(o);
   CalibrationOptions po = o;
   po.lens_from_evidence = false;  // the lenses are known
+  po.per_camera_lenses = false;
   po.circular_fisheyes = false;
   po.model = CameraModel::Rotation;  // lens rigs are rotation rigs (the homography chain takes none)
   po.bundle_adjust = false;
@@ -2910,6 +2921,153 @@ CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vecto
   if (r.model != CameraModel::Rotation || !(r.rotation_heldout_px > 0))
     throw RigError("the refit with the cameras' lenses found no rotation rig");
   return r;
+}
+
+// A pinhole stand-in of a lens camera for choosing the canvas (field_of_view reads K alone): the
+// focal length that sees the lens's own half-width angle (at most 80 degrees) at the frame's edge.
+static Camera pinhole_stand_in(const Camera& c) {
+  Camera p = c;
+  Eigen::Vector3d ray;
+  if (!c.lens.pinhole() && lens_unproject(c, {c.width - 1.0, c.cy}, ray)) {
+    const double angle = std::min(std::atan2(std::hypot(ray.x(), ray.y()), ray.z()), 80.0 * kPi / 180.0);
+    p.fx = p.fy = (c.width - 1.0 - c.cx) / std::tan(std::max(angle, 1e-3));
+  }
+  p.lens = Lens{};
+  return p;
+}
+
+// The per-camera lens path of calibrate_from_images (CalibrationOptions::per_camera_lenses): each
+// camera's plumb-line lens (from its own frames, no other camera), its frames undistorted into
+// ideal pinhole pictures (calibrate_from_images_with_lenses's), those calibrated as pinhole
+// cameras (rotations, and each camera's focal length: a radtan lens's coefficients are rescaled
+// to it, plumb_line_rescaled), then everything refined on the raw frames with each lens
+// estimated from there (calibrate_from_rig; fisheyes from a few k1 starts too). nullopt when the
+// cameras' lenses do not clearly differ (plumb_lenses_mixed) or no fit is usable.
+static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::vector<std::vector<ImageView>>& sets,
+                                                                    int reference, const CalibrationOptions& o,
+                                                                    std::string& said) {
+  const std::size_t n = sets.empty() ? 0 : sets[0].size();
+  if (n < 2) return std::nullopt;
+  std::vector<PlumbLineLens> plumb;
+  for (std::size_t i = 0; i < n; ++i) plumb.push_back(plumb_line_lens({sets.front()[i], sets.back()[i]}));
+  const bool debug = std::getenv("STITCH_DEBUG_PLUMB") != nullptr;
+  if (debug)
+    for (std::size_t i = 0; i < n; ++i)
+      std::fprintf(stderr, "plumb camera %zu: %s%s\n", i, plumb[i].found ? "" : "(not judged) ", plumb[i].describe().c_str());
+  if (!plumb_lenses_mixed(plumb)) return std::nullopt;
+  throw_if_cancelled(o);
+  Rig known;
+  for (const auto& l : plumb) known.cameras.push_back(l.camera);
+  std::vector<std::vector<cv::Mat>> ideal;
+  std::vector<std::vector<ImageView>> ideal_views;
+  ideal_pictures(known, sets, ideal, ideal_views);
+  CalibrationOptions po = o;
+  po.lens_from_evidence = false;
+  po.per_camera_lenses = false;
+  po.circular_fisheyes = false;
+  po.full_frame_fisheyes = false;
+  po.model = CameraModel::Rotation;
+  po.bundle_adjust = false;
+  CalibrationResult pin;
+  try {
+    pin = calibrate_from_images(ideal_views, reference, po);
+  } catch (const RigError& e) {
+    if (debug) std::fprintf(stderr, "plumb: the ideal pictures calibrate no rig: %s\n", e.what());
+    return std::nullopt;
+  }
+  if (pin.model != CameraModel::Rotation) return std::nullopt;
+  Rig start = pin.rig;
+  for (std::size_t i = 0; i < n; ++i) {
+    Camera& c = start.cameras[i];
+    const Camera k = plumb_line_rescaled(known.cameras[i], c.fx);
+    c.fx = c.fy = k.fx;
+    c.cx = k.cx;
+    c.cy = k.cy;
+    c.lens = k.lens;
+    c.homography.reset();
+  }
+  start.canvas_width = start.canvas_height = 0;
+  start.canvas_scale = 0;
+  start.canvas_wrap = false;
+  if (o.projection) {
+    start.projection = projection_name(*o.projection);
+  } else {
+    Rig stand_in = start;
+    bool fisheye = false;
+    for (auto& c : stand_in.cameras) fisheye |= c.lens.model == Lens::Model::Fisheye, c = pinhole_stand_in(c);
+    const Projection p = choose_projection(field_of_view(stand_in));
+    start.projection = projection_name(fisheye && p != Projection::Plane ? Projection::Spherical : p);
+  }
+  CalibrationOptions ro = o;
+  ro.model = CameraModel::Rotation;
+  ro.bundle_adjust = false;
+  ro.projection.reset();  // the start's
+  // The starts: the plumb-line lenses; with fisheyes, also Kannala-Brandt k1 -0.05, -0.02, +0.02
+  // with each fisheye's focal length from its straight edges at that k1 (plumb_line_fisheye_at:
+  // the edges pin f and k1 together poorly, and a fisheye beside a rectilinear camera shares too
+  // narrow a band of angles with it for the adjustment to split them); the best by held-out error.
+  std::vector<Rig> starts{start};
+  for (const double k1 : {-0.05, -0.02, 0.02}) {
+    Rig r = start;
+    bool any = false;
+    for (std::size_t i = 0; i < n; ++i) {
+      Camera& c = r.cameras[i];
+      if (c.lens.model != Lens::Model::Fisheye) continue;
+      c.lens.k1 = k1;
+      const Camera f = plumb_line_fisheye_at({sets.front()[i], sets.back()[i]}, c);
+      c.fx = c.fy = f.fx;
+      any = true;
+    }
+    if (any) starts.push_back(std::move(r));
+  }
+  std::optional<CalibrationResult> best;
+  bool found_again = false;
+  for (const Rig& st : starts) {
+    // A start that ends at the best fit's held-out error (within 1%) found the same fit again (a
+    // fisheye beside a 1x camera: k1 -0.05 and -0.02 both end at k1 -0.020): the rest cost a
+    // whole fit each for nothing.
+    if (found_again) break;
+    Rig rough = st;
+    for (auto& c : rough.cameras) c.lens.estimate = !c.lens.pinhole();
+    try {
+      CalibrationResult r = calibrate_from_rig(rough, sets, ro);
+      if (debug) {
+        std::fprintf(stderr, "plumb fit: held out %.3f px, model %s, usable %d, ran off %d;", r.rotation_heldout_px,
+                     camera_model_name(r.model), int(lens_fit_usable(r)), int(r.lens_ran_off));
+        for (std::size_t i = 0; i < n; ++i)
+          std::fprintf(stderr, " [start fx %.0f k1 %.3f -> %s fx %.0f k1 %.3f k2 %.3f]", st.cameras[i].fx, st.cameras[i].lens.k1,
+                       lens_model_name(r.rig.cameras[i].lens.model), r.rig.cameras[i].fx, r.rig.cameras[i].lens.k1,
+                       r.rig.cameras[i].lens.k2);
+        std::fprintf(stderr, "\n");
+      }
+      if (!lens_fit_usable(r) || r.lens_ran_off) continue;
+      const double px = r.rotation_heldout_px;
+      found_again = best && std::abs(px - best->rotation_heldout_px) < 0.01 * px;
+      if (!best || px < best->rotation_heldout_px) best = std::move(r);
+    } catch (const CalibrationCancelled&) {
+      throw;
+    } catch (const std::exception& e) {
+      if (debug) std::fprintf(stderr, "plumb fit: %s\n", e.what());
+    }
+  }
+  if (!best) return std::nullopt;
+  // A camera whose fitted radtan lens moves its frame's corner by under a tenth of a pixel (a 1x
+  // camera the edges read a trace of distortion in) is a pinhole camera.
+  for (auto& c : best->rig.cameras) {
+    Eigen::Vector2d raw;
+    if (c.lens.model == Lens::Model::Radtan && distort_point(c, {0.0, 0.0}, raw) && raw.norm() < 0.1) c.lens = Lens{};
+  }
+  best->projection_chosen = !o.projection;
+  said = "the cameras' lenses differ (straight edges in each camera's own frames:";
+  for (std::size_t i = 0; i < n; ++i) {
+    const Camera& c = best->rig.cameras[i];
+    char b[96];
+    std::snprintf(b, sizeof b, " camera %zu %s, fx %.0f%s", i, lens_model_name(c.lens.model), c.fx, i + 1 < n ? ";" : ")");
+    said += b;
+  }
+  said += ": each camera calibrated with its own lens (held-out error " + std::to_string(best->rotation_heldout_px) +
+          " px); give a rig-file to set them";
+  return best;
 }
 
 constexpr double kFisheyeFallbackPoorPx = 1.5;
@@ -2962,8 +3120,18 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
   }
   if (fisheye_error.empty()) {
-    std::string why_not;
     const double held = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
+    // Cameras whose own frames show different lenses (a mixed rig) get each its own lens: the
+    // rig-wide choices below (one fisheye model for all, one radtan fit) cannot fit them.
+    if (o.per_camera_lenses) {
+      std::string said;
+      std::optional<CalibrationResult> mixed = calibrate_with_plumb_lenses(sets, reference, o, said);
+      if (mixed && held > 0 && mixed->rotation_heldout_px < held) {
+        mixed->warnings.push_back(said);
+        return *mixed;
+      }
+    }
+    std::string why_not;
     if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, &pin, held, why_not)) return *wide;
   }
   // Image circles that no fisheye rig fitted, and a pinhole fit that is poor too (a fisheye ring

@@ -51,6 +51,14 @@ struct CalibrationOptions {
   // across), are tried as full-frame fisheyes: rotations read from matched rays through a guessed
   // equidistant lens, then lenses and focal lengths estimated (calibrate_full_frame_fisheyes).
   bool full_frame_fisheyes = true;
+  // calibrate_from_images: each camera's lens read from its own frames first (the plumb-line
+  // principle, plumb_line.hpp: straight scene edges must come out straight). When the cameras'
+  // lenses clearly differ (a 0.5x ultra-wide beside a 1x camera, an action camera beside a
+  // phone), each camera is calibrated with its own lens model and focal length
+  // (undistorted pictures calibrated as pinhole cameras, then refined on the raw frames), kept
+  // when it explains the held-out matches better than the pinhole fit. Rigs of alike cameras pay
+  // only the reading (~0.1 s a camera).
+  bool per_camera_lenses = true;
   // Lenses being estimated (issue 15): once the adjustment is close, fit again on
   // correspondences located photometrically all over each overlap (dense_matches.hpp) rather
   // than on the SIFT keypoints alone, whose ~0.25 px noise extrapolated to 1-2 px at the frame
