@@ -3123,16 +3123,21 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     const double held = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
     // Cameras whose own frames show different lenses (a mixed rig) get each its own lens: the
     // rig-wide choices below (one fisheye model for all, one radtan fit) cannot fit them.
+    std::string said;
+    std::optional<CalibrationResult> mixed;
     if (o.per_camera_lenses) {
-      std::string said;
-      std::optional<CalibrationResult> mixed = calibrate_with_plumb_lenses(sets, reference, o, said);
-      if (mixed && held > 0 && mixed->rotation_heldout_px < held) {
-        mixed->warnings.push_back(said);
-        return *mixed;
-      }
+      mixed = calibrate_with_plumb_lenses(sets, reference, o, said);
+      if (mixed && !(held > 0 && mixed->rotation_heldout_px < held)) mixed.reset();
     }
+    // Alike full-frame fisheyes whose straight edges read a little differently (a ring's views
+    // differ) may look mixed: the one fisheye model for all competes on held-out matches.
     std::string why_not;
-    if (std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, &pin, held, why_not)) return *wide;
+    std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, &pin, held, why_not);
+    if (mixed && (!wide || mixed->rotation_heldout_px < wide->rotation_heldout_px)) {
+      mixed->warnings.push_back(said);
+      return *mixed;
+    }
+    if (wide) return *wide;
   }
   // Image circles that no fisheye rig fitted, and a pinhole fit that is poor too (a fisheye ring
   // the guesses missed: 40 px held out): say so rather than hand back a panorama of discs

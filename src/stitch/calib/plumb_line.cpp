@@ -316,7 +316,13 @@ bool plumb_lenses_mixed(const std::vector<PlumbLineLens>& lenses) {
     hi = std::max(hi, bend);
     distorted |= std::abs(bend) > kPlumbMixedBend;
   }
-  return distorted && hi - lo > kPlumbMixedBend;
+  if (!distorted || !(hi - lo > kPlumbMixedBend)) return false;
+  // Every camera read as a fisheye: alike action cameras, whose views' different edges trade
+  // focal length against k1 (a ring of four 148-degree lenses reads fx 138-186, bends -0.50 to
+  // -0.66). The full-frame fisheye path fits those with one model.
+  for (const auto& l : lenses)
+    if (l.camera.lens.model != Lens::Model::Fisheye) return true;
+  return false;
 }
 
 }  // namespace stitch
