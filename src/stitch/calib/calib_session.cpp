@@ -996,8 +996,7 @@ std::string unverified_overlap_text(const RigResiduals& r) {
              std::to_string(r.unverified[k].second);
   const bool one = r.unverified.size() == 1;
   return std::string("The overlap") + (one ? " of cameras " : "s of the camera pairs ") + pairs +
-         (one ? " could" : " could") +
-         " not be verified: no feature matched there and the picture is too plain to align by area, so the "
+         " could not be verified: no feature matched there and the picture is too plain to align by area, so the "
          "alignment figures leave " + (one ? "it" : "them") + " out and the seam" + (one ? "" : "s") +
          " there may be off by several pixels (a 360-degree ring's closure error lands on such a seam). More "
          "texture in that overlap, a wider overlap, or a rig-file with the cameras' placement helps";

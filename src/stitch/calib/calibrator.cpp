@@ -2859,6 +2859,18 @@ static void ideal_pictures(const Rig& known, const std::vector<std::vector<Image
   }
 }
 
+// Options for calibrating ideal pinhole pictures (ideal_pictures): the lenses are known, so no
+// lens path runs again; lens rigs are rotation rigs (the homography chain takes none).
+static CalibrationOptions ideal_picture_options(const CalibrationOptions& o) {
+  CalibrationOptions po = o;
+  po.lens_from_evidence = false;
+  po.per_camera_lenses = false;
+  po.circular_fisheyes = false;
+  po.model = CameraModel::Rotation;
+  po.bundle_adjust = false;
+  return po;
+}
+
 CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vector<ImageView>>& sets, int reference,
                                                     const std::vector<Camera>& lenses_in, const CalibrationOptions& o) {
   throw_if_cancelled(o);
@@ -2891,13 +2903,7 @@ CalibrationResult calibrate_from_images_with_lenses(const std::vector<std::vecto
   std::vector<std::vector<ImageView>> ideal_views;
   ideal_pictures(known, sets, ideal, ideal_views);
   throw_if_cancelled(o);
-  CalibrationOptions po = o;
-  po.lens_from_evidence = false;  // the lenses are known
-  po.per_camera_lenses = false;
-  po.circular_fisheyes = false;
-  po.model = CameraModel::Rotation;  // lens rigs are rotation rigs (the homography chain takes none)
-  po.bundle_adjust = false;
-  const CalibrationResult pin = calibrate_from_images(ideal_views, reference, po);
+  const CalibrationResult pin = calibrate_from_images(ideal_views, reference, ideal_picture_options(o));
   // Rotations from the ideal pictures; the known intrinsics and lenses (held); the canvas laid
   // out again by the refit.
   Rig start = pin.rig;
@@ -2944,8 +2950,7 @@ static Camera pinhole_stand_in(const Camera& c) {
 // estimated from there (calibrate_from_rig; fisheyes from a few k1 starts too). nullopt when the
 // cameras' lenses do not clearly differ (plumb_lenses_mixed) or no fit is usable.
 static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::vector<std::vector<ImageView>>& sets,
-                                                                    int reference, const CalibrationOptions& o,
-                                                                    std::string& said) {
+                                                                    int reference, const CalibrationOptions& o) {
   const std::size_t n = sets.empty() ? 0 : sets[0].size();
   if (n < 2) return std::nullopt;
   std::vector<PlumbLineLens> plumb;
@@ -2961,13 +2966,8 @@ static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::v
   std::vector<std::vector<cv::Mat>> ideal;
   std::vector<std::vector<ImageView>> ideal_views;
   ideal_pictures(known, sets, ideal, ideal_views);
-  CalibrationOptions po = o;
-  po.lens_from_evidence = false;
-  po.per_camera_lenses = false;
-  po.circular_fisheyes = false;
+  CalibrationOptions po = ideal_picture_options(o);
   po.full_frame_fisheyes = false;
-  po.model = CameraModel::Rotation;
-  po.bundle_adjust = false;
   CalibrationResult pin;
   try {
     pin = calibrate_from_images(ideal_views, reference, po);
@@ -3006,16 +3006,20 @@ static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::v
   // with each fisheye's focal length from its straight edges at that k1 (plumb_line_fisheye_at:
   // the edges pin f and k1 together poorly, and a fisheye beside a rectilinear camera shares too
   // narrow a band of angles with it for the adjustment to split them); the best by held-out error.
+  const std::vector<double> k1_starts{-0.05, -0.02, 0.02};
+  std::vector<std::vector<Camera>> fisheye_starts(n);  // [camera][k1 start]; empty: not a fisheye
+  for (std::size_t i = 0; i < n; ++i)
+    if (start.cameras[i].lens.model == Lens::Model::Fisheye)
+      fisheye_starts[i] = plumb_line_fisheye_at({sets.front()[i], sets.back()[i]}, start.cameras[i], k1_starts);
   std::vector<Rig> starts{start};
-  for (const double k1 : {-0.05, -0.02, 0.02}) {
+  for (std::size_t k = 0; k < k1_starts.size(); ++k) {
     Rig r = start;
     bool any = false;
     for (std::size_t i = 0; i < n; ++i) {
+      if (fisheye_starts[i].empty()) continue;
       Camera& c = r.cameras[i];
-      if (c.lens.model != Lens::Model::Fisheye) continue;
-      c.lens.k1 = k1;
-      const Camera f = plumb_line_fisheye_at({sets.front()[i], sets.back()[i]}, c);
-      c.fx = c.fy = f.fx;
+      c.lens.k1 = k1_starts[k];
+      c.fx = c.fy = fisheye_starts[i][k].fx;
       any = true;
     }
     if (any) starts.push_back(std::move(r));
@@ -3058,7 +3062,7 @@ static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::v
     if (c.lens.model == Lens::Model::Radtan && distort_point(c, {0.0, 0.0}, raw) && raw.norm() < 0.1) c.lens = Lens{};
   }
   best->projection_chosen = !o.projection;
-  said = "the cameras' lenses differ (straight edges in each camera's own frames:";
+  std::string said = "the cameras' lenses differ (straight edges in each camera's own frames:";
   for (std::size_t i = 0; i < n; ++i) {
     const Camera& c = best->rig.cameras[i];
     char b[96];
@@ -3067,6 +3071,7 @@ static std::optional<CalibrationResult> calibrate_with_plumb_lenses(const std::v
   }
   said += ": each camera calibrated with its own lens (held-out error " + std::to_string(best->rotation_heldout_px) +
           " px); give a rig-file to set them";
+  best->warnings.push_back(said);
   return best;
 }
 
@@ -3119,30 +3124,25 @@ CalibrationResult calibrate_from_images(const std::vector<std::vector<ImageView>
     }
     throw RigError(fisheye_error + "; as pinhole cameras: " + e.what());
   }
+  const double pin_heldout = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
   if (fisheye_error.empty()) {
-    const double held = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
     // Cameras whose own frames show different lenses (a mixed rig) get each its own lens: the
     // rig-wide choices below (one fisheye model for all, one radtan fit) cannot fit them.
-    std::string said;
     std::optional<CalibrationResult> mixed;
     if (o.per_camera_lenses) {
-      mixed = calibrate_with_plumb_lenses(sets, reference, o, said);
-      if (mixed && !(held > 0 && mixed->rotation_heldout_px < held)) mixed.reset();
+      mixed = calibrate_with_plumb_lenses(sets, reference, o);
+      if (mixed && !(pin_heldout > 0 && mixed->rotation_heldout_px < pin_heldout)) mixed.reset();
     }
     // Alike full-frame fisheyes whose straight edges read a little differently (a ring's views
     // differ) may look mixed: the one fisheye model for all competes on held-out matches.
     std::string why_not;
-    std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, &pin, held, why_not);
-    if (mixed && (!wide || mixed->rotation_heldout_px < wide->rotation_heldout_px)) {
-      mixed->warnings.push_back(said);
-      return *mixed;
-    }
+    std::optional<CalibrationResult> wide = full_frame_fisheyes_instead(sets, reference, o, &pin, pin_heldout, why_not);
+    if (mixed && (!wide || mixed->rotation_heldout_px < wide->rotation_heldout_px)) return *mixed;
     if (wide) return *wide;
   }
   // Image circles that no fisheye rig fitted, and a pinhole fit that is poor too (a fisheye ring
   // the guesses missed: 40 px held out): say so rather than hand back a panorama of discs
   // without a word. Vignetted rectilinear cameras fit as pinholes well: nothing to say there.
-  const double pin_heldout = pin.model == CameraModel::Rotation ? pin.rotation_heldout_px : pin.homography_heldout_px;
   if (!fisheye_error.empty() && pin_heldout > kFisheyeFallbackPoorPx)
     pin.warnings.push_back(fisheye_error + "; calibrated as pinhole (rectilinear) cameras instead, which fit them "
                            "poorly (held-out error " + std::to_string(pin_heldout) + " px)");

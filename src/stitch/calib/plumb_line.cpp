@@ -269,27 +269,35 @@ PlumbLineLens plumb_line_lens(const std::vector<ImageView>& frames) {
   return out;
 }
 
-Camera plumb_line_fisheye_at(const std::vector<ImageView>& frames, const Camera& fisheye) {
-  if (frames.empty() || fisheye.lens.model != Lens::Model::Fisheye || frames[0].width != fisheye.width) return fisheye;
+std::vector<Camera> plumb_line_fisheye_at(const std::vector<ImageView>& frames, const Camera& fisheye,
+                                          const std::vector<double>& k1s) {
+  std::vector<Camera> out;
+  for (const double k1 : k1s) {
+    out.push_back(fisheye);
+    out.back().lens.k1 = k1;
+  }
+  if (frames.empty() || fisheye.lens.model != Lens::Model::Fisheye || frames[0].width != fisheye.width) return out;
   const double scale = judging_scale(fisheye.width, fisheye.height);
   const int w = std::max(1, int(std::lround(fisheye.width * scale))), h = std::max(1, int(std::lround(fisheye.height * scale)));
-  const std::vector<Window> wins = frame_windows(frames, scale);
-  const double k1 = fisheye.lens.k1, u0 = 0.5 * fisheye.width / fisheye.fx;
-  // The windows straight near the start; then golden-section search of the field of view.
-  std::vector<char> mark;
-  if (straight_windows(fisheye_of(w, h, u0, k1), wins, &mark) < kPlumbMinWindows) return fisheye;
-  std::vector<const Window*> chosen;
-  for (std::size_t i = 0; i < wins.size(); ++i)
-    if (mark[i]) chosen.push_back(&wins[i]);
-  const auto cost = [&](double u) { return capped_cost(fisheye_of(w, h, u, k1), chosen); };
-  const double g = 0.5 * (std::sqrt(5.0) - 1);
-  double a = 0.8 * u0, b = 1.25 * u0, c = b - g * (b - a), d = a + g * (b - a), fc = cost(c), fd = cost(d);
-  for (int it = 0; it < 30; ++it) {
-    if (fc < fd) b = d, d = c, fd = fc, c = b - g * (b - a), fc = cost(c);
-    else a = c, c = d, fc = fd, d = a + g * (b - a), fd = cost(d);
+  const std::vector<Window> wins = frame_windows(frames, scale);  // once for every k1
+  const double u0 = 0.5 * fisheye.width / fisheye.fx;
+  for (Camera& cam : out) {
+    const double k1 = cam.lens.k1;
+    // The windows straight near the start; then golden-section search of the field of view.
+    std::vector<char> mark;
+    if (straight_windows(fisheye_of(w, h, u0, k1), wins, &mark) < kPlumbMinWindows) continue;
+    std::vector<const Window*> chosen;
+    for (std::size_t i = 0; i < wins.size(); ++i)
+      if (mark[i]) chosen.push_back(&wins[i]);
+    const auto cost = [&](double u) { return capped_cost(fisheye_of(w, h, u, k1), chosen); };
+    const double g = 0.5 * (std::sqrt(5.0) - 1);
+    double a = 0.8 * u0, b = 1.25 * u0, c = b - g * (b - a), d = a + g * (b - a), fc = cost(c), fd = cost(d);
+    for (int it = 0; it < 30; ++it) {
+      if (fc < fd) b = d, d = c, fd = fc, c = b - g * (b - a), fc = cost(c);
+      else a = c, c = d, fc = fd, d = a + g * (b - a), fd = cost(d);
+    }
+    cam.fx = cam.fy = 0.5 * fisheye.width / (0.5 * (a + b));
   }
-  Camera out = fisheye;
-  out.fx = out.fy = 0.5 * fisheye.width / (0.5 * (a + b));
   return out;
 }
 

@@ -41,11 +41,13 @@ struct PlumbLineLens {
 // The plumb-line lens of one camera from one or more of its frames (RGBA, one size).
 PlumbLineLens plumb_line_lens(const std::vector<ImageView>& frames);
 
-// A fisheye camera's focal length from its frames with Kannala-Brandt's k1 given (`fisheye`: the
-// plumb-line lens, its k1 replaced): straightness pins the field of view well once k1 is fixed,
+// A fisheye camera's focal length from its frames at each of the Kannala-Brandt k1 given
+// (`fisheye`: the plumb-line lens): straightness pins the field of view well once k1 is fixed,
 // the two together poorly (they trade off: 456-551 px over six frames of one 495 px lens).
-// Returns `fisheye` with that focal length (unchanged when the frames show too few edges).
-Camera plumb_line_fisheye_at(const std::vector<ImageView>& frames, const Camera& fisheye);
+// Returns `fisheye` with each k1 and its focal length (the focal unchanged when the frames show
+// too few edges); the frames' edges are found once.
+std::vector<Camera> plumb_line_fisheye_at(const std::vector<ImageView>& frames, const Camera& fisheye,
+                                          const std::vector<double>& k1s);
 
 // The same lens at another focal length in pixels (a calibration's of the ideal pictures): the
 // radtan coefficients rescaled so that the distortion in pixels stays; a fisheye or pinhole takes
